@@ -1,0 +1,36 @@
+# mlsemreg_ros: `make demo` runs the demo, `make test` runs the whole test suite.
+# Both create .venv and install everything first (Debian packages too, as root).
+VENV ?= .venv
+PY := $(VENV)/bin/python
+export ROS_DOMAIN_ID ?= 42
+export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
+
+.PHONY: setup test demo bench bench-node eval-pairs lint format clean
+
+setup:
+	@bash scripts/bootstrap.sh
+
+test: setup
+	$(PY) -m pytest -q test
+
+lint: setup
+	$(VENV)/bin/ruff check mlsemreg_ros test setup.py
+	$(PY) -m pytest -q test/test_flake8.py test/test_pep257.py test/test_copyright.py
+
+format: setup
+	$(VENV)/bin/ruff format mlsemreg_ros test setup.py
+
+demo: setup
+	$(VENV)/bin/mlsemreg-demo
+
+bench: setup
+	$(VENV)/bin/mlsemreg-bench --json results/bench.json
+
+bench-node: setup
+	$(VENV)/bin/mlsemreg-bench-node
+
+eval-pairs: setup
+	$(VENV)/bin/mlsemreg-eval-pairs ../shared/data/kitti_pairs_dev --json results/eval_pairs.json
+
+clean:
+	rm -rf build install log results .pytest_cache

@@ -1,0 +1,107 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Semantic signatures of keypoints: Local-SS (eq. 1) and BMR-SS (eq. 4), scene similarity (eq. 5).
+
+Notation of the paper (Sec. 3): keypoints p_i of a scan with labels rho(.), a set S of
+semantic labels, landmarks (cluster centroids of landmark classes), N rings of width L.
+"""
+
+from __future__ import annotations
+
+from mlsemreg_ros.core.types import Landmarks
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+
+def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: np.ndarray,
+                             radius: float, num_classes: int, *,
+                             ignored: np.ndarray | None = None,
+                             undefined: np.ndarray | None = None) -> np.ndarray:
+    """
+    Local Semantic Signature n_i of every keypoint (eq. 1), as a (M, C) bool matrix.
+
+    ``n_i[c]`` is true iff a scan point of learning id c lies within ``radius`` (r_local, m)
+    of keypoint i. Ignored classes are dropped. A keypoint that sees an undefined class
+    (e.g. unlabeled) becomes a member of every group: all defined classes are set and the
+    undefined ones cleared, independent of keypoint order (cf. DESIGN pitfalls).
+
+    points (N, 3), labels (N,) learning ids, keypoints (M, 3).
+    """
+    signature = np.zeros((len(keypoints), num_classes), dtype=bool)
+    if len(points) == 0 or len(keypoints) == 0:
+        return signature
+    pairs = cKDTree(keypoints).sparse_distance_matrix(
+        cKDTree(points), radius, output_type='ndarray')
+    signature[pairs['i'], labels[pairs['j']]] = True  # zero distances included
+    ignored = np.asarray(ignored if ignored is not None else [], dtype=np.int64)
+    undefined = np.asarray(undefined if undefined is not None else [], dtype=np.int64)
+    signature[:, ignored] = False
+    if undefined.size:
+        wildcard = signature[:, undefined].any(axis=1)
+        defined = np.ones(num_classes, dtype=bool)
+        defined[ignored] = False
+        defined[undefined] = False
+        signature[np.ix_(wildcard, defined)] = True
+        signature[:, undefined] = False
+    return signature
+
+
+def binary_multi_ring_signature(keypoints: np.ndarray, landmarks: Landmarks,
+                                classes: np.ndarray, ring_count: int,
+                                ring_width: float) -> np.ndarray:
+    """
+    BMR-SS H_i of every keypoint (eq. 4) as a (M, T * N) bool matrix.
+
+    Row i, column ``t * N + k`` (k = 0..N-1, the paper's ring k+1) is true iff a landmark of
+    class ``classes[t]`` lies at distance [k L, (k+1) L) from keypoint i. Only distances
+    enter, so H is invariant to rotations and translations of the scan.
+    """
+    classes = np.asarray(classes, dtype=np.int64)
+    signature = np.zeros((len(keypoints), len(classes) * ring_count), dtype=bool)
+    rows, bins = _bmr_bits(keypoints, landmarks, classes, ring_count, ring_width)
+    signature[rows, bins] = True
+    return signature
+
+
+def bmr_signature_sparse(keypoints: np.ndarray, landmarks: Landmarks, classes: np.ndarray,
+                         ring_count: int, ring_width: float) -> sp.csr_matrix:
+    """BMR-SS as a (M, T * N) uint8 CSR matrix, same bits as binary_multi_ring_signature."""
+    classes = np.asarray(classes, dtype=np.int64)
+    rows, bins = _bmr_bits(keypoints, landmarks, classes, ring_count, ring_width)
+    matrix = sp.csr_matrix((np.ones(len(rows), dtype=np.uint8), (rows, bins)),
+                           shape=(len(keypoints), len(classes) * ring_count))
+    matrix.data[:] = 1  # duplicate (row, bin) entries were summed; H is binary
+    return matrix
+
+
+def _bmr_bits(keypoints: np.ndarray, landmarks: Landmarks, classes: np.ndarray,
+              ring_count: int, ring_width: float) -> tuple[np.ndarray, np.ndarray]:
+    """Set bits (row, t * N + k) of BMR-SS; duplicates possible."""
+    slot = np.full(int(max(classes.max(initial=-1), landmarks.classes.max(initial=-1))) + 1, -1)
+    slot[classes] = np.arange(len(classes))
+    use = slot[landmarks.classes] >= 0 if len(landmarks) else np.zeros(0, dtype=bool)
+    centroids, t = landmarks.centroids[use], slot[landmarks.classes[use]]
+    if len(centroids) == 0 or len(keypoints) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    diff = keypoints[:, None, :] - centroids[None, :, :]
+    ring = np.floor(np.sqrt(np.einsum('mzk,mzk->mz', diff, diff)) / ring_width).astype(np.int64)
+    rows, cols = np.nonzero(ring < ring_count)
+    return rows, t[cols] * ring_count + ring[rows, cols]
+
+
+def scene_similarity(source_bmr: np.ndarray, target_bmr: np.ndarray) -> np.ndarray:
+    """Scene similarity matrix S[i, j] = |H_i (.) H_j| (eq. 5), dense reference version."""
+    return source_bmr.astype(np.int32) @ target_bmr.astype(np.int32).T

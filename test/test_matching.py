@@ -1,0 +1,107 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Group Matching, Mask Matching and ML-SemReg: known answers and agreement with a reference."""
+
+from mlsemreg_ros.core.matching import (
+    group_bitmask,
+    group_matching,
+    match_descriptors,
+    semantic_match,
+)
+import numpy as np
+import pytest
+from reference_matching import reference_match
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+
+
+def _pairs(corr) -> set[tuple[int, int]]:
+    return set(zip(corr.source.tolist(), corr.target.tolist(), strict=True))
+
+
+def test_top_k_levels_keep_ties_and_select_by_descriptor_distance():
+    # one group; row 0 similarities [5, 5, 4, 3, 1] -> K=2 keeps targets 0, 1, 2 (levels 5, 4)
+    src_desc = np.array([[0.0, 0.0]])
+    dst_desc = np.array([[3.0, 0], [2.0, 0], [1.0, 0], [0.1, 0], [0.0, 0]])
+    src_bmr = np.zeros((1, 5), bool)
+    src_bmr[0, :] = True
+    dst_bmr = np.zeros((5, 5), bool)
+    for j, level in enumerate([5, 5, 4, 3, 1]):
+        dst_bmr[j, :level] = True
+    groups_src, groups_dst = np.ones(1, np.uint64), np.ones(5, np.uint64)
+    args = (src_desc, dst_desc, groups_src, groups_dst, sp.csr_matrix(src_bmr),
+            sp.csr_matrix(dst_bmr))
+    assert _pairs(semantic_match(*args, top_k=2, mutual=False)) == {(0, 2)}
+    assert _pairs(semantic_match(*args, top_k=1, mutual=False)) == {(0, 1)}  # tie 5, 5
+    assert _pairs(semantic_match(*args, top_k=5, mutual=False)) == {(0, 4)}  # all levels
+
+
+def test_group_matching_never_matches_across_groups_and_matches_in_every_group():
+    src_desc = np.array([[0.0], [10.0]])
+    dst_desc = np.array([[0.2], [9.0], [0.1]])
+    src_ss = np.array([[1, 0], [1, 1]], bool)  # row 1 is in both groups
+    dst_ss = np.array([[0, 1], [1, 0], [0, 1]], bool)
+    pairs = _pairs(group_matching(src_desc, dst_desc, src_ss, dst_ss))
+    # group 0 holds targets {1}; group 1 holds targets {0, 2}
+    assert pairs == {(0, 1), (1, 1), (1, 0)}
+
+
+def test_plain_nn_equals_kdtree_and_mnn_is_mutual():
+    rng = np.random.default_rng(0)
+    src, dst = rng.normal(size=(300, 8)), rng.normal(size=(250, 8))
+    nn = match_descriptors(src, dst, 'nn')
+    np.testing.assert_array_equal(nn.target, cKDTree(dst).query(src)[1])
+    np.testing.assert_allclose(nn.distance, cKDTree(dst).query(src)[0], rtol=1e-4)
+    mnn = match_descriptors(src, dst, 'mnn')
+    back = cKDTree(src).query(dst)[1]
+    assert all(back[j] == i for i, j in _pairs(mnn))
+    assert len(mnn) == sum(back[nn.target[i]] == i for i in range(300))
+
+
+@pytest.mark.parametrize('seed', range(6))
+@pytest.mark.parametrize('mutual', [False, True])
+@pytest.mark.parametrize('top_k', [1, 2, 3])
+def test_engine_agrees_with_dense_reference(seed, mutual, top_k):
+    rng = np.random.default_rng(seed)
+    m, n, classes, bins = 120, 140, 6, 40
+    src_desc, dst_desc = rng.normal(size=(m, 5)), rng.normal(size=(n, 5))
+    src_ss = rng.random((m, classes)) < 0.3
+    dst_ss = rng.random((n, classes)) < 0.3
+    src_bmr = rng.random((m, bins)) < rng.uniform(0.02, 0.3)
+    dst_bmr = rng.random((n, bins)) < rng.uniform(0.02, 0.3)
+    fast = semantic_match(src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss),
+                          sp.csr_matrix(src_bmr), sp.csr_matrix(dst_bmr), top_k, mutual)
+    expected = reference_match(src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr, top_k,
+                               mutual)
+    assert _pairs(fast) == expected
+    gm = semantic_match(src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss),
+                        None, None, top_k, mutual)
+    assert _pairs(gm) == reference_match(src_desc, dst_desc, src_ss, dst_ss, None, None, 1,
+                                         mutual)
+
+
+def test_duplicates_across_groups_are_removed_and_distances_reported():
+    src_desc, dst_desc = np.array([[0.0, 0.0]]), np.array([[3.0, 4.0]])
+    both = np.array([[1, 1]], bool)
+    corr = group_matching(src_desc, dst_desc, both, both)
+    assert _pairs(corr) == {(0, 0)}
+    np.testing.assert_allclose(corr.distance, [5.0])
+
+
+def test_empty_inputs_give_no_correspondence():
+    empty = match_descriptors(np.zeros((0, 4)), np.ones((3, 4)))
+    assert len(empty) == 0
+    no_group = group_matching(np.ones((2, 3)), np.ones((2, 3)), np.zeros((2, 4), bool),
+                              np.ones((2, 4), bool))
+    assert len(no_group) == 0
