@@ -105,3 +105,17 @@ def test_empty_inputs_give_no_correspondence():
     no_group = group_matching(np.ones((2, 3)), np.ones((2, 3)), np.zeros((2, 4), bool),
                               np.ones((2, 4), bool))
     assert len(no_group) == 0
+
+
+def test_rows_without_any_mask_candidate_do_not_break_matching():
+    # BMR-SS given but no shared bin at all: every row is permissive, no candidate anywhere
+    src_desc, dst_desc = np.array([[0.0], [1.0]]), np.array([[0.9], [0.1]])
+    src_bmr = sp.csr_matrix(np.array([[1, 0, 0, 0], [1, 0, 0, 0]], bool))
+    dst_bmr = sp.csr_matrix(np.array([[0, 0, 1, 0], [0, 0, 0, 1]], bool))
+    ones_src, ones_dst = np.ones(2, np.uint64), np.ones(2, np.uint64)
+    corr = semantic_match(src_desc, dst_desc, ones_src, ones_dst, src_bmr, dst_bmr, 1, False)
+    assert _pairs(corr) == {(0, 1), (1, 0)}
+    # restrictive rows whose candidates all fall outside the row's groups
+    corr = semantic_match(src_desc, dst_desc, np.array([1, 1], np.uint64),
+                          np.array([2, 2], np.uint64), src_bmr, src_bmr.copy(), 1, True)
+    assert len(corr) == 0

@@ -96,9 +96,10 @@ class SemanticConfig:
         3, 'Minimum points of a landmark cluster; smaller clusters are noise.',
         low=1, high=100000)
     min_landmarks: int = param(
-        3, 'Mask Matching needs at least this many landmarks (of classes both scans share) '
-        'in each scan; below it the mask is too weak to trust and Group Matching runs alone.',
-        low=0, high=100000)
+        1, 'Mask Matching needs at least this many landmarks (of classes both scans share) '
+        'in each scan; below it Group Matching runs alone. Rows whose own scene evidence is '
+        'thin (row maximum <= top_k - 1) are unmasked anyway by the top-K-levels rule.',
+        low=1, high=100000)
 
 
 @dataclass

@@ -179,8 +179,8 @@ def semantic_match(source_descriptors: np.ndarray, target_descriptors: np.ndarra
 
     permissive = row_in_group
     if source_bmr is not None and target_bmr is not None:
-        restrictive = _masked_candidates(src, dst, source_groups, pattern, block_of_col,
-                                         starts, block_in_group, row_in_group, source_bmr,
+        restrictive = _masked_candidates(src, dst, source_groups, pattern, starts,
+                                         block_in_group, row_in_group, source_bmr,
                                          target_bmr[order], top_k, fwd, bwd, diagnostics)
         permissive = row_in_group & ~restrictive
     _dense_group_nn(src, dst, permissive, col_in_group, fwd, bwd)
@@ -203,7 +203,7 @@ def semantic_match(source_descriptors: np.ndarray, target_descriptors: np.ndarra
 
 
 def _masked_candidates(src: np.ndarray, dst: np.ndarray, source_groups: np.ndarray,
-                       col_pattern: np.ndarray, block_of_col: np.ndarray, starts: np.ndarray,
+                       col_pattern: np.ndarray, starts: np.ndarray,
                        block_in_group: np.ndarray, row_in_group: np.ndarray,
                        source_bmr: sp.csr_matrix, target_bmr: sp.csr_matrix, top_k: int,
                        fwd: np.ndarray, bwd: np.ndarray | None,
@@ -219,13 +219,14 @@ def _masked_candidates(src: np.ndarray, dst: np.ndarray, source_groups: np.ndarr
     s_type = np.uint8 if source_bmr.getnnz(axis=1).max(initial=0) < 255 else np.uint16
     context = _MaskContext(
         src=src, dst=dst, src_sq=_sq_norms(src), dst_sq=_sq_norms(dst),
-        source_groups=source_groups, col_pattern=col_pattern, block_of_col=block_of_col,
-        starts=starts, blocks_of_group=[np.flatnonzero(block_in_group[:, g])
-                                        for g in range(num_groups)],
+        source_groups=source_groups, col_pattern=col_pattern,
+        block_sizes=np.diff(np.r_[starts, len(dst)]), starts=starts,
+        blocks_of_group=[np.flatnonzero(block_in_group[:, g]) for g in range(num_groups)],
         row_in_group=row_in_group, src_bmr=source_bmr.astype(s_type).tocsr(),
         dst_bmr_t=np.ascontiguousarray(target_bmr.toarray().T.astype(s_type)),
         top_k=top_k, none=int(np.iinfo(s_type).max), s_type=s_type,
-        threshold=np.zeros((num_rows, num_groups), dtype=np.int32), fwd=fwd)
+        threshold=np.zeros((num_rows, num_groups), dtype=np.int32), fwd=fwd,
+        mutual=bwd is not None)
     chunk = max(1, _CHUNK_ELEMENTS // max(len(dst), 1))
     bounds = [(lo, min(num_rows, lo + chunk)) for lo in range(0, num_rows, chunk)]
     with ThreadPoolExecutor(max_workers=_workers(len(bounds))) as pool:
@@ -248,7 +249,7 @@ class _MaskContext:
     dst_sq: np.ndarray
     source_groups: np.ndarray
     col_pattern: np.ndarray
-    block_of_col: np.ndarray
+    block_sizes: np.ndarray
     starts: np.ndarray
     blocks_of_group: list[np.ndarray]
     row_in_group: np.ndarray
@@ -259,6 +260,7 @@ class _MaskContext:
     s_type: type
     threshold: np.ndarray
     fwd: np.ndarray
+    mutual: bool
 
 
 def _masked_chunk(ctx: _MaskContext, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, int]:
@@ -277,10 +279,12 @@ def _masked_chunk(ctx: _MaskContext, lo: int, hi: int) -> tuple[np.ndarray, np.n
         threshold[:, g] = thr
         thr_or_none = np.where(thr >= 1, thr, ctx.none).astype(ctx.s_type)
         loosest[:, blocks] = np.minimum(loosest[:, blocks], thr_or_none[:, None])
-    rows, cols = np.nonzero(similarity >= np.take(loosest, ctx.block_of_col, axis=1))
-    sim = similarity[rows, cols].astype(np.int32)
+    # candidates: S >= the loosest restrictive threshold of the column's block
+    flat = np.flatnonzero(similarity >= np.repeat(loosest, ctx.block_sizes, axis=1))
+    rows, cols = np.divmod(flat, similarity.shape[1])
+    sim = similarity.reshape(-1)[flat].astype(np.int32)
     # ||a - b||^2 = ||a||^2 + ||b||^2 - 2 a.b: one GEMM for the chunk, read at the candidates
-    dist_sq = (ctx.src[lo:hi] @ ctx.dst.T)[rows, cols]
+    dist_sq = (ctx.src[lo:hi] @ ctx.dst.T).reshape(-1)[flat]
     dist_sq *= -2.0
     dist_sq += ctx.src_sq[lo + rows] + ctx.dst_sq[cols]
     np.maximum(dist_sq, 0.0, out=dist_sq)
@@ -300,12 +304,14 @@ def _masked_chunk(ctx: _MaskContext, lo: int, hi: int) -> tuple[np.ndarray, np.n
         bits ^= low
         common[idx] = bits
         idx = idx[bits != 0]
-    sel, group = np.concatenate(keep_idx), np.concatenate(keep_group)
+    sel = np.concatenate(keep_idx) if keep_idx else np.zeros(0, dtype=np.int64)
+    group = np.concatenate(keep_group) if keep_group else np.zeros(0, dtype=np.int64)
     local = np.full((hi - lo) * num_groups, NO_MATCH)
     np.minimum.at(local, rows[sel] * num_groups + group, _pack(dist_sq[sel], cols[sel]))
     ctx.fwd[lo * num_groups:hi * num_groups] = local
-    bwd_slots = cols[sel] * num_groups + group
-    return bwd_slots, _pack(dist_sq[sel], lo + rows[sel]), len(rows)
+    if not ctx.mutual:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint64), len(rows)
+    return cols[sel] * num_groups + group, _pack(dist_sq[sel], lo + rows[sel]), len(rows)
 
 
 def _workers(tasks: int) -> int:

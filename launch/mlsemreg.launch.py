@@ -1,0 +1,55 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Launch mlsemreg_node on a labeled PointCloud2 topic.
+
+``ros2 launch mlsemreg_ros mlsemreg.launch.py points_topic:=/velodyne_points_labeled
+params_file:=/path/params.yaml use_sim_time:=true``
+"""
+
+from launch.actions import DeclareLaunchArgument
+from launch.launch_description import LaunchDescription
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch_ros.actions import Node
+from launch_ros.parameter_descriptions import ParameterValue
+from launch_ros.substitutions import FindPackageShare
+
+
+def generate_launch_description() -> LaunchDescription:
+    """Node with the package's params.yaml (or another file) and the input topic remapped."""
+    default_params = PathJoinSubstitution(
+        [FindPackageShare('mlsemreg_ros'), 'config', 'params.yaml'])
+    return LaunchDescription([
+        DeclareLaunchArgument(
+            'points_topic', default_value='points',
+            description='Labeled sensor_msgs/PointCloud2 input (x, y, z and a label field).'),
+        DeclareLaunchArgument(
+            'params_file', default_value=default_params,
+            description='Parameter file (layout of config/params.yaml).'),
+        DeclareLaunchArgument(
+            'use_sim_time', default_value='false',
+            description='Use /clock (bag playback with --clock).'),
+        Node(
+            package='mlsemreg_ros',
+            executable='mlsemreg_node',
+            name='mlsemreg_node',
+            output='screen',
+            parameters=[
+                LaunchConfiguration('params_file'),
+                {'use_sim_time': ParameterValue(LaunchConfiguration('use_sim_time'),
+                                                value_type=bool)},
+            ],
+            remappings=[('points', LaunchConfiguration('points_topic'))],
+        ),
+    ])

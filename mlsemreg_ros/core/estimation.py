@@ -1,0 +1,46 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+
+"""
+Robust estimator factory: SC2-PCR (default) or the RANSAC baseline, plus ICP refinement.
+
+The pipeline imports ``estimate`` and ``refine_icp`` from here.
+"""
+
+from __future__ import annotations
+
+from mlsemreg_ros.core.config import EstimatorConfig
+from mlsemreg_ros.core.icp import refine_icp
+from mlsemreg_ros.core.types import EstimateResult
+import numpy as np
+
+__all__ = ['estimate', 'refine_icp']
+
+
+def estimate(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> EstimateResult:
+    """
+    Estimate ``T_dst_src`` from ``(K, 3)`` correspondences with ``config.kind``.
+
+    ``'sc2pcr'``: second-order spatial compatibility (Chen et al., CVPR 2022);
+    ``'ransac'``: Open3D's correspondence RANSAC.  The caller caps ``K`` at
+    ``config.max_correspondences``.
+    """
+    if config.kind == 'sc2pcr':
+        from mlsemreg_ros.core.sc2pcr import sc2pcr
+        return sc2pcr(src, dst, config)
+    if config.kind == 'ransac':
+        from mlsemreg_ros.core.ransac import ransac
+        return ransac(src, dst, config)
+    raise ValueError(f"unknown estimator kind {config.kind!r}; expected 'sc2pcr' or 'ransac'")

@@ -1,0 +1,138 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Registration pair files (``.npz``) of the paper's evaluation protocol.
+
+A pair file holds ``pts_src, label_src, kpts_src, <desc>_src, pts_dst,
+label_dst, kpts_dst, <desc>_dst, trans_gt``; ``trans_gt`` (4x4) maps source
+points onto the target (``T_target_source``); keypoints are members of
+``pts_*``; ``<desc>`` names a descriptor such as ``gedi`` (one row per keypoint).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+_REQUIRED = ('pts_src', 'label_src', 'pts_dst', 'label_dst', 'trans_gt')
+
+
+class PairFileError(ValueError):
+    """A pair file misses a key or holds arrays of inconsistent shapes."""
+
+
+@dataclass
+class Pair:
+    """One registration pair read from a ``.npz`` file."""
+
+    name: str  # file stem, e.g. '000003'
+    pts_src: np.ndarray  # (N, 3) float64, metres
+    label_src: np.ndarray  # (N,) labels as stored (learning or raw ids)
+    pts_dst: np.ndarray  # (N', 3) float64
+    label_dst: np.ndarray  # (N',)
+    trans_gt: np.ndarray  # (4, 4) float64 T_target_source
+    kpts_src: np.ndarray | None = None  # (M, 3) float64 or None when absent
+    kpts_dst: np.ndarray | None = None  # (M', 3)
+    descriptors_src: dict[str, np.ndarray] = field(default_factory=dict)  # name -> (M, D)
+    descriptors_dst: dict[str, np.ndarray] = field(default_factory=dict)  # name -> (M', D)
+
+    @property
+    def descriptor_names(self) -> list[str]:
+        """Descriptors stored for both clouds, e.g. ``['gedi']``."""
+        return sorted(set(self.descriptors_src) & set(self.descriptors_dst))
+
+    def descriptors(self, name: str) -> tuple[np.ndarray, np.ndarray]:
+        """``(source (M, D), target (M', D))`` descriptors called ``name``."""
+        if name not in self.descriptor_names:
+            raise KeyError(f'pair {self.name} has no {name!r} descriptors '
+                           f'(stored: {self.descriptor_names or "none"})')
+        return self.descriptors_src[name], self.descriptors_dst[name]
+
+
+def load_pair(path: str | Path) -> Pair:
+    """Read a pair file; raises :class:`PairFileError` naming what is missing or wrong."""
+    path = Path(path)
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    missing = [k for k in _REQUIRED if k not in arrays]
+    if missing:
+        raise PairFileError(f'{path}: missing key(s) {missing}')
+    pair = Pair(
+        name=path.stem,
+        pts_src=np.asarray(arrays['pts_src'], dtype=np.float64).reshape(-1, 3),
+        label_src=arrays['label_src'].reshape(-1),
+        pts_dst=np.asarray(arrays['pts_dst'], dtype=np.float64).reshape(-1, 3),
+        label_dst=arrays['label_dst'].reshape(-1),
+        trans_gt=np.asarray(arrays['trans_gt'], dtype=np.float64).reshape(4, 4),
+        kpts_src=_optional_points(arrays.get('kpts_src')),
+        kpts_dst=_optional_points(arrays.get('kpts_dst')),
+    )
+    reserved = {'pts', 'label', 'kpts'}
+    for key, value in arrays.items():
+        stem, _, side = key.rpartition('_')
+        if stem and stem not in reserved and side in ('src', 'dst'):
+            target = pair.descriptors_src if side == 'src' else pair.descriptors_dst
+            target[stem] = np.asarray(value).reshape(value.shape[0], -1)
+    _check(path, pair)
+    return pair
+
+
+def _optional_points(value: np.ndarray | None) -> np.ndarray | None:
+    return None if value is None else np.asarray(value, dtype=np.float64).reshape(-1, 3)
+
+
+def _check(path: Path, pair: Pair) -> None:
+    for side in ('src', 'dst'):
+        pts, labels = getattr(pair, f'pts_{side}'), getattr(pair, f'label_{side}')
+        if labels.shape[0] != pts.shape[0]:
+            raise PairFileError(f'{path}: {pts.shape[0]} pts_{side} but '
+                                f'{labels.shape[0]} label_{side}')
+        kpts = getattr(pair, f'kpts_{side}')
+        for name, desc in getattr(pair, f'descriptors_{side}').items():
+            if kpts is None or desc.shape[0] != kpts.shape[0]:
+                raise PairFileError(f'{path}: {name}_{side} has {desc.shape[0]} rows but '
+                                    f'kpts_{side} has '
+                                    f'{"none" if kpts is None else kpts.shape[0]}')
+
+
+def list_pairs(directory: str | Path) -> list[Path]:
+    """Pair files (``*.npz``) of a directory, sorted by name."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        raise FileNotFoundError(f'{directory} is not a directory')
+    return sorted(p for p in directory.glob('*.npz') if p.is_file())
+
+
+def save_pair(path: str | Path, pair: Pair) -> Path:
+    """
+    Write ``pair`` in the pair-file layout (inverse of :func:`load_pair`).
+
+    Keypoints and descriptors are written only when present.
+    """
+    arrays: dict[str, np.ndarray] = {
+        'pts_src': pair.pts_src, 'label_src': pair.label_src,
+        'pts_dst': pair.pts_dst, 'label_dst': pair.label_dst, 'trans_gt': pair.trans_gt}
+    if pair.kpts_src is not None:
+        arrays['kpts_src'] = pair.kpts_src
+    if pair.kpts_dst is not None:
+        arrays['kpts_dst'] = pair.kpts_dst
+    for name, desc in pair.descriptors_src.items():
+        arrays[f'{name}_src'] = desc
+    for name, desc in pair.descriptors_dst.items():
+        arrays[f'{name}_dst'] = desc
+    path = Path(path)
+    np.savez(path, **arrays)
+    return path

@@ -1,0 +1,146 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Message building for the node's outputs: transform, odometry, path, diagnostics.
+
+Poses are 4x4 homogeneous matrices ``T_parent_child`` (``p_parent = T @ p_child``).
+The only arithmetic here is what turning a registration result into messages
+needs (composition, inversion, quaternions, a covariance formula); the
+registration itself lives in the core.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import Pose, PoseStamped, Transform, TransformStamped
+from mlsemreg_ros.core.types import RegistrationResult
+from nav_msgs.msg import Odometry
+import numpy as np
+from scipy.spatial.transform import Rotation
+from std_msgs.msg import Header
+
+#: Minimum lever arm for the rotation uncertainty (see :func:`relative_variances`).
+MIN_LEVER_ARM_M = 1.0
+#: Variance reported when a quantity is unknown (first frame's twist, zero stamp difference).
+UNKNOWN_VARIANCE = 1e6
+
+
+def seconds(stamp: Time) -> float:
+    """builtin_interfaces/Time -> seconds."""
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+def nanoseconds(stamp: Time) -> int:
+    """builtin_interfaces/Time -> integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def invert(transform: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid 4x4 transform."""
+    out = np.eye(4)
+    out[:3, :3] = transform[:3, :3].T
+    out[:3, 3] = -transform[:3, :3].T @ transform[:3, 3]
+    return out
+
+
+def _transform(transform: np.ndarray) -> Transform:
+    x, y, z, w = Rotation.from_matrix(transform[:3, :3]).as_quat()
+    out = Transform()
+    out.translation.x, out.translation.y, out.translation.z = map(float, transform[:3, 3])
+    out.rotation.x, out.rotation.y, out.rotation.z, out.rotation.w = (
+        float(x), float(y), float(z), float(w))
+    return out
+
+
+def pose_msg(transform: np.ndarray) -> Pose:
+    """4x4 -> geometry_msgs/Pose."""
+    t = _transform(transform)
+    pose = Pose()
+    pose.position.x, pose.position.y, pose.position.z = (
+        t.translation.x, t.translation.y, t.translation.z)
+    pose.orientation = t.rotation
+    return pose
+
+
+def transform_msg(stamp: Time, parent: str, child: str, transform: np.ndarray
+                  ) -> TransformStamped:
+    """4x4 ``T_parent_child`` -> TransformStamped."""
+    return TransformStamped(header=Header(stamp=stamp, frame_id=parent), child_frame_id=child,
+                            transform=_transform(transform))
+
+
+def pose_stamped(stamp: Time, frame: str, transform: np.ndarray) -> PoseStamped:
+    """4x4 -> PoseStamped (a path entry)."""
+    return PoseStamped(header=Header(stamp=stamp, frame_id=frame), pose=pose_msg(transform))
+
+
+def relative_variances(result: RegistrationResult, inlier_threshold: float) -> np.ndarray:
+    """Variances (6,) of one registration: ``[x, y, z, roll, pitch, yaw]`` in m^2 and rad^2.
+
+    Confidence model: an inlier's residual is bounded by the inlier threshold
+    tau, so the translation's standard error is ``sigma_t = tau / sqrt(IN)``
+    (IN = inlier count); a rotation error theta moves inliers at a lever arm rho
+    by about ``rho * theta``, so ``sigma_r = sigma_t / rho`` with rho the RMS
+    distance of the inlier keypoints from their centroid (at least 1 m).
+    Fewer or more clustered inliers give a larger covariance.
+    """
+    inliers = result.source_points[result.inlier_mask]
+    count = max(int(inliers.shape[0]), 1)
+    sigma_t = inlier_threshold / np.sqrt(count)
+    lever = 0.0
+    if inliers.shape[0] > 1:
+        lever = float(np.sqrt(((inliers - inliers.mean(axis=0)) ** 2).sum(axis=1).mean()))
+    sigma_r = sigma_t / max(lever, MIN_LEVER_ARM_M)
+    return np.array([sigma_t**2] * 3 + [sigma_r**2] * 3)
+
+
+def twist_between(previous: np.ndarray, current: np.ndarray, dt: float) -> np.ndarray:
+    """Twist ``[vx, vy, vz, wx, wy, wz]`` (m/s, rad/s) in the current frame, poses ``dt`` apart."""
+    if dt <= 0.0:
+        return np.zeros(6)
+    relative = invert(previous) @ current
+    return np.concatenate([relative[:3, 3], Rotation.from_matrix(relative[:3, :3]).as_rotvec()
+                           ]) / dt
+
+
+def odometry_msg(stamp: Time, frame: str, child: str, pose: np.ndarray,
+                 pose_variances: np.ndarray, twist: np.ndarray,
+                 twist_variances: np.ndarray) -> Odometry:
+    """nav_msgs/Odometry with diagonal covariances (row-major 6x6)."""
+    msg = Odometry(header=Header(stamp=stamp, frame_id=frame), child_frame_id=child)
+    msg.pose.pose = pose_msg(pose)
+    msg.pose.covariance = np.diag(pose_variances).reshape(-1).astype(np.float64)
+    msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.linear.z = (
+        float(v) for v in twist[:3])
+    msg.twist.twist.angular.x, msg.twist.twist.angular.y, msg.twist.twist.angular.z = (
+        float(v) for v in twist[3:])
+    msg.twist.covariance = np.diag(twist_variances).reshape(-1).astype(np.float64)
+    return msg
+
+
+LEVELS = {'ok': DiagnosticStatus.OK, 'warn': DiagnosticStatus.WARN,
+          'error': DiagnosticStatus.ERROR}
+
+
+def diagnostics_msg(stamp: Time, name: str, hardware_id: str, level: str, message: str,
+                    values: dict[str, Any]) -> DiagnosticArray:
+    """Build a DiagnosticArray with one status; floats are written with 3 decimals."""
+    pairs = [KeyValue(key=k, value=f'{v:.3f}' if isinstance(v, float) else str(v))
+             for k, v in values.items()]
+    status = DiagnosticStatus(level=LEVELS[level], name=name, message=message,
+                              hardware_id=hardware_id, values=pairs)
+    return DiagnosticArray(header=Header(stamp=stamp), status=[status])

@@ -1,0 +1,375 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""``mlsemreg_node``: labeled PointCloud2 in; transform, odometry, path and markers out.
+
+Interface (DESIGN.md section 5; names are part of the contract):
+
+- subscribes ``points`` (sensor_msgs/PointCloud2 with x, y, z and a label field);
+- publishes ``mlsemreg/transform`` (TransformStamped ``T_keyframe_current``,
+  ``p_keyframe = T @ p_current``, stamped with the current scan's stamp; only
+  for successful registrations), ``mlsemreg/odometry`` (Odometry in
+  ``odom_frame``, child ``base_frame``), ``mlsemreg/path``,
+  ``mlsemreg/correspondences`` (MarkerArray) and ``/diagnostics``;
+- broadcasts TF ``odom_frame -> base_frame`` when tf2_ros is importable;
+- serves ``mlsemreg/reset`` (std_srvs/Trigger): drop the keyframe, restart at identity.
+
+Per frame (STYLE.md item 1): convert the message -> call the core -> publish.
+The subscription callback only converts and hands the scan to a worker thread
+through a latest-only slot (a scan still waiting when a newer one arrives is
+dropped and counted), so a slow registration never blocks the executor. The
+worker runs :class:`mlsemreg_ros.core.odometry.Odometry` (the code path of the
+offline bag evaluation too): prepare once per scan (the keyframe's is cached),
+register onto the keyframe, accumulate ``pose = pose_keyframe @ T`` only on
+success, move the keyframe per the ``keyframe.*`` policy. A failed registration
+publishes no transform/odometry, keeps the keyframe and says why in
+``/diagnostics``.
+
+Covariance: the registration's variances (diagonal; translation sigma =
+tau / sqrt(inliers), rotation sigma = that / rho with rho the RMS spread of the
+inliers, see :func:`messages.relative_variances`) are added to the keyframe's
+accumulated variances for the pose covariance. Twist = relative motion since
+the previously published pose / stamp difference, in the child frame, with
+covariance = registration variances / dt^2.
+"""
+
+from __future__ import annotations
+
+import collections
+from dataclasses import dataclass
+import threading
+import time
+import traceback
+from typing import Any
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import TransformStamped
+from mlsemreg_ros.core.config import ConfigError, NODE_NAME
+from mlsemreg_ros.core.labels import LabelError, LabelMap
+from mlsemreg_ros.core.odometry import KeyframePolicy, OdometryStep
+from mlsemreg_ros.core.odometry import Odometry as ScanOdometry
+from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.core.types import PreparedScan, RegistrationResult
+from mlsemreg_ros.ros import messages
+from mlsemreg_ros.ros.markers import correspondence_markers
+from mlsemreg_ros.ros.node_config import NodeConfig
+from mlsemreg_ros.ros.parameters import ConfigSnapshot, LiveParameters
+from mlsemreg_ros.ros.pointcloud2 import pointcloud2_to_arrays, PointCloudError
+from nav_msgs.msg import Odometry, Path
+import numpy as np
+import rclpy
+from rclpy.exceptions import ParameterException
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2
+from std_msgs.msg import Header
+from std_srvs.srv import Trigger
+from visualization_msgs.msg import MarkerArray
+
+try:  # TF output is optional (no tf2_ros wheel on PyPI).
+    from tf2_ros import TransformBroadcaster
+except ImportError:
+    TransformBroadcaster = None
+
+#: Lines per marker namespace (drawing thousands of lines costs ~5 ms per 1000).
+MAX_MARKER_LINES = 1000
+LOG_THROTTLE_S = 5.0
+
+
+@dataclass
+class Scan:
+    """One converted PointCloud2 waiting for (or under) registration."""
+
+    stamp: Time
+    frame_id: str
+    xyz: np.ndarray  # (N, 3) float64, sensor frame, metres
+    labels: np.ndarray  # (N,) int64 raw label values
+    received: float  # time.perf_counter() when the message reached the callback
+    dropped_nonfinite: int
+
+
+class LatestSlot:
+    """A one-element hand-over between threads; a newer item replaces an unclaimed one."""
+
+    def __init__(self) -> None:
+        self._cond = threading.Condition()
+        self._item: Any = None
+        self._closed = False
+        self.dropped = 0
+
+    def put(self, item: Any) -> None:
+        """Offer an item; an item nobody took yet is dropped (and counted)."""
+        with self._cond:
+            self.dropped += self._item is not None
+            self._item = item
+            self._cond.notify()
+
+    def take(self) -> Any:
+        """Block until an item arrives; None once closed."""
+        with self._cond:
+            while self._item is None and not self._closed:
+                self._cond.wait()
+            item, self._item = self._item, None
+            return None if self._closed else item
+
+    def close(self) -> None:
+        """Wake the taker and make every later take() return None."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+
+
+class MlSemRegNode(Node):
+    """ML-SemReg odometry: registers every labeled scan onto a keyframe."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        """Declare parameters, create the interface and start the worker thread."""
+        super().__init__(NODE_NAME, **kwargs)
+        self._label_map = LabelMap.load()
+        self._params = LiveParameters(self, self._label_map)
+        config = self._params.snapshot()
+        self._odometry = ScanOdometry(Registration(config.core, self._label_map),
+                                      KeyframePolicy.from_config(config.node.keyframe))
+        self._core_version = config.core_version
+        self._lock = threading.Lock()  # guards the published state and the counters
+        self._reset_pending = False  # set by the reset service, applied by the worker
+        self._keyframe_variances = np.zeros(6)  # accumulated pose variances of the keyframe
+        self._last: tuple[np.ndarray, float] | None = None  # last published pose, stamp (s)
+        self._path = Path()
+        self._counts = collections.Counter()
+        self._latencies: collections.deque[float] = collections.deque(maxlen=100)
+        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=config.node.qos.depth,
+                         reliability=ReliabilityPolicy.BEST_EFFORT
+                         if config.node.qos.reliability == 'best_effort'
+                         else ReliabilityPolicy.RELIABLE)
+        self._pub_transform = self.create_publisher(TransformStamped, 'mlsemreg/transform', 10)
+        self._pub_odometry = self.create_publisher(Odometry, 'mlsemreg/odometry', 10)
+        self._pub_path = self.create_publisher(Path, 'mlsemreg/path', 1)
+        self._pub_markers = self.create_publisher(MarkerArray, 'mlsemreg/correspondences', 1)
+        self._pub_diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self.create_subscription(PointCloud2, 'points', self._on_points, qos)
+        self.create_service(Trigger, 'mlsemreg/reset', self._on_reset)
+        self._tf = TransformBroadcaster(self) if TransformBroadcaster is not None else None
+        if self._tf is None:
+            self.get_logger().info('tf2_ros is not importable: no TF output '
+                                   '(mlsemreg/odometry carries the same pose)')
+        self._slot = LatestSlot()
+        self._worker = threading.Thread(target=self._work, name='mlsemreg_worker', daemon=True)
+        self._worker.start()
+        self.get_logger().info(
+            f'registering scans on {self.resolve_topic_name("points")} '
+            f'({config.node.qos.reliability}, label field {config.node.label_field!r})')
+
+    # -- executor thread ------------------------------------------------------------------
+    def _on_points(self, msg: PointCloud2) -> None:
+        """Convert the message and hand it to the worker; malformed input is skipped."""
+        received = time.perf_counter()
+        self._count('frames_received')
+        try:
+            cloud = pointcloud2_to_arrays(msg, self._params.snapshot().node.label_field)
+        except PointCloudError as error:
+            self._skip(msg.header.stamp, f'skipped malformed PointCloud2: {error}')
+            return
+        self._slot.put(Scan(msg.header.stamp, msg.header.frame_id, cloud.xyz, cloud.labels,
+                            received, cloud.dropped_nonfinite))
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response
+                  ) -> Trigger.Response:
+        """Drop the keyframe and restart the odometry at identity (from the next scan)."""
+        with self._lock:
+            self._reset_pending, self._last, self._path = True, None, Path()
+        self.get_logger().info('reset: keyframe dropped, odometry restarts at identity')
+        response.success, response.message = True, 'keyframe dropped; odometry restarts'
+        return response
+
+    # -- worker thread ----------------------------------------------------------------------
+    def _work(self) -> None:
+        while (scan := self._slot.take()) is not None:
+            try:
+                self._process(scan)
+            except Exception as error:  # the node never dies of one frame
+                if not self.context.ok():
+                    return
+                self._count('errors')
+                self.get_logger().error(f'frame failed: {type(error).__name__}: {error}')
+                self.get_logger().debug(traceback.format_exc())
+                self._publish_diagnostics(scan.stamp, 'error', f'frame failed: {error}', {})
+
+    def _process(self, scan: Scan) -> None:
+        """Register the scan onto the keyframe (core odometry) and publish the outcome."""
+        config = self._sync(self._params.snapshot())
+        try:
+            step = self._odometry.process(scan.xyz, scan.labels, messages.nanoseconds(scan.stamp))
+        except LabelError as error:
+            self._skip(scan.stamp, f'skipped scan with unusable labels: {error}')
+            return
+        with self._lock:
+            if self._reset_pending:  # a reset arrived while registering: discard
+                return
+            latency_ms = self._publish_step(scan, step, config) if step.accepted else None
+        result = step.result
+        if result is None:
+            self._diagnose(scan, 'ok', 'first scan: keyframe set, odometry at identity', step)
+            return
+        self._publish_markers(scan, result, step.prepared, config.node)
+        if step.accepted:
+            self.get_logger().debug(f'latency {latency_ms:.1f} ms, stages {step.timings_ms}')
+            self._diagnose(scan, 'ok', f'registered ({result.mode})', step, latency_ms)
+        else:
+            reason = result.message or 'non-finite transform'
+            self._count('failures')
+            self.get_logger().warning(f'registration failed, keyframe kept: {reason}',
+                                      throttle_duration_sec=LOG_THROTTLE_S)
+            self._diagnose(scan, 'warn', f'registration failed: {reason}', step)
+
+    def _sync(self, config: ConfigSnapshot) -> ConfigSnapshot:
+        """Apply a pending reset and parameter changes (they hold from this frame on)."""
+        with self._lock:
+            if self._reset_pending:
+                self._odometry.reset()
+                self._keyframe_variances = np.zeros(6)
+                self._reset_pending = False
+        if config.core_version != self._core_version:
+            self._core_version = config.core_version
+            try:
+                self._odometry.reconfigure(config.core)  # re-prepares the cached keyframe
+            except LabelError as error:  # e.g. label_scheme changed under a raw keyframe
+                self._odometry.reset()
+                self._keyframe_variances = np.zeros(6)
+                self.get_logger().warning(f'keyframe unusable with the new parameters ({error}):'
+                                          ' odometry restarts at identity')
+        self._odometry.policy = KeyframePolicy.from_config(config.node.keyframe)
+        return config
+
+    def _publish_step(self, scan: Scan, step: OdometryStep, config: ConfigSnapshot) -> float:
+        """Publish transform, odometry, path and TF of an accepted step (lock held)."""
+        relative = None
+        variances = np.zeros(6)
+        if step.result is not None:
+            self._pub_transform.publish(messages.transform_msg(
+                scan.stamp, scan.frame_id, scan.frame_id, step.relative))
+            relative = messages.relative_variances(step.result,
+                                                   config.core.estimator.inlier_threshold)
+            variances = self._keyframe_variances + relative
+            self._counts['registrations'] += 1
+        latency_ms = 1e3 * (time.perf_counter() - scan.received)
+        self._latencies.append(latency_ms)
+        if step.new_keyframe:
+            self._keyframe_variances = variances
+        self._publish_pose(scan, step.pose, variances, relative, config.node)
+        return latency_ms
+
+    # -- publishing --------------------------------------------------------------------------
+    def _publish_pose(self, scan: Scan, pose: np.ndarray, variances: np.ndarray,
+                      relative: np.ndarray | None, node: NodeConfig) -> None:
+        """Odometry, path and TF of the current pose (called with the lock held)."""
+        child = node.base_frame or scan.frame_id
+        stamp_s = messages.seconds(scan.stamp)
+        twist, twist_var = np.zeros(6), np.full(6, messages.UNKNOWN_VARIANCE)
+        if self._last is not None and relative is not None and stamp_s > self._last[1]:
+            dt = stamp_s - self._last[1]
+            twist, twist_var = messages.twist_between(self._last[0], pose, dt), relative / dt**2
+        self._last = (pose, stamp_s)
+        self._pub_odometry.publish(messages.odometry_msg(
+            scan.stamp, node.odom_frame, child, pose, variances, twist, twist_var))
+        self._path.header = Header(stamp=scan.stamp, frame_id=node.odom_frame)
+        self._path.poses.append(messages.pose_stamped(scan.stamp, node.odom_frame, pose))
+        if node.path.max_length and len(self._path.poses) > node.path.max_length:
+            del self._path.poses[:len(self._path.poses) - node.path.max_length]
+        self._pub_path.publish(self._path)
+        if node.publish_tf and self._tf is not None:
+            self._tf.sendTransform(
+                messages.transform_msg(scan.stamp, child, node.odom_frame, messages.invert(pose))
+                if node.invert_tf else
+                messages.transform_msg(scan.stamp, node.odom_frame, child, pose))
+
+    def _publish_markers(self, scan: Scan, result: RegistrationResult, current: PreparedScan,
+                         node: NodeConfig) -> None:
+        if self._pub_markers.get_subscription_count() == 0:
+            return  # nobody looks: do not build thousands of points
+        header = Header(stamp=scan.stamp, frame_id=scan.frame_id)
+        self._pub_markers.publish(correspondence_markers(
+            header, result, current.landmarks, self._label_map.names,
+            publish_outliers=node.publish_outliers, max_lines=MAX_MARKER_LINES))
+
+    def _skip(self, stamp: Time, reason: str) -> None:
+        """Count, log (throttled) and report a scan that cannot be used."""
+        self._count('frames_malformed')
+        self.get_logger().warning(reason, throttle_duration_sec=LOG_THROTTLE_S)
+        self._publish_diagnostics(stamp, 'warn', reason, {})
+
+    def _diagnose(self, scan: Scan, level: str, message: str, step: OdometryStep,
+                  latency_ms: float | None = None) -> None:
+        """Report one processed frame: counts, latency, stage timings, result summary."""
+        values: dict[str, Any] = {'dropped_nonfinite_points': scan.dropped_nonfinite,
+                                  'keyframe_stamp': f'{1e-9 * step.keyframe_stamp_ns:.9f}',
+                                  'processing_ms': step.latency_ms}
+        if latency_ms is not None:
+            values['latency_ms'] = latency_ms
+            values['latency_p50_ms'] = float(np.median(self._latencies))
+        values.update({f'stage.{k}': float(v) for k, v in step.timings_ms.items()})
+        if step.result is not None:
+            result = step.result
+            values.update({'mode': result.mode, 'num_inliers': result.num_inliers,
+                           'correspondences': len(result.correspondences)})
+            values.update({k: v for k, v in result.diagnostics.items()
+                           if isinstance(v, (bool, int, float, str))})
+            if result.message:
+                values['note'] = result.message
+        self._publish_diagnostics(scan.stamp, level, message, values)
+
+    def _publish_diagnostics(self, stamp: Time, level: str, message: str,
+                             values: dict[str, Any]) -> None:
+        with self._lock:
+            counts = dict(self._counts)
+        values = {'scan_stamp': f'{messages.seconds(stamp):.9f}',
+                  'frames_dropped': self._slot.dropped, **counts, **values}
+        self._pub_diagnostics.publish(messages.diagnostics_msg(
+            self.get_clock().now().to_msg(), f'{self.get_name()}: registration',
+            self.get_fully_qualified_name(), level, message, values))
+
+    def _count(self, key: str) -> None:
+        with self._lock:
+            self._counts[key] += 1
+
+    def destroy_node(self) -> None:
+        """Stop the worker (it finishes its frame), then destroy the node."""
+        self._slot.close()
+        self._worker.join(timeout=5.0)
+        super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Console script ``mlsemreg_node``; returns the process exit code."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = MlSemRegNode()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ConfigError, ParameterException) as error:
+        rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {error}')
+        return 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())

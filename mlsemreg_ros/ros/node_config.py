@@ -1,0 +1,228 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""Node-level parameters (frames, keyframe policy, QoS, output); no rclpy here.
+
+The algorithm's parameters live in :mod:`mlsemreg_ros.core.config`; this module
+holds only what the ROS node adds around them, declared with the same
+:func:`~mlsemreg_ros.core.config.param` metadata so both are turned into ROS
+parameters (with descriptors) by the same code. Flat names are
+``<field>`` or ``<section>.<field>``, e.g. ``odom_frame``, ``keyframe.policy``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+import textwrap
+from typing import Any
+
+from mlsemreg_ros.core.config import coerce, ConfigError, iter_fields, NODE_NAME, param
+import yaml
+
+
+@dataclass
+class KeyframeConfig:
+    """When the current scan replaces the keyframe (after a successful registration)."""
+
+    policy: str = param(
+        'every_frame', 'every_frame: each registered scan becomes the keyframe (frame-to-frame '
+        'odometry); distance: only once it moved keyframe.min_distance or turned '
+        'keyframe.min_rotation away from the keyframe.', choices=('every_frame', 'distance'))
+    min_distance: float = param(
+        1.0, 'distance policy: translation from the keyframe that makes a new keyframe.',
+        unit='m', low=0.0, high=1000.0)
+    min_rotation: float = param(
+        10.0, 'distance policy: rotation from the keyframe that makes a new keyframe.',
+        unit='deg', low=0.0, high=180.0)
+
+
+@dataclass
+class QosConfig:
+    """QoS of the ``points`` subscription (read-only: set at startup)."""
+
+    reliability: str = param(
+        'best_effort', 'best_effort: sensor-data QoS (drivers publish best effort); reliable: '
+        'for bag playback or reliable publishers.', choices=('best_effort', 'reliable'))
+    depth: int = param(5, 'History depth of the points subscription.', low=1, high=1000)
+
+
+@dataclass
+class PathConfig:
+    """The ``mlsemreg/path`` output."""
+
+    max_length: int = param(
+        10000, 'Poses kept in mlsemreg/path; the oldest are dropped (0: unlimited).',
+        low=0, high=10000000)
+
+
+NODE_SECTIONS: dict[str, type] = {
+    'keyframe': KeyframeConfig,
+    'qos': QosConfig,
+    'path': PathConfig,
+}
+
+#: Parameters that only take effect at startup (declared read-only).
+READ_ONLY: tuple[str, ...] = ('qos.reliability', 'qos.depth')
+
+
+@dataclass
+class NodeConfig:
+    """Everything the node needs besides the registration core's RegistrationConfig."""
+
+    label_field: str = param(
+        'label', 'Name of the PointCloud2 field holding the semantic label (any integer or '
+        'float datatype).')
+    odom_frame: str = param('odom', 'Frame of mlsemreg/odometry and mlsemreg/path (the pose of '
+                            'the first scan after startup or reset).')
+    base_frame: str = param(
+        '', "Child frame of the odometry and TF; '' uses the cloud's frame_id. No extrinsic is "
+        "applied: the estimated motion is the sensor's.")
+    publish_outliers: bool = param(
+        False, 'Also draw outlier correspondences (red) in mlsemreg/correspondences.')
+    publish_tf: bool = param(True, 'Broadcast TF odom_frame -> base_frame (needs tf2_ros).')
+    invert_tf: bool = param(
+        False, 'Broadcast base_frame -> odom_frame instead (when base_frame already has a '
+        'parent in the TF tree).')
+    keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)
+    qos: QosConfig = field(default_factory=QosConfig)
+    path: PathConfig = field(default_factory=PathConfig)
+
+    def to_flat_dict(self) -> dict[str, Any]:
+        """``{'name' or 'section.name': value}`` for every field."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name in NODE_SECTIONS:
+                for k, v in dataclasses.asdict(value).items():
+                    out[f'{f.name}.{k}'] = v
+            else:
+                out[f.name] = value
+        return out
+
+    def replace(self, flat: dict[str, Any]) -> NodeConfig:
+        """Copy with ``{'flat.name': value}`` applied, type-checked and validated."""
+        values = self.to_flat_dict()
+        for key, value in flat.items():
+            if key not in values:
+                raise ConfigError(f'unknown node parameter {key!r}')
+            values[key] = coerce(key, value, node_field_of(key))
+        top = {k: v for k, v in values.items() if '.' not in k}
+        sections = {s: cls(**{k.partition('.')[2]: v for k, v in values.items()
+                              if k.partition('.')[0] == s})
+                    for s, cls in NODE_SECTIONS.items()}
+        new = NodeConfig(**top, **sections)
+        errors = new.errors()
+        if errors:
+            raise ConfigError('; '.join(errors))
+        return new
+
+    def errors(self) -> list[str]:
+        """Every range, choice and consistency violation, as readable sentences."""
+        errors: list[str] = []
+        for key, value in self.to_flat_dict().items():
+            meta = node_field_of(key).metadata
+            if meta['choices'] is not None and value not in meta['choices']:
+                errors.append(f'{key}={value!r} is not one of {list(meta["choices"])}')
+            if isinstance(value, (int, float)) and not isinstance(value, bool):
+                if meta['low'] is not None and value < meta['low']:
+                    errors.append(f'{key}={value} is below its minimum {meta["low"]}')
+                if meta['high'] is not None and value > meta['high']:
+                    errors.append(f'{key}={value} is above its maximum {meta["high"]}')
+        if not self.label_field:
+            errors.append('label_field must not be empty')
+        if not self.odom_frame:
+            errors.append('odom_frame must not be empty')
+        for key in ('odom_frame', 'base_frame'):
+            if getattr(self, key).startswith('/'):
+                errors.append(f'{key}={getattr(self, key)!r}: tf2 frame ids must not start '
+                              "with '/'")
+        if self.base_frame and self.base_frame == self.odom_frame:
+            errors.append(f'base_frame and odom_frame are both {self.odom_frame!r}')
+        return errors
+
+
+def node_field_of(key: str) -> dataclasses.Field:
+    """Return the dataclass field behind a node parameter such as ``keyframe.policy``."""
+    section, dot, name = key.partition('.')
+    cls = NODE_SECTIONS.get(section) if dot else NodeConfig
+    if cls is not None:
+        for f in dataclasses.fields(cls):
+            if f.name == (name if dot else key) and (dot or f.name not in NODE_SECTIONS):
+                return f
+    raise ConfigError(f'unknown node parameter {key!r}')
+
+
+def iter_node_fields() -> list[tuple[str, dataclasses.Field, Any]]:
+    """``(flat_name, field, default)`` for every node parameter, in declaration order."""
+    defaults = NodeConfig().to_flat_dict()
+    return [(key, node_field_of(key), value) for key, value in defaults.items()]
+
+
+def all_parameter_fields() -> list[tuple[str, dataclasses.Field, Any]]:
+    """``(flat_name, field, default)`` of every node parameter: node-level, then core."""
+    return iter_node_fields() + iter_fields()
+
+
+def _number(value: float) -> str:
+    return str(int(value)) if float(value).is_integer() else f'{value:g}'
+
+
+def _constraints(f: dataclasses.Field, bar: str = '|') -> list[str]:
+    meta = f.metadata
+    out = [meta['unit']] if meta['unit'] else []
+    if meta['low'] is not None or meta['high'] is not None:
+        low = _number(meta['low']) if meta['low'] is not None else ''
+        high = _number(meta['high']) if meta['high'] is not None else ''
+        out.append(f'{low}..{high}')
+    if meta['choices']:
+        out.append(bar.join(meta['choices']))
+    return out
+
+
+def params_yaml_text() -> str:
+    """``config/params.yaml``: every parameter with its default and description.
+
+    Regenerate the file with ``python -c "from mlsemreg_ros.ros.node_config import
+    params_yaml_text; print(params_yaml_text(), end='')" > config/params.yaml``.
+    """
+    lines = ['# Parameters of mlsemreg_node and their defaults, generated from the config',
+             '# metadata by mlsemreg_ros.ros.node_config.params_yaml_text();',
+             '# test/test_params_yaml.py checks that this file, the node and the core agree.',
+             '# [unit, range, choices] as enforced by the parameter descriptors.',
+             f'{NODE_NAME}:', '  ros__parameters:']
+    current = None
+    for name, f, default in all_parameter_fields():
+        section, dot, leaf = name.rpartition('.')
+        if section != current and section:
+            lines.append(f'    {section}:')
+        current = section
+        indent = '      ' if dot else '    '
+        extra = _constraints(f)
+        comment = f.metadata['description'] + (f' [{", ".join(extra)}]' if extra else '')
+        lines += [f'{indent}# {c}' for c in textwrap.wrap(comment, 97 - len(indent))]
+        value = yaml.safe_dump(default, default_flow_style=True, width=1000)
+        lines.append(f'{indent}{leaf}: {value.strip().removesuffix("...").strip()}')
+    return '\n'.join(lines) + '\n'
+
+
+def parameter_table_markdown() -> str:
+    """Render the README's parameter table (name, default, unit/range/choices, description)."""
+    rows = ['| parameter | default | unit, range | description |', '|---|---|---|---|']
+    for name, f, default in all_parameter_fields():
+        shown = yaml.safe_dump(default, default_flow_style=True, width=1000)
+        shown = shown.strip().removesuffix('...').strip()
+        extra = ', '.join(_constraints(f, ' / '))
+        rows.append(f'| `{name}` | `{shown}` | {extra} | {f.metadata["description"]} |')
+    return '\n'.join(rows) + '\n'

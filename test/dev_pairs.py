@@ -1,0 +1,32 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Where the real KITTI dev pairs live (never inside this repository)."""
+
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DEV_PAIRS = Path(os.environ.get('MLSEMREG_DEV_PAIRS',
+                                ROOT.parent / 'shared' / 'data' / 'kitti_pairs_dev'))
+
+
+def dev_pair_files() -> list[Path]:
+    """Return the dev pair files, or skip the calling test with the reason."""
+    files = sorted(DEV_PAIRS.glob('*.npz')) if DEV_PAIRS.is_dir() else []
+    if not files:
+        pytest.skip(f'real KITTI dev pairs not found in {DEV_PAIRS} (set MLSEMREG_DEV_PAIRS '
+                    'to their folder); the generated-scene tests cover this code without them')
+    return files

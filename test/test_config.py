@@ -1,0 +1,74 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The single configuration object: defaults, validation, loading."""
+
+from mlsemreg_ros.core.config import ConfigError, iter_fields, RegistrationConfig
+from mlsemreg_ros.core.pipeline import Registration
+import pytest
+import yaml
+
+
+def test_defaults_are_the_papers_kitti_settings():
+    config = RegistrationConfig()
+    assert config.semantic.local_radius == 0.8
+    assert config.semantic.ring_count == 33 and config.semantic.ring_width == 1.5
+    assert config.semantic.top_k == 2
+    assert config.semantic.landmark_classes == ['trunk', 'truck', 'pole', 'traffic-sign', 'car']
+    assert config.estimator.inlier_threshold == 0.6
+
+
+def test_every_field_has_a_description_and_flat_names_round_trip():
+    for key, field, _ in iter_fields():
+        assert field.metadata['description'], key
+    config = RegistrationConfig()
+    assert RegistrationConfig().replace(config.to_flat_dict()) == config
+    assert RegistrationConfig.from_dict(config.to_dict()) == config
+
+
+def test_unknown_keys_wrong_types_and_ranges_are_rejected():
+    with pytest.raises(ConfigError, match='unknown config section'):
+        RegistrationConfig.from_dict({'semantics': {}})
+    with pytest.raises(ConfigError, match='unknown parameter'):
+        RegistrationConfig().replace({'semantic.radius': 1.0})
+    with pytest.raises(ConfigError, match='expects int'):
+        RegistrationConfig().replace({'semantic.top_k': 2.5})
+    with pytest.raises(ConfigError, match='below its minimum'):
+        RegistrationConfig().replace({'semantic.local_radius': -1.0})
+    with pytest.raises(ConfigError, match='not one of'):
+        RegistrationConfig().replace({'matcher.kind': 'ot'})
+
+
+def test_cross_field_validation():
+    with pytest.raises(ConfigError, match='receptive-field'):
+        RegistrationConfig().replace({'semantic.ring_count': 256, 'semantic.ring_width': 5.0})
+    with pytest.raises(ConfigError, match='k2'):
+        RegistrationConfig().replace({'estimator.k1': 10, 'estimator.k2': 20})
+
+
+def test_unknown_class_names_are_rejected_by_the_pipeline():
+    config = RegistrationConfig().replace({'semantic.landmark_classes': ['pole', 'lamp']})
+    with pytest.raises(ConfigError, match='lamp'):
+        Registration(config)
+
+
+def test_ints_are_accepted_for_floats_and_yaml_loading(tmp_path):
+    config = RegistrationConfig().replace({'semantic.ring_width': 2})
+    assert config.semantic.ring_width == 2.0 and isinstance(config.semantic.ring_width, float)
+    path = tmp_path / 'params.yaml'
+    path.write_text(yaml.safe_dump({'mlsemreg_node': {'ros__parameters': {
+        'semantic': {'top_k': 3}, 'odom_frame': 'map'}}}))
+    assert RegistrationConfig.from_yaml(path).semantic.top_k == 3
+    path.write_text(yaml.safe_dump({'semantic': {'top_kk': 3}}))
+    with pytest.raises(ConfigError):
+        RegistrationConfig.from_yaml(path)

@@ -1,0 +1,119 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+mlsemreg-eval-bag end to end on a short simulated bag, with regression thresholds.
+
+The bag: 5 simulated scans (1 m apart); ``--stride 2`` registers scan k onto
+k - 2 (2 m). Thresholds fail when the registration is broken: a starved
+configuration (40 keypoints, no semantics) must drop the recall, and ML-SemReg
+must keep a clearly higher inlier ratio than plain matching (paper's claim).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import Any
+
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.datasets.poses import read_kitti_poses, read_tum_poses
+from mlsemreg_ros.tools import eval_bag, simulate
+import numpy as np
+import pytest
+
+#: Fewer keypoints than the default keep the test fast (SC2-PCR is quadratic).
+FAST = ['--set', 'keypoints.count=1500']
+
+
+@pytest.fixture(scope='module')
+def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp('eval') / 'sim'
+    assert simulate.main([str(out), '--frames', '5', '--seed', '5', '--azimuth-steps', '1024',
+                          '--quiet']) == 0
+    return out
+
+
+@pytest.fixture(scope='module')
+def default_run(bag: Path) -> Path:
+    """Results folder of the default configuration (shared by the tests below)."""
+    out = bag.parent / 'default'
+    run(bag, out)
+    return out
+
+
+def run(bag: Path, out: Path, *args: str) -> dict[str, Any]:
+    assert eval_bag.main([str(bag), '-o', str(out), '--stride', '2', '--quiet', *FAST,
+                          *args]) == 0
+    return json.loads((out / 'summary.json').read_text())
+
+
+def test_eval_bag_registers_the_simulated_bag_and_writes_every_output(
+        default_run: Path) -> None:
+    out = default_run
+    summary = json.loads((out / 'summary.json').read_text())
+    assert tuple(summary) == eval_bag.SUMMARY_KEYS
+    assert summary['n_frames'] == 3
+    assert summary['registration_recall_pct'] == 100.0
+    assert summary['rotation_error_deg'] < 1.0
+    assert summary['translation_error_cm'] < 20.0
+    assert summary['ate_rmse_m'] < 0.2
+    assert summary['kitti_t_err_pct'] is None  # 4 m: shorter than the 100 m segments
+    assert summary['latency_ms_p95'] >= summary['latency_ms_p50'] > 0
+    details = json.loads((out / 'details.json').read_text())
+    assert details['n_pairs'] == 2 and details['modes'] == {'ml-semreg': 2}
+    with open(out / 'frames.csv') as f:
+        rows = list(csv.DictReader(f))
+    assert [int(r['bag_index']) for r in rows] == [0, 2, 4]
+    assert [int(r['keyframe_index']) for r in rows] == [0, 0, 2]
+    assert all(r['success'] == 'True' for r in rows[1:])
+    assert read_kitti_poses(out / 'trajectory_kitti.txt').shape == (3, 4, 4)
+    stamps, tum = read_tum_poses(out / 'trajectory_tum.txt')
+    assert tum.shape == (3, 4, 4) and np.all(np.diff(stamps) > 0.19)
+    np.testing.assert_allclose(tum[2, :3, 3], read_kitti_poses(
+        out / 'ground_truth_kitti.txt')[2, :3, 3], atol=0.2)
+    for png in ('trajectory.png', 'errors.png', 'correspondences.png'):
+        assert (out / png).stat().st_size > 10_000
+    # The effective config loads back and equals what ran.
+    config, policy = eval_bag.load_parameters(out / 'config.yaml', [])
+    assert config.keypoints.count == 1500 and policy.policy == 'every_frame'
+    assert config == RegistrationConfig().replace({'keypoints.count': 1500})
+
+
+def test_broken_registration_drops_the_recall(bag: Path, tmp_path: Path) -> None:
+    summary = run(bag, tmp_path / 'broken', '--set', 'keypoints.count=40',
+                  '--set', 'semantic.enabled=false')
+    assert summary['registration_recall_pct'] < 50.0
+    assert eval_bag.main([str(bag), '-o', str(tmp_path / 'gate'), '--stride', '2',
+                          '--quiet', '--no-plots', '--fail-below', '90', '--set',
+                          'keypoints.count=40', '--set', 'semantic.enabled=false']) == 1
+
+
+def test_ml_semreg_has_a_higher_inlier_ratio_than_plain_matching(
+        bag: Path, default_run: Path, tmp_path: Path) -> None:
+    plain = tmp_path / 'plain'
+    run(bag, plain, '--no-plots', '--set', 'semantic.enabled=false')
+    details = json.loads((default_run / 'details.json').read_text())
+    ir_semantic = details['inlier_ratio_gt_pct_mean']
+    ir_plain = json.loads((plain / 'details.json').read_text())['inlier_ratio_gt_pct_mean']
+    assert ir_semantic > 2.0 * ir_plain, (ir_semantic, ir_plain)
+
+
+def test_bad_parameters_are_reported(bag: Path, tmp_path: Path,
+                                     capsys: pytest.CaptureFixture[str]) -> None:
+    assert eval_bag.main([str(bag), '-o', str(tmp_path / 'x'), '--set', 'semantic.nope=1']) == 2
+    assert 'unknown parameter' in capsys.readouterr().err
+    assert eval_bag.main([str(bag), '--set', 'keyframe.policy=sometimes']) == 2
+    assert eval_bag.main([str(tmp_path), '--quiet']) == 2
