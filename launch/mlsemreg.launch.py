@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Launch mlsemreg_node on a labeled PointCloud2 topic.
+"""
+Launch mlsemreg_node on a labeled PointCloud2 topic.
 
 ``ros2 launch mlsemreg_ros mlsemreg.launch.py points_topic:=/velodyne_points_labeled
 params_file:=/path/params.yaml use_sim_time:=true``

@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""colcon build, find the executable like ``ros2 run`` does, run it, register, SIGINT.
+"""
+colcon build, find the executable like ``ros2 run`` does, run it, register, SIGINT.
 
 Uses the venv's colcon (colcon-core + colcon-ros + colcon-python-setup-py) and
 starts the *installed* ``lib/mlsemreg_ros/mlsemreg_node`` in a subprocess

@@ -38,4 +38,4 @@ def test_copyright():
                    if not f.read_text().startswith(header)]
         assert files and not missing, f'files without the license header: {missing}'
     else:
-        assert main(argv=PATHS + ['test']) == 0, 'Found errors'
+        assert main(argv=[*PATHS, 'test']) == 0, 'Found errors'

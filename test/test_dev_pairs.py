@@ -11,7 +11,8 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Regression on the 10 real KITTI dev pairs: RR, IN and IR against the reference figures.
+"""
+Regression on the 10 real KITTI dev pairs: RR, IN and IR against the reference figures.
 
 Reference implementation on the same pairs: GEDI NN+ML-SemReg+SC2-PCR IN 716.3, IR 10.76 %,
 RR 100 %; FPFH NN+ML-SemReg+SC2-PCR IN 299.5, IR 4.41 %, RR 80 %.
@@ -32,8 +33,9 @@ def _run(descriptor: str, semantic: bool = True) -> dict:
     metrics = []
     for path in dev_pair_files():
         pair = load_pair(path)
-        src_desc, dst_desc = pair.descriptors(descriptor) if descriptor != 'fpfh' else (None,
-                                                                                       None)
+        no_descriptors = (None, None)  # fpfh: computed by the pipeline at the keypoints
+        src_desc, dst_desc = (pair.descriptors(descriptor) if descriptor != 'fpfh'
+                              else no_descriptors)
         source = registration.prepare(pair.pts_src, pair.label_src, keypoints=pair.kpts_src,
                                       descriptors=src_desc, voxelize=False)
         target = registration.prepare(pair.pts_dst, pair.label_dst, keypoints=pair.kpts_dst,

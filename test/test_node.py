@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""mlsemreg_node with the real rclpy: topics, frames, stamps, parameters, bad input, reset.
+"""
+mlsemreg_node with the real rclpy: topics, frames, stamps, parameters, bad input, reset.
 
 The node and a probe node run in a private rclpy context (ROS_DOMAIN_ID 61)
 with an executor thread; the probe publishes scans on ``points`` and waits for

@@ -26,7 +26,7 @@ from typing import Any
 
 from mlsemreg_ros.core.config import ConfigError, RegistrationConfig
 from mlsemreg_ros.core.odometry import KeyframePolicy, Odometry, rotation_angle_deg
-from mlsemreg_ros.core.types import Correspondences, RegistrationResult
+from mlsemreg_ros.core.results import Correspondences, RegistrationResult
 from mlsemreg_ros.simulation.trajectory import euler_to_matrix
 import numpy as np
 import pytest

@@ -139,8 +139,9 @@ def test_pace_topic_holds_playback_until_a_slow_consumer_answered(
              '--wait-for-subscribers', '1', '--quiet'], env=env,
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
         deadline = time.monotonic() + 45.0
-        while time.monotonic() < deadline and (len(received) < N_CLOUDS
-                                                or player.poll() is None):
+        while time.monotonic() < deadline:
+            if len(received) == N_CLOUDS and player.poll() is not None:
+                break
             executor.spin_once(timeout_sec=0.05)
         output = player.communicate(timeout=30)[0].decode()
         assert player.returncode == 0, output

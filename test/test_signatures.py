@@ -14,13 +14,13 @@
 """Known-answer and property tests of Local-SS (eq. 1), BMR-SS (eq. 4) and eq. 5."""
 
 from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.results import Landmarks
 from mlsemreg_ros.core.signatures import (
     binary_multi_ring_signature,
     bmr_signature_sparse,
     local_semantic_signature,
     scene_similarity,
 )
-from mlsemreg_ros.core.types import Landmarks
 import numpy as np
 from scipy.spatial.transform import Rotation
 

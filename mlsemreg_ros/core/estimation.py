@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from mlsemreg_ros.core.config import EstimatorConfig
 from mlsemreg_ros.core.icp import refine_icp
-from mlsemreg_ros.core.types import EstimateResult
+from mlsemreg_ros.core.results import EstimateResult
 import numpy as np
 
 __all__ = ['estimate', 'refine_icp']

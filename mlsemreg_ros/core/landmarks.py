@@ -15,7 +15,7 @@
 
 from __future__ import annotations
 
-from mlsemreg_ros.core.types import Landmarks
+from mlsemreg_ros.core.results import Landmarks
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components

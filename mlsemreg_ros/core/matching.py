@@ -48,8 +48,8 @@ import os
 from typing import Any
 
 from mlsemreg_ros.core.config import SemanticConfig
+from mlsemreg_ros.core.results import Correspondences, PreparedScan
 from mlsemreg_ros.core.signatures import bmr_signature_sparse
-from mlsemreg_ros.core.types import Correspondences, PreparedScan
 import numpy as np
 import scipy.sparse as sp
 

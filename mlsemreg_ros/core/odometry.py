@@ -36,7 +36,7 @@ from typing import Any
 
 from mlsemreg_ros.core.config import ConfigError, RegistrationConfig
 from mlsemreg_ros.core.pipeline import Registration
-from mlsemreg_ros.core.types import PreparedScan, RegistrationResult
+from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 import numpy as np
 
 POLICIES = ('every_frame', 'distance')

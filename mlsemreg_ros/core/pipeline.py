@@ -33,7 +33,7 @@ from mlsemreg_ros.core import features, landmarks, matching, signatures
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import estimate, refine_icp
 from mlsemreg_ros.core.labels import LabelMap
-from mlsemreg_ros.core.types import Correspondences, PreparedScan, RegistrationResult
+from mlsemreg_ros.core.results import Correspondences, PreparedScan, RegistrationResult
 import numpy as np
 from scipy.spatial import cKDTree
 

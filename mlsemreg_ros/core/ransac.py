@@ -20,8 +20,8 @@ from __future__ import annotations
 import time
 
 from mlsemreg_ros.core.config import EstimatorConfig
+from mlsemreg_ros.core.results import EstimateResult
 from mlsemreg_ros.core.rigid import apply_transform
-from mlsemreg_ros.core.types import EstimateResult
 import numpy as np
 
 #: Open3D's pruning of 3-samples: edge-length ratio and point distance checks.

@@ -61,8 +61,8 @@ from __future__ import annotations
 import time
 
 from mlsemreg_ros.core.config import EstimatorConfig
+from mlsemreg_ros.core.results import EstimateResult
 from mlsemreg_ros.core.rigid import apply_transform, weighted_rigid_transform
-from mlsemreg_ros.core.types import EstimateResult
 import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
@@ -80,14 +80,14 @@ _ENUMERATION_COST = 5.0
 _BIT_COST = 3.0 / 64.0
 _PAIR_COST = 30.0
 
-#: SC2 work budget in cost-model nanoseconds (about 100-200 ms of real work on a
+#: SC2 work budget in cost-model nanoseconds (about 100 ms of real work on a
 #: 2-core Xeon).  SC2-PCR's reference code runs on a GPU; on a CPU the SC2 rows
 #: of ``seed_ratio * K`` seeds cost up to seconds when the compatibility is dense
 #: (inlier-rich input, e.g. ML-SemReg correspondences).  Then only the best-scored
 #: seeds that fit are kept (never fewer than ``_MIN_SEEDS``); the diagnostics
 #: report ``n_seeds_nms`` (before) and ``n_seeds`` (after).  On the 10 KITTI dev
 #: pairs fewer seeds (down to 1 %) changed no registration.
-_SC2_BUDGET_NS = 100e6
+_SC2_BUDGET_NS = 50e6
 _MIN_SEEDS = 64
 
 #: uint64 words per chunk of the bit-set part of the SC2 computation.

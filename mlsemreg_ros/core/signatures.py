@@ -20,7 +20,7 @@ semantic labels, landmarks (cluster centroids of landmark classes), N rings of w
 
 from __future__ import annotations
 
-from mlsemreg_ros.core.types import Landmarks
+from mlsemreg_ros.core.results import Landmarks
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree

@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""``mlsemreg/correspondences``: the registration drawn as a MarkerArray for rviz.
+"""
+``mlsemreg/correspondences``: the registration drawn as a MarkerArray for rviz.
 
 Namespaces: ``inliers`` (green LINE_LIST), ``outliers`` (red LINE_LIST, when
 asked), ``landmarks`` (SPHERE_LIST of the current scan's BMR-SS landmark
@@ -26,7 +27,7 @@ from __future__ import annotations
 import colorsys
 
 from geometry_msgs.msg import Point
-from mlsemreg_ros.core.types import Landmarks, RegistrationResult
+from mlsemreg_ros.core.results import Landmarks, RegistrationResult
 import numpy as np
 from std_msgs.msg import ColorRGBA, Header
 from visualization_msgs.msg import Marker, MarkerArray
@@ -91,7 +92,8 @@ def _lines(header: Header, ns: str, a: np.ndarray, b: np.ndarray, rgba: tuple,
 def correspondence_markers(header: Header, result: RegistrationResult, landmarks: Landmarks,
                            class_names: tuple[str, ...], *, publish_outliers: bool,
                            max_lines: int) -> MarkerArray:
-    """Draw one registration as a MarkerArray in the current scan's frame (``header``).
+    """
+    Draw one registration as a MarkerArray in the current scan's frame (``header``).
 
     ``result.source_points`` are current-scan keypoints, ``result.target_points``
     keyframe keypoints; ``result.transform`` is ``T_keyframe_current``. At most

@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Message building for the node's outputs: transform, odometry, path, diagnostics.
+"""
+Message building for the node's outputs: transform, odometry, path, diagnostics.
 
 Poses are 4x4 homogeneous matrices ``T_parent_child`` (``p_parent = T @ p_child``).
 The only arithmetic here is what turning a registration result into messages
@@ -27,7 +28,7 @@ from typing import Any
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Pose, PoseStamped, Transform, TransformStamped
-from mlsemreg_ros.core.types import RegistrationResult
+from mlsemreg_ros.core.results import RegistrationResult
 from nav_msgs.msg import Odometry
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -89,7 +90,8 @@ def pose_stamped(stamp: Time, frame: str, transform: np.ndarray) -> PoseStamped:
 
 
 def relative_variances(result: RegistrationResult, inlier_threshold: float) -> np.ndarray:
-    """Variances (6,) of one registration: ``[x, y, z, roll, pitch, yaw]`` in m^2 and rad^2.
+    """
+    Variances (6,) of one registration: ``[x, y, z, roll, pitch, yaw]`` in m^2 and rad^2.
 
     Confidence model: an inlier's residual is bounded by the inlier threshold
     tau, so the translation's standard error is ``sigma_t = tau / sqrt(IN)``

@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""``mlsemreg_node``: labeled PointCloud2 in; transform, odometry, path and markers out.
+"""
+``mlsemreg_node``: labeled PointCloud2 in; transform, odometry, path and markers out.
 
 Interface (DESIGN.md section 5; names are part of the contract):
 
@@ -61,7 +62,7 @@ from mlsemreg_ros.core.labels import LabelError, LabelMap
 from mlsemreg_ros.core.odometry import KeyframePolicy, OdometryStep
 from mlsemreg_ros.core.odometry import Odometry as ScanOdometry
 from mlsemreg_ros.core.pipeline import Registration
-from mlsemreg_ros.core.types import PreparedScan, RegistrationResult
+from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.ros import messages
 from mlsemreg_ros.ros.markers import correspondence_markers
 from mlsemreg_ros.ros.node_config import NodeConfig

@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Node-level parameters (frames, keyframe policy, QoS, output); no rclpy here.
+"""
+Node-level parameters (frames, keyframe policy, QoS, output); no rclpy here.
 
 The algorithm's parameters live in :mod:`mlsemreg_ros.core.config`; this module
 holds only what the ROS node adds around them, declared with the same
@@ -192,7 +193,8 @@ def _constraints(f: dataclasses.Field, bar: str = '|') -> list[str]:
 
 
 def params_yaml_text() -> str:
-    """``config/params.yaml``: every parameter with its default and description.
+    """
+    ``config/params.yaml``: every parameter with its default and description.
 
     Regenerate the file with ``python -c "from mlsemreg_ros.ros.node_config import
     params_yaml_text; print(params_yaml_text(), end='')" > config/params.yaml``.

@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""ROS parameters <-> RegistrationConfig + NodeConfig, validated and applied live.
+"""
+ROS parameters <-> RegistrationConfig + NodeConfig, validated and applied live.
 
 Every parameter is declared from the config dataclasses' fields (flat name,
 default, metadata -> ``ParameterDescriptor``), so no default is copied by hand.
@@ -95,14 +96,16 @@ class ConfigSnapshot:
 
 
 class LiveParameters:
-    """Declares the node's parameters and keeps the validated configuration up to date.
+    """
+    Declares the node's parameters and keeps the validated configuration up to date.
 
     Thread-safe: the executor thread sets parameters, the worker reads
     :meth:`snapshot` at the start of each frame.
     """
 
     def __init__(self, node: Node, label_map: LabelMap) -> None:
-        """Declare every parameter (overrides from the parameter file win) and validate.
+        """
+        Declare every parameter (overrides from the parameter file win) and validate.
 
         Raises ConfigError when the startup values are inconsistent.
         """

@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""``sensor_msgs/PointCloud2`` <-> NumPy, vectorized, without importing ROS.
+"""
+``sensor_msgs/PointCloud2`` <-> NumPy, vectorized, without importing ROS.
 
 Both functions are duck-typed on the message: they work with rclpy's
 ``sensor_msgs.msg.PointCloud2`` and with the message classes of a rosbags
@@ -98,7 +99,8 @@ def _buffer(data: Any) -> np.ndarray:
 
 def pointcloud2_to_arrays(msg: Any, label_field: str = 'label',
                           require_labels: bool = True) -> CloudArrays:
-    """Convert a PointCloud2 to xyz (N, 3) float64, raw labels (N,) int64 and intensity.
+    """
+    Convert a PointCloud2 to xyz (N, 3) float64, raw labels (N,) int64 and intensity.
 
     Any integer or float label datatype is accepted and converted losslessly to
     int64; float labels must hold integral values. SemanticKITTI instance bits
@@ -185,7 +187,8 @@ def arrays_to_pointcloud2(msg_cls: type, field_cls: type, header: Any, xyz: np.n
                           intensity: np.ndarray | None = None,
                           label_datatype: str = 'uint32',
                           label_field: str = 'label') -> Any:
-    """Build an unorganized (height 1) PointCloud2 from arrays.
+    """
+    Build an unorganized (height 1) PointCloud2 from arrays.
 
     Layout: ``x, y, z`` float32, then ``intensity`` float32 (if given), then
     the label field (``label_datatype``, uint32 by default; values must be

@@ -33,6 +33,9 @@ from mlsemreg_ros.simulation.trajectory import Path2D, plan_route, sensor_poses,
 from mlsemreg_ros.simulation.world import build_world, StreetGrid, World, WorldConfig
 import numpy as np
 
+#: Route planned beyond the last frame (> braking distance from cruise speed), metres.
+ROUTE_LOOKAHEAD_M = 60.0
+
 #: Header stamp of frame 0 (2023-11-14T22:13:20Z): a fixed, non-zero ROS time.
 START_TIME_NS = 1_700_000_000 * 10**9
 
@@ -44,7 +47,7 @@ class SimulationConfig:
     seed: int = 0
     frames: int = 200
     rate_hz: float = 10.0
-    step: float = 1.0  # metres driven per frame (1 m at 10 Hz = 36 km/h)
+    step: float = 1.0  # metres per frame on straights (1 m at 10 Hz = 36 km/h); slower in turns
     blur_radius: float = 0.0  # boundary blur radius, metres (0: clean labels)
     blur_probability: float = 0.5
     flip_fraction: float = 0.0  # share of points given a random other class
@@ -75,12 +78,15 @@ class Simulation:
         self.label_map = label_map if label_map is not None else LabelMap.load()
         world_cfg = replace(cfg.world, seed=cfg.seed)
         self.grid = StreetGrid.generate(world_cfg)
-        length = max(cfg.frames - 1, 1) * cfg.step + 5.0
+        # Plan beyond the last frame: the car brakes for turns ahead of it, so frame k
+        # must see the same route whatever the number of frames.
+        length = max(cfg.frames - 1, 1) * cfg.step + ROUTE_LOOKAHEAD_M
         self.path: Path2D = plan_route(self.grid, length, np.random.default_rng([cfg.seed, 3]),
                                        cfg.trajectory)
         self.world_poses = sensor_poses(self.path, cfg.frames, cfg.step,
                                         cfg.lidar.mount_height,
-                                        np.random.default_rng([cfg.seed, 4]), cfg.trajectory)
+                                        np.random.default_rng([cfg.seed, 4]), cfg.trajectory,
+                                        dt=1.0 / cfg.rate_hz)
         route_xy = self.path.sample(np.arange(0.0, self.path.length + 5.0, 5.0))[0]
         self.world: World = build_world(self.grid, route_xy, world_cfg, self.label_map)
         self.lidar = Lidar(self.world, cfg.lidar)

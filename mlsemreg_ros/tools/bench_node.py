@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""``mlsemreg-bench-node``: per-frame latency of mlsemreg_node with default parameters.
+"""
+``mlsemreg-bench-node``: per-frame latency of mlsemreg_node with default parameters.
 
 Runs the node in-process (its own rclpy context and executor thread) and a
 probe node that publishes the dev pairs (or the synthetic street when they are
@@ -78,7 +79,8 @@ def to_stamp(seconds: float) -> Any:
 
 
 class NodeProbe:
-    """Publishes scans to mlsemreg_node and records everything it publishes.
+    """
+    Publishes scans to mlsemreg_node and records everything it publishes.
 
     Wraps an rclpy Node (``self.node``) created in ``context``; its callbacks only
     append to lists under a condition variable, so tests can wait for a message

@@ -41,6 +41,7 @@ import threading
 import time
 from typing import Any
 
+from mlsemreg_ros.tools.cli_help import HelpFormatter
 import numpy as np
 import yaml
 
@@ -331,7 +332,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog='mlsemreg-demo', description='Simulate a drive (cached), run mlsemreg_node on it '
         'through the player, record its odometry, print the metrics and write plots.',
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     p.add_argument('--frames', type=int, default=200, help='scans of the simulated drive')
     p.add_argument('--seed', type=int, default=0, help='world seed')
     p.add_argument('--cache-dir', type=Path, default=Path('.cache'),

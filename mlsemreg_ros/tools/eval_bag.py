@@ -60,6 +60,7 @@ from mlsemreg_ros.core.metrics import (
     translation_error_m,
 )
 from mlsemreg_ros.datasets.poses import inverse
+from mlsemreg_ros.tools.cli_help import HelpFormatter
 import numpy as np
 import yaml
 
@@ -488,7 +489,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog='mlsemreg-eval-bag',
         description='Replay a bag (mcap or sqlite3) or SemanticKITTI folder offline through the '
         "node's registration and keyframe policy; write metrics, trajectories and plots.",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     p.add_argument('bag', type=Path, help='rosbag2 directory / .mcap / .db3, or a '
                    'SemanticKITTI sequence folder')
     p.add_argument('-o', '--output', type=Path,

@@ -33,6 +33,7 @@ import time
 import warnings
 
 from mlsemreg_ros.datasets.bag import GT_TOPIC, POINTS_TOPIC, STORAGES, WORLD_FRAME
+from mlsemreg_ros.tools.cli_help import HelpFormatter
 import numpy as np
 
 
@@ -41,7 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog='mlsemreg-kitti-to-bag', description='Convert a SemanticKITTI sequence folder '
         '(velodyne/, labels/, poses.txt, calib.txt, times.txt) into a rosbag2.',
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     p.add_argument('sequence', type=Path, help='sequence folder, e.g. .../sequences/08')
     p.add_argument('out', type=Path, help='output bag directory (must not exist, see --force)')
     p.add_argument('--storage', choices=STORAGES, default='mcap', help='rosbag2 storage plugin')

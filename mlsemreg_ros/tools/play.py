@@ -37,6 +37,8 @@ import sys
 import time
 from typing import Any
 
+from mlsemreg_ros.tools.cli_help import HelpFormatter
+
 
 def message_class(msgtype: str) -> type:
     """Import the rclpy message class of ``pkg/msg/Type`` (ImportError if not installed)."""
@@ -248,7 +250,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog='mlsemreg-play', description="Publish a bag's topics with rclpy at the recorded "
         'rate (stand-in for ros2 bag play).',
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     p.add_argument('bag', type=Path, help='rosbag2 directory (mcap or sqlite3)')
     p.add_argument('-r', '--rate', type=float, default=1.0,
                    help='speed factor of the recorded rate (<= 0: as fast as possible)')

@@ -31,6 +31,7 @@ import sys
 import time
 
 from mlsemreg_ros.datasets.bag import GT_TOPIC, POINTS_TOPIC, SENSOR_FRAME, STORAGES, WORLD_FRAME
+from mlsemreg_ros.tools.cli_help import HelpFormatter
 import numpy as np
 import yaml
 
@@ -39,7 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     """Command-line interface."""
     p = argparse.ArgumentParser(
         prog='mlsemreg-simulate', description=__doc__.split('\n\n')[0].split(': ', 1)[-1],
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+        formatter_class=HelpFormatter)
     p.add_argument('out', type=Path, help='output bag directory (must not exist, see --force)')
     p.add_argument('--frames', type=int, default=200, help='number of scans')
     p.add_argument('--seed', type=int, default=0, help='world, route and noise seed')

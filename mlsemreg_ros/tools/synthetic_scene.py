@@ -12,7 +12,8 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""A small deterministic labeled street scene and a registration pair taken in it.
+"""
+A small deterministic labeled street scene and a registration pair taken in it.
 
 Used by the node tests and ``mlsemreg-bench-node`` when the KITTI dev pairs are
 absent. The street: road and sidewalks (ground), building facades (boxes),
@@ -134,7 +135,8 @@ def scan_at(world: np.ndarray, labels: np.ndarray, pose: np.ndarray, seed: int,
 def synthetic_pair(seed: int = 0, yaw_deg: float = 8.0,
                    translation: tuple[float, float, float] = (2.5, 0.4, 0.0),
                    max_points: int = 25000) -> Pair:
-    """Take a Pair in the street: dst at the origin, src moved by (yaw, translation).
+    """
+    Take a Pair in the street: dst at the origin, src moved by (yaw, translation).
 
     ``trans_gt`` = T_dst_src (maps src points onto dst), as in the KITTI pair files.
     """
