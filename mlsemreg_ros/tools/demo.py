@@ -333,7 +333,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog='mlsemreg-demo', description='Simulate a drive (cached), run mlsemreg_node on it '
         'through the player, record its odometry, print the metrics and write plots.',
         formatter_class=HelpFormatter)
-    p.add_argument('--frames', type=int, default=200, help='scans of the simulated drive')
+    p.add_argument('--frames', type=int, default=100, help='scans of the simulated drive')
     p.add_argument('--seed', type=int, default=0, help='world seed')
     p.add_argument('--cache-dir', type=Path, default=Path('.cache'),
                    help='where simulated bags are kept')
