@@ -267,16 +267,8 @@ class RegistrationConfig:
     # -- validation ------------------------------------------------------------------
     def errors(self) -> list[str]:
         """Every range, choice and cross-field violation, as readable sentences."""
-        errors: list[str] = []
-        for key, value in self.to_flat_dict().items():
-            meta = field_of(key).metadata
-            if meta['choices'] is not None and value not in meta['choices']:
-                errors.append(f'{key}={value!r} is not one of {list(meta["choices"])}')
-            if isinstance(value, (int, float)) and not isinstance(value, bool):
-                if meta['low'] is not None and value < meta['low']:
-                    errors.append(f'{key}={value} is below its minimum {meta["low"]}')
-                if meta['high'] is not None and value > meta['high']:
-                    errors.append(f'{key}={value} is above its maximum {meta["high"]}')
+        errors = [e for key, value in self.to_flat_dict().items()
+                  for e in metadata_errors(key, value, field_of(key).metadata)]
         sem, est = self.semantic, self.estimator
         field_m = sem.ring_count * sem.ring_width
         if field_m > MAX_RECEPTIVE_FIELD_M:
@@ -292,6 +284,19 @@ class RegistrationConfig:
         if overlap:
             errors.append(f'classes both undefined and ignored: {sorted(overlap)}')
         return errors
+
+
+def metadata_errors(key: str, value: Any, meta: Any) -> list[str]:
+    """Check one value against its field metadata (choices, low, high)."""
+    errors = []
+    if meta['choices'] is not None and value not in meta['choices']:
+        errors.append(f'{key}={value!r} is not one of {list(meta["choices"])}')
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if meta['low'] is not None and value < meta['low']:
+            errors.append(f'{key}={value} is below its minimum {meta["low"]}')
+        if meta['high'] is not None and value > meta['high']:
+            errors.append(f'{key}={value} is above its maximum {meta["high"]}')
+    return errors
 
 
 def field_of(key: str) -> dataclasses.Field:

@@ -29,7 +29,14 @@ from dataclasses import dataclass, field
 import textwrap
 from typing import Any
 
-from mlsemreg_ros.core.config import coerce, ConfigError, iter_fields, NODE_NAME, param
+from mlsemreg_ros.core.config import (
+    coerce,
+    ConfigError,
+    iter_fields,
+    metadata_errors,
+    NODE_NAME,
+    param,
+)
 import yaml
 
 
@@ -131,16 +138,8 @@ class NodeConfig:
 
     def errors(self) -> list[str]:
         """Every range, choice and consistency violation, as readable sentences."""
-        errors: list[str] = []
-        for key, value in self.to_flat_dict().items():
-            meta = node_field_of(key).metadata
-            if meta['choices'] is not None and value not in meta['choices']:
-                errors.append(f'{key}={value!r} is not one of {list(meta["choices"])}')
-            if isinstance(value, (int, float)) and not isinstance(value, bool):
-                if meta['low'] is not None and value < meta['low']:
-                    errors.append(f'{key}={value} is below its minimum {meta["low"]}')
-                if meta['high'] is not None and value > meta['high']:
-                    errors.append(f'{key}={value} is above its maximum {meta["high"]}')
+        errors = [e for key, value in self.to_flat_dict().items()
+                  for e in metadata_errors(key, value, node_field_of(key).metadata)]
         if not self.label_field:
             errors.append('label_field must not be empty')
         if not self.odom_frame:

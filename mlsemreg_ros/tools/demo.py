@@ -15,7 +15,8 @@
 """
 ``mlsemreg-demo``: the real node on a simulated drive, scored like ``mlsemreg-eval-bag``.
 
-1. simulate the default sequence into a cache (reused when its parameters match);
+1. simulate a drive (default 100 scans, seed 0) into a cache (reused when its
+   parameters match);
 2. start ``mlsemreg_node`` (a separate process, reliable subscription);
 3. play the bag's ``/points`` with :class:`~mlsemreg_ros.tools.play.Player`,
    paced by the node's ``/diagnostics`` (one answer per scan, so no scan is
