@@ -133,7 +133,7 @@ def test_consensus_sets_put_the_seed_first_and_rank_by_sc2() -> None:
             assert table[r, others].max() <= scores.min()
 
 
-def test_seed_budget_keeps_the_best_seeds_of_dense_input(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_seed_budget_keeps_the_best_seeds_of_dense_input() -> None:
     # 60 % inliers: dense compatibility, expensive SC2 rows
     src, dst, truth, _ = _problem(15, count=1500, outlier_ratio=0.4)
     matrix = sc2.compatibility_matrix(src, dst, 0.6)
@@ -147,11 +147,12 @@ def test_seed_budget_keeps_the_best_seeds_of_dense_input(monkeypatch: pytest.Mon
     np.testing.assert_array_equal(kept, seeds[:100])  # a prefix: the best scores
     np.testing.assert_array_equal(sc2.budget_seeds(matrix, tight, seeds, 0.0),
                                   seeds[:sc2._MIN_SEEDS])
-    # end to end with a small budget: fewer seeds, same registration
-    monkeypatch.setattr(sc2, '_SC2_BUDGET_NS', float(cost[99]))
-    result = sc2.sc2pcr(src, dst, EstimatorConfig())
+    # end to end with a small budget (estimator.second_order_budget): fewer seeds, same result
+    result = sc2.sc2pcr(src, dst, EstimatorConfig(second_order_budget=float(cost[99]) / 1e6))
     assert result.diagnostics['n_seeds'] < result.diagnostics['n_seeds_nms']
     assert _errors(result.transform, truth)[0] < 0.5
+    unbudgeted = sc2.sc2pcr(src, dst, EstimatorConfig(second_order_budget=0.0))
+    assert unbudgeted.diagnostics['n_seeds'] == unbudgeted.diagnostics['n_seeds_nms']
 
 
 def _plain_seed_hypothesis(src: np.ndarray, dst: np.ndarray, consensus: np.ndarray,

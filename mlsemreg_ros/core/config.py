@@ -167,6 +167,10 @@ class EstimatorConfig:
     k2: int = param(20, 'Second-stage consensus set size per seed.', low=3, high=1000)
     power_iterations: int = param(
         10, 'Power iterations for the leading eigenvector.', low=1, high=1000)
+    second_order_budget: float = param(
+        50.0, 'Work budget of the SC2 stage (cost-model ms, about CPU ms on 2 cores): when '
+        'seed_ratio x K seeds would exceed it, only the best-scored seeds that fit are kept '
+        '(at least 64); 0 disables the budget.', unit='ms', low=0.0, high=1e6)
     max_correspondences: int = param(
         10000, 'Cap on correspondences fed to the estimator; the best ranked '
         '(smallest descriptor distance) are kept.', low=10, high=100000)

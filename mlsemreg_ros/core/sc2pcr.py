@@ -87,7 +87,7 @@ _PAIR_COST = 30.0
 #: seeds that fit are kept (never fewer than ``_MIN_SEEDS``); the diagnostics
 #: report ``n_seeds_nms`` (before) and ``n_seeds`` (after).  On the 10 KITTI dev
 #: pairs fewer seeds (down to 1 %) changed no registration.
-_SC2_BUDGET_NS = 50e6
+_SC2_BUDGET_NS = EstimatorConfig().second_order_budget * 1e6  # estimator.second_order_budget
 _MIN_SEEDS = 64
 
 #: uint64 words per chunk of the bit-set part of the SC2 computation.
@@ -147,7 +147,8 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
     seeds = pick_seeds(p, scores, config.nms_radius, max_seeds)
     tight = tight_compatibility(sc)
     diagnostics['n_seeds_nms'] = int(seeds.size)
-    seeds = budget_seeds(sc, tight, seeds)
+    budget_ms = config.second_order_budget
+    seeds = budget_seeds(sc, tight, seeds, budget_ms * 1e6 if budget_ms > 0 else np.inf)
     timings['sc2_seeds_ms'] = _ms(tick)
     diagnostics['leading_eigenvalue'] = eigenvalue
     diagnostics['n_seeds'] = int(seeds.size)
