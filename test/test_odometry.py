@@ -131,3 +131,15 @@ def test_policy_validation_and_helpers() -> None:
     assert policy == KeyframePolicy('distance', 1.0, 5.0)
     assert KeyframePolicy.from_config(policy) == policy
     assert abs(rotation_angle_deg(transform(0.0, 30.0)) - 30.0) < 1e-9
+
+
+def test_reconfigure_prepares_the_keyframe_again_only_when_preparation_changes() -> None:
+    registration = ScriptedRegistration([])
+    odometry = Odometry(registration)
+    odometry.process(*scan(0), stamp_ns=10)
+    assert registration.prepared == 1
+    odometry.reconfigure(registration.config.replace({'estimator.min_inliers': 20}))
+    assert registration.prepared == 1  # estimator-only change: cached keyframe kept
+    odometry.reconfigure(registration.config.replace({'semantic.local_radius': 1.0}))
+    assert registration.prepared == 2  # Local-SS changes: keyframe prepared again
+    assert registration.config.semantic.local_radius == 1.0

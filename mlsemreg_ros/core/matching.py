@@ -46,6 +46,7 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 import os
+import time
 from typing import Any
 
 from mlsemreg_ros.core.config import SemanticConfig
@@ -87,8 +88,6 @@ def ml_semreg(source: PreparedScan, target: PreparedScan, config: SemanticConfig
     fewer than ``config.min_landmarks`` such landmarks, Mask Matching is skipped and
     Group Matching runs alone (mode ``'gm-only'``, reported in the message).
     """
-    import time
-
     def name(c: int) -> str:
         return class_names[c] if class_names is not None else str(c)
 

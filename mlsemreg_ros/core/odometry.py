@@ -137,9 +137,17 @@ class Odometry:
         return self.registration.config
 
     def reconfigure(self, config: RegistrationConfig) -> None:
-        """Apply a new registration config; the cached keyframe is prepared again."""
+        """
+        Apply a new registration config from the next scan on.
+
+        The cached keyframe is prepared again only when a section that
+        :meth:`Registration.prepare` reads (semantic, features, keypoints) changed.
+        """
+        old = self.registration.config
         self.registration.config = config
-        if self.keyframe is not None:
+        reprepare = any(getattr(old, s) != getattr(config, s)
+                        for s in ('semantic', 'features', 'keypoints'))
+        if self.keyframe is not None and reprepare:
             self.keyframe.prepared = self.registration.prepare(self.keyframe.points,
                                                                self.keyframe.labels)
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from pathlib import Path
+import shutil
 from typing import Any
 import warnings
 
@@ -281,3 +282,12 @@ class BagScanReader:
             yield Scan(index, stamp, cloud.xyz, cloud.labels, cloud.intensity,
                        str(msg.header.frame_id), self.ground_truth_at(stamp))
             produced += 1
+
+
+def replace_output(path: Path, force: bool) -> str | None:
+    """Make room for a new output folder: an error message if it exists without ``force``."""
+    if path.exists():
+        if not force:
+            return f'{path} exists (use --force to replace it)'
+        shutil.rmtree(path)
+    return None

@@ -110,11 +110,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.stride < 1:
         print('error: --stride must be >= 1', file=sys.stderr)
         return 2
-    if args.out.exists():
-        if not args.force:
-            print(f'error: {args.out} exists (use --force to replace it)', file=sys.stderr)
-            return 2
-        shutil.rmtree(args.out)
+    from mlsemreg_ros.datasets.bag import replace_output
+
+    problem = replace_output(args.out, args.force)
+    if problem:
+        print(f'error: {problem}', file=sys.stderr)
+        return 2
     from mlsemreg_ros.datasets.scans import SourceError
 
     warnings.simplefilter('default')

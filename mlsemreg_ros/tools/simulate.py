@@ -26,7 +26,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from pathlib import Path
-import shutil
 import sys
 import time
 
@@ -130,11 +129,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.frames < 1:
         print('error: --frames must be >= 1', file=sys.stderr)
         return 2
-    if args.out.exists():
-        if not args.force:
-            print(f'error: {args.out} exists (use --force to replace it)', file=sys.stderr)
-            return 2
-        shutil.rmtree(args.out)
+    from mlsemreg_ros.datasets.bag import replace_output
+
+    problem = replace_output(args.out, args.force)
+    if problem:
+        print(f'error: {problem}', file=sys.stderr)
+        return 2
     report = write_sequence(args)
     print(f'wrote {args.out}: {report["frames"]} scans, {report["points_per_scan"]:.0f} '
           f'points/scan, {report["path_m"]:.1f} m driven; world {report["world_s"]:.1f} s, '
