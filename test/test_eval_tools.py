@@ -15,7 +15,8 @@
 
 import json
 
-from mlsemreg_ros.core.features import fpfh_at, sample_keypoints
+from mlsemreg_ros.core.features import sample_keypoints
+from mlsemreg_ros.core.fpfh import fpfh_at_keypoints
 from mlsemreg_ros.core.pairs import list_pairs, load_pair, save_pair
 from mlsemreg_ros.tools import bench, eval_pairs
 from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
@@ -38,7 +39,8 @@ def pair_dir(tmp_path_factory):
             pts = getattr(pair, f'pts_{side}')
             idx = sample_keypoints(pts, 600, 'random', 1.0, seed)
             setattr(pair, f'kpts_{side}', pts[idx])
-            getattr(pair, f'descriptors_{side}')['gedi'] = fpfh_at(pts, idx, 0.9, 30, 1.5, 100)
+            descriptors = fpfh_at_keypoints(pts, idx, 0.9, 1.5, 0.6)
+            getattr(pair, f'descriptors_{side}')['gedi'] = descriptors
         save_pair(folder / f'{seed:06d}.npz', pair)
     return folder
 

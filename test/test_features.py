@@ -14,7 +14,7 @@
 """Known-answer tests of voxel downsampling, keypoint sampling, FPFH at keypoints, validity."""
 
 from mlsemreg_ros.core.features import (
-    fpfh_at,
+    fpfh_open3d_at,
     sample_keypoints,
     valid_descriptor_mask,
     voxel_downsample,
@@ -95,7 +95,7 @@ def test_fpfh_at_equals_the_full_computation_at_those_points():
     points = np.r_[ground, box + np.array([2.0, 2.0, 1.0])]
     indices = rng.permutation(len(points))[:200]  # unsorted, as the pipeline passes them
     indices = np.r_[indices, indices[:3]]  # and with repeats
-    ours = fpfh_at(points, indices, 0.9, 30, 1.5, 100)
+    ours = fpfh_open3d_at(points, indices, 0.9, 30, 1.5, 100)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.9, max_nn=30))
     full = o3d.pipelines.registration.compute_fpfh_feature(
@@ -103,13 +103,13 @@ def test_fpfh_at_equals_the_full_computation_at_those_points():
     full = np.asarray(full.data).T
     assert ours.shape == (203, 33) and ours.dtype == np.float32
     np.testing.assert_allclose(ours, full[indices], rtol=1e-5, atol=1e-4)
-    assert fpfh_at(points, np.zeros(0, dtype=np.int64), 0.9, 30, 1.5, 100).shape == (0, 33)
+    assert fpfh_open3d_at(points, np.zeros(0, dtype=np.int64), 0.9, 30, 1.5, 100).shape == (0, 33)
 
 
 def test_fpfh_of_an_isolated_point_is_invalid():
     rng = np.random.default_rng(2)
     points = np.r_[rng.uniform(-2, 2, (400, 3)), [[100.0, 100.0, 100.0]]]
-    descriptors = fpfh_at(points, np.array([0, 400]), 0.9, 30, 1.5, 100)
+    descriptors = fpfh_open3d_at(points, np.array([0, 400]), 0.9, 30, 1.5, 100)
     np.testing.assert_array_equal(valid_descriptor_mask(descriptors), [True, False])
 
 

@@ -110,15 +110,24 @@ class FeatureConfig:
         0.3, 'Voxel size of the downsampled scan (0 disables downsampling).',
         unit='m', low=0.0, high=5.0)
     descriptor: str = param(
-        'fpfh', 'Local geometric descriptor computed at the keypoints.', choices=('fpfh',))
+        'fpfh', 'Local geometric descriptor computed at the keypoints: fpfh (vectorized, '
+        'radius neighbourhoods, normals facing the sensor, histograms on a support voxel '
+        'grid) or fpfh_open3d (Open3D compute_fpfh_feature at the keypoints, as the '
+        'reference implementation; slower).', choices=('fpfh', 'fpfh_open3d'))
     normal_radius: float = param(
         0.9, 'Normal estimation radius for FPFH.', unit='m', low=0.01, high=20.0)
     normal_max_nn: int = param(
-        30, 'Maximum neighbours for normal estimation.', low=3, high=1000)
+        30, 'Maximum neighbours for normal estimation (fpfh_open3d only; fpfh uses every '
+        'neighbour within the radius).', low=3, high=1000)
     feature_radius: float = param(
         1.5, 'FPFH feature radius.', unit='m', low=0.01, high=50.0)
     feature_max_nn: int = param(
-        100, 'Maximum neighbours for FPFH.', low=3, high=5000)
+        100, 'Maximum neighbours for FPFH (fpfh_open3d only; fpfh uses every neighbour '
+        'within the radius).', low=3, high=5000)
+    support_voxel_size: float = param(
+        0.6, 'fpfh: the point-pair histograms are computed on a voxel grid of this edge and '
+        'each keypoint gets the FPFH of its voxel (0: on the scan points themselves; cost '
+        'grows about with 1/edge^2).', unit='m', low=0.0, high=5.0)
 
 
 @dataclass

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def _voxel_groups(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray, int]:
+def voxel_groups(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray, int]:
     """
     Voxel id of every point: ``(inverse (N,) int64, number of occupied voxels)``.
 
@@ -62,7 +62,7 @@ def voxel_downsample(points: np.ndarray, labels: np.ndarray,
         raise ValueError(f'{points.shape[0]} points but {labels.shape[0]} labels')
     if voxel_size <= 0 or points.shape[0] == 0:
         return points, labels.astype(np.int32)
-    inverse, count = _voxel_groups(points, voxel_size)
+    inverse, count = voxel_groups(points, voxel_size)
     sizes = np.bincount(inverse, minlength=count).astype(np.float64)
     centroids = np.stack([np.bincount(inverse, weights=points[:, k], minlength=count)
                           for k in range(3)], axis=1) / sizes[:, None]
@@ -108,7 +108,7 @@ def sample_keypoints(points: np.ndarray, count: int, sampling: str, voxel_size: 
             return np.zeros(0, dtype=np.int64)
         if voxel_size <= 0:
             raise ValueError(f'voxel keypoint sampling needs voxel_size > 0, got {voxel_size}')
-        inverse, voxels = _voxel_groups(points, voxel_size)
+        inverse, voxels = voxel_groups(points, voxel_size)
         sizes = np.bincount(inverse, minlength=voxels).astype(np.float64)
         centroids = np.stack([np.bincount(inverse, weights=points[:, k], minlength=voxels)
                               for k in range(3)], axis=1) / sizes[:, None]
@@ -125,8 +125,8 @@ def sample_keypoints(points: np.ndarray, count: int, sampling: str, voxel_size: 
     return candidates[np.sort(chosen)]
 
 
-def fpfh_at(points: np.ndarray, indices: np.ndarray, normal_radius: float, normal_max_nn: int,
-            feature_radius: float, feature_max_nn: int) -> np.ndarray:
+def fpfh_open3d_at(points: np.ndarray, indices: np.ndarray, normal_radius: float,
+                   normal_max_nn: int, feature_radius: float, feature_max_nn: int) -> np.ndarray:
     """
     FPFH descriptors (Rusu et al. 2009) of the scan points ``points[indices]``.
 

@@ -29,7 +29,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 import time
 
-from mlsemreg_ros.core import features, landmarks, matching, signatures
+from mlsemreg_ros.core import features, fpfh, landmarks, matching, signatures
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import estimate, refine_icp
 from mlsemreg_ros.core.labels import LabelMap
@@ -101,9 +101,7 @@ class Registration:
                 indices = cKDTree(points).query(keypoints)[1].astype(np.int64)
         with _timed(timings, 'fpfh_ms' if descriptors is None else 'descriptors_ms'):
             if descriptors is None:
-                f = cfg.features
-                descriptors = features.fpfh_at(points, indices, f.normal_radius, f.normal_max_nn,
-                                               f.feature_radius, f.feature_max_nn)
+                descriptors = _fpfh(points, indices, cfg)
             descriptors = np.asarray(descriptors, dtype=np.float32)
             valid = features.valid_descriptor_mask(descriptors)
             keypoints, indices, descriptors = keypoints[valid], indices[valid], descriptors[valid]
@@ -169,6 +167,16 @@ class Registration:
             for stage, ms in scan.timings_ms.items():
                 result.timings_ms[stage] = result.timings_ms.get(stage, 0.0) + ms
         return result
+
+
+def _fpfh(points: np.ndarray, indices: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:
+    """FPFH of ``points[indices]`` with the configured implementation."""
+    f = cfg.features
+    if f.descriptor == 'fpfh_open3d':
+        return features.fpfh_open3d_at(points, indices, f.normal_radius, f.normal_max_nn,
+                                       f.feature_radius, f.feature_max_nn)
+    return fpfh.fpfh_at_keypoints(points, indices, f.normal_radius, f.feature_radius,
+                                  f.support_voxel_size)
 
 
 def _best_ranked(corr: Correspondences, cap: int) -> Correspondences:
