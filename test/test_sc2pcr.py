@@ -203,6 +203,20 @@ def test_seed_hypotheses_match_a_plain_per_seed_implementation() -> None:
     assert checked >= 20
 
 
+@pytest.mark.parametrize(('sets', 'size'), [(1, 1), (1, 30), (37, 30), (200, 7)])
+def test_cross_lengths_match_the_dense_formula_per_set(sets: int, size: int) -> None:
+    rng = np.random.default_rng(sets * 100 + size)
+    src = rng.uniform(-40.0, 40.0, (sets, size, 3)).astype(np.float32)
+    dst = rng.uniform(-40.0, 40.0, (sets, size, 3)).astype(np.float32)
+    cross = sc2._cross_lengths(src, dst)
+    assert cross.shape == (sets, size, size) and cross.flags.c_contiguous
+    expected = np.stack([_dense_cross(src[s].astype(float), dst[s].astype(float))
+                         for s in range(sets)])
+    np.testing.assert_allclose(cross, expected, atol=1e-4)
+    np.testing.assert_array_equal(cross, cross.transpose(0, 2, 1))  # exactly symmetric
+    assert np.all(np.diagonal(cross, axis1=1, axis2=2) == 0.0)
+
+
 def test_leading_eigenvector_of_a_known_matrix() -> None:
     block = np.ones((5, 5))
     matrix = np.zeros((8, 8))

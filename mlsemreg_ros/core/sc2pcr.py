@@ -673,17 +673,24 @@ def _augmented(points: np.ndarray, dtype: type) -> tuple[np.ndarray, np.ndarray]
 
 def _cross_lengths(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """``(S, n, n)`` length consistency ``c_ij`` within each of ``S`` sets of ``n`` pairs."""
+    # sets along the last axis: every broadcast operation runs over S contiguous values
+    # (with the sets first, NumPy's inner loops would be n long: 3x slower for n = 30)
     lengths = []
     for points in (src, dst):
-        axes = np.ascontiguousarray(np.moveaxis(points, -1, 0))  # (3, S, n)
-        diff = axes[:, :, :, None] - axes[:, :, None, :]  # (3, S, n, n)
-        diff *= diff
-        squared = diff[0] + diff[1]
-        squared += diff[2]
+        axes = np.ascontiguousarray(np.moveaxis(points, (0, 2), (2, 0)))  # (3, n, S)
+        squared = None
+        for axis in axes:
+            diff = axis[:, None, :] - axis[None, :, :]  # (n, n, S)
+            diff *= diff
+            if squared is None:
+                squared = diff
+            else:
+                squared += diff
         lengths.append(np.sqrt(squared, out=squared))
     cross = lengths[0]
     cross -= lengths[1]
-    return np.abs(cross, out=cross)
+    np.abs(cross, out=cross)
+    return np.ascontiguousarray(np.moveaxis(cross, 2, 0))  # (S, n, n)
 
 
 def _batched_leading_eigenvector(matrices: np.ndarray, iterations: int) -> np.ndarray:
