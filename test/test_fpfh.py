@@ -76,7 +76,8 @@ def test_pair_features_equal_the_explicit_darboux_frame_and_are_symmetric():
     n1, n2 = rng.normal(size=(2, 500, 3))
     n1 /= np.linalg.norm(n1, axis=1, keepdims=True)
     n2 /= np.linalg.norm(n2, axis=1, keepdims=True)
-    reference = np.array([_darboux_reference(*args) for args in zip(p1, n1, p2, n2)])
+    reference = np.array([_darboux_reference(*args)
+                          for args in zip(p1, n1, p2, n2, strict=True)])
     scaled = (reference - [-np.pi, -1.0, -1.0]) / [2 * np.pi, 2.0, 2.0] * 11
     expected = np.clip(np.floor(scaled), 0, 10).astype(int)
     clear = np.all(np.abs(scaled - np.round(scaled)) > 1e-3, axis=1)  # away from bin edges

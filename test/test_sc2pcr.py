@@ -240,7 +240,7 @@ def test_sc2pcr_recovers_transform_with_90_percent_outliers(seed: int) -> None:
     assert translation_error < 0.1
     assert np.mean(result.inlier_mask == inliers) >= 0.95
     diag = result.diagnostics
-    assert 0 < diag['n_seeds'] <= 200
+    assert 0 < diag['n_seeds'] <= int(EstimatorConfig().seed_ratio * 1000)
     assert diag['best_hypothesis_inliers'] >= 90
     assert diag['leading_eigenvalue'] > 1.0
     assert all(isinstance(diag[k], float) for k in diag if k.endswith('_ms'))
@@ -371,3 +371,24 @@ def test_dev_pair_with_nearest_neighbour_gedi_matches() -> None:
     rotation_error, translation_error = _errors(result.transform, data['trans_gt'])
     assert rotation_error < 1.0 and translation_error < 0.3  # measured 0.24 deg, 0.13 m
     assert result.num_inliers >= 300  # 358 correspondences within 0.6 m under trans_gt
+
+
+# -- the graph cap ---------------------------------------------------------------------------
+
+def test_graph_rows_are_a_seeded_subset_or_everything() -> None:
+    np.testing.assert_array_equal(sc2.graph_rows(5, 0), np.arange(5))
+    np.testing.assert_array_equal(sc2.graph_rows(5, 9), np.arange(5))
+    rows = sc2.graph_rows(1000, 100)
+    assert rows.size == 100 and np.all(np.diff(rows) > 0) and rows[-1] < 1000
+    np.testing.assert_array_equal(rows, sc2.graph_rows(1000, 100))
+
+
+def test_graph_cap_builds_on_a_subset_and_scores_all() -> None:
+    src, dst, truth, inliers = _problem(11, count=3000, outlier_ratio=0.9)
+    result = sc2.sc2pcr(src, dst, EstimatorConfig(graph_size=600))
+    assert result.diagnostics['graph_correspondences'] == 600
+    assert result.inlier_mask.shape == (3000,)
+    rotation_error, translation_error = _errors(result.transform, truth)
+    assert rotation_error < 1.0 and translation_error < 0.3
+    # inliers are counted on all 3000 correspondences, not only the graph's 600
+    assert result.inlier_mask.sum() >= 0.95 * inliers.sum()

@@ -125,7 +125,7 @@ class FeatureConfig:
         100, 'Maximum neighbours for FPFH (fpfh_open3d only; fpfh uses every neighbour '
         'within the radius).', low=3, high=5000)
     support_voxel_size: float = param(
-        0.6, 'fpfh: the point-pair histograms are computed on a voxel grid of this edge and '
+        0.5, 'fpfh: the point-pair histograms are computed on a voxel grid of this edge and '
         'each keypoint gets the FPFH of its voxel (0: on the scan points themselves; cost '
         'grows about with 1/edge^2).', unit='m', low=0.0, high=5.0)
 
@@ -167,7 +167,7 @@ class EstimatorConfig:
         0.6, 'SC2-PCR d_thr: length-consistency threshold of the compatibility measures.',
         unit='m', low=0.01, high=10.0)
     seed_ratio: float = param(
-        0.2, 'Maximum number of SC2-PCR seeds as a share of the correspondences.',
+        0.5, 'Maximum number of SC2-PCR seeds as a share of the graph correspondences.',
         low=0.001, high=1.0)
     nms_radius: float = param(
         0.1, 'Non-maximum suppression radius for seed selection.', unit='m',
@@ -180,6 +180,11 @@ class EstimatorConfig:
         50.0, 'Work budget of the SC2 stage (cost-model ms, about CPU ms on 2 cores): when '
         'seed_ratio x K seeds would exceed it, only the best-scored seeds that fit are kept '
         '(at least 64); 0 disables the budget.', unit='ms', low=0.0, high=1e6)
+    graph_size: int = param(
+        700, 'SC2-PCR builds its compatibility graph (seeds, consensus sets, hypotheses) on '
+        'a seeded random subset of at most this many correspondences; every hypothesis is '
+        'still scored, and the best refined, on all of them. Cost grows with its square '
+        '(0: no limit).', low=0, high=100000)
     max_correspondences: int = param(
         10000, 'Cap on correspondences fed to the estimator; the best ranked '
         '(smallest descriptor distance) are kept.', low=10, high=100000)

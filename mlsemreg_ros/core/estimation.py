@@ -33,7 +33,8 @@ def estimate(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estim
     """
     Estimate ``T_dst_src`` from ``(K, 3)`` correspondences with ``config.kind``.
 
-    ``'sc2pcr'``: second-order spatial compatibility (Chen et al., CVPR 2022);
+    ``'sc2pcr'``: second-order spatial compatibility (Chen et al., CVPR 2022), its
+    graph on at most ``config.graph_size`` correspondences;
     ``'ransac'``: Open3D's correspondence RANSAC.  The caller caps ``K`` at
     ``config.max_correspondences``.
     """
