@@ -104,7 +104,7 @@ def test_ground_normals_point_up_towards_the_sensor():
     points = _ground_and_box(4)[:1500]  # ground plane 1.7 m below the sensor
     pairs = cKDTree(points).query_pairs(0.9, output_type='ndarray')
     delta = (points[pairs[:, 1]] - points[pairs[:, 0]]).T
-    normals = estimate_normals(points, pairs.T.reshape(-1), np.c_[delta, -delta])
+    normals = estimate_normals(points, (pairs[:, 0], pairs[:, 1]), delta)
     assert normals.shape == (3, 1500)
     assert np.percentile(normals[2], 1) > 0.99
 
@@ -116,7 +116,7 @@ def test_fpfh_equals_open3d_given_the_same_normals():
     ours = fpfh_at_keypoints(points, indices, 0.9, 1.5)
     pairs = cKDTree(points).query_pairs(0.9, output_type='ndarray')
     delta = (points[pairs[:, 1]] - points[pairs[:, 0]]).T
-    normals = estimate_normals(points, pairs.T.reshape(-1), np.c_[delta, -delta])
+    normals = estimate_normals(points, (pairs[:, 0], pairs[:, 1]), delta)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.normals = o3d.utility.Vector3dVector(normals.T.astype(np.float64))
     full = o3d.pipelines.registration.compute_fpfh_feature(

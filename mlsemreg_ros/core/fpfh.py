@@ -87,16 +87,15 @@ def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: fl
     coords = support.T.astype(np.float32)  # (3, S): one contiguous row per axis
     delta = np.stack([row.take(second) - row.take(first) for row in coords])
     dist2 = np.einsum('ij,ij->j', delta, delta)
-    owner = np.concatenate([first, second])
-    near = np.flatnonzero(np.tile(dist2 <= normal_radius**2, 2))
-    normals = estimate_normals(support, owner.take(near),
-                               np.concatenate([delta, -delta], axis=1).take(near, axis=1))
-    within = np.flatnonzero(dist2 <= feature_radius**2)
-    first, second, delta, dist2 = (first.take(within), second.take(within),
-                                   delta.take(within, axis=1), dist2.take(within))
+    near = np.flatnonzero(dist2 <= normal_radius**2)
+    normals = estimate_normals(support, (first.take(near), second.take(near)),
+                               delta.take(near, axis=1))
+    if normal_radius > feature_radius:  # the pairs were searched with the normal radius
+        within = np.flatnonzero(dist2 <= feature_radius**2)
+        first, second, delta, dist2 = (first.take(within), second.take(within),
+                                       delta.take(within, axis=1), dist2.take(within))
     bins = pair_feature_bins(delta, normals.take(first, axis=1), normals.take(second, axis=1))
-    spfh = simplified_histograms(np.concatenate([first, second]), np.tile(bins, 2),
-                                 support.shape[0])
+    spfh = simplified_histograms((first, second), bins, support.shape[0])
     # 2. The keypoints: their own neighbourhood in the support.
     if support_voxel > 0:
         own_spfh, weights = _keypoint_terms(points[unique], support, tree, normals,
@@ -149,19 +148,20 @@ def _keypoint_terms(keypoints: np.ndarray, support: np.ndarray, tree: cKDTree,
     owner, other, dist = found['i'].astype(np.int64), found['j'].astype(np.int64), found['v']
     offset = np.ascontiguousarray((support[other] - keypoints[owner]).T, dtype=np.float32)
     near = np.flatnonzero(dist <= normal_radius)
-    normals = estimate_normals(keypoints, owner.take(near), offset.take(near, axis=1))
+    normals = estimate_normals(keypoints, (owner.take(near),), offset.take(near, axis=1))
     within = np.flatnonzero(dist <= feature_radius)
     owner, other, dist, offset = (owner.take(within), other.take(within), dist.take(within),
                                   offset.take(within, axis=1))
     bins = pair_feature_bins(offset, normals.take(owner, axis=1),
                              support_normals.take(other, axis=1))
-    own = simplified_histograms(owner, bins, m)
+    own = simplified_histograms((owner,), bins, m)
     weights = sparse.csr_matrix((1.0 / (dist * dist), (owner, other)),
                                 shape=(m, support.shape[0]))
     return own, weights
 
 
-def estimate_normals(points: np.ndarray, owner: np.ndarray, offset: np.ndarray) -> np.ndarray:
+def estimate_normals(points: np.ndarray, owners: tuple[np.ndarray, ...],
+                     offset: np.ndarray) -> np.ndarray:
     """
     Estimate unit normals by PCA of each point's neighbourhood, facing the origin.
 
@@ -171,19 +171,27 @@ def estimate_normals(points: np.ndarray, owner: np.ndarray, offset: np.ndarray) 
     without subtracting large coordinates.
 
     - ``points``: (N, 3) float64, relative to the viewpoint.
-    - ``owner``: (E,) int row of the point each offset belongs to.
-    - ``offset``: (3, E) float offsets to its neighbours, one row per axis.
+    - ``owners``: ``(first,)`` with the (E,) row each offset belongs to, or
+      ``(first, second)`` for unordered pairs: ``offset`` leads from ``first`` to
+      ``second``, and counts with the opposite sign for ``second``.
+    - ``offset``: (3, E) float offsets, one row per axis.
 
     Returns (3, N) float32 (one row per axis); points with fewer than two neighbours
     get ``+z`` flipped towards the origin.
     """
     n = points.shape[0]
-    count = np.bincount(owner, minlength=n) + 1.0
-    mean = np.stack([np.bincount(owner, weights=offset[axis], minlength=n)
-                     for axis in range(3)], axis=1) / count[:, None]
-    second_moment = np.stack([np.bincount(owner, weights=offset[a] * offset[b], minlength=n)
-                              for a, b in _UPPER], axis=1) / count[:, None]
-    covariance = second_moment - np.stack([mean[:, a] * mean[:, b] for a, b in _UPPER], axis=1)
+    count = sum(np.bincount(owner, minlength=n) for owner in owners) + 1.0
+    mean = np.empty((n, 3))
+    for axis in range(3):
+        total = np.bincount(owners[0], weights=offset[axis], minlength=n)
+        for owner in owners[1:]:
+            total -= np.bincount(owner, weights=offset[axis], minlength=n)
+        mean[:, axis] = total / count
+    covariance = np.empty((n, 6))
+    for slot, (a, b) in enumerate(_UPPER):
+        product = offset[a] * offset[b]  # the same for both signs of the offset
+        total = sum(np.bincount(owner, weights=product, minlength=n) for owner in owners)
+        covariance[:, slot] = total / count - mean[:, a] * mean[:, b]
     normals = smallest_eigenvectors(covariance)
     flip = np.einsum('ij,ij->i', normals, points) > 0  # facing away from the origin
     normals[flip] *= -1.0
@@ -280,21 +288,27 @@ def _bin(values: np.ndarray, low: float, high: float) -> np.ndarray:
     return np.clip(scaled, 0, BINS - 1).astype(np.int64)
 
 
-def simplified_histograms(owner: np.ndarray, bins: np.ndarray, n: int) -> np.ndarray:
+def simplified_histograms(owners: tuple[np.ndarray, ...], bins: np.ndarray,
+                          n: int) -> np.ndarray:
     """
     SPFH: three 11-bin histograms of each point's pair features, each summing to 100.
 
-    - ``owner``: (E,) int row of the point each pair feature belongs to.
+    - ``owners``: tuple of (E,) int rows; every pair feature counts for the point of
+      each of them (``(first, second)`` for symmetric pairs).
     - ``bins``: (3, E) int bins of (alpha, phi, theta) from :func:`pair_feature_bins`.
     - ``n``: number of points N.
 
     Returns (N, 33) float64; points without pairs have all-zero rows.
     """
-    codes = np.empty((3, owner.shape[0]), dtype=np.int64)
-    for k in range(3):
-        np.add(owner * (3 * BINS), bins[k] + k * BINS, out=codes[k])
+    size = bins.shape[1]
+    codes = np.empty((len(owners), 3, size), dtype=np.int64)
+    for at, owner in enumerate(owners):
+        base = owner * (3 * BINS)
+        for k in range(3):
+            np.add(base, bins[k], out=codes[at, k])
+            codes[at, k] += k * BINS
     histogram = np.bincount(codes.reshape(-1), minlength=n * 3 * BINS).reshape(n, 3 * BINS)
-    degree = np.bincount(owner, minlength=n)
+    degree = sum(np.bincount(owner, minlength=n) for owner in owners)
     return histogram * (100.0 / np.maximum(degree, 1))[:, None]
 
 
