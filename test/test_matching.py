@@ -211,3 +211,39 @@ def test_matcher_reports_sub_stage_timings():
                    dst_bmr, 2, False, timings=timings)
     assert set(timings) == {'gm_mm_mask_ms', 'gm_mm_dense_ms'}
     assert all(v >= 0 for v in timings.values())
+
+
+@pytest.mark.parametrize('seed', range(3))
+@pytest.mark.parametrize('mutual', [False, True])
+def test_dense_and_sparse_candidate_paths_agree_with_reference(seed, mutual, monkeypatch):
+    # few landmarks -> low S maxima -> many candidates: the case the dense path is for
+    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(seed, bins=30,
+                                                                           patterns=4)
+    expected = reference_match(src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr, 2, mutual)
+    args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss), src_bmr,
+            dst_bmr, 2, mutual)
+    outputs = []
+    for fraction in (0.0, np.inf):  # every chunk dense / every chunk sparse
+        monkeypatch.setattr(matching, '_DENSE_FRACTION', fraction)
+        diagnostics: dict = {}
+        corr = semantic_match(*args, diagnostics)
+        assert _pairs(corr) == expected
+        outputs.append((corr, diagnostics['mask_candidates']))
+    np.testing.assert_array_equal(outputs[0][0].distance, outputs[1][0].distance)
+    assert outputs[0][1] == outputs[1][1] > 0  # same candidate count either way
+
+
+@pytest.mark.filterwarnings('ignore:invalid value:RuntimeWarning')  # NaN on purpose
+@pytest.mark.parametrize('mutual', [False, True])
+def test_non_finite_descriptors_give_the_same_winners_on_both_candidate_paths(
+        mutual, monkeypatch):
+    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(5, patterns=4)
+    dst_desc[[3, 40]] = np.nan  # NaN and inf must sort the same way on both paths
+    src_desc[7] = np.inf
+    args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss), src_bmr,
+            dst_bmr, 2, mutual)
+    results = []
+    for fraction in (0.0, np.inf):
+        monkeypatch.setattr(matching, '_DENSE_FRACTION', fraction)
+        results.append(_pairs(semantic_match(*args)))
+    assert results[0] == results[1] and len(results[0]) > 0

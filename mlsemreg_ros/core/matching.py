@@ -70,6 +70,7 @@ NO_MATCH = np.uint64(0xFFFFFFFFFFFFFFFF)
 _LOW32 = np.uint64(0xFFFFFFFF)
 _DENSE_BLOCK_ELEMENTS = 2_000_000  # rows x targets per dense distance block
 _CHUNK_ELEMENTS = 600_000  # rows x target patterns per Mask Matching chunk (cache sized)
+_DENSE_FRACTION = 0.1  # candidate share of a chunk above which it is resolved densely
 _MAX_THREADS = 2
 _POOL: ThreadPoolExecutor | None = None  # created on first use, shared by all calls
 _BLAS: Any = None  # threadpoolctl controller, created on first use
@@ -269,7 +270,8 @@ def _masked_candidates(src: np.ndarray, dst: np.ndarray, row_in_group: np.ndarra
         group = _MaskGroup(index=g, cols=cols, dst=dst[cols], dst_sq=dst_sq[cols],
                            bins=np.ascontiguousarray(pattern_bins[:, patterns[start]]),
                            start=start, count=np.diff(np.r_[start, len(cols)]))
-        step = max(1, _CHUNK_ELEMENTS // len(start))
+        # rows x patterns bounds the mask work, rows x targets the descriptor GEMM
+        step = max(1, min(_CHUNK_ELEMENTS // len(start), _DENSE_BLOCK_ELEMENTS // len(cols)))
         tasks += [(group, rows[lo:lo + step]) for lo in range(0, len(rows), step)]
     results = _run_tasks(lambda task: _masked_chunk(context, *task), tasks)
     if bwd is not None and results:
@@ -362,8 +364,10 @@ def _masked_chunk(ctx: _MaskContext, group: _MaskGroup,
     row_start = np.searchsorted(flat, np.arange(len(rows) + 1) * mask.shape[1])
     r = np.repeat(np.arange(len(rows)), np.diff(row_start))
     u = flat - r * mask.shape[1]
-    # expand (row, pattern) to (row, target): pattern u holds cols[start[u]:start[u] + count[u]]
     count = group.count[u]
+    if count.sum() > _DENSE_FRACTION * len(rows) * len(group.cols):  # weak landmark evidence
+        return _masked_chunk_dense(ctx, group, rows, mask)
+    # expand (row, pattern) to (row, target): pattern u holds cols[start[u]:start[u] + count[u]]
     r = np.repeat(r, count)
     ends = np.cumsum(count)
     c = np.arange(len(r)) + np.repeat(group.start[u] - (ends - count), count)
@@ -384,6 +388,63 @@ def _masked_chunk(ctx: _MaskContext, group: _MaskGroup,
     if not ctx.mutual:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint64), len(r)
     return (group.cols[c] * ctx.num_groups + group.index, _pack(dist_sq, rows[r]), len(r))
+
+
+def _masked_chunk_dense(ctx: _MaskContext, group: _MaskGroup, rows: np.ndarray,
+                        mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """
+    Winners of :func:`_masked_chunk` from the dense (R, P) pattern mask, for many candidates.
+
+    Used when thin landmark evidence makes a large share of the targets candidates, where
+    gathering them one by one costs more than a few passes over the whole chunk. Same
+    distances and the same winners as the sparse path: rows and targets are put in
+    ascending index order, so ``argmin``'s first minimum is the smallest packed key.
+    """
+    by_index = np.argsort(group.cols)
+    cols = group.cols[by_index]
+    row_order = np.argsort(rows)
+    rows, mask = rows[row_order], mask[row_order]
+    candidate = np.take(mask, np.repeat(np.arange(len(group.count)), group.count)[by_index],
+                        axis=1)  # C order (mask[:, idx] would be F order: slow below)
+    dist_sq = ctx.src[rows] @ group.dst[by_index].T  # (R, C)
+    dist_sq *= -2.0
+    dist_sq += ctx.src_sq[rows][:, None] + group.dst_sq[by_index][None, :]
+    np.maximum(dist_sq, 0.0, out=dist_sq)
+    if not np.isfinite(dist_sq.max()):  # NaN/inf: the bit trick below needs finite values
+        return _masked_keys_dense(ctx, group.index, rows, cols, candidate, dist_sq)
+    # non-negative floats sort like their int32 bits; a non-candidate gets the exponent bits
+    # of inf set, which puts it above every finite distance (branch-free masking)
+    key = dist_sq.view(np.int32)
+    off = candidate.view(np.uint8).astype(np.int32)
+    off -= 1
+    off &= 0x7F800000
+    key |= off
+    has = np.flatnonzero(mask.any(axis=1))
+    best = key.argmin(axis=1)[has]
+    ctx.fwd[rows[has] * ctx.num_groups + group.index] = _pack(dist_sq[has, best], cols[best])
+    candidates = int(np.count_nonzero(candidate))
+    if not ctx.mutual:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint64), candidates
+    hit = np.flatnonzero(candidate.any(axis=0))
+    best_row = key[:, hit].argmin(axis=0)
+    return (cols[hit] * ctx.num_groups + group.index,
+            _pack(dist_sq[best_row, hit], rows[best_row]), candidates)
+
+
+def _masked_keys_dense(ctx: _MaskContext, group_index: int, rows: np.ndarray,
+                       cols: np.ndarray, candidate: np.ndarray,
+                       dist_sq: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Winners of a dense chunk by packed keys (any float, NaN and inf included)."""
+    high = dist_sq.view(np.uint32).astype(np.uint64) << np.uint64(32)
+    best = np.where(candidate, high | cols.astype(np.uint64), NO_MATCH).min(axis=1)
+    winners = best != NO_MATCH
+    ctx.fwd[rows[winners] * ctx.num_groups + group_index] = best[winners]
+    candidates = int(np.count_nonzero(candidate))
+    if not ctx.mutual:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint64), candidates
+    back = np.where(candidate, high | rows.astype(np.uint64)[:, None], NO_MATCH).min(axis=0)
+    hit = back != NO_MATCH
+    return cols[hit] * ctx.num_groups + group_index, back[hit], candidates
 
 
 def _dense_bits(bmr: np.ndarray | sp.spmatrix) -> np.ndarray:
@@ -425,30 +486,45 @@ def _single_threaded_blas() -> AbstractContextManager:
 
 def _dense_group_nn(src: np.ndarray, dst: np.ndarray, row_groups: np.ndarray,
                     col_in_group: np.ndarray, fwd: np.ndarray, bwd: np.ndarray | None) -> None:
-    """Unmasked nearest neighbours inside every group for the (row, group) pairs given."""
+    """
+    Unmasked nearest neighbours inside every group for the (row, group) pairs given.
+
+    Blocks of rows (group, rows) are independent and run on the matcher's thread pool.
+    """
     num_groups = row_groups.shape[1]
     src_sq, dst_sq = _sq_norms(src), _sq_norms(dst)
+    tasks = []
     for g in range(num_groups):  # groups, not points
         rows = np.flatnonzero(row_groups[:, g])
         cols = np.flatnonzero(col_in_group[:, g])
         if len(rows) == 0 or len(cols) == 0:
             continue
-        targets, targets_sq = dst[cols], dst_sq[cols]
+        targets = (cols, dst[cols], dst_sq[cols], g)
         step = max(1, _DENSE_BLOCK_ELEMENTS // len(cols))
-        for lo in range(0, len(rows), step):
-            part_rows = rows[lo:lo + step]
-            inner = src[part_rows] @ targets.T
-            # argmin_j ||a - b_j||^2 = argmin_j (||b_j||^2 - 2 a.b_j): ||a||^2 only for winners
-            score = targets_sq[None, :] - 2.0 * inner
-            best = score.argmin(axis=1)
-            row_dist = score[np.arange(len(part_rows)), best] + src_sq[part_rows]
-            fwd[part_rows * num_groups + g] = _pack(row_dist, cols[best])
-            if bwd is not None:
-                score = src_sq[part_rows, None] - 2.0 * inner
-                best_row = score.argmin(axis=0)
-                col_dist = score[best_row, np.arange(len(cols))] + targets_sq
-                slot = cols * num_groups + g
-                bwd[slot] = np.minimum(bwd[slot], _pack(col_dist, part_rows[best_row]))
+        tasks += [(targets, rows[lo:lo + step]) for lo in range(0, len(rows), step)]
+    mutual = bwd is not None
+
+    def block(task: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]
+              ) -> tuple[np.ndarray, ...]:
+        (cols, targets, targets_sq, g), part_rows = task
+        minus_two_inner = src[part_rows] @ targets.T
+        minus_two_inner *= -2.0
+        # argmin_j ||a - b_j||^2 = argmin_j (||b_j||^2 - 2 a.b_j): ||a||^2 only for winners
+        score = minus_two_inner + targets_sq[None, :]
+        best = score.argmin(axis=1)
+        row_dist = score[np.arange(len(part_rows)), best] + src_sq[part_rows]
+        out = (part_rows * num_groups + g, _pack(row_dist, cols[best]))
+        if not mutual:
+            return out
+        score = np.add(minus_two_inner, src_sq[part_rows, None], out=minus_two_inner)
+        best_row = score.argmin(axis=0)
+        col_dist = score[best_row, np.arange(len(cols))] + targets_sq
+        return (*out, cols * num_groups + g, _pack(col_dist, part_rows[best_row]))
+
+    for result in _run_tasks(block, tasks):  # fwd slots are disjoint; bwd takes the minimum
+        fwd[result[0]] = result[1]
+        if mutual:
+            np.minimum.at(bwd, result[2], result[3])
 
 
 def _exact_distance(source: np.ndarray, target: np.ndarray, rows: np.ndarray,
