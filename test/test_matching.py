@@ -247,3 +247,17 @@ def test_non_finite_descriptors_give_the_same_winners_on_both_candidate_paths(
         monkeypatch.setattr(matching, '_DENSE_FRACTION', fraction)
         results.append(_pairs(semantic_match(*args)))
     assert results[0] == results[1] and len(results[0]) > 0
+
+
+def _match_in_child(seed: int) -> set[tuple[int, int]]:
+    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(seed)
+    return _pairs(semantic_match(src_desc, dst_desc, group_bitmask(src_ss),
+                                 group_bitmask(dst_ss), src_bmr, dst_bmr, 2, False))
+
+
+@pytest.mark.filterwarnings('ignore:This process:DeprecationWarning')  # Python >= 3.12
+def test_matcher_thread_pool_survives_fork():
+    multiprocessing = pytest.importorskip('multiprocessing')
+    expected = _match_in_child(1)  # the parent's pool now exists
+    with multiprocessing.get_context('fork').Pool(1) as pool:
+        assert pool.apply_async(_match_in_child, (1,)).get(timeout=120) == expected

@@ -62,9 +62,9 @@ import numpy as np
 import scipy.sparse as sp
 
 try:  # optional: pins BLAS to one thread while the matcher's own threads run
-    from threadpoolctl import threadpool_limits, ThreadpoolController
+    from threadpoolctl import ThreadpoolController
 except ImportError:  # pragma: no cover
-    threadpool_limits = ThreadpoolController = None
+    ThreadpoolController = None
 
 NO_MATCH = np.uint64(0xFFFFFFFFFFFFFFFF)
 _LOW32 = np.uint64(0xFFFFFFFF)
@@ -75,6 +75,15 @@ _MAX_THREADS = 2
 _POOL: ThreadPoolExecutor | None = None  # created on first use, shared by all calls
 _BLAS: Any = None  # threadpoolctl controller, created on first use
 _POOL_LOCK = threading.Lock()
+
+
+def _forget_pool() -> None:
+    """In a forked child the pool's threads do not exist: start afresh on first use."""
+    global _POOL, _POOL_LOCK, _BLAS
+    _POOL, _POOL_LOCK, _BLAS = None, threading.Lock(), None
+
+
+os.register_at_fork(after_in_child=_forget_pool)
 
 
 @dataclass
@@ -463,7 +472,7 @@ def _run_tasks(function: Callable[[Any], Any], tasks: list[Any]) -> list[Any]:
     """
     global _POOL
     workers = max(1, min(len(tasks), os.cpu_count() or 1, _MAX_THREADS))
-    if threadpool_limits is None or workers == 1:
+    if ThreadpoolController is None or workers == 1:
         with _single_threaded_blas():
             return [function(task) for task in tasks]
     with _POOL_LOCK:
@@ -476,7 +485,7 @@ def _run_tasks(function: Callable[[Any], Any], tasks: list[Any]) -> list[Any]:
 def _single_threaded_blas() -> AbstractContextManager:
     """Limit BLAS to one thread (threadpoolctl; the controller is built once, ~1 ms)."""
     global _BLAS
-    if threadpool_limits is None:
+    if ThreadpoolController is None:
         return nullcontext()
     with _POOL_LOCK:
         if _BLAS is None:

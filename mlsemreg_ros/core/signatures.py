@@ -37,6 +37,15 @@ _POOL: ThreadPoolExecutor | None = None  # created on first use
 _POOL_LOCK = threading.Lock()
 
 
+def _forget_pool() -> None:
+    """In a forked child the pool's threads do not exist: start afresh on first use."""
+    global _POOL, _POOL_LOCK
+    _POOL, _POOL_LOCK = None, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_pool)
+
+
 def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: np.ndarray,
                              radius: float, num_classes: int, *,
                              ignored: np.ndarray | None = None,
