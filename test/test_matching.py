@@ -13,6 +13,7 @@
 # limitations under the License.
 """Group Matching, Mask Matching and ML-SemReg: known answers and agreement with a reference."""
 
+from mlsemreg_ros.core import matching
 from mlsemreg_ros.core.matching import (
     group_bitmask,
     group_matching,
@@ -119,3 +120,144 @@ def test_rows_without_any_mask_candidate_do_not_break_matching():
     corr = semantic_match(src_desc, dst_desc, np.array([1, 1], np.uint64),
                           np.array([2, 2], np.uint64), src_bmr, src_bmr.copy(), 1, True)
     assert len(corr) == 0
+
+
+def _clustered_case(seed: int, m: int = 300, n: int = 320, classes: int = 5, bins: int = 60,
+                    patterns: int = 12):
+    """Build inputs where many keypoints share a BMR-SS pattern (as neighbours do)."""
+    rng = np.random.default_rng(seed)
+    src_desc, dst_desc = rng.normal(size=(m, 6)), rng.normal(size=(n, 6))
+    src_ss = rng.random((m, classes)) < 0.35
+    dst_ss = rng.random((n, classes)) < 0.35
+    table = rng.random((patterns, bins)) < 0.15
+    src_bmr = table[rng.integers(0, patterns, m)] | (rng.random((m, bins)) < 0.01)
+    dst_bmr = table[rng.integers(0, patterns, n)]
+    return src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr
+
+
+@pytest.mark.parametrize('seed', range(4))
+@pytest.mark.parametrize('mutual', [False, True])
+def test_engine_agrees_with_reference_on_repeated_patterns_and_small_chunks(
+        seed, mutual, monkeypatch):
+    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(seed)
+    expected = reference_match(src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr, 2, mutual)
+    args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss))
+    results = []
+    for chunk, threads in [(600_000, 2), (97, 2), (97, 1), (5, 2)]:  # 1 .. many row chunks
+        monkeypatch.setattr(matching, '_CHUNK_ELEMENTS', chunk)
+        monkeypatch.setattr(matching, '_MAX_THREADS', threads)
+        corr = semantic_match(*args, src_bmr, dst_bmr, 2, mutual)
+        assert _pairs(corr) == expected
+        results.append(corr)
+    for corr in results[1:]:  # identical output, distances included, for any chunking
+        np.testing.assert_array_equal(corr.source, results[0].source)
+        np.testing.assert_array_equal(corr.target, results[0].target)
+        np.testing.assert_array_equal(corr.distance, results[0].distance)
+
+
+def test_dense_and_sparse_bmr_inputs_agree_and_explicit_zeros_are_not_bits():
+    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(7)
+    args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss))
+    dense = _pairs(semantic_match(*args, src_bmr, dst_bmr, 2, False))
+    sparse_src = sp.csr_matrix(src_bmr.astype(np.uint8))
+    sparse_dst = sp.csr_matrix(dst_bmr.astype(np.uint8))
+    assert _pairs(semantic_match(*args, sparse_src, sparse_dst, 2, False)) == dense
+    padded = sp.csr_matrix(np.where(dst_bmr, 1, 0).astype(np.uint8))
+    padded = sp.csr_matrix((np.r_[padded.data, 0], np.r_[padded.indices, 0],
+                            np.r_[padded.indptr[:-1], padded.indptr[-1] + 1]),
+                           shape=padded.shape)  # explicit zero at (last row, bin 0)
+    if not dst_bmr[-1, 0]:
+        assert padded.nnz == dst_bmr.sum() + 1
+    assert _pairs(semantic_match(*args, sparse_src, padded, 2, False)) == dense
+
+
+def test_reported_distance_is_the_exact_descriptor_distance():
+    rng = np.random.default_rng(4)
+    src_desc = rng.uniform(0, 300, (200, 33))  # FPFH-like magnitudes: GEMM form cancels
+    dst_desc = src_desc[rng.permutation(200)] + rng.normal(0, 0.01, (200, 33))
+    ss = np.ones((200, 1), bool)
+    corr = group_matching(src_desc, dst_desc, ss, ss)
+    exact = np.linalg.norm(src_desc[corr.source] - dst_desc[corr.target], axis=1)
+    np.testing.assert_allclose(corr.distance, exact, rtol=1e-6)
+    assert corr.distance.dtype == np.float32
+
+
+def test_target_patterns_and_padded_bins_known_answer():
+    bmr = np.zeros((5, 70), bool)
+    bmr[0, [1, 65]] = bmr[2, [1, 65]] = True  # same pattern across the 64-bit word border
+    bmr[1, [1]] = True
+    bmr[4, [69]] = True  # row 3 empty
+    pattern_of, table = matching._target_patterns(bmr, np.uint8)
+    assert pattern_of[0] == pattern_of[2] and len(set(pattern_of.tolist())) == 4
+    assert table.shape == (71, 4) and not table[-1].any()
+    np.testing.assert_array_equal(table[:-1, pattern_of].T.astype(bool), bmr)
+    bits, width = matching._padded_bins(bmr)
+    assert width.tolist() == [2, 1, 2, 0, 1]
+    assert bits.tolist() == [[1, 65], [1, 70], [1, 65], [70, 70], [69, 70]]
+
+
+def test_bmr_without_bins_falls_back_to_group_matching():
+    src_desc, dst_desc, src_ss, dst_ss, _, _ = _clustered_case(2)
+    args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss))
+    empty_src, empty_dst = np.zeros((len(src_desc), 0), bool), np.zeros((len(dst_desc), 0), bool)
+    assert (_pairs(semantic_match(*args, empty_src, empty_dst, 2, False))
+            == _pairs(semantic_match(*args, None, None, 2, False)))
+
+
+def test_matcher_reports_sub_stage_timings():
+    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(3)
+    timings: dict[str, float] = {}
+    semantic_match(src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss), src_bmr,
+                   dst_bmr, 2, False, timings=timings)
+    assert set(timings) == {'gm_mm_mask_ms', 'gm_mm_dense_ms'}
+    assert all(v >= 0 for v in timings.values())
+
+
+@pytest.mark.parametrize('seed', range(3))
+@pytest.mark.parametrize('mutual', [False, True])
+def test_dense_and_sparse_candidate_paths_agree_with_reference(seed, mutual, monkeypatch):
+    # few landmarks -> low S maxima -> many candidates: the case the dense path is for
+    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(seed, bins=30,
+                                                                           patterns=4)
+    expected = reference_match(src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr, 2, mutual)
+    args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss), src_bmr,
+            dst_bmr, 2, mutual)
+    outputs = []
+    for fraction in (0.0, np.inf):  # every chunk dense / every chunk sparse
+        monkeypatch.setattr(matching, '_DENSE_FRACTION', fraction)
+        diagnostics: dict = {}
+        corr = semantic_match(*args, diagnostics)
+        assert _pairs(corr) == expected
+        outputs.append((corr, diagnostics['mask_candidates']))
+    np.testing.assert_array_equal(outputs[0][0].distance, outputs[1][0].distance)
+    assert outputs[0][1] == outputs[1][1] > 0  # same candidate count either way
+
+
+@pytest.mark.filterwarnings('ignore:invalid value:RuntimeWarning')  # NaN on purpose
+@pytest.mark.parametrize('mutual', [False, True])
+def test_non_finite_descriptors_give_the_same_winners_on_both_candidate_paths(
+        mutual, monkeypatch):
+    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(5, patterns=4)
+    dst_desc[[3, 40]] = np.nan  # NaN and inf must sort the same way on both paths
+    src_desc[7] = np.inf
+    args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss), src_bmr,
+            dst_bmr, 2, mutual)
+    results = []
+    for fraction in (0.0, np.inf):
+        monkeypatch.setattr(matching, '_DENSE_FRACTION', fraction)
+        results.append(_pairs(semantic_match(*args)))
+    assert results[0] == results[1] and len(results[0]) > 0
+
+
+def _match_in_child(seed: int) -> set[tuple[int, int]]:
+    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(seed)
+    return _pairs(semantic_match(src_desc, dst_desc, group_bitmask(src_ss),
+                                 group_bitmask(dst_ss), src_bmr, dst_bmr, 2, False))
+
+
+@pytest.mark.filterwarnings('ignore:This process:DeprecationWarning')  # Python >= 3.12
+def test_matcher_thread_pool_survives_fork():
+    multiprocessing = pytest.importorskip('multiprocessing')
+    expected = _match_in_child(1)  # the parent's pool now exists
+    with multiprocessing.get_context('fork').Pool(1) as pool:
+        assert pool.apply_async(_match_in_child, (1,)).get(timeout=120) == expected

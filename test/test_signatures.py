@@ -13,6 +13,7 @@
 # limitations under the License.
 """Known-answer and property tests of Local-SS (eq. 1), BMR-SS (eq. 4) and eq. 5."""
 
+from mlsemreg_ros.core import signatures
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.core.results import Landmarks
 from mlsemreg_ros.core.signatures import (
@@ -22,6 +23,9 @@ from mlsemreg_ros.core.signatures import (
     scene_similarity,
 )
 import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
 from scipy.spatial.transform import Rotation
 
 LABELS = LabelMap.load()
@@ -119,3 +123,22 @@ def test_scene_similarity_counts_shared_class_ring_bins():
     target[0, [0, 2, 5]] = True
     target[1, [1, 3]] = True
     np.testing.assert_array_equal(scene_similarity(source, target), [[2, 0]])
+
+
+@pytest.mark.parametrize('threads', [1, 2])
+def test_local_ss_equals_brute_force_in_parallel_parts_and_with_a_given_tree(
+        threads, monkeypatch):
+    monkeypatch.setattr(signatures, '_MAX_THREADS', threads)
+    rng = np.random.default_rng(12)
+    points = rng.uniform(-6, 6, (3000, 3))
+    labels = rng.integers(0, LABELS.num_classes, 3000)
+    keypoints = np.vstack([points[:1000], rng.uniform(-7, 7, (600, 3))])  # >= 2 parts
+    expected = np.zeros((len(keypoints), LABELS.num_classes), bool)
+    near = cdist(keypoints, points) <= 0.8
+    for i in range(len(keypoints)):
+        expected[i, labels[near[i]]] = True
+    got = local_semantic_signature(points, labels, keypoints, 0.8, LABELS.num_classes)
+    np.testing.assert_array_equal(got, expected)
+    shared = local_semantic_signature(points, labels, keypoints, 0.8, LABELS.num_classes,
+                                      points_tree=cKDTree(points))
+    np.testing.assert_array_equal(shared, expected)

@@ -27,44 +27,63 @@ Definitions (paper, DESIGN.md section 3):
 
 The engine (:func:`semantic_match`) is exact and avoids the dense |P| x |Q| x |bins| work:
 
-1. Targets are sorted by their group pattern (Local-SS bitmask) into blocks; a block
-   belongs to exactly the same groups.
-2. S is built in row chunks as a sparse (BMR-SS is 2-15 bits a row) times dense uint8
-   product; per-block row maxima give every row's maximum m_s(i) in every group.
+1. Targets are sorted by their group pattern (Local-SS bitmask); a group touches only its
+   own rows and targets (sum over groups of |P_s| |Q_s| is about 2/3 of |P| |Q| on KITTI).
+2. In a group, S (eq. 5) is built per chunk of source rows as a gather-add of target bin
+   rows (BMR-SS has 2-15 set bins a row), once per distinct target BMR-SS ("pattern",
+   about half of the targets at 5000 keypoints); its row maxima give m_s(i).
 3. A (row, group) with threshold ``T = m_s(i) - (K - 1) <= 0`` keeps every target of the
    group ("permissive": little landmark evidence, the mask cannot help); it is matched
    densely inside the group. Otherwise ("restrictive") only targets with S >= T qualify;
    they are gathered as sparse candidates (typically ~1 % of the targets) and the
-   descriptor distance is evaluated at those pairs only.
-4. Per (row, group) the winner is the smallest packed key (distance bits << 32 | index),
-   scattered with ``np.minimum.at``; MNN checks the same keys in the other direction.
+   descriptor distance is read at those pairs from one GEMM per chunk, restricted to the
+   targets that are a candidate of some row of the chunk (rows are ordered by BMR-SS, so
+   a chunk holds neighbouring keypoints).
+4. Per (row, group) the winner is the smallest packed key (distance bits << 32 | index);
+   MNN checks the same keys in the other direction. The reported distance of each
+   correspondence is recomputed directly, so it does not depend on the BLAS blocking.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 import os
+import threading
 import time
 from typing import Any
 
 from mlsemreg_ros.core.config import SemanticConfig
 from mlsemreg_ros.core.results import Correspondences, PreparedScan
-from mlsemreg_ros.core.signatures import bmr_signature_sparse
+from mlsemreg_ros.core.signatures import binary_multi_ring_signature
 import numpy as np
 import scipy.sparse as sp
 
 try:  # optional: pins BLAS to one thread while the matcher's own threads run
-    from threadpoolctl import threadpool_limits
+    from threadpoolctl import ThreadpoolController
 except ImportError:  # pragma: no cover
-    threadpool_limits = None
+    ThreadpoolController = None
 
 NO_MATCH = np.uint64(0xFFFFFFFFFFFFFFFF)
 _LOW32 = np.uint64(0xFFFFFFFF)
 _DENSE_BLOCK_ELEMENTS = 2_000_000  # rows x targets per dense distance block
-_CHUNK_ELEMENTS = 600_000  # rows x targets per Mask Matching chunk (cache sized)
+_CHUNK_ELEMENTS = 600_000  # rows x target patterns per Mask Matching chunk (cache sized)
+_DENSE_FRACTION = 0.1  # candidate share of a chunk above which it is resolved densely
 _MAX_THREADS = 2
+_POOL: ThreadPoolExecutor | None = None  # created on first use, shared by all calls
+_BLAS: Any = None  # threadpoolctl controller, created on first use
+_POOL_LOCK = threading.Lock()
+
+
+def _forget_pool() -> None:
+    """In a forked child the pool's threads do not exist: start afresh on first use."""
+    global _POOL, _POOL_LOCK, _BLAS
+    _POOL, _POOL_LOCK, _BLAS = None, threading.Lock(), None
+
+
+os.register_at_fork(after_in_child=_forget_pool)
 
 
 @dataclass
@@ -106,17 +125,16 @@ def ml_semreg(source: PreparedScan, target: PreparedScan, config: SemanticConfig
         message = (f'GM-only fallback: {n_src} source / {n_dst} target landmarks of shared '
                    f'classes, fewer than semantic.min_landmarks={config.min_landmarks}')
         corr = semantic_match(source.descriptors, target.descriptors, src_groups, dst_groups,
-                              None, None, config.top_k, mutual, diagnostics)
+                              None, None, config.top_k, mutual, diagnostics, timings=timings)
         return MatchOutcome(corr, 'gm-only', message, diagnostics)
     start = time.perf_counter()
-    src_bmr = bmr_signature_sparse(source.keypoints, source.landmarks, shared,
-                                   config.ring_count, config.ring_width)
-    dst_bmr = bmr_signature_sparse(target.keypoints, target.landmarks, shared,
-                                   config.ring_count, config.ring_width)
-    if timings is not None:
-        timings['bmr_ss_ms'] = timings.get('bmr_ss_ms', 0.0) + 1e3 * (time.perf_counter() - start)
+    src_bmr = binary_multi_ring_signature(source.keypoints, source.landmarks, shared,
+                                          config.ring_count, config.ring_width)
+    dst_bmr = binary_multi_ring_signature(target.keypoints, target.landmarks, shared,
+                                          config.ring_count, config.ring_width)
+    _add_time(timings, 'bmr_ss_ms', start)
     corr = semantic_match(source.descriptors, target.descriptors, src_groups, dst_groups,
-                          src_bmr, dst_bmr, config.top_k, mutual, diagnostics)
+                          src_bmr, dst_bmr, config.top_k, mutual, diagnostics, timings=timings)
     return MatchOutcome(corr, 'ml-semreg', '', diagnostics)
 
 
@@ -151,15 +169,19 @@ def group_bitmask(local_ss: np.ndarray) -> np.ndarray:
 # ----------------------------------------------------------------------------------------
 def semantic_match(source_descriptors: np.ndarray, target_descriptors: np.ndarray,
                    source_groups: np.ndarray, target_groups: np.ndarray,
-                   source_bmr: sp.csr_matrix | None, target_bmr: sp.csr_matrix | None,
-                   top_k: int, mutual: bool,
-                   diagnostics: dict[str, Any] | None = None) -> Correspondences:
+                   source_bmr: np.ndarray | sp.spmatrix | None,
+                   target_bmr: np.ndarray | sp.spmatrix | None, top_k: int, mutual: bool,
+                   diagnostics: dict[str, Any] | None = None, *,
+                   timings: dict[str, float] | None = None) -> Correspondences:
     """
     Masked group matching: GM (BMR-SS None) or GM o MM (BMR-SS given), NN or MNN.
 
     source_descriptors (M, D), target_descriptors (M', D) float; *_groups (M,) uint64
-    bitmasks of group membership; *_bmr (M, T*N) CSR BMR-SS or None. Returns the union over
-    groups of the per-group matches, duplicates removed, with descriptor distances.
+    bitmasks of group membership; *_bmr (M, T*N) BMR-SS (bool array or sparse matrix; a
+    nonzero entry is a set bit) or None. Returns the union over groups of the per-group
+    matches, duplicates removed, with descriptor distances. ``timings`` (ms, accumulated)
+    receives ``gm_mm_mask_ms`` (Mask Matching: S, thresholds, candidates, winners) and
+    ``gm_mm_dense_ms`` (unmasked nearest neighbours of the permissive rows).
     """
     src = np.ascontiguousarray(source_descriptors, dtype=np.float32)
     dst_all = np.ascontiguousarray(target_descriptors, dtype=np.float32)
@@ -184,11 +206,15 @@ def semantic_match(source_descriptors: np.ndarray, target_descriptors: np.ndarra
 
     permissive = row_in_group
     if source_bmr is not None and target_bmr is not None:
-        restrictive = _masked_candidates(src, dst, source_groups, pattern, starts,
-                                         block_in_group, row_in_group, source_bmr,
-                                         target_bmr[order], top_k, fwd, bwd, diagnostics)
+        start = time.perf_counter()
+        restrictive = _masked_candidates(src, dst, row_in_group, col_in_group,
+                                         _dense_bits(source_bmr), _dense_bits(target_bmr)[order],
+                                         top_k, fwd, bwd, diagnostics)
         permissive = row_in_group & ~restrictive
+        _add_time(timings, 'gm_mm_mask_ms', start)
+    start = time.perf_counter()
     _dense_group_nn(src, dst, permissive, col_in_group, fwd, bwd)
+    _add_time(timings, 'gm_mm_dense_ms', start)
     if diagnostics is not None:
         diagnostics['matching_groups'] = int(row_in_group.any(0).sum())
         diagnostics['permissive_row_groups'] = int(permissive.sum())
@@ -203,162 +229,330 @@ def semantic_match(source_descriptors: np.ndarray, target_descriptors: np.ndarra
         keep = back_rows == rows
         rows, cols, dist_sq = rows[keep], cols[keep], dist_sq[keep]
     _, first = np.unique(rows * len(dst) + cols, return_index=True)
-    return Correspondences(rows[first].astype(np.int64), order[cols[first]].astype(np.int64),
-                           np.sqrt(dist_sq[first]).astype(np.float32))
+    rows, cols = rows[first].astype(np.int64), order[cols[first]].astype(np.int64)
+    return Correspondences(rows, cols, _exact_distance(source_descriptors, target_descriptors,
+                                                       rows, cols))
 
 
-def _masked_candidates(src: np.ndarray, dst: np.ndarray, source_groups: np.ndarray,
-                       col_pattern: np.ndarray, starts: np.ndarray,
-                       block_in_group: np.ndarray, row_in_group: np.ndarray,
-                       source_bmr: sp.csr_matrix, target_bmr: sp.csr_matrix, top_k: int,
-                       fwd: np.ndarray, bwd: np.ndarray | None,
-                       diagnostics: dict[str, Any] | None) -> np.ndarray:
+def _masked_candidates(src: np.ndarray, dst: np.ndarray, row_in_group: np.ndarray,
+                       col_in_group: np.ndarray, source_bmr: np.ndarray,
+                       target_bmr: np.ndarray, top_k: int, fwd: np.ndarray,
+                       bwd: np.ndarray | None, diagnostics: dict[str, Any] | None) -> np.ndarray:
     """
-    Run steps 2-3 for restrictive (row, group) pairs; return the (M, G) restrictive mask.
+    Run steps 2-3 group by group; return the (M, G) mask of restrictive (row, group) pairs.
 
-    Row chunks are independent (each writes only its own rows of ``fwd``), so they run on
-    a small thread pool; NumPy and BLAS release the GIL in these kernels.
+    Group g only touches its own rows R_g and targets C_g (sum_g |R_g| |C_g| is about 2/3
+    of |P| |Q| on KITTI). Targets with the same BMR-SS have the same column of S, so S, its
+    row maxima and the mask are computed once per distinct target BMR-SS ("pattern", about
+    half of the targets at 5000 keypoints) and the candidates are expanded to targets
+    afterwards. Source rows are ordered by BMR-SS so that a chunk holds neighbouring
+    keypoints, whose candidates share targets: the descriptor GEMM of a chunk runs on those
+    targets only. Tasks (group, row chunk) are independent (each writes only its own
+    (row, group) slots of ``fwd``), so they run on a small thread pool; NumPy and BLAS
+    release the GIL in these kernels.
     """
     num_rows, num_groups = row_in_group.shape
-    # S <= number of source landmarks; uint8 holds it (255 = "no threshold") below 255.
-    s_type = np.uint8 if source_bmr.getnnz(axis=1).max(initial=0) < 255 else np.uint16
-    context = _MaskContext(
-        src=src, dst=dst, src_sq=_sq_norms(src), dst_sq=_sq_norms(dst),
-        source_groups=source_groups, col_pattern=col_pattern,
-        block_sizes=np.diff(np.r_[starts, len(dst)]), starts=starts,
-        blocks_of_group=[np.flatnonzero(block_in_group[:, g]) for g in range(num_groups)],
-        row_in_group=row_in_group, src_bmr=source_bmr.astype(s_type).tocsr(),
-        dst_bmr_t=np.ascontiguousarray(target_bmr.toarray().T.astype(s_type)),
-        top_k=top_k, none=int(np.iinfo(s_type).max), s_type=s_type,
-        threshold=np.zeros((num_rows, num_groups), dtype=np.int32), fwd=fwd,
-        mutual=bwd is not None)
-    chunk = max(1, _CHUNK_ELEMENTS // max(len(dst), 1))
-    bounds = [(lo, min(num_rows, lo + chunk)) for lo in range(0, num_rows, chunk)]
-    # The chunk GEMMs are small: multithreaded BLAS on them (and inside worker threads) was
-    # measured 3x slower, so BLAS runs single-threaded here and the chunks use the cores.
-    with _single_threaded_blas(), ThreadPoolExecutor(_workers(len(bounds))) as pool:
-        results = list(pool.map(lambda b: _masked_chunk(context, *b), bounds))
-    if bwd is not None:
+    bits, width = _padded_bins(source_bmr)
+    # S <= set bins of a source row; uint8 holds it (255 = "no threshold") below 255.
+    s_type = np.uint8 if width.max(initial=0) < 255 else np.uint16
+    pattern_of, pattern_bins = _target_patterns(target_bmr, s_type)
+    # neighbouring keypoints have similar BMR-SS: order the rows by their first set bins
+    num_bins = source_bmr.shape[1]
+    key = np.zeros(num_rows, dtype=np.int64)
+    for k in range(min(3, bits.shape[1])):
+        key = key * (num_bins + 1) + bits[:, k]
+    row_order = np.argsort(key, kind='stable')
+    col_order = np.argsort(pattern_of, kind='stable')  # targets grouped by pattern
+    dst_sq = _sq_norms(dst)
+    context = _MaskContext(src=src, src_sq=_sq_norms(src), bits=bits, width=width,
+                           top_k=top_k, none=int(np.iinfo(s_type).max), s_type=s_type,
+                           restrictive=np.zeros((num_rows, num_groups), dtype=bool),
+                           fwd=fwd, num_groups=num_groups, mutual=bwd is not None)
+    tasks = []
+    for g in range(num_groups):  # groups, not points
+        rows = row_order[row_in_group[row_order, g]]
+        cols = col_order[col_in_group[col_order, g]]  # pattern u: cols[start[u]:start[u+1]]
+        if len(rows) == 0 or len(cols) == 0:
+            continue
+        patterns = pattern_of[cols]
+        start = np.flatnonzero(np.r_[True, patterns[1:] != patterns[:-1]])
+        group = _MaskGroup(index=g, cols=cols, dst=dst[cols], dst_sq=dst_sq[cols],
+                           bins=np.ascontiguousarray(pattern_bins[:, patterns[start]]),
+                           start=start, count=np.diff(np.r_[start, len(cols)]))
+        # rows x patterns bounds the mask work, rows x targets the descriptor GEMM
+        step = max(1, min(_CHUNK_ELEMENTS // len(start), _DENSE_BLOCK_ELEMENTS // len(cols)))
+        tasks += [(group, rows[lo:lo + step]) for lo in range(0, len(rows), step)]
+    results = _run_tasks(lambda task: _masked_chunk(context, *task), tasks)
+    if bwd is not None and results:
         slots = np.concatenate([r[0] for r in results])
         np.minimum.at(bwd, slots, np.concatenate([r[1] for r in results]))
     if diagnostics is not None:
         diagnostics['mask_candidates'] = int(sum(r[2] for r in results))
-    return context.threshold >= 1
+    return context.restrictive
+
+
+def _padded_bins(bmr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Set bins of every BMR-SS row, (M, W) padded with the zero bin T*N, and (M,) counts.
+
+    Row i of S is then the sum over k of the target bin rows ``bits[i, k]`` (eq. 5).
+    """
+    rows, bins = np.nonzero(bmr)
+    width = np.bincount(rows, minlength=bmr.shape[0])
+    bits = np.full((bmr.shape[0], max(int(width.max(initial=0)), 1)), bmr.shape[1],
+                   dtype=np.intp)
+    bits[rows, np.arange(len(rows)) - (np.cumsum(width) - width)[rows]] = bins
+    return bits, width
+
+
+def _target_patterns(bmr: np.ndarray, s_type: type) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Distinct BMR-SS rows ("patterns") of the targets: (M',) pattern id, (T*N + 1, P) bins.
+
+    The bin table has one column per pattern and a last, all-zero bin row (the padding).
+    """
+    packed = np.packbits(bmr, axis=1)
+    words = np.zeros((len(bmr), max(8, -(-packed.shape[1] // 8) * 8)), dtype=np.uint8)
+    words[:, :packed.shape[1]] = packed
+    words = words.view(np.uint64)  # (M', ceil(T*N / 64)) exact row keys
+    order = np.lexsort(words.T)
+    new = np.r_[True, (words[order[1:]] != words[order[:-1]]).any(axis=1)]
+    pattern_of = np.empty(len(bmr), dtype=np.intp)
+    pattern_of[order] = np.cumsum(new) - 1
+    table = np.zeros((bmr.shape[1] + 1, int(new.sum())), dtype=s_type)
+    table[:-1] = bmr[order[new]].T
+    return pattern_of, table
 
 
 @dataclass
 class _MaskContext:
-    """Read-only inputs (and disjoint outputs) shared by the row chunks of Mask Matching."""
+    """Read-only inputs (and disjoint outputs) shared by the tasks of Mask Matching."""
 
-    src: np.ndarray
-    dst: np.ndarray
-    src_sq: np.ndarray
-    dst_sq: np.ndarray
-    source_groups: np.ndarray
-    col_pattern: np.ndarray
-    block_sizes: np.ndarray
-    starts: np.ndarray
-    blocks_of_group: list[np.ndarray]
-    row_in_group: np.ndarray
-    src_bmr: sp.csr_matrix
-    dst_bmr_t: np.ndarray
+    src: np.ndarray  # (M, D) float32
+    src_sq: np.ndarray  # (M,)
+    bits: np.ndarray  # (M, W) set bins of each source BMR-SS row, padded with T*N
+    width: np.ndarray  # (M,) set bins per row
     top_k: int
     none: int
     s_type: type
-    threshold: np.ndarray
-    fwd: np.ndarray
+    restrictive: np.ndarray  # (M, G) bool, written per (row, group)
+    fwd: np.ndarray  # (M * G,) packed winners, written per (row, group)
+    num_groups: int
     mutual: bool
 
 
-def _masked_chunk(ctx: _MaskContext, lo: int, hi: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """Mask Matching of source rows [lo, hi): thresholds, candidates, per-group winners."""
-    num_groups = ctx.threshold.shape[1]
-    similarity = ctx.src_bmr[lo:hi] @ ctx.dst_bmr_t  # (R, M') scene similarity, eq. 5
-    block_max = np.maximum.reduceat(similarity, ctx.starts, axis=1)  # (R, B)
-    loosest = np.full(block_max.shape, ctx.none, dtype=ctx.s_type)  # (R, B)
-    threshold = ctx.threshold[lo:hi]
-    for g, blocks in enumerate(ctx.blocks_of_group):  # groups, not points
-        if len(blocks) == 0:
-            continue
-        # T = m_s(i) - (K - 1); a (row, group) is restrictive iff T >= 1
-        thr = block_max[:, blocks].max(axis=1).astype(np.int32) - (ctx.top_k - 1)
-        thr[~ctx.row_in_group[lo:hi, g] | (thr < 1)] = 0
-        threshold[:, g] = thr
-        thr_or_none = np.where(thr >= 1, thr, ctx.none).astype(ctx.s_type)
-        loosest[:, blocks] = np.minimum(loosest[:, blocks], thr_or_none[:, None])
-    # candidates: S >= the loosest restrictive threshold of the column's block
-    flat = np.flatnonzero(similarity >= np.repeat(loosest, ctx.block_sizes, axis=1))
-    rows, cols = np.divmod(flat, similarity.shape[1])
-    sim = similarity.reshape(-1)[flat].astype(np.int32)
-    # ||a - b||^2 = ||a||^2 + ||b||^2 - 2 a.b: one GEMM for the chunk, read at the candidates
-    dist_sq = (ctx.src[lo:hi] @ ctx.dst.T).reshape(-1)[flat]
+@dataclass
+class _MaskGroup:
+    """One matching group's targets, sorted by BMR-SS pattern, and the patterns' bins."""
+
+    index: int
+    cols: np.ndarray  # (C,) positions in the sorted targets, grouped by pattern
+    dst: np.ndarray  # (C, D) float32
+    dst_sq: np.ndarray  # (C,)
+    bins: np.ndarray  # (T*N + 1, P) BMR-SS of the group's P patterns by bin; last row zero
+    start: np.ndarray  # (P,) first position in cols of each pattern
+    count: np.ndarray  # (P,) targets of each pattern
+
+
+def _masked_chunk(ctx: _MaskContext, group: _MaskGroup,
+                  rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Mask Matching of source ``rows`` in one group: S, threshold, candidates, winners."""
+    bits = ctx.bits[rows, :max(int(ctx.width[rows].max()), 1)]  # padded with the zero bin
+    similarity = group.bins[bits[:, 0]]  # (R, P) scene similarity S per pattern, eq. 5
+    for k in range(1, bits.shape[1]):  # set bins, not points
+        similarity += group.bins[bits[:, k]]
+    # T = m_s(i) - (K - 1); a (row, group) is restrictive iff T >= 1
+    threshold = similarity.max(axis=1).astype(np.int32) - (ctx.top_k - 1)
+    strict = threshold >= 1
+    ctx.restrictive[rows, group.index] = strict
+    if not strict.any():
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint64), 0
+    threshold = np.where(strict, threshold, ctx.none).astype(ctx.s_type)
+    mask = similarity >= threshold[:, None]
+    flat = np.flatnonzero(mask)  # row-major: grouped by row
+    row_start = np.searchsorted(flat, np.arange(len(rows) + 1) * mask.shape[1])
+    r = np.repeat(np.arange(len(rows)), np.diff(row_start))
+    u = flat - r * mask.shape[1]
+    count = group.count[u]
+    if count.sum() > _DENSE_FRACTION * len(rows) * len(group.cols):  # weak landmark evidence
+        return _masked_chunk_dense(ctx, group, rows, mask)
+    # expand (row, pattern) to (row, target): pattern u holds cols[start[u]:start[u] + count[u]]
+    r = np.repeat(r, count)
+    ends = np.cumsum(count)
+    c = np.arange(len(r)) + np.repeat(group.start[u] - (ends - count), count)
+    per_row = np.bincount(r, minlength=len(rows))
+    # ||a - b||^2 = ||a||^2 + ||b||^2 - 2 a.b: one GEMM on the targets that are candidates
+    # of some row of the chunk (few: the rows are neighbours), read at the candidates
+    used = np.repeat(mask.any(axis=0), group.count)
+    slot_of_col = np.cumsum(used) - 1
+    inner = ctx.src[rows] @ group.dst[used].T  # (R, U)
+    dist_sq = inner.reshape(-1)[r * inner.shape[1] + slot_of_col[c]]
     dist_sq *= -2.0
-    dist_sq += ctx.src_sq[lo + rows] + ctx.dst_sq[cols]
+    dist_sq += ctx.src_sq[rows][r] + group.dst_sq[c]
     np.maximum(dist_sq, 0.0, out=dist_sq)
-    # expand each candidate into the groups it shares (1-3 typically) by peeling set bits
-    common = ctx.source_groups[lo + rows] & ctx.col_pattern[cols]
-    flat_threshold = threshold.reshape(-1)
-    keep_idx, keep_group = [], []
-    idx = np.arange(len(rows))
-    while len(idx):
-        bits = common[idx]
-        low = bits & (~bits + np.uint64(1))  # lowest set bit
-        group = np.log2(low.astype(np.float64)).astype(np.int64)
-        thr = flat_threshold[rows[idx] * num_groups + group]
-        ok = (thr >= 1) & (sim[idx] >= thr)
-        keep_idx.append(idx[ok])
-        keep_group.append(group[ok])
-        bits ^= low
-        common[idx] = bits
-        idx = idx[bits != 0]
-    sel = np.concatenate(keep_idx) if keep_idx else np.zeros(0, dtype=np.int64)
-    group = np.concatenate(keep_group) if keep_group else np.zeros(0, dtype=np.int64)
-    local = np.full((hi - lo) * num_groups, NO_MATCH)
-    np.minimum.at(local, rows[sel] * num_groups + group, _pack(dist_sq[sel], cols[sel]))
-    ctx.fwd[lo * num_groups:hi * num_groups] = local
+    keys = _pack(dist_sq, group.cols[c])
+    winners = per_row > 0
+    slots = rows[winners] * ctx.num_groups + group.index
+    ctx.fwd[slots] = np.minimum.reduceat(keys, (np.cumsum(per_row) - per_row)[winners])
     if not ctx.mutual:
-        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint64), len(rows)
-    return cols[sel] * num_groups + group, _pack(dist_sq[sel], lo + rows[sel]), len(rows)
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint64), len(r)
+    return (group.cols[c] * ctx.num_groups + group.index, _pack(dist_sq, rows[r]), len(r))
 
 
-def _workers(tasks: int) -> int:
-    if threadpool_limits is None:
-        return 1
-    return max(1, min(tasks, os.cpu_count() or 1, _MAX_THREADS))
+def _masked_chunk_dense(ctx: _MaskContext, group: _MaskGroup, rows: np.ndarray,
+                        mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """
+    Winners of :func:`_masked_chunk` from the dense (R, P) pattern mask, for many candidates.
+
+    Used when thin landmark evidence makes a large share of the targets candidates, where
+    gathering them one by one costs more than a few passes over the whole chunk. Same
+    distances and the same winners as the sparse path: rows and targets are put in
+    ascending index order, so ``argmin``'s first minimum is the smallest packed key.
+    """
+    by_index = np.argsort(group.cols)
+    cols = group.cols[by_index]
+    row_order = np.argsort(rows)
+    rows, mask = rows[row_order], mask[row_order]
+    candidate = np.take(mask, np.repeat(np.arange(len(group.count)), group.count)[by_index],
+                        axis=1)  # C order (mask[:, idx] would be F order: slow below)
+    dist_sq = ctx.src[rows] @ group.dst[by_index].T  # (R, C)
+    dist_sq *= -2.0
+    dist_sq += ctx.src_sq[rows][:, None] + group.dst_sq[by_index][None, :]
+    np.maximum(dist_sq, 0.0, out=dist_sq)
+    if not np.isfinite(dist_sq.max()):  # NaN/inf: the bit trick below needs finite values
+        return _masked_keys_dense(ctx, group.index, rows, cols, candidate, dist_sq)
+    # non-negative floats sort like their int32 bits; a non-candidate gets the exponent bits
+    # of inf set, which puts it above every finite distance (branch-free masking)
+    key = dist_sq.view(np.int32)
+    off = candidate.view(np.uint8).astype(np.int32)
+    off -= 1
+    off &= 0x7F800000
+    key |= off
+    has = np.flatnonzero(mask.any(axis=1))
+    best = key.argmin(axis=1)[has]
+    ctx.fwd[rows[has] * ctx.num_groups + group.index] = _pack(dist_sq[has, best], cols[best])
+    candidates = int(np.count_nonzero(candidate))
+    if not ctx.mutual:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint64), candidates
+    hit = np.flatnonzero(candidate.any(axis=0))
+    best_row = key[:, hit].argmin(axis=0)
+    return (cols[hit] * ctx.num_groups + group.index,
+            _pack(dist_sq[best_row, hit], rows[best_row]), candidates)
+
+
+def _masked_keys_dense(ctx: _MaskContext, group_index: int, rows: np.ndarray,
+                       cols: np.ndarray, candidate: np.ndarray,
+                       dist_sq: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """Winners of a dense chunk by packed keys (any float, NaN and inf included)."""
+    high = dist_sq.view(np.uint32).astype(np.uint64) << np.uint64(32)
+    best = np.where(candidate, high | cols.astype(np.uint64), NO_MATCH).min(axis=1)
+    winners = best != NO_MATCH
+    ctx.fwd[rows[winners] * ctx.num_groups + group_index] = best[winners]
+    candidates = int(np.count_nonzero(candidate))
+    if not ctx.mutual:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint64), candidates
+    back = np.where(candidate, high | rows.astype(np.uint64)[:, None], NO_MATCH).min(axis=0)
+    hit = back != NO_MATCH
+    return cols[hit] * ctx.num_groups + group_index, back[hit], candidates
+
+
+def _dense_bits(bmr: np.ndarray | sp.spmatrix) -> np.ndarray:
+    """BMR-SS as a dense (M, T*N) bool array; a nonzero entry is a set bit."""
+    if sp.issparse(bmr):
+        bmr = bmr.toarray()
+    return np.asarray(bmr) != 0
+
+
+def _run_tasks(function: Callable[[Any], Any], tasks: list[Any]) -> list[Any]:
+    """
+    ``[function(t) for t in tasks]`` on a small, persistent thread pool, BLAS single-threaded.
+
+    The chunk GEMMs are small: multithreaded BLAS on them (and inside worker threads) was
+    measured 3x slower, so BLAS runs single-threaded here and the chunks use the cores.
+    """
+    global _POOL
+    workers = max(1, min(len(tasks), os.cpu_count() or 1, _MAX_THREADS))
+    if ThreadpoolController is None or workers == 1:
+        with _single_threaded_blas():
+            return [function(task) for task in tasks]
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(_MAX_THREADS, thread_name_prefix='mlsemreg-match')
+    with _single_threaded_blas():
+        return list(_POOL.map(function, tasks))
 
 
 def _single_threaded_blas() -> AbstractContextManager:
-    if threadpool_limits is not None:
-        return threadpool_limits(limits=1, user_api='blas')
-    return nullcontext()
+    """Limit BLAS to one thread (threadpoolctl; the controller is built once, ~1 ms)."""
+    global _BLAS
+    if ThreadpoolController is None:
+        return nullcontext()
+    with _POOL_LOCK:
+        if _BLAS is None:
+            _BLAS = ThreadpoolController()
+    return _BLAS.limit(limits=1, user_api='blas')
 
 
 def _dense_group_nn(src: np.ndarray, dst: np.ndarray, row_groups: np.ndarray,
                     col_in_group: np.ndarray, fwd: np.ndarray, bwd: np.ndarray | None) -> None:
-    """Unmasked nearest neighbours inside every group for the (row, group) pairs given."""
+    """
+    Unmasked nearest neighbours inside every group for the (row, group) pairs given.
+
+    Blocks of rows (group, rows) are independent and run on the matcher's thread pool.
+    """
     num_groups = row_groups.shape[1]
     src_sq, dst_sq = _sq_norms(src), _sq_norms(dst)
+    tasks = []
     for g in range(num_groups):  # groups, not points
         rows = np.flatnonzero(row_groups[:, g])
         cols = np.flatnonzero(col_in_group[:, g])
         if len(rows) == 0 or len(cols) == 0:
             continue
-        targets, targets_sq = dst[cols], dst_sq[cols]
+        targets = (cols, dst[cols], dst_sq[cols], g)
         step = max(1, _DENSE_BLOCK_ELEMENTS // len(cols))
-        for lo in range(0, len(rows), step):
-            part_rows = rows[lo:lo + step]
-            inner = src[part_rows] @ targets.T
-            # argmin_j ||a - b_j||^2 = argmin_j (||b_j||^2 - 2 a.b_j): ||a||^2 only for winners
-            score = targets_sq[None, :] - 2.0 * inner
-            best = score.argmin(axis=1)
-            row_dist = score[np.arange(len(part_rows)), best] + src_sq[part_rows]
-            fwd[part_rows * num_groups + g] = _pack(row_dist, cols[best])
-            if bwd is not None:
-                score = src_sq[part_rows, None] - 2.0 * inner
-                best_row = score.argmin(axis=0)
-                col_dist = score[best_row, np.arange(len(cols))] + targets_sq
-                slot = cols * num_groups + g
-                bwd[slot] = np.minimum(bwd[slot], _pack(col_dist, part_rows[best_row]))
+        tasks += [(targets, rows[lo:lo + step]) for lo in range(0, len(rows), step)]
+    mutual = bwd is not None
+
+    def block(task: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]
+              ) -> tuple[np.ndarray, ...]:
+        (cols, targets, targets_sq, g), part_rows = task
+        minus_two_inner = src[part_rows] @ targets.T
+        minus_two_inner *= -2.0
+        # argmin_j ||a - b_j||^2 = argmin_j (||b_j||^2 - 2 a.b_j): ||a||^2 only for winners
+        score = minus_two_inner + targets_sq[None, :]
+        best = score.argmin(axis=1)
+        row_dist = score[np.arange(len(part_rows)), best] + src_sq[part_rows]
+        out = (part_rows * num_groups + g, _pack(row_dist, cols[best]))
+        if not mutual:
+            return out
+        score = np.add(minus_two_inner, src_sq[part_rows, None], out=minus_two_inner)
+        best_row = score.argmin(axis=0)
+        col_dist = score[best_row, np.arange(len(cols))] + targets_sq
+        return (*out, cols * num_groups + g, _pack(col_dist, part_rows[best_row]))
+
+    for result in _run_tasks(block, tasks):  # fwd slots are disjoint; bwd takes the minimum
+        fwd[result[0]] = result[1]
+        if mutual:
+            np.minimum.at(bwd, result[2], result[3])
+
+
+def _exact_distance(source: np.ndarray, target: np.ndarray, rows: np.ndarray,
+                    cols: np.ndarray) -> np.ndarray:
+    """
+    ||d_i - d_j|| of the selected pairs, in float64, returned as float32.
+
+    Selection uses the GEMM form ||a||^2 + ||b||^2 - 2 a.b, whose last bits depend on the
+    BLAS blocking; the reported distance is recomputed directly so that it is the same for
+    any chunking or thread count (and equals SciPy's cdist to float32 rounding).
+    """
+    diff = (np.asarray(source, dtype=np.float64)[rows]
+            - np.asarray(target, dtype=np.float64)[cols])
+    return np.sqrt(np.einsum('ij,ij->i', diff, diff)).astype(np.float32)
+
+
+def _add_time(timings: dict[str, float] | None, stage: str, start: float) -> None:
+    if timings is not None:
+        timings[stage] = timings.get(stage, 0.0) + 1e3 * (time.perf_counter() - start)
 
 
 def _sq_norms(x: np.ndarray) -> np.ndarray:

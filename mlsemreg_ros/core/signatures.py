@@ -20,16 +20,37 @@ semantic labels, landmarks (cluster centroids of landmark classes), N rings of w
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+import os
+import threading
+from typing import Any
+
 from mlsemreg_ros.core.results import Landmarks
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
+_MAX_THREADS = 2
+_MIN_PART = 400  # keypoints per parallel part of the Local-SS search
+_POOL: ThreadPoolExecutor | None = None  # created on first use
+_POOL_LOCK = threading.Lock()
+
+
+def _forget_pool() -> None:
+    """In a forked child the pool's threads do not exist: start afresh on first use."""
+    global _POOL, _POOL_LOCK
+    _POOL, _POOL_LOCK = None, threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_pool)
+
 
 def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: np.ndarray,
                              radius: float, num_classes: int, *,
                              ignored: np.ndarray | None = None,
-                             undefined: np.ndarray | None = None) -> np.ndarray:
+                             undefined: np.ndarray | None = None,
+                             points_tree: cKDTree | None = None) -> np.ndarray:
     """
     Local Semantic Signature n_i of every keypoint (eq. 1), as a (M, C) bool matrix.
 
@@ -38,14 +59,19 @@ def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: 
     (e.g. unlabeled) becomes a member of every group: all defined classes are set and the
     undefined ones cleared, independent of keypoint order (cf. DESIGN pitfalls).
 
-    points (N, 3), labels (N,) learning ids, keypoints (M, 3).
+    points (N, 3), labels (N,) learning ids, keypoints (M, 3). ``points_tree`` may be a
+    cKDTree of ``points`` the caller already has (it is built here otherwise).
     """
     signature = np.zeros((len(keypoints), num_classes), dtype=bool)
     if len(points) == 0 or len(keypoints) == 0:
         return signature
-    pairs = cKDTree(keypoints).sparse_distance_matrix(
-        cKDTree(points), radius, output_type='ndarray')
-    signature[pairs['i'], labels[pairs['j']]] = True  # zero distances included
+    if points_tree is None:
+        points_tree = _tree(points)
+    # keypoint parts are independent; SciPy releases the GIL in the dual-tree search
+    parts = np.array_split(np.arange(len(keypoints)), _parts(len(keypoints)))
+    for part, pairs in zip(parts, _map(lambda p: _tree(keypoints[p]).sparse_distance_matrix(
+            points_tree, radius, output_type='ndarray'), parts), strict=True):
+        signature[part[pairs['i']], labels[pairs['j']]] = True  # zero distances included
     ignored = np.asarray(ignored if ignored is not None else [], dtype=np.int64)
     undefined = np.asarray(undefined if undefined is not None else [], dtype=np.int64)
     signature[:, ignored] = False
@@ -57,6 +83,32 @@ def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: 
         signature[np.ix_(wildcard, defined)] = True
         signature[:, undefined] = False
     return signature
+
+
+def _parts(num_keypoints: int) -> int:
+    """Return the number of keypoint parts searched in parallel (1 for small inputs)."""
+    return max(1, min(_MAX_THREADS, os.cpu_count() or 1, num_keypoints // _MIN_PART))
+
+
+def _map(function: Callable[[Any], Any], items: list[Any]) -> list[Any]:
+    """``[function(x) for x in items]``, on a small persistent thread pool if more than one."""
+    global _POOL
+    if len(items) <= 1:
+        return [function(x) for x in items]
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(_MAX_THREADS, thread_name_prefix='mlsemreg-signatures')
+    return list(_POOL.map(function, items))
+
+
+def _tree(points: np.ndarray) -> cKDTree:
+    """
+    KD-tree for one fixed-radius query: sliding-midpoint splits, no node shrinking.
+
+    About 40 % cheaper to build than SciPy's default (median splits, compacted nodes) on
+    a KITTI scan, for the same query time; queries return the same neighbours either way.
+    """
+    return cKDTree(points, balanced_tree=False, compact_nodes=False)
 
 
 def binary_multi_ring_signature(keypoints: np.ndarray, landmarks: Landmarks,
@@ -96,10 +148,16 @@ def _bmr_bits(keypoints: np.ndarray, landmarks: Landmarks, classes: np.ndarray,
     centroids, t = landmarks.centroids[use], slot[landmarks.classes[use]]
     if len(centroids) == 0 or len(keypoints) == 0:
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
-    diff = keypoints[:, None, :] - centroids[None, :, :]
-    ring = np.floor(np.sqrt(np.einsum('mzk,mzk->mz', diff, diff)) / ring_width).astype(np.int64)
-    rows, cols = np.nonzero(ring < ring_count)
-    return rows, t[cols] * ring_count + ring[rows, cols]
+    # (Z, M) layout: long rows vectorize; squared distance summed as (x^2 + z^2) + y^2, the
+    # order of the einsum this replaced, so ring boundaries fall exactly as before
+    coords = np.asarray(keypoints, dtype=np.float64).T
+    dx, dy, dz = (coords[k] - centroids[:, k, None] for k in range(3))
+    dist_sq = dx * dx
+    dist_sq += dz * dz
+    dist_sq += dy * dy
+    ring = np.floor(np.sqrt(dist_sq) / ring_width)  # float: inf/NaN are simply not in a ring
+    marks, rows = np.nonzero(ring < ring_count)
+    return rows, t[marks] * ring_count + ring[marks, rows].astype(np.int64)
 
 
 def scene_similarity(source_bmr: np.ndarray, target_bmr: np.ndarray) -> np.ndarray:
