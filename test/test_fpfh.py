@@ -156,3 +156,16 @@ def test_support_voxels_keep_keypoints_apart_and_isolated_points_are_zero():
     exact = fpfh_at_keypoints(points, indices, 0.9, 1.5)
     assert np.abs(descriptors[:3] - exact[:3]).sum(axis=1).max() < 60.0  # of 600
     assert fpfh_at_keypoints(points, np.zeros(0, dtype=np.int64), 0.9, 1.5).shape == (0, 33)
+
+
+def test_snapped_keypoints_take_the_fpfh_of_their_nearest_support_centroid():
+    points = _ground_and_box(9)
+    indices = np.array([3, 50, 1600, 3])
+    snapped = fpfh_at_keypoints(points, indices, 0.9, 1.5, support_voxel=0.6, snap=True)
+    own = fpfh_at_keypoints(points, indices, 0.9, 1.5, support_voxel=0.6)
+    assert snapped.shape == own.shape == (4, 33)
+    np.testing.assert_array_equal(snapped[0], snapped[3])
+    blocks = snapped.reshape(4, 3, 11).sum(axis=2)
+    np.testing.assert_allclose(blocks, 200.0, rtol=1e-5)
+    # on the plane the nearest centroid sees nearly the keypoint's own neighbourhood
+    assert np.abs(snapped[:2] - own[:2]).sum(axis=1).max() < 100.0  # of 600

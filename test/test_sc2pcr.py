@@ -148,10 +148,11 @@ def test_seed_budget_keeps_the_best_seeds_of_dense_input() -> None:
     np.testing.assert_array_equal(sc2.budget_seeds(matrix, tight, seeds, 0.0),
                                   seeds[:sc2._MIN_SEEDS])
     # end to end with a small budget (estimator.second_order_budget): fewer seeds, same result
-    result = sc2.sc2pcr(src, dst, EstimatorConfig(second_order_budget=float(cost[99]) / 1e6))
+    result = sc2.sc2pcr(src, dst, EstimatorConfig(second_order_budget=float(cost[99]) / 1e6,
+                                                  seed_ratio=0.2, graph_size=0))
     assert result.diagnostics['n_seeds'] < result.diagnostics['n_seeds_nms']
     assert _errors(result.transform, truth)[0] < 0.5
-    unbudgeted = sc2.sc2pcr(src, dst, EstimatorConfig(second_order_budget=0.0))
+    unbudgeted = sc2.sc2pcr(src, dst, EstimatorConfig(second_order_budget=0.0, graph_size=0))
     assert unbudgeted.diagnostics['n_seeds'] == unbudgeted.diagnostics['n_seeds_nms']
 
 

@@ -125,9 +125,14 @@ class FeatureConfig:
         100, 'Maximum neighbours for FPFH (fpfh_open3d only; fpfh uses every neighbour '
         'within the radius).', low=3, high=5000)
     support_voxel_size: float = param(
-        0.5, 'fpfh: the point-pair histograms are computed on a voxel grid of this edge and '
-        'each keypoint gets the FPFH of its voxel (0: on the scan points themselves; cost '
+        0.5, 'fpfh: the point-pair histograms of the neighbours are computed on the '
+        'centroids of a voxel grid of this edge (0: on the scan points themselves; the cost '
         'grows about with 1/edge^2).', unit='m', low=0.0, high=5.0)
+    snap_keypoints: bool = param(
+        True, 'fpfh with a support grid: each keypoint takes the FPFH of its nearest support '
+        'centroid (no neighbourhood search per keypoint; about 3x faster at 5000 keypoints). '
+        'false computes its own normal and SPFH at its position (dev pairs: FPFH RR 90 % '
+        'instead of 80 %).')
 
 
 @dataclass
@@ -181,7 +186,7 @@ class EstimatorConfig:
         'seed_ratio x K seeds would exceed it, only the best-scored seeds that fit are kept '
         '(at least 64); 0 disables the budget.', unit='ms', low=0.0, high=1e6)
     graph_size: int = param(
-        700, 'SC2-PCR builds its compatibility graph (seeds, consensus sets, hypotheses) on '
+        500, 'SC2-PCR builds its compatibility graph (seeds, consensus sets, hypotheses) on '
         'a seeded random subset of at most this many correspondences; every hypothesis is '
         'still scored, and the best refined, on all of them. Cost grows with its square '
         '(0: no limit).', low=0, high=100000)

@@ -52,7 +52,8 @@ BINS = 11
 
 def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: float,
                       feature_radius: float, support_voxel: float = 0.0,
-                      viewpoint: np.ndarray | None = None) -> np.ndarray:
+                      viewpoint: np.ndarray | None = None,
+                      snap: bool = False) -> np.ndarray:
     """
     FPFH descriptors of the scan points ``points[indices]``.
 
@@ -64,6 +65,9 @@ def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: fl
       voxel grid of this edge (metres); each keypoint keeps its own position, normal and
       SPFH, taken against those centroids. 0 uses the scan points themselves.
     - ``viewpoint``: (3,) point the normals face (default: the sensor origin).
+    - ``snap``: with ``support_voxel`` > 0, give each keypoint the FPFH of its nearest
+      support centroid instead (no neighbourhood search per keypoint: the cost no
+      longer grows with the number of keypoints).
 
     Returns (M, 33) float32 (blocks alpha | phi | theta); rows of points without any
     neighbour within ``feature_radius`` are all zero.
@@ -78,9 +82,12 @@ def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: fl
     # Work relative to the viewpoint: orientation needs no offset, float32 keeps precision.
     points = points - origin
     support = _voxel_centroids(points, support_voxel) if support_voxel > 0 else points
+    tree = cKDTree(support)
+    if snap and support_voxel > 0:  # keypoints become support rows
+        indices = tree.query(points[indices])[1]
+        support_voxel = 0.0
     unique, row_of_keypoint = np.unique(indices, return_inverse=True)
     radius = max(feature_radius, normal_radius)
-    tree = cKDTree(support)
     # 1. Normals and SPFH of the support, from its unordered pairs (each serves both ends).
     pairs = tree.query_pairs(radius, output_type='ndarray')
     first, second = np.ascontiguousarray(pairs[:, 0]), np.ascontiguousarray(pairs[:, 1])

@@ -176,7 +176,7 @@ def _fpfh(points: np.ndarray, indices: np.ndarray, cfg: RegistrationConfig) -> n
         return features.fpfh_open3d_at(points, indices, f.normal_radius, f.normal_max_nn,
                                        f.feature_radius, f.feature_max_nn)
     return fpfh.fpfh_at_keypoints(points, indices, f.normal_radius, f.feature_radius,
-                                  f.support_voxel_size)
+                                  f.support_voxel_size, snap=f.snap_keypoints)
 
 
 def _best_ranked(corr: Correspondences, cap: int) -> Correspondences:

@@ -285,6 +285,7 @@ def bench(pairs: list[Any], repeats: int, rate_hz: float, probe: NodeProbe) -> l
                     'e2e_ms': 1e3 * (found[0] - published) if found else None,
                     'processing_ms': float(status['processing_ms']) if status else None,
                     'success': found is not None,
+                    **_errors(found[1] if found else None, pair.trans_gt, frame),
                     'stages_ms': {k[6:]: float(v) for k, v in (status or {}).items()
                                   if k.startswith('stage.')},
                 })
@@ -292,10 +293,32 @@ def bench(pairs: list[Any], repeats: int, rate_hz: float, probe: NodeProbe) -> l
     return records
 
 
+def _errors(message: Any, truth: np.ndarray | None, frame: int) -> dict[str, Any]:
+    """RE (deg), TE (m) of a transform message against the pair's ground truth."""
+    if message is None or truth is None:
+        return {}
+    from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
+    from scipy.spatial.transform import Rotation
+
+    transform = message.transform
+    estimate = np.eye(4)
+    r = transform.rotation
+    estimate[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
+    t = transform.translation
+    estimate[:3, 3] = (t.x, t.y, t.z)
+    # odd frames register src onto the dst keyframe (trans_gt), even ones the reverse
+    expected = truth if frame % 2 else np.linalg.inv(truth)
+    rotation_error = rotation_error_deg(estimate[:3, :3], expected[:3, :3])
+    translation_error = translation_error_m(estimate[:3, 3], expected[:3, 3])
+    return {'rotation_error_deg': rotation_error, 'translation_error_m': translation_error,
+            'correct': bool(rotation_error < 5.0 and translation_error < 0.6)}
+
+
 def summary(records: list[dict]) -> dict[str, Any]:
     """p50/p95/mean of node and end-to-end latency, stage medians, success rate."""
     out: dict[str, Any] = {'frames': len(records),
-                           'registered': sum(r['success'] for r in records)}
+                           'registered': sum(r['success'] for r in records),
+                           'correct': sum(r.get('correct', False) for r in records)}
     for key in ('node_ms', 'e2e_ms', 'processing_ms'):
         values = [r[key] for r in records if r[key] is not None]
         out[key] = {'p50': percentile(values, 50), 'p95': percentile(values, 95),
@@ -320,16 +343,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--domain-id', type=int, default=None,
                         help='ROS domain id (default: ROS_DOMAIN_ID)')
     parser.add_argument('--json', type=Path, default=None, help='write records + summary here')
+    parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
+                        help='override a node parameter, e.g. keypoints.count=2000 (repeatable)')
     args = parser.parse_args(argv)
+    ros_args = ['--ros-args']
+    for item in args.set:
+        ros_args += ['-p', item.replace('=', ':=', 1)]
     directory = None if args.synthetic else (args.pairs or dev_pairs_dir())
     pairs = load_pairs(directory, args.limit)
     print(f'{len(pairs)} pair(s) from {directory if directory else "the synthetic street"}; '
           f'{args.repeats} x 2 registrations each at {args.rate:g} Hz')
-    with node_and_probe(args.domain_id) as (_, probe):
+    if args.set:
+        print('parameters: ' + ', '.join(args.set))
+    with node_and_probe(args.domain_id, ros_args if args.set else None) as (_, probe):
         records = bench(pairs, args.repeats, args.rate, probe)
     result = summary(records)
     print(f'{"metric":<34}{"unit":>6}{"value":>10}')
     print(f'{"frames registered":<34}{"":>6}{result["registered"]:>6}/{result["frames"]}')
+    print(f'{"  of them RE < 5 deg, TE < 0.6 m":<34}{"":>6}{result["correct"]:>6}/'
+          f'{result["frames"]}')
     for key, label in (('node_ms', 'node latency'), ('e2e_ms', 'end-to-end latency'),
                        ('processing_ms', 'core prepare+register')):
         for q in ('p50', 'p95', 'mean'):
