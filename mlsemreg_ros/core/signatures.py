@@ -156,8 +156,10 @@ def _bmr_bits(keypoints: np.ndarray, landmarks: Landmarks, classes: np.ndarray,
     dist_sq += dz * dz
     dist_sq += dy * dy
     ring = np.floor(np.sqrt(dist_sq) / ring_width)  # float: inf/NaN are simply not in a ring
-    marks, rows = np.nonzero(ring < ring_count)
-    return rows, t[marks] * ring_count + ring[marks, rows].astype(np.int64)
+    flat = np.flatnonzero(ring < ring_count)  # (2-D np.nonzero is about twice as slow)
+    marks = flat // ring.shape[1]
+    rows = flat - marks * ring.shape[1]
+    return rows, t[marks] * ring_count + ring.reshape(-1)[flat].astype(np.int64)
 
 
 def scene_similarity(source_bmr: np.ndarray, target_bmr: np.ndarray) -> np.ndarray:
