@@ -38,7 +38,9 @@ The engine (:func:`semantic_match`) is exact and avoids the dense |P| x |Q| x |b
    they are gathered as sparse candidates (typically ~1 % of the targets) and the
    descriptor distance is read at those pairs from one GEMM per chunk, restricted to the
    targets that are a candidate of some row of the chunk (rows are ordered by BMR-SS, so
-   a chunk holds neighbouring keypoints).
+   a chunk holds neighbouring keypoints). When thin landmark evidence makes more than
+   ``_DENSE_FRACTION`` of a chunk candidates, the chunk is resolved densely instead
+   (same distances, same winners).
 4. Per (row, group) the winner is the smallest packed key (distance bits << 32 | index);
    MNN checks the same keys in the other direction. The reported distance of each
    correspondence is recomputed directly, so it does not depend on the BLAS blocking.
