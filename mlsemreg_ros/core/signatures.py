@@ -67,8 +67,11 @@ def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: 
         return signature
     if points_tree is None:
         points_tree = _tree(points)
-    # keypoint parts are independent; SciPy releases the GIL in the dual-tree search
-    parts = np.array_split(np.arange(len(keypoints)), _parts(len(keypoints)))
+    # keypoint parts are independent; SciPy releases the GIL in the dual-tree search. Parts
+    # are slabs along the longest axis, so each part's tree meets only its slab of the scan
+    axis = int(np.argmax(np.ptp(keypoints, axis=0)))
+    parts = np.array_split(np.argsort(keypoints[:, axis], kind='stable'),
+                           _parts(len(keypoints)))
     for part, pairs in zip(parts, _map(lambda p: _tree(keypoints[p]).sparse_distance_matrix(
             points_tree, radius, output_type='ndarray'), parts), strict=True):
         signature[part[pairs['i']], labels[pairs['j']]] = True  # zero distances included
@@ -156,8 +159,10 @@ def _bmr_bits(keypoints: np.ndarray, landmarks: Landmarks, classes: np.ndarray,
     dist_sq += dz * dz
     dist_sq += dy * dy
     ring = np.floor(np.sqrt(dist_sq) / ring_width)  # float: inf/NaN are simply not in a ring
-    marks, rows = np.nonzero(ring < ring_count)
-    return rows, t[marks] * ring_count + ring[marks, rows].astype(np.int64)
+    flat = np.flatnonzero(ring < ring_count)  # (2-D np.nonzero is about twice as slow)
+    marks = flat // ring.shape[1]
+    rows = flat - marks * ring.shape[1]
+    return rows, t[marks] * ring_count + ring.reshape(-1)[flat].astype(np.int64)
 
 
 def scene_similarity(source_bmr: np.ndarray, target_bmr: np.ndarray) -> np.ndarray:
