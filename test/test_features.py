@@ -116,3 +116,20 @@ def test_fpfh_of_an_isolated_point_is_invalid():
 def test_valid_descriptor_mask_drops_nan_inf_and_zero_rows():
     d = np.array([[1.0, 0.0], [np.nan, 1.0], [0.0, 0.0], [np.inf, 2.0], [0.0, -3.0]])
     np.testing.assert_array_equal(valid_descriptor_mask(d), [True, False, False, False, True])
+
+
+@pytest.mark.parametrize('distinct_labels', [5, 3000])  # dense count table / sorted pairs
+def test_voxel_majority_label_matches_a_brute_force_count(distinct_labels: int):
+    rng = np.random.default_rng(distinct_labels)
+    points = rng.uniform(0.0, 3.0, (4000, 3))
+    labels = rng.integers(0, distinct_labels, 4000)
+    centroids, voxel_labels = voxel_downsample(points, labels, 0.5)
+    keys = [tuple(k) for k in np.floor(points / 0.5).astype(int)]
+    votes: dict = {}
+    for key, label in zip(keys, labels, strict=True):
+        votes.setdefault(key, {}).setdefault(int(label), 0)
+        votes[key][int(label)] += 1
+    expected = {key: min(c, key=lambda lab: (-c[lab], lab)) for key, c in votes.items()}
+    found = {tuple(np.floor(c / 0.5).astype(int)): int(lab)
+             for c, lab in zip(centroids, voxel_labels, strict=True)}
+    assert found == expected

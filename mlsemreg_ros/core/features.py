@@ -66,9 +66,16 @@ def voxel_downsample(points: np.ndarray, labels: np.ndarray,
     sizes = np.bincount(inverse, minlength=count).astype(np.float64)
     centroids = np.stack([np.bincount(inverse, weights=points[:, k], minlength=count)
                           for k in range(3)], axis=1) / sizes[:, None]
-    # Majority label: count (voxel, label) pairs, then keep the largest count per voxel.
+    # Majority label per voxel (ties to the smallest id): a dense (voxel, label) count
+    # table when the ids are small, as learning ids are; else count the distinct pairs.
     label_ids, label_inverse = np.unique(labels, return_inverse=True)
-    pair = inverse * len(label_ids) + label_inverse.reshape(-1)
+    label_inverse = label_inverse.reshape(-1)
+    if count * len(label_ids) <= 64 * points.shape[0]:
+        table = np.bincount(inverse * len(label_ids) + label_inverse,
+                            minlength=count * len(label_ids)).reshape(count, len(label_ids))
+        voxel_labels = label_ids[table.argmax(axis=1)].astype(np.int32)
+        return centroids, voxel_labels
+    pair = inverse * len(label_ids) + label_inverse
     pairs, pair_counts = np.unique(pair, return_counts=True)
     pair_voxel, pair_label = np.divmod(pairs, len(label_ids))
     # Sort by voxel, then count descending, then label ascending; first row per voxel wins.

@@ -82,7 +82,7 @@ def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: fl
     # Work relative to the viewpoint: orientation needs no offset, float32 keeps precision.
     points = points - origin
     support = _voxel_centroids(points, support_voxel) if support_voxel > 0 else points
-    tree = cKDTree(support)
+    tree = cKDTree(support, balanced_tree=False, compact_nodes=False)  # cheaper to build
     if snap and support_voxel > 0:  # keypoints become support rows
         indices = tree.query(points[indices])[1]
         support_voxel = 0.0
@@ -220,7 +220,7 @@ def smallest_eigenvectors(covariance: np.ndarray) -> np.ndarray:
     Returns (N, 3) float64; isotropic or rank-deficient inputs fall back to a unit
     vector of the null space when one exists, else ``+z``.
     """
-    a00, a01, a02, a11, a12, a22 = (covariance[:, k] for k in range(6))
+    a00, a01, a02, a11, a12, a22 = (np.ascontiguousarray(covariance[:, k]) for k in range(6))
     q = (a00 + a11 + a22) / 3.0
     b00, b11, b22 = a00 - q, a11 - q, a22 - q
     off = a01 * a01 + a02 * a02 + a12 * a12
@@ -230,16 +230,20 @@ def smallest_eigenvectors(covariance: np.ndarray) -> np.ndarray:
            + a02 * (a01 * a12 - b11 * a02)) / safe_p**3
     phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
     smallest = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
-    rows = np.stack([np.stack([a00 - smallest, a01, a02], axis=1),
-                     np.stack([a01, a11 - smallest, a12], axis=1),
-                     np.stack([a02, a12, a22 - smallest], axis=1)], axis=0)
-    crosses = np.stack([np.cross(rows[0], rows[1]), np.cross(rows[0], rows[2]),
-                        np.cross(rows[1], rows[2])], axis=0)
-    norms = np.linalg.norm(crosses, axis=2)
-    best = np.argmax(norms, axis=0)
-    pick = np.arange(covariance.shape[0])
-    vector, length = crosses[best, pick], norms[best, pick]
-    fallback = length <= 1e-12 * np.maximum(np.abs(covariance).max(axis=1), 1e-300)
+    d00, d11, d22 = a00 - smallest, a11 - smallest, a22 - smallest
+    # cross products of the rows (d00 a01 a02), (a01 d11 a12), (a02 a12 d22) of A - lambda I
+    crosses = (
+        (a01 * a12 - a02 * d11, a02 * a01 - d00 * a12, d00 * d11 - a01 * a01),  # r0 x r1
+        (a01 * d22 - a02 * a12, a02 * a02 - d00 * d22, d00 * a12 - a01 * a02),  # r0 x r2
+        (d11 * d22 - a12 * a12, a12 * a02 - a01 * d22, a01 * a12 - d11 * a02),  # r1 x r2
+    )
+    lengths = [x * x + y * y + z * z for x, y, z in crosses]
+    best = np.where(lengths[1] > lengths[0], 1, 0)
+    best = np.where(lengths[2] > np.maximum(lengths[0], lengths[1]), 2, best)
+    vector = np.stack([np.choose(best, [c[axis] for c in crosses]) for axis in range(3)], axis=1)
+    length = np.sqrt(np.choose(best, lengths))
+    scale = np.maximum(np.abs(covariance).max(axis=1), 1e-300)
+    fallback = length <= 1e-12 * scale * scale
     vector[fallback] = (0.0, 0.0, 1.0)
     length[fallback] = 1.0
     return vector / length[:, None]

@@ -35,7 +35,6 @@ from mlsemreg_ros.core.estimation import estimate, refine_icp
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.core.results import Correspondences, PreparedScan, RegistrationResult
 import numpy as np
-from scipy.spatial import cKDTree
 
 
 @contextmanager
@@ -90,6 +89,7 @@ class Registration:
         if voxelize and cfg.features.voxel_size > 0:
             with _timed(timings, 'voxelize_ms'):
                 points, labels = features.voxel_downsample(points, labels, cfg.features.voxel_size)
+        tree = None
         with _timed(timings, 'keypoints_ms'):
             if keypoints is None:
                 kp = cfg.keypoints
@@ -98,7 +98,8 @@ class Registration:
                 keypoints = points[indices]
             else:
                 keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 3)
-                indices = cKDTree(points).query(keypoints)[1].astype(np.int64)
+                tree = signatures.search_tree(points)
+                indices = tree.query(keypoints)[1].astype(np.int64)
         with _timed(timings, 'fpfh_ms' if descriptors is None else 'descriptors_ms'):
             if descriptors is None:
                 descriptors = _fpfh(points, indices, cfg)
@@ -108,7 +109,7 @@ class Registration:
         with _timed(timings, 'local_ss_ms'):
             local_ss = signatures.local_semantic_signature(
                 points, labels, keypoints, cfg.semantic.local_radius, self.label_map.num_classes,
-                ignored=self._ignored_ids, undefined=self._undefined_ids)
+                ignored=self._ignored_ids, undefined=self._undefined_ids, points_tree=tree)
         with _timed(timings, 'landmarks_ms'):
             marks = landmarks.extract_landmarks(points, labels, self._landmark_ids,
                                                 cfg.semantic.cluster_radius,

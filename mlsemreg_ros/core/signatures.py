@@ -66,13 +66,13 @@ def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: 
     if len(points) == 0 or len(keypoints) == 0:
         return signature
     if points_tree is None:
-        points_tree = _tree(points)
+        points_tree = search_tree(points)
     # keypoint parts are independent; SciPy releases the GIL in the dual-tree search. Parts
     # are slabs along the longest axis, so each part's tree meets only its slab of the scan
     axis = int(np.argmax(np.ptp(keypoints, axis=0)))
     parts = np.array_split(np.argsort(keypoints[:, axis], kind='stable'),
                            _parts(len(keypoints)))
-    for part, pairs in zip(parts, _map(lambda p: _tree(keypoints[p]).sparse_distance_matrix(
+    for part, pairs in zip(parts, _map(lambda p: search_tree(keypoints[p]).sparse_distance_matrix(
             points_tree, radius, output_type='ndarray'), parts), strict=True):
         signature[part[pairs['i']], labels[pairs['j']]] = True  # zero distances included
     ignored = np.asarray(ignored if ignored is not None else [], dtype=np.int64)
@@ -104,7 +104,7 @@ def _map(function: Callable[[Any], Any], items: list[Any]) -> list[Any]:
     return list(_POOL.map(function, items))
 
 
-def _tree(points: np.ndarray) -> cKDTree:
+def search_tree(points: np.ndarray) -> cKDTree:
     """
     KD-tree for one fixed-radius query: sliding-midpoint splits, no node shrinking.
 
