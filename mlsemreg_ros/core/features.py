@@ -32,12 +32,21 @@ def voxel_groups(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray, int
 
     Voxels are numbered in lexicographic order of their integer (x, y, z) keys.
     """
+    if points.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64), 0
     keys = np.floor(points / voxel_size).astype(np.int64)
     keys -= keys.min(axis=0)
     extent = keys.max(axis=0) + 1
     if float(np.prod(extent.astype(np.float64))) < 2.0**62:
         linear = (keys[:, 0] * extent[1] + keys[:, 1]) * extent[2] + keys[:, 2]
-        _, inverse = np.unique(linear, return_inverse=True)
+        order = np.argsort(linear)
+        ordered = linear[order]
+        starts = np.empty(ordered.shape[0], dtype=np.int64)
+        starts[0] = 0
+        np.cumsum(ordered[1:] != ordered[:-1], out=starts[1:])
+        inverse = np.empty_like(starts)
+        inverse[order] = starts  # = np.unique(linear, return_inverse=True)[1], cheaper
+        return inverse, int(starts[-1]) + 1
     else:  # absurd extents: fall back to row-wise unique (slower, no overflow)
         _, inverse = np.unique(keys, axis=0, return_inverse=True)
     inverse = inverse.reshape(-1).astype(np.int64)
@@ -68,8 +77,7 @@ def voxel_downsample(points: np.ndarray, labels: np.ndarray,
                           for k in range(3)], axis=1) / sizes[:, None]
     # Majority label per voxel (ties to the smallest id): a dense (voxel, label) count
     # table when the ids are small, as learning ids are; else count the distinct pairs.
-    label_ids, label_inverse = np.unique(labels, return_inverse=True)
-    label_inverse = label_inverse.reshape(-1)
+    label_ids, label_inverse = _small_unique(labels)
     if count * len(label_ids) <= 64 * points.shape[0]:
         table = np.bincount(inverse * len(label_ids) + label_inverse,
                             minlength=count * len(label_ids)).reshape(count, len(label_ids))
@@ -85,6 +93,17 @@ def voxel_downsample(points: np.ndarray, labels: np.ndarray,
     winners = order[first]
     voxel_labels = label_ids[pair_label[winners]].astype(np.int32)
     return centroids, voxel_labels
+
+
+def _small_unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(values, return_inverse=True)``, by a lookup table for small non-negative ids."""
+    if values.size and values.dtype.kind in 'iu' and 0 <= values.min() and values.max() < 65536:
+        present = np.bincount(values) > 0
+        ids = np.flatnonzero(present)
+        lookup = np.cumsum(present) - 1
+        return ids.astype(values.dtype), lookup[values]
+    ids, inverse = np.unique(values, return_inverse=True)
+    return ids, inverse.reshape(-1)
 
 
 def sample_keypoints(points: np.ndarray, count: int, sampling: str, voxel_size: float,
