@@ -114,8 +114,10 @@ def test_bench_writes_per_stage_medians(pair_dir, tmp_path, capsys):
     for row in report['keypoints'].values():
         assert set(row) >= set(bench.STAGES)
         assert all(row[s] >= 0 for s in bench.STAGES)
-        parts = row['local_ss_ms'] + row['bmr_ss_ms'] + row['gm_mm_ms'] + row['fpfh_ms']
-        assert row['total_ms'] >= 0.9 * (parts + row['sc2pcr_ms'])
+        # FPFH runs beside Local-SS and landmarks inside prepare(): those overlap
+        serial = row['fpfh_ms'] + row['gm_mm_ms'] + row['sc2pcr_ms']
+        assert row['total_ms'] >= 0.9 * serial
+        assert row['total_parallel_ms'] > 0
     assert report['machine']['cpu_count'] >= 1 and report['machine']['numpy'] == np.__version__
     assert 'Local-SS' in capsys.readouterr().out
 

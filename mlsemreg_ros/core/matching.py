@@ -49,7 +49,6 @@ The engine (:func:`semantic_match`) is exact and avoids the dense |P| x |Q| x |b
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass, field
 import os
@@ -60,6 +59,7 @@ from typing import Any
 from mlsemreg_ros.core.config import SemanticConfig
 from mlsemreg_ros.core.results import Correspondences, PreparedScan
 from mlsemreg_ros.core.signatures import binary_multi_ring_signature
+from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
 import scipy.sparse as sp
 
@@ -74,18 +74,18 @@ _DENSE_BLOCK_ELEMENTS = 2_000_000  # rows x targets per dense distance block
 _CHUNK_ELEMENTS = 600_000  # rows x target patterns per Mask Matching chunk (cache sized)
 _DENSE_FRACTION = 0.1  # candidate share of a chunk above which it is resolved densely
 _MAX_THREADS = 2
-_POOL: ThreadPoolExecutor | None = None  # created on first use, shared by all calls
+_POOL = LazyPool('mlsemreg-match', _MAX_THREADS)  # shared by all calls
 _BLAS: Any = None  # threadpoolctl controller, created on first use
-_POOL_LOCK = threading.Lock()
+_BLAS_LOCK = threading.Lock()
 
 
-def _forget_pool() -> None:
-    """In a forked child the pool's threads do not exist: start afresh on first use."""
-    global _POOL, _POOL_LOCK, _BLAS
-    _POOL, _POOL_LOCK, _BLAS = None, threading.Lock(), None
+def _forget_blas() -> None:
+    """In a forked child, build the threadpoolctl controller afresh."""
+    global _BLAS, _BLAS_LOCK
+    _BLAS, _BLAS_LOCK = None, threading.Lock()
 
 
-os.register_at_fork(after_in_child=_forget_pool)
+os.register_at_fork(after_in_child=_forget_blas)
 
 
 @dataclass
@@ -477,16 +477,12 @@ def _run_tasks(function: Callable[[Any], Any], tasks: list[Any]) -> list[Any]:
     The chunk GEMMs are small: multithreaded BLAS on them (and inside worker threads) was
     measured 3x slower, so BLAS runs single-threaded here and the chunks use the cores.
     """
-    global _POOL
     workers = max(1, min(len(tasks), os.cpu_count() or 1, _MAX_THREADS))
     if ThreadpoolController is None or workers == 1:
         with _single_threaded_blas():
             return [function(task) for task in tasks]
-    with _POOL_LOCK:
-        if _POOL is None:
-            _POOL = ThreadPoolExecutor(_MAX_THREADS, thread_name_prefix='mlsemreg-match')
     with _single_threaded_blas():
-        return list(_POOL.map(function, tasks))
+        return _POOL.run(function, tasks)
 
 
 def _single_threaded_blas() -> AbstractContextManager:
@@ -494,7 +490,7 @@ def _single_threaded_blas() -> AbstractContextManager:
     global _BLAS
     if ThreadpoolController is None:
         return nullcontext()
-    with _POOL_LOCK:
+    with _BLAS_LOCK:
         if _BLAS is None:
             _BLAS = ThreadpoolController()
     return _BLAS.limit(limits=1, user_api='blas')

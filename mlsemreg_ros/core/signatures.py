@@ -21,29 +21,18 @@ semantic labels, landmarks (cluster centroids of landmark classes), N rings of w
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 import os
-import threading
 from typing import Any
 
 from mlsemreg_ros.core.results import Landmarks
+from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 _MAX_THREADS = 2
 _MIN_PART = 400  # keypoints per parallel part of the Local-SS search
-_POOL: ThreadPoolExecutor | None = None  # created on first use
-_POOL_LOCK = threading.Lock()
-
-
-def _forget_pool() -> None:
-    """In a forked child the pool's threads do not exist: start afresh on first use."""
-    global _POOL, _POOL_LOCK
-    _POOL, _POOL_LOCK = None, threading.Lock()
-
-
-os.register_at_fork(after_in_child=_forget_pool)
+_POOL = LazyPool('mlsemreg-signatures', _MAX_THREADS)
 
 
 def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: np.ndarray,
@@ -95,13 +84,7 @@ def _parts(num_keypoints: int) -> int:
 
 def _map(function: Callable[[Any], Any], items: list[Any]) -> list[Any]:
     """``[function(x) for x in items]``, on a small persistent thread pool if more than one."""
-    global _POOL
-    if len(items) <= 1:
-        return [function(x) for x in items]
-    with _POOL_LOCK:
-        if _POOL is None:
-            _POOL = ThreadPoolExecutor(_MAX_THREADS, thread_name_prefix='mlsemreg-signatures')
-    return list(_POOL.map(function, items))
+    return _POOL.run(function, items)
 
 
 def search_tree(points: np.ndarray) -> cKDTree:

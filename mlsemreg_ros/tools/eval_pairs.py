@@ -98,10 +98,11 @@ def run_pair(registration: Any, pair: Any, descriptor: str) -> tuple[Any, Any, d
     else:
         desc_src, desc_dst = pair.descriptors(descriptor)
     start = time.perf_counter()
-    source = registration.prepare(pair.pts_src, pair.label_src, keypoints=pair.kpts_src,
-                                  descriptors=desc_src, voxelize=False)
-    target = registration.prepare(pair.pts_dst, pair.label_dst, keypoints=pair.kpts_dst,
-                                  descriptors=desc_dst, voxelize=False)
+    source, target = registration.prepare_scans(  # concurrently, on two threads
+        {'points': pair.pts_src, 'labels': pair.label_src, 'keypoints': pair.kpts_src,
+         'descriptors': desc_src, 'voxelize': False},
+        {'points': pair.pts_dst, 'labels': pair.label_dst, 'keypoints': pair.kpts_dst,
+         'descriptors': desc_dst, 'voxelize': False})
     result = registration.register(source, target)
     total_ms = 1e3 * (time.perf_counter() - start)
     timings = _sum_timings(source.timings_ms, target.timings_ms, result.timings_ms)

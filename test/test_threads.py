@@ -1,0 +1,48 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The shared thread pools and the concurrent scan preparation."""
+
+import threading
+
+from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.core.threads import LazyPool
+from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
+import numpy as np
+
+
+def test_pool_keeps_order_and_runs_single_items_inline():
+    pool = LazyPool('mlsemreg-test', 2)
+    names: list[str] = []
+
+    def square(x: int) -> int:
+        names.append(threading.current_thread().name)
+        return x * x
+
+    assert pool.run(square, [3]) == [9]
+    assert names == [threading.current_thread().name]  # one item: no pool
+    assert pool.run(square, list(range(7))) == [x * x for x in range(7)]
+    assert any(name.startswith('mlsemreg-test') for name in names[1:])
+
+
+def test_prepare_scans_equals_sequential_prepare():
+    pair = synthetic_pair(3)
+    registration = Registration()
+    scans = [{'points': pair.pts_src, 'labels': pair.label_src},
+             {'points': pair.pts_dst, 'labels': pair.label_dst}]
+    together = registration.prepare_scans(*scans)
+    for scan, prepared in zip(scans, together, strict=True):
+        alone = registration.prepare(**scan)
+        for name in ('points', 'keypoints', 'descriptors', 'local_ss'):
+            np.testing.assert_array_equal(getattr(prepared, name), getattr(alone, name))
+        assert prepared.timings_ms.keys() == alone.timings_ms.keys()
