@@ -17,7 +17,7 @@
 
 from __future__ import annotations
 
-from mlsemreg_ros.core.rigid import apply_transform, weighted_rigid_transform
+from mlsemreg_ros.core.rigid import apply_transform, invert_transform, weighted_rigid_transform
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -116,3 +116,13 @@ def test_apply_transform_broadcasts() -> None:
     assert moved.shape == (3, 7, 3)
     homogeneous = np.column_stack([points, np.ones(7)])
     np.testing.assert_allclose(moved[1], (homogeneous @ transforms[1].T)[:, :3])
+
+
+def test_invert_transform_of_a_stack() -> None:
+    rng = np.random.default_rng(4)
+    stack = np.tile(np.eye(4), (5, 1, 1))
+    stack[:, :3, :3] = Rotation.random(5, random_state=4).as_matrix()
+    stack[:, :3, 3] = rng.normal(0.0, 10.0, (5, 3))
+    inverse = invert_transform(stack)
+    np.testing.assert_allclose(inverse @ stack, np.tile(np.eye(4), (5, 1, 1)), atol=1e-12)
+    np.testing.assert_allclose(invert_transform(stack[0]), np.linalg.inv(stack[0]), atol=1e-12)

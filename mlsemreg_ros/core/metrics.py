@@ -31,6 +31,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 import math
 
+from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
 
 #: Segment lengths (m) of the KITTI odometry devkit.
@@ -152,16 +153,6 @@ def _check_poses(poses_est: np.ndarray, poses_gt: np.ndarray) -> tuple[np.ndarra
     return est, gt
 
 
-def _inverse_se3(T: np.ndarray) -> np.ndarray:
-    """Inverse of a stack of rigid transforms (..., 4, 4)."""
-    R_t = np.swapaxes(T[..., :3, :3], -1, -2)
-    inv = np.zeros_like(T)
-    inv[..., :3, :3] = R_t
-    inv[..., :3, 3] = -np.einsum('...ij,...j->...i', R_t, T[..., :3, 3])
-    inv[..., 3, 3] = 1.0
-    return inv
-
-
 def kitti_odometry_errors(poses_est: np.ndarray, poses_gt: np.ndarray,
                           lengths_m: tuple[float, ...] = KITTI_SEGMENT_LENGTHS_M,
                           step_frames: int = KITTI_STEP_FRAMES
@@ -197,9 +188,9 @@ def kitti_odometry_errors(poses_est: np.ndarray, poses_gt: np.ndarray,
     if not np.any(valid):
         return None
     start, length, last = start[valid], length[valid], last[valid]
-    delta_gt = _inverse_se3(gt[start]) @ gt[last]
-    delta_est = _inverse_se3(est[start]) @ est[last]
-    error = _inverse_se3(delta_est) @ delta_gt
+    delta_gt = invert_transform(gt[start]) @ gt[last]
+    delta_est = invert_transform(est[start]) @ est[last]
+    error = invert_transform(delta_est) @ delta_gt
     t_err = np.linalg.norm(error[:, :3, 3], axis=1) / length
     cos = (np.trace(error[:, :3, :3], axis1=1, axis2=2) - 1.0) / 2.0
     r_err = np.arccos(np.clip(cos, -1.0, 1.0)) / length

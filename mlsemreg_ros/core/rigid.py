@@ -92,3 +92,14 @@ def apply_transform(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     rotation = transform[..., :3, :3]
     translation = transform[..., None, :3, 3]
     return points @ np.swapaxes(rotation, -1, -2) + translation
+
+
+def invert_transform(transform: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid transform ``(4, 4)`` or a stack ``(..., 4, 4)``: ``[R^T, -R^T t]``."""
+    transform = np.asarray(transform, dtype=np.float64)
+    rotation_t = np.swapaxes(transform[..., :3, :3], -1, -2)
+    out = np.zeros_like(transform)
+    out[..., :3, :3] = rotation_t
+    out[..., :3, 3] = -np.einsum('...ij,...j->...i', rotation_t, transform[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
 
 
@@ -125,10 +126,4 @@ def pose_to_matrix(position: tuple[float, float, float],
 
 def inverse(T: np.ndarray) -> np.ndarray:
     """Inverse of a rigid transform (4, 4) or a stack (..., 4, 4)."""
-    T = np.asarray(T, dtype=np.float64)
-    R_t = np.swapaxes(T[..., :3, :3], -1, -2)
-    out = np.zeros_like(T)
-    out[..., :3, :3] = R_t
-    out[..., :3, 3] = -np.einsum('...ij,...j->...i', R_t, T[..., :3, 3])
-    out[..., 3, 3] = 1.0
-    return out
+    return invert_transform(T)

@@ -29,6 +29,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Pose, PoseStamped, Transform, TransformStamped
 from mlsemreg_ros.core.results import RegistrationResult
+from mlsemreg_ros.core.rigid import invert_transform
 from nav_msgs.msg import Odometry
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -52,10 +53,7 @@ def nanoseconds(stamp: Time) -> int:
 
 def invert(transform: np.ndarray) -> np.ndarray:
     """Inverse of a rigid 4x4 transform."""
-    out = np.eye(4)
-    out[:3, :3] = transform[:3, :3].T
-    out[:3, 3] = -transform[:3, :3].T @ transform[:3, 3]
-    return out
+    return invert_transform(transform)
 
 
 def _transform(transform: np.ndarray) -> Transform:
