@@ -393,3 +393,20 @@ def test_graph_cap_builds_on_a_subset_and_scores_all() -> None:
     assert rotation_error < 1.0 and translation_error < 0.3
     # inliers are counted on all 3000 correspondences, not only the graph's 600
     assert result.inlier_mask.sum() >= 0.95 * inliers.sum()
+
+
+def test_sampled_graph_with_too_few_inliers_retries_on_the_full_graph() -> None:
+    src, dst, truth, _ = _problem(14, count=3000, outlier_ratio=0.985)  # 45 inliers
+    sampled_only = sc2.sc2pcr(src, dst, EstimatorConfig(graph_size=300, graph_retry_inliers=0))
+    assert 'graph_retried' not in sampled_only.diagnostics
+    assert _errors(sampled_only.transform, truth)[0] > 5.0  # ~7 inliers in the sample: lost
+    result = sc2.sc2pcr(src, dst, EstimatorConfig(graph_size=300, graph_retry_inliers=30))
+    assert result.diagnostics['graph_retried']
+    assert result.diagnostics['sampled_best_inliers'] < 30
+    assert result.diagnostics['graph_correspondences'] == 3000
+    rotation_error, translation_error = _errors(result.transform, truth)
+    assert rotation_error < 1.0 and translation_error < 0.3
+    # plenty of inliers: the sample is kept
+    src, dst, _, _ = _problem(13, count=3000, outlier_ratio=0.8)
+    kept = sc2.sc2pcr(src, dst, EstimatorConfig(graph_size=300, graph_retry_inliers=30))
+    assert 'graph_retried' not in kept.diagnostics

@@ -192,6 +192,11 @@ class EstimatorConfig:
         'a seeded random subset of at most this many correspondences; every hypothesis is '
         'still scored, and the best refined, on all of them. Cost grows with its square '
         '(0: no limit).', low=0, high=100000)
+    graph_retry_inliers: int = param(
+        50, 'When the graph was sampled (estimator.graph_size) and its best hypothesis has '
+        'fewer inliers than this on all correspondences, SC2-PCR runs again on the full '
+        'graph: inlier ratios near 1 % leave too few inliers in the sample (0: never).',
+        low=0, high=100000)
     max_correspondences: int = param(
         10000, 'Cap on correspondences fed to the estimator; the best ranked '
         '(smallest descriptor distance) are kept.', low=10, high=100000)

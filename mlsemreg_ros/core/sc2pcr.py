@@ -58,6 +58,7 @@ for OpenBLAS to run them single-threaded.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 from mlsemreg_ros.core.config import EstimatorConfig
@@ -178,6 +179,13 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
     best = int(np.argmax(inlier_counts))
     diagnostics['best_hypothesis_inliers'] = int(inlier_counts[best])
     timings['sc2_selection_ms'] = _ms(tick)
+    if count < rows.size and inlier_counts[best] < config.graph_retry_inliers:
+        # Too few inliers in the sample to seed the true pose (inlier ratio ~1 %):
+        # run again on every correspondence.
+        retry = sc2pcr(src, dst, dataclasses.replace(config, graph_size=0))
+        retry.diagnostics.update({'graph_retried': True, 'sampled_best_inliers':
+                                  int(inlier_counts[best]), 'sc2_total_ms': _ms(start)})
+        return retry
     tick = time.perf_counter()
     transform, iterations = post_refinement(hypotheses[best], p_all, q_all,
                                             config.refine_threshold, config.refine_iterations)
