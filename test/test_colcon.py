@@ -17,8 +17,8 @@ colcon build, find the executable like ``ros2 run`` does, run it, register, SIGI
 
 Uses the venv's colcon (colcon-core + colcon-ros + colcon-python-setup-py) and
 starts the *installed* ``lib/mlsemreg_ros/mlsemreg_node`` in a subprocess
-(ROS_DOMAIN_ID 62); a probe node in this process publishes the synthetic
-street pair and waits for ``mlsemreg/transform``.
+(a ROS_DOMAIN_ID of its own, see ros_domains.py); a probe node in this process
+publishes the synthetic street pair and waits for ``mlsemreg/transform``.
 """
 
 from __future__ import annotations
@@ -37,10 +37,11 @@ from mlsemreg_ros.tools.bench_node import NodeProbe, to_stamp
 from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
 import numpy as np
 import pytest
+from ros_domains import domain_id
 
 REPO = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
-DOMAIN_ID = 62
+DOMAIN_ID = domain_id('colcon')
 PACKAGE = 'mlsemreg_ros'
 
 

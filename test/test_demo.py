@@ -23,12 +23,13 @@ from pathlib import Path
 
 from mlsemreg_ros.tools import demo, eval_bag
 import pytest
+from ros_domains import domain_id
 
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 pytest.importorskip('rclpy', reason='rclpy (ROS 2 Jazzy wheels) not installed')
 
-DOMAIN_ID = 64
+DOMAIN_ID = domain_id('demo')
 
 
 def test_demo_runs_the_node_on_a_short_drive_and_scores_it(tmp_path: Path) -> None:

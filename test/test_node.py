@@ -15,12 +15,13 @@
 """
 mlsemreg_node with the real rclpy: topics, frames, stamps, parameters, bad input, reset.
 
-The node and a probe node run in a private rclpy context (ROS_DOMAIN_ID 61)
-with an executor thread; the probe publishes scans on ``points`` and waits for
-the node's ``/diagnostics`` entry of each scan (stamp-matched) before looking
-at the outputs. The accuracy test runs with the default parameters; the tests
-of ROS behaviour start the node with ``keypoints.count:=1500`` (SC2-PCR's cost
-grows with the square of the correspondences) to keep the module fast.
+The node and a probe node run in a private rclpy context (a ROS_DOMAIN_ID of
+their own, see ros_domains.py) with an executor thread; the probe publishes
+scans on ``points`` and waits for the node's ``/diagnostics`` entry of each scan
+(stamp-matched) before looking at the outputs. The accuracy test runs with the
+default parameters; the tests of ROS behaviour start the node with
+``keypoints.count:=1500`` (SC2-PCR's cost grows with the square of the
+correspondences) to keep the module fast.
 """
 
 from __future__ import annotations
@@ -43,13 +44,14 @@ from mlsemreg_ros.tools.bench_node import (
 from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
 import numpy as np
 import pytest
+from ros_domains import domain_id
 
 # The rmw implementation and discovery range are read when rclpy is first imported/initialized.
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 pytest.importorskip('rclpy', reason='rclpy (ROS 2 Jazzy wheels) not installed')
 
-DOMAIN_ID = 61
+DOMAIN_ID = domain_id('node')
 TIMEOUT_S = 60.0
 KEYPOINTS = 1500  # keypoints.count of the behaviour tests
 _stamps = itertools.count(100)

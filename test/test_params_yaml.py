@@ -28,12 +28,13 @@ from mlsemreg_ros.ros.node_config import (
     params_yaml_text,
 )
 import pytest
+from ros_domains import domain_id
 import yaml
 
 PARAMS = Path(__file__).resolve().parents[1] / 'config' / 'params.yaml'
 REGENERATE = ('regenerate with: python -c "from mlsemreg_ros.ros.node_config import '
               "params_yaml_text; print(params_yaml_text(), end='')\" > config/params.yaml")
-DOMAIN_ID = 63
+DOMAIN_ID = domain_id('params_yaml')
 
 
 def _flatten(prefix: str, value: Any, out: dict[str, Any]) -> dict[str, Any]:

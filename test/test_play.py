@@ -27,12 +27,13 @@ from mlsemreg_ros.datasets.bag import BagWriter
 from mlsemreg_ros.ros.pointcloud2 import pointcloud2_to_arrays
 import numpy as np
 import pytest
+from ros_domains import domain_id
 
 os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
 os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
 rclpy = pytest.importorskip('rclpy', reason='rclpy (ROS 2 Jazzy wheels) not installed')
 
-DOMAIN_ID = 62
+DOMAIN_ID = domain_id('play')
 START_NS = 1_700_000_000 * 10**9
 N_CLOUDS = 12
 
