@@ -33,9 +33,10 @@ eigen solver).
 
 ``support_voxel`` > 0 computes the neighbours' SPFH on the centroids of a coarser
 voxel grid of the scan (the "support"); each keypoint keeps its own position,
-normal and SPFH, taken against the support. Pairs, and therefore the cost, drop
-roughly with the square of the voxel ratio (0.6 m instead of the 0.3 m scan grid:
-about 10x fewer pairs).
+normal and SPFH, taken against the support, or with ``snap`` takes the FPFH of its
+nearest support centroid. Pairs, and therefore the cost, drop roughly with the
+square of the voxel ratio (KITTI scan 000003: 746k pairs on the 0.3 m scan grid,
+128k on a 0.5 m support).
 Neighbourhoods are pure radius neighbourhoods (no ``max_nn`` cap), as in PCL.
 """
 
