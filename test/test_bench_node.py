@@ -15,8 +15,9 @@
 
 from types import SimpleNamespace
 
-from mlsemreg_ros.tools.bench_node import _errors
+from mlsemreg_ros.tools.bench_node import _errors, parameter_overrides
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 
@@ -40,3 +41,11 @@ def test_odd_frames_compare_with_the_truth_and_even_frames_with_its_inverse():
     wrong = _errors(_message(truth), truth, frame=2)  # T where T^-1 was due
     assert not wrong['correct'] and wrong['translation_error_m'] > 10.0
     assert _errors(None, truth, frame=1) == {}
+
+
+def test_set_overrides_become_ros_parameter_arguments():
+    assert parameter_overrides([]) is None
+    assert parameter_overrides(['keypoints.count=1500', 'semantic.landmark_classes=[pole]']) == [
+        '--ros-args', '-p', 'keypoints.count:=1500', '-p', 'semantic.landmark_classes:=[pole]']
+    with pytest.raises(SystemExit):
+        parameter_overrides(['keypoints.count'])

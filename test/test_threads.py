@@ -11,10 +11,12 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""The shared thread pools and the concurrent scan preparation."""
+"""The shared thread pools, the concurrent scan preparation and its descriptor choice."""
 
 import threading
 
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.features import fpfh_open3d_at, valid_descriptor_mask
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.threads import LazyPool
 from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
@@ -46,3 +48,15 @@ def test_prepare_scans_equals_sequential_prepare():
         for name in ('points', 'keypoints', 'descriptors', 'local_ss'):
             np.testing.assert_array_equal(getattr(prepared, name), getattr(alone, name))
         assert prepared.timings_ms.keys() == alone.timings_ms.keys()
+
+
+def test_descriptor_choice_reaches_the_pipeline():
+    pair = synthetic_pair(4)
+    config = RegistrationConfig().replace({'features.descriptor': 'fpfh_open3d'})
+    prepared = Registration(config).prepare(pair.pts_src, pair.label_src)
+    f = config.features
+    expected = fpfh_open3d_at(prepared.points, prepared.keypoint_indices, f.normal_radius,
+                              f.normal_max_nn, f.feature_radius, f.feature_max_nn)
+    np.testing.assert_array_equal(prepared.descriptors, expected[valid_descriptor_mask(expected)])
+    ours = Registration().prepare(pair.pts_src, pair.label_src)
+    assert not np.array_equal(ours.descriptors[:10], prepared.descriptors[:10])

@@ -53,6 +53,19 @@ def voxel_groups(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray, int
     return inverse, int(inverse.max()) + 1
 
 
+def voxel_centroids(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Centroids of the occupied voxels: ``(centroids (V, 3) float64, voxel of each point (N,))``.
+
+    Voxels in the order of :func:`voxel_groups`.
+    """
+    inverse, count = voxel_groups(points, voxel_size)
+    sizes = np.bincount(inverse, minlength=count).astype(np.float64)
+    centroids = np.stack([np.bincount(inverse, weights=points[:, k], minlength=count)
+                          for k in range(3)], axis=1) / sizes[:, None]
+    return centroids, inverse
+
+
 def voxel_downsample(points: np.ndarray, labels: np.ndarray,
                      voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
     """
@@ -71,10 +84,8 @@ def voxel_downsample(points: np.ndarray, labels: np.ndarray,
         raise ValueError(f'{points.shape[0]} points but {labels.shape[0]} labels')
     if voxel_size <= 0 or points.shape[0] == 0:
         return points, labels.astype(np.int32)
-    inverse, count = voxel_groups(points, voxel_size)
-    sizes = np.bincount(inverse, minlength=count).astype(np.float64)
-    centroids = np.stack([np.bincount(inverse, weights=points[:, k], minlength=count)
-                          for k in range(3)], axis=1) / sizes[:, None]
+    centroids, inverse = voxel_centroids(points, voxel_size)
+    count = centroids.shape[0]
     # Majority label per voxel (ties to the smallest id): a dense (voxel, label) count
     # table when the ids are small, as learning ids are; else count the distinct pairs.
     label_ids, label_inverse = _small_unique(labels)
@@ -134,10 +145,7 @@ def sample_keypoints(points: np.ndarray, count: int, sampling: str, voxel_size: 
             return np.zeros(0, dtype=np.int64)
         if voxel_size <= 0:
             raise ValueError(f'voxel keypoint sampling needs voxel_size > 0, got {voxel_size}')
-        inverse, voxels = voxel_groups(points, voxel_size)
-        sizes = np.bincount(inverse, minlength=voxels).astype(np.float64)
-        centroids = np.stack([np.bincount(inverse, weights=points[:, k], minlength=voxels)
-                              for k in range(3)], axis=1) / sizes[:, None]
+        centroids, inverse = voxel_centroids(points, voxel_size)
         dist = np.linalg.norm(points - centroids[inverse], axis=1)
         order = np.lexsort((np.arange(n), dist, inverse))
         first = np.ones(n, dtype=bool)

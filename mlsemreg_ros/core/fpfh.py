@@ -42,7 +42,7 @@ Neighbourhoods are pure radius neighbourhoods (no ``max_nn`` cap), as in PCL.
 
 from __future__ import annotations
 
-from mlsemreg_ros.core.features import voxel_groups
+from mlsemreg_ros.core.features import voxel_centroids
 import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
@@ -82,12 +82,12 @@ def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: fl
     origin = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64)
     # Work relative to the viewpoint: orientation needs no offset, float32 keeps precision.
     points = points - origin
-    support = _voxel_centroids(points, support_voxel) if support_voxel > 0 else points
+    support = voxel_centroids(points, support_voxel)[0] if support_voxel > 0 else points
     tree = cKDTree(support, balanced_tree=False, compact_nodes=False)  # cheaper to build
-    if snap and support_voxel > 0:  # keypoints become support rows
-        indices = tree.query(points[indices])[1]
-        support_voxel = 0.0
-    unique, row_of_keypoint = np.unique(indices, return_inverse=True)
+    # Keypoints that are support points reuse the support's rows and pairs.
+    on_support = support_voxel <= 0 or snap
+    rows = tree.query(points[indices])[1] if support_voxel > 0 and snap else indices
+    unique, row_of_keypoint = np.unique(rows, return_inverse=True)
     radius = max(feature_radius, normal_radius)
     # 1. Normals and SPFH of the support, from its unordered pairs (each serves both ends).
     pairs = tree.query_pairs(radius, output_type='ndarray')
@@ -105,12 +105,12 @@ def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: fl
     bins = pair_feature_bins(delta, normals.take(first, axis=1), normals.take(second, axis=1))
     spfh = simplified_histograms((first, second), bins, support.shape[0])
     # 2. The keypoints: their own neighbourhood in the support.
-    if support_voxel > 0:
-        own_spfh, weights = _keypoint_terms(points[unique], support, tree, normals,
-                                            normal_radius, feature_radius)
-    else:  # keypoints are support points: reuse their rows and pairs
+    if on_support:
         own_spfh = spfh[unique]
         weights = _pair_weights(first, second, dist2, unique, support.shape[0])
+    else:
+        own_spfh, weights = _keypoint_terms(points[unique], support, tree, normals,
+                                            normal_radius, feature_radius)
     fpfh = combine(own_spfh, weights, spfh)
     return fpfh[row_of_keypoint.reshape(-1)]
 
@@ -322,12 +322,3 @@ def simplified_histograms(owners: tuple[np.ndarray, ...], bins: np.ndarray,
     histogram = np.bincount(codes.reshape(-1), minlength=n * 3 * BINS).reshape(n, 3 * BINS)
     degree = sum(np.bincount(owner, minlength=n) for owner in owners)
     return histogram * (100.0 / np.maximum(degree, 1))[:, None]
-
-
-def _voxel_centroids(points: np.ndarray, voxel: float) -> np.ndarray:
-    """Return the centroids of the occupied voxels of edge ``voxel``."""
-    inverse, count = voxel_groups(points, voxel)
-    sizes = np.bincount(inverse, minlength=count).astype(np.float64)
-    centroids = np.stack([np.bincount(inverse, weights=points[:, k], minlength=count)
-                          for k in range(3)], axis=1) / sizes[:, None]
-    return centroids

@@ -113,20 +113,17 @@ def bench_pair(registration: Any, pair: Any, counts: tuple[int, ...], repeats: i
     samples: dict[int, list[dict[str, float]]] = {n: [] for n in counts}
     extra: dict[int, dict[str, Any]] = {}
     for n, _ in tqdm(tasks, desc='bench', unit='run', file=sys.stderr, disable=not progress):
+        scans = ({'points': pair.pts_src, 'labels': pair.label_src,
+                  'keypoints': pair.kpts_src[:n], 'voxelize': False},
+                 {'points': pair.pts_dst, 'labels': pair.label_dst,
+                  'keypoints': pair.kpts_dst[:n], 'voxelize': False})
         start = time.perf_counter()
-        source = registration.prepare(pair.pts_src, pair.label_src, keypoints=pair.kpts_src[:n],
-                                      voxelize=False)
-        target = registration.prepare(pair.pts_dst, pair.label_dst, keypoints=pair.kpts_dst[:n],
-                                      voxelize=False)
+        source, target = (registration.prepare(**scan) for scan in scans)
         result = registration.register(source, target)
         times = stage_times(source, target, result, 1e3 * (time.perf_counter() - start))
         # the same pair with both clouds prepared concurrently (Registration.prepare_scans)
         start = time.perf_counter()
-        registration.register(*registration.prepare_scans(
-            {'points': pair.pts_src, 'labels': pair.label_src,
-             'keypoints': pair.kpts_src[:n], 'voxelize': False},
-            {'points': pair.pts_dst, 'labels': pair.label_dst,
-             'keypoints': pair.kpts_dst[:n], 'voxelize': False}))
+        registration.register(*registration.prepare_scans(*scans))
         times['total_parallel_ms'] = 1e3 * (time.perf_counter() - start)
         samples[n].append(times)
         extra[n] = {'keypoints_used': min(n, len(pair.kpts_src), len(pair.kpts_dst)),

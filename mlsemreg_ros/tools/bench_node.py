@@ -314,6 +314,19 @@ def _errors(message: Any, truth: np.ndarray | None, frame: int) -> dict[str, Any
             'correct': bool(rotation_error < 5.0 and translation_error < 0.6)}
 
 
+def parameter_overrides(items: list[str]) -> list[str] | None:
+    """``['a.b=1', ...]`` -> rclpy args ``['--ros-args', '-p', 'a.b:=1', ...]`` (None if empty)."""
+    if not items:
+        return None
+    args = ['--ros-args']
+    for item in items:
+        name, separator, value = item.partition('=')
+        if not separator or not name:
+            raise SystemExit(f'mlsemreg-bench-node: --set expects NAME=VALUE, got {item!r}')
+        args += ['-p', f'{name}:={value}']
+    return args
+
+
 def summary(records: list[dict]) -> dict[str, Any]:
     """p50/p95/mean of node and end-to-end latency, stage medians, success rate."""
     out: dict[str, Any] = {'frames': len(records),
@@ -346,16 +359,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument('--set', action='append', default=[], metavar='NAME=VALUE',
                         help='override a node parameter, e.g. keypoints.count=2000 (repeatable)')
     args = parser.parse_args(argv)
-    ros_args = ['--ros-args']
-    for item in args.set:
-        ros_args += ['-p', item.replace('=', ':=', 1)]
     directory = None if args.synthetic else (args.pairs or dev_pairs_dir())
     pairs = load_pairs(directory, args.limit)
     print(f'{len(pairs)} pair(s) from {directory if directory else "the synthetic street"}; '
           f'{args.repeats} x 2 registrations each at {args.rate:g} Hz')
     if args.set:
         print('parameters: ' + ', '.join(args.set))
-    with node_and_probe(args.domain_id, ros_args if args.set else None) as (_, probe):
+    with node_and_probe(args.domain_id, parameter_overrides(args.set)) as (_, probe):
         records = bench(pairs, args.repeats, args.rate, probe)
     result = summary(records)
     print(f'{"metric":<34}{"unit":>6}{"value":>10}')
