@@ -116,9 +116,10 @@ def test_installed_node_registers_a_pair_and_exits_cleanly_on_sigint(
                PYTHONPATH=str(_site_packages(prefix)))
     log_path = tmp_path / 'node.log'
     with log_path.open('w') as log:
-        # 1500 keypoints instead of 5000 keeps SC2-PCR (quadratic) fast; also tests -p overrides.
+        # 1500 keypoints keep SC2-PCR fast; also tests -p overrides. Reliable QoS: a
+        # best-effort Fast DDS connection between processes loses large clouds at times.
         cmd = [str(prefix / 'lib' / PACKAGE / 'mlsemreg_node'),
-               '--ros-args', '-p', 'keypoints.count:=1500']
+               '--ros-args', '-p', 'keypoints.count:=1500', '-p', 'qos.reliability:=reliable']
         process = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=log,
                                    stderr=subprocess.STDOUT)
     try:
