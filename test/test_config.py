@@ -72,3 +72,47 @@ def test_ints_are_accepted_for_floats_and_yaml_loading(tmp_path):
     path.write_text(yaml.safe_dump({'semantic': {'top_kk': 3}}))
     with pytest.raises(ConfigError):
         RegistrationConfig.from_yaml(path)
+
+
+def test_removed_parameters_say_what_replaced_them():
+    with pytest.raises(ConfigError, match=r'was removed: replaced by fine\.method'):
+        RegistrationConfig().replace({'refine.icp': True})
+    with pytest.raises(ConfigError, match='unknown parameter'):
+        RegistrationConfig().replace({'refine.bogus': True})
+
+
+def test_top_level_fields_sections_and_one_loader(tmp_path):
+    from mlsemreg_ros.core.config import load_config, parse_overrides
+
+    config = RegistrationConfig.from_dict({'threads': 1, 'fine': {'method': 'gicp'}})
+    assert config.threads == 1 and config.fine.method == 'gicp'
+    assert config.to_flat_dict()['threads'] == 1 and 'keyframe.policy' in config.to_flat_dict()
+    with pytest.raises(ConfigError, match='must be a mapping'):
+        RegistrationConfig.from_dict({'fine': 3})
+    with pytest.raises(ConfigError, match='unknown config section'):
+        RegistrationConfig.from_dict({'threads': {'count': 2}})
+    assert parse_overrides(['semantic.enabled=false', 'semantic.landmark_classes=[pole, car]',
+                            'odom_frame=']) == {
+        'semantic.enabled': False, 'semantic.landmark_classes': ['pole', 'car'],
+        'odom_frame': ''}
+    for bad in ('semantic.enabled', '=3', 'a=[1,'):
+        with pytest.raises(ConfigError):
+            parse_overrides([bad])
+    path = tmp_path / 'params.yaml'
+    path.write_text(yaml.safe_dump({'mlsemreg_node': {'ros__parameters': {
+        'threads': 2, 'keyframe': {'policy': 'distance'}, 'odom_frame': 'map'}}}))
+    loaded = load_config(path, ['keyframe.min_distance=3', 'fine.method=off'])
+    assert (loaded.threads, loaded.keyframe.policy, loaded.keyframe.min_distance,
+            loaded.fine.method) == (2, 'distance', 3.0, 'off')
+    with pytest.raises(ConfigError, match='unknown parameter'):
+        load_config(path, ['odom_frame=map'])  # a node setting is not a core one
+    with pytest.raises(ConfigError, match='must be finite'):
+        RegistrationConfig().replace({'fine.voxel_size': float('nan')})
+
+
+def test_yaml_words_that_yaml_1_1_reads_as_booleans_stay_strings():
+    from mlsemreg_ros.core.config import load_yaml, parse_overrides
+
+    assert parse_overrides(['fine.method=off'])['fine.method'] == 'off'
+    assert load_yaml('a: off\nb: yes\nc: true\nd: False\n') == {
+        'a': 'off', 'b': 'yes', 'c': True, 'd': False}

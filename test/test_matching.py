@@ -14,6 +14,7 @@
 """Group Matching, Mask Matching and ML-SemReg: known answers and agreement with a reference."""
 
 from mlsemreg_ros.core import matching
+from mlsemreg_ros.core import threads as thread_settings
 from mlsemreg_ros.core.matching import (
     group_bitmask,
     group_matching,
@@ -145,7 +146,7 @@ def test_engine_agrees_with_reference_on_repeated_patterns_and_small_chunks(
     results = []
     for chunk, threads in [(600_000, 2), (97, 2), (97, 1), (5, 2)]:  # 1 .. many row chunks
         monkeypatch.setattr(matching, '_CHUNK_ELEMENTS', chunk)
-        monkeypatch.setattr(matching, '_MAX_THREADS', threads)
+        monkeypatch.setattr(thread_settings, '_requested', threads)
         corr = semantic_match(*args, src_bmr, dst_bmr, 2, mutual)
         assert _pairs(corr) == expected
         results.append(corr)

@@ -13,10 +13,11 @@
 # limitations under the License.
 
 """
-Odometry: keyframe policies, pose accumulation, refusal to advance on failures.
+Odometry: keyframe policies, pose accumulation, refusal to advance on failures, the local map.
 
-A scripted registration stands in for the pipeline, so these tests check the
-bookkeeping alone (the real pipeline runs in test_eval_bag.py).
+A scripted registration stands in for the pipeline for the bookkeeping of the
+scan-to-keyframe chain (``fine.method: off``); the fine-alignment odometry runs the
+real pipeline and small_gicp on a synthetic street drive.
 """
 
 from __future__ import annotations
@@ -24,12 +25,18 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from mlsemreg_ros.core.config import ConfigError, RegistrationConfig
-from mlsemreg_ros.core.odometry import KeyframePolicy, Odometry, rotation_angle_deg
+from mlsemreg_ros.core.config import ConfigError, KeyframeConfig, RegistrationConfig
+from mlsemreg_ros.core.metrics import rotation_error_deg
+from mlsemreg_ros.core.odometry import is_new_keyframe, Odometry
+from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import Correspondences, RegistrationResult
+from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg
 from mlsemreg_ros.simulation.trajectory import euler_to_matrix
+from mlsemreg_ros.tools.synthetic_scene import motion, scan_at, street_scene
 import numpy as np
 import pytest
+
+CHAIN = RegistrationConfig().replace({'fine.method': 'off'})
 
 
 def transform(x: float, yaw_deg: float = 0.0) -> np.ndarray:
@@ -50,9 +57,10 @@ class Tagged:
 class ScriptedRegistration:
     """prepare() tags each scan; register() returns scripted (transform, success)."""
 
-    def __init__(self, script: list[tuple[np.ndarray, bool]]) -> None:
+    def __init__(self, script: list[tuple[np.ndarray, bool]],
+                 config: RegistrationConfig = CHAIN) -> None:
         self.script = list(script)
-        self.config = RegistrationConfig()
+        self.config = config
         self.calls: list[tuple[int, int]] = []
         self.prepared = 0
 
@@ -60,7 +68,7 @@ class ScriptedRegistration:
         self.prepared += 1
         return Tagged(int(points[0, 0]))  # the scan id, written into its first point
 
-    def register(self, source: Any, target: Any) -> RegistrationResult:
+    def register(self, source: Any, target: Any, refine: bool = True) -> RegistrationResult:
         self.calls.append((source.scan_id, target.scan_id))
         T, success = self.script.pop(0)
         empty = np.zeros(0, dtype=np.int64)
@@ -78,7 +86,7 @@ def scan(scan_id: int) -> tuple[np.ndarray, np.ndarray]:
 def test_every_frame_accumulates_and_refuses_to_advance_on_failure() -> None:
     script = [(transform(1.0), True), (transform(50.0), False), (transform(2.0), True)]
     registration = ScriptedRegistration(script)
-    odometry = Odometry(registration, KeyframePolicy('every_frame'))
+    odometry = Odometry(registration)
     first = odometry.process(*scan(0), stamp_ns=10)
     assert first.result is None and first.accepted and first.new_keyframe
     np.testing.assert_array_equal(first.pose, np.eye(4))
@@ -87,6 +95,7 @@ def test_every_frame_accumulates_and_refuses_to_advance_on_failure() -> None:
     np.testing.assert_allclose(step.pose, transform(1.0))
     failed = odometry.process(*scan(2), stamp_ns=30)
     assert not failed.accepted and not failed.new_keyframe and failed.keyframe_index == 1
+    assert failed.reason == 'too few inliers'
     np.testing.assert_allclose(failed.pose, transform(1.0))  # held, not moved by 50 m
     recovered = odometry.process(*scan(3), stamp_ns=40)
     assert recovered.keyframe_index == 1  # registered onto the kept keyframe, not scan 2
@@ -98,9 +107,9 @@ def test_every_frame_accumulates_and_refuses_to_advance_on_failure() -> None:
 def test_distance_policy_keeps_the_keyframe_until_it_moved_or_turned() -> None:
     script = [(transform(0.4), True), (transform(0.8), True), (transform(1.2), True),
               (transform(0.1, yaw_deg=12.0), True), (transform(0.1), True)]
-    registration = ScriptedRegistration(script)
-    odometry = Odometry(registration, KeyframePolicy('distance', min_distance=1.0,
-                                                     min_rotation=10.0))
+    config = CHAIN.replace({'keyframe.policy': 'distance', 'keyframe.min_distance': 1.0,
+                            'keyframe.min_rotation': 10.0})
+    odometry = Odometry(ScriptedRegistration(script, config))
     steps = [odometry.process(*scan(k)) for k in range(6)]
     assert [s.new_keyframe for s in steps] == [True, False, False, True, True, False]
     assert [s.keyframe_index for s in steps] == [0, 0, 0, 0, 3, 4]
@@ -121,15 +130,15 @@ def test_non_finite_estimates_are_refused_and_reset_restarts() -> None:
     np.testing.assert_array_equal(restart.pose, np.eye(4))
 
 
-def test_policy_validation_and_helpers() -> None:
-    with pytest.raises(ConfigError):
-        KeyframePolicy('sometimes')
-    with pytest.raises(ConfigError):
-        KeyframePolicy('distance', min_distance=-1.0)
-    policy = KeyframePolicy.from_flat({'keyframe.policy': 'distance',
-                                       'keyframe.min_rotation': 5})
-    assert policy == KeyframePolicy('distance', 1.0, 5.0)
-    assert KeyframePolicy.from_config(policy) == policy
+def test_keyframe_policy_validation_and_helpers() -> None:
+    with pytest.raises(ConfigError, match='is not one of'):
+        RegistrationConfig().replace({'keyframe.policy': 'sometimes'})
+    with pytest.raises(ConfigError, match='below its minimum'):
+        RegistrationConfig().replace({'keyframe.min_distance': -1.0})
+    policy = KeyframeConfig('distance', 1.0, 5.0)
+    assert not is_new_keyframe(policy, transform(0.5, 4.0))
+    assert is_new_keyframe(policy, transform(0.5, 6.0)) and is_new_keyframe(policy, transform(1))
+    assert is_new_keyframe(KeyframeConfig(), np.eye(4))
     assert abs(rotation_angle_deg(transform(0.0, 30.0)) - 30.0) < 1e-9
 
 
@@ -143,3 +152,88 @@ def test_reconfigure_prepares_the_keyframe_again_only_when_preparation_changes()
     odometry.reconfigure(registration.config.replace({'semantic.local_radius': 1.0}))
     assert registration.prepared == 2  # Local-SS changes: keyframe prepared again
     assert registration.config.semantic.local_radius == 1.0
+
+
+# -- fine alignment against the local map (real pipeline, synthetic street) -------------
+STEP_M = 1.5  # metres between scans of the synthetic drive
+FRAMES = 8
+
+
+@pytest.fixture(scope='module')
+def drive() -> list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]:
+    """(points, labels, T_world_sensor, stamp_ns) of a drive down the synthetic street."""
+    world, labels = street_scene(seed=3)
+    out = []
+    for k in range(FRAMES):
+        pose = motion(0.4 * k, (-20.0 + STEP_M * k, 0.2 * np.sin(k), 0.0))
+        points, scan_labels = scan_at(world, labels, pose, seed=100 + k, max_points=20000)
+        out.append((points, scan_labels, pose, 100_000_000 * k))
+    return out
+
+
+def _pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    delta = invert_transform(truth) @ estimate
+    return rotation_error_deg(delta[:3, :3], np.eye(3)), float(np.linalg.norm(delta[:3, 3]))
+
+
+def test_map_odometry_follows_the_drive_to_centimetres(drive: Any) -> None:
+    odometry = Odometry(Registration(RegistrationConfig().replace({'keypoints.count': 1000})))
+    origin = drive[0][2]
+    sources = []
+    for points, labels, pose, stamp in drive:
+        step = odometry.process(points, labels, stamp)
+        assert step.accepted, step.reason
+        sources.append(step.source)
+        re, te = _pose_errors(step.pose, invert_transform(origin) @ pose)
+        assert re < 0.05 and te < 0.02, (step.index, re, te)
+        assert step.covariance.shape == (6, 6) and np.all(np.linalg.eigvalsh(step.covariance)
+                                                          >= -1e-12)
+    assert sources[0] == 'first' and set(sources[2:]) <= {'prediction+global', 'global',
+                                                          'prediction'}
+    assert step.twist is not None  # ~15 m/s along x at 10 Hz stamps
+    assert abs(step.twist[0] - STEP_M / 0.1) < 0.5
+    assert odometry.local_map.insertions == FRAMES and len(odometry.local_map) > 0
+    odometry.reset()
+    assert odometry.local_map.empty and len(odometry.local_map) == 0
+    assert odometry.keyframe is None and odometry.predict(0) is None
+
+
+class FlippingRegistration(Registration):
+    """The real pipeline, but the global estimate of one frame is turned by 180 deg."""
+
+    flip_call = 3
+
+    def __init__(self, config: RegistrationConfig) -> None:
+        super().__init__(config)
+        self.calls = 0
+
+    def register(self, source: Any, target: Any, refine: bool = True) -> RegistrationResult:
+        result = super().register(source, target, refine=refine)
+        self.calls += 1
+        if self.calls == self.flip_call:
+            result.transform = motion(180.0, (0.0, 0.0, 0.0)) @ result.transform
+        return result
+
+
+@pytest.mark.parametrize('constant_velocity', [True, False])
+def test_a_flipped_global_estimate_is_never_published(drive: Any,
+                                                      constant_velocity: bool) -> None:
+    config = RegistrationConfig().replace({'keypoints.count': 1000,
+                                           'odometry.constant_velocity': constant_velocity})
+    odometry = Odometry(FlippingRegistration(config))
+    origin = drive[0][2]
+    steps = [odometry.process(points, labels, stamp) for points, labels, _, stamp in drive]
+    flipped = steps[FlippingRegistration.flip_call]
+    if constant_velocity:  # the refined prediction wins against the flipped estimate
+        assert flipped.accepted and flipped.source == 'prediction', flipped.reason
+        assert 'disagrees' in flipped.reason
+        assert [c.name for c in flipped.candidates] == ['prediction', 'global']
+    else:  # no other candidate: the frame is rejected, the pose stays
+        assert not flipped.accepted and 'global' in flipped.reason
+        np.testing.assert_array_equal(flipped.pose, steps[FlippingRegistration.flip_call - 1]
+                                      .pose)
+    for step, (_, _, pose, _) in zip(steps, drive, strict=True):
+        if step.accepted:  # whatever was accepted is right
+            re, te = _pose_errors(step.pose, invert_transform(origin) @ pose)
+            assert re < 0.1 and te < 0.05, (step.index, step.source, re, te)
+    assert all(s.accepted for s in steps[FlippingRegistration.flip_call + 1:])

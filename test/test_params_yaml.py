@@ -77,15 +77,16 @@ def test_core_loader_reads_params_yaml() -> None:
 
 
 def test_node_config_validation() -> None:
-    cfg = NodeConfig().replace({'keyframe.policy': 'distance', 'keyframe.min_rotation': 5})
-    assert cfg.keyframe.policy == 'distance' and cfg.keyframe.min_rotation == 5.0
-    for change, reason in [({'keyframe.policy': 'never'}, 'is not one of'),
-                           ({'keyframe.min_rotation': 200.0}, 'above its maximum 180'),
+    cfg = NodeConfig().replace({'qos.reliability': 'reliable', 'local_map_period': 2})
+    assert cfg.qos.reliability == 'reliable' and cfg.local_map_period == 2.0
+    for change, reason in [({'qos.reliability': 'never'}, 'is not one of'),
+                           ({'local_map_period': -1.0}, 'below its minimum 0'),
                            ({'qos.depth': 0}, 'below its minimum 1'),
                            ({'odom_frame': ''}, 'odom_frame must not be empty'),
                            ({'base_frame': 'odom'}, 'both'),
                            ({'publish_tf': 'yes'}, 'expects bool'),
-                           ({'keyframe.bogus': 1}, 'unknown node parameter')]:
+                           ({'qos.bogus': 1}, 'unknown parameter'),
+                           ({'keyframe.policy': 'distance'}, 'unknown parameter')]:
         with pytest.raises(ConfigError, match=reason):
             NodeConfig().replace(change)
 

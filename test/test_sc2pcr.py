@@ -19,8 +19,8 @@ from __future__ import annotations
 
 from dev_pairs import dev_pair_files
 from mlsemreg_ros.core import sc2pcr as sc2
-from mlsemreg_ros.core.config import EstimatorConfig, RefineConfig
-from mlsemreg_ros.core.estimation import estimate, refine_icp
+from mlsemreg_ros.core.config import EstimatorConfig
+from mlsemreg_ros.core.estimation import estimate
 from mlsemreg_ros.core.rigid import apply_transform
 import numpy as np
 import pytest
@@ -304,49 +304,6 @@ def test_ransac_recovers_transform_with_50_percent_outliers() -> None:
     assert rotation_error < 1.0
     assert translation_error < 0.2
     assert np.mean(result.inlier_mask == inliers) >= 0.95
-
-
-def _structured_cloud(rng: np.random.Generator) -> np.ndarray:
-    """Build a room corner with a box in it: planes in three directions."""
-    def plane(u: np.ndarray, v: np.ndarray, origin: np.ndarray, size: tuple[float, float],
-              count: int) -> np.ndarray:
-        a, b = rng.uniform(0, size[0], count), rng.uniform(0, size[1], count)
-        return origin + a[:, None] * u + b[:, None] * v
-    ex, ey, ez = np.eye(3)
-    parts = [plane(ex, ey, np.zeros(3), (20, 20), 6000),        # floor
-             plane(ex, ez, np.zeros(3), (20, 5), 2500),         # wall y=0
-             plane(ey, ez, np.zeros(3), (20, 5), 2500),         # wall x=0
-             plane(ex, ey, np.array([6.0, 8.0, 1.5]), (3, 2), 600),  # box top
-             plane(ex, ez, np.array([6.0, 8.0, 0.0]), (3, 1.5), 450),  # box side
-             plane(ey, ez, np.array([6.0, 8.0, 0.0]), (2, 1.5), 300)]  # box side
-    return np.concatenate(parts) + rng.normal(0.0, 0.01, (12350, 3))
-
-
-def test_icp_refines_a_perturbed_transform() -> None:
-    rng = np.random.default_rng(12)
-    target = _structured_cloud(rng)
-    truth = np.eye(4)
-    truth[:3, :3] = Rotation.from_euler('xyz', [1.0, -2.0, 10.0], degrees=True).as_matrix()
-    truth[:3, 3] = [2.0, -1.0, 0.3]
-    source = apply_transform(np.linalg.inv(truth), target[rng.permutation(len(target))[:8000]])
-    perturbed = truth.copy()
-    perturbed[:3, :3] = Rotation.from_euler('z', 2.0, degrees=True).as_matrix() @ truth[:3, :3]
-    perturbed[:3, 3] += [0.3, -0.2, 0.1]
-    refined = refine_icp(source, target, perturbed, RefineConfig(icp=True, max_distance=1.0),
-                         normal_radius=0.5)
-    before, after = _errors(perturbed, truth), _errors(refined, truth)
-    assert after[0] < 0.2 and after[1] < 0.05
-    assert after[0] < before[0] and after[1] < before[1]
-
-
-def test_icp_keeps_init_without_overlap() -> None:
-    rng = np.random.default_rng(13)
-    target = _structured_cloud(rng)
-    init = np.eye(4)
-    init[:3, 3] = 500.0  # nothing within max_distance
-    refined = refine_icp(target[:1000], target, init, RefineConfig(max_distance=1.0), 0.5)
-    np.testing.assert_array_equal(refined, init)
-    np.testing.assert_array_equal(refine_icp(target[:2], target, init, RefineConfig(), 0.5), init)
 
 
 def test_unknown_estimator_kind() -> None:

@@ -13,7 +13,7 @@
 # limitations under the License.
 """Known-answer and property tests of Local-SS (eq. 1), BMR-SS (eq. 4) and eq. 5."""
 
-from mlsemreg_ros.core import signatures
+from mlsemreg_ros.core import threads as thread_settings
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.core.results import Landmarks
 from mlsemreg_ros.core.signatures import (
@@ -128,7 +128,7 @@ def test_scene_similarity_counts_shared_class_ring_bins():
 @pytest.mark.parametrize('threads', [1, 2])
 def test_local_ss_equals_brute_force_in_parallel_parts_and_with_a_given_tree(
         threads, monkeypatch):
-    monkeypatch.setattr(signatures, '_MAX_THREADS', threads)
+    monkeypatch.setattr(thread_settings, '_requested', threads)
     rng = np.random.default_rng(12)
     points = rng.uniform(-6, 6, (3000, 3))
     labels = rng.integers(0, LABELS.num_classes, 3000)

@@ -15,6 +15,7 @@
 
 import threading
 
+from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features import fpfh_open3d_at, valid_descriptor_mask
 from mlsemreg_ros.core.pipeline import Registration
@@ -23,8 +24,9 @@ from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
 import numpy as np
 
 
-def test_pool_keeps_order_and_runs_single_items_inline():
-    pool = LazyPool('mlsemreg-test', 2)
+def test_pool_keeps_order_and_runs_single_items_inline(monkeypatch):
+    monkeypatch.setattr(threads, '_requested', 2)
+    pool = LazyPool('mlsemreg-test')
     names: list[str] = []
 
     def square(x: int) -> int:
@@ -35,6 +37,27 @@ def test_pool_keeps_order_and_runs_single_items_inline():
     assert names == [threading.current_thread().name]  # one item: no pool
     assert pool.run(square, list(range(7))) == [x * x for x in range(7)]
     assert any(name.startswith('mlsemreg-test') for name in names[1:])
+
+
+def test_every_pool_honours_the_thread_setting(monkeypatch):
+    monkeypatch.setattr(threads, '_requested', 0)
+    assert threads.workers() == threads.available_cores()
+    pool = LazyPool('mlsemreg-test-size')
+    for count in (1, 3):
+        Registration(RegistrationConfig().replace({'threads': count}))  # configures the pools
+        assert threads.workers() == count
+        names: set[str] = set()
+        barrier = threading.Barrier(count, timeout=5.0) if count > 1 else None
+
+        def task(_: int, barrier: threading.Barrier | None = barrier) -> str:
+            if barrier is not None:
+                barrier.wait()  # all `count` workers run at once, or this times out
+            return threading.current_thread().name
+
+        names.update(pool.run(task, list(range(count))))
+        assert len(names) == count
+        if count == 1:
+            assert names == {threading.current_thread().name}  # inline, no pool
 
 
 def test_prepare_scans_equals_sequential_prepare():

@@ -30,8 +30,10 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+import math
 from pathlib import Path
-from typing import Any
+import re
+from typing import Any, ClassVar, Self
 
 import yaml
 
@@ -44,6 +46,23 @@ NODE_NAME = 'mlsemreg_node'
 
 class ConfigError(ValueError):
     """A configuration value is unknown, of the wrong type or out of range."""
+
+
+class _Loader(yaml.SafeLoader):
+    """YAML with YAML 1.2 booleans: only true/false, so ``fine.method: off`` is a string."""
+
+
+_Loader.yaml_implicit_resolvers = {
+    key: [(tag, regexp) for tag, regexp in resolvers if tag != 'tag:yaml.org,2002:bool']
+    for key, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_Loader.add_implicit_resolver(
+    'tag:yaml.org,2002:bool', re.compile(r'^(?:true|True|TRUE|false|False|FALSE)$'),
+    list('tTfF'))
+
+
+def load_yaml(text: str) -> Any:
+    """Parse YAML text with YAML 1.2 booleans (``on``/``off``/``yes``/``no`` stay strings)."""
+    return yaml.load(text, Loader=_Loader)  # a SafeLoader subclass
 
 
 def param(
@@ -214,13 +233,106 @@ class EstimatorConfig:
 
 
 @dataclass
-class RefineConfig:
-    """Optional point-to-plane ICP on the scans after the estimator."""
+class FineAlignmentConfig:
+    """
+    Fine alignment of the dense scans with small_gicp, after the global estimate.
 
-    icp: bool = param(False, 'Refine the estimate with point-to-plane ICP on the scans.')
-    max_distance: float = param(
-        1.0, 'ICP correspondence distance.', unit='m', low=0.01, high=20.0)
-    iterations: int = param(30, 'ICP iterations.', low=1, high=1000)
+    GICP (Segal et al., RSS 2009) and VGICP (Koide et al., ICRA 2021) as implemented by
+    koide3/small_gicp. Pairs: the source scan onto the target scan; odometry: the scan
+    onto the local map (an LRU voxel map of the last aligned scans in the odom frame).
+    """
+
+    method: str = param(
+        'vgicp', 'Fine alignment after the estimator: vgicp (voxelized GICP; the local map '
+        'is a Gaussian voxel map), gicp, plane_icp (point-to-plane), icp (point-to-point; '
+        'with gicp/plane_icp/icp the map points are re-indexed each frame, slower) or off '
+        '(the estimate as it is, chained scan to keyframe).',
+        choices=('vgicp', 'gicp', 'plane_icp', 'icp', 'off'))
+    downsampling_resolution: float = param(
+        0.5, 'Voxel edge to which the scan (already voxelized at features.voxel_size) is '
+        'downsampled for the fine alignment (0: the features.voxel_size scan as it is).',
+        unit='m', low=0.0, high=5.0)
+    voxel_size: float = param(
+        1.0, 'VGICP voxel edge: of the local map and of the target scan of a pair; with '
+        "gicp/plane_icp/icp, the edge of the local map's point cells.",
+        unit='m', low=0.05, high=10.0)
+    num_neighbors: int = param(
+        20, 'Neighbours of each point for its covariance and normal.', low=5, high=200)
+    max_correspondence_distance: float = param(
+        1.0, 'Maximum distance of a point to its correspondence (its inlier bound).',
+        unit='m', low=0.05, high=20.0)
+    max_iterations: int = param(
+        20, 'Maximum Gauss-Newton iterations.', low=1, high=1000)
+
+
+@dataclass
+class LocalMapConfig:
+    """The odometry's local map: recent aligned scans in the odom frame, LRU-bounded."""
+
+    horizon: int = param(
+        100, 'Voxels that no inserted scan touched during this many insertions are dropped '
+        '(small_gicp LRU horizon).', low=1, high=100000)
+    clear_cycle: int = param(
+        10, 'Insertions between two LRU clean-ups of the local map.', low=1, high=100000)
+
+
+@dataclass
+class KeyframeConfig:
+    """When the current scan replaces the keyframe (after an accepted frame)."""
+
+    policy: str = param(
+        'every_frame', 'every_frame: each registered scan becomes the keyframe (frame-to-frame '
+        'odometry); distance: only once it moved keyframe.min_distance or turned '
+        'keyframe.min_rotation away from the keyframe.', choices=('every_frame', 'distance'))
+    min_distance: float = param(
+        1.0, 'distance policy: translation from the keyframe that makes a new keyframe.',
+        unit='m', low=0.0, high=1000.0)
+    min_rotation: float = param(
+        10.0, 'distance policy: rotation from the keyframe that makes a new keyframe.',
+        unit='deg', low=0.0, high=180.0)
+
+
+@dataclass
+class OdometryConfig:
+    """
+    Which estimate of a frame the odometry accepts (see core/odometry.py).
+
+    Candidates: the global estimate (ML-SemReg + estimator onto the keyframe) composed with
+    the keyframe pose, and the constant-velocity prediction; each is refined against the
+    local map. A refined pose is acceptable when the fine alignment kept enough of the scan
+    as inliers and moved its initial guess by no more than the correction bounds.
+    """
+
+    constant_velocity: bool = param(
+        True, 'Refine the constant-velocity prediction too (beside the global estimate, on '
+        'the second thread); when both agree only one alignment is paid for, and when the '
+        'global estimate fails the prediction can still be accepted.')
+    agreement_translation: float = param(
+        0.3, 'The refined prediction agrees with the global estimate within this '
+        'translation (and odometry.agreement_rotation).', unit='m', low=0.0, high=100.0)
+    agreement_rotation: float = param(
+        1.0, 'The refined prediction agrees with the global estimate within this rotation.',
+        unit='deg', low=0.0, high=180.0)
+    max_correction_translation: float = param(
+        1.5, 'A fine alignment that moves its initial guess further than this is not '
+        'accepted (it ran away or started outside its basin).', unit='m', low=0.0,
+        high=100.0)
+    max_correction_rotation: float = param(
+        5.0, 'A fine alignment that turns its initial guess further than this is not '
+        'accepted.', unit='deg', low=0.0, high=180.0)
+    min_inlier_fraction: float = param(
+        0.25, "Share of the scan's alignment points that must have a correspondence "
+        '(map or target scan) within fine.max_correspondence_distance after the fine '
+        'alignment.', low=0.0, high=1.0)
+    min_relative_inlier_fraction: float = param(
+        0.6, 'The inlier fraction must also reach this share of the median inlier fraction '
+        'of the last accepted frames: a pose that overlaps the map only by chance (the '
+        'mirror pose of a street, a different street) keeps far fewer inliers than the '
+        'frames before it (0: no such check).', low=0.0, high=1.0)
+    covariance_scale: float = param(
+        1.0, 'Factor on the pose covariance inv(H) * 2E / (n - 6) of the fine alignment '
+        '(H Hessian, E final error, n inliers), calibrated on the simulated drives.',
+        low=1e-6, high=1e6)
 
 
 SECTIONS: dict[str, type] = {
@@ -229,76 +341,154 @@ SECTIONS: dict[str, type] = {
     'keypoints': KeypointConfig,
     'matcher': MatcherConfig,
     'estimator': EstimatorConfig,
-    'refine': RefineConfig,
+    'fine': FineAlignmentConfig,
+    'local_map': LocalMapConfig,
+    'keyframe': KeyframeConfig,
+    'odometry': OdometryConfig,
+}
+
+#: Parameters that existed once, with what replaced them (reported when they are set).
+REMOVED: dict[str, str] = {
+    'refine.icp': 'replaced by fine.method (small_gicp GICP/VGICP; off disables it)',
+    'refine.max_distance': 'replaced by fine.max_correspondence_distance',
+    'refine.iterations': 'replaced by fine.max_iterations',
 }
 
 
-@dataclass
-class RegistrationConfig:
-    """Everything the registration core needs; built from a nested or flat dict."""
+class Settings:
+    """
+    A dataclass of parameters: top-level fields and sections (dataclass-typed fields).
 
-    semantic: SemanticConfig = field(default_factory=SemanticConfig)
-    features: FeatureConfig = field(default_factory=FeatureConfig)
-    keypoints: KeypointConfig = field(default_factory=KeypointConfig)
-    matcher: MatcherConfig = field(default_factory=MatcherConfig)
-    estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
-    refine: RefineConfig = field(default_factory=RefineConfig)
+    The one engine behind the core's :class:`RegistrationConfig` and the node's settings:
+    flat names are ``field`` or ``section.field``; every field is declared with
+    :func:`param` (description, unit, range, choices), so the ROS layer, the parameter
+    file and the README table are generated from the same metadata. Unknown and removed
+    names are rejected with the reason; values are type-checked, range-checked and
+    cross-checked (:meth:`check`) as a whole.
+    """
 
-    # -- construction -------------------------------------------------------------
+    #: Removed flat names and what replaced them.
+    REMOVED: ClassVar[dict[str, str]] = {}
+
+    # -- structure -----------------------------------------------------------------
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> RegistrationConfig:
-        """Build from ``{'semantic': {...}, ...}``; unknown keys raise ConfigError."""
-        unknown = set(data) - set(SECTIONS)
-        if unknown:
-            raise ConfigError(f'unknown config section(s): {sorted(unknown)}; '
-                              f'known: {sorted(SECTIONS)}')
+    def sections(cls) -> dict[str, type]:
+        """Section name -> dataclass, in declaration order."""
+        return {f.name: f.default_factory for f in dataclasses.fields(cls)
+                if dataclasses.is_dataclass(f.default_factory)}
+
+    @classmethod
+    def parameter_fields(cls) -> list[tuple[str, dataclasses.Field, Any]]:
+        """``(flat_name, field, default)`` of every parameter, in declaration order."""
+        defaults = cls().to_flat_dict()
+        return [(key, cls.field_of(key), value) for key, value in defaults.items()]
+
+    @classmethod
+    def field_of(cls, key: str) -> dataclasses.Field:
+        """Return the field behind a flat name; ConfigError (with the reason) otherwise."""
+        section, dot, name = key.partition('.')
+        owner = cls.sections().get(section) if dot else cls
+        if owner is not None:
+            for f in dataclasses.fields(owner):
+                if f.name == (name if dot else key) and (dot or f.name not in cls.sections()):
+                    return f
+        if key in cls.REMOVED:
+            raise ConfigError(f'parameter {key!r} was removed: {cls.REMOVED[key]}')
+        raise ConfigError(f'unknown parameter {key!r}')
+
+    # -- construction --------------------------------------------------------------
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Self:
+        """Build from a nested mapping (``{'semantic': {...}, 'threads': 2}``)."""
         flat: dict[str, Any] = {}
-        for section, values in data.items():
-            if not isinstance(values, dict):
-                raise ConfigError(f'section {section!r} must be a mapping')
-            for name, value in values.items():
-                flat[f'{section}.{name}'] = value
+        sections = cls.sections()
+        for key, value in data.items():
+            if key in sections:
+                if not isinstance(value, dict):
+                    raise ConfigError(f'section {key!r} must be a mapping')
+                flat.update({f'{key}.{name}': v for name, v in value.items()})
+            elif isinstance(value, dict):
+                raise ConfigError(f'unknown config section {key!r}; known: {sorted(sections)}')
+            else:
+                flat[key] = value
         return cls().replace(flat)
 
-    @classmethod
-    def from_yaml(cls, path: str | Path) -> RegistrationConfig:
-        """
-        Load the core sections of a node parameter file (or a plain config YAML).
-
-        Node-level keys (frames, topics, keyframe policy) are ignored here; the
-        ROS layer validates them.
-        """
-        core, _ = split_params_yaml(path)
-        return cls.from_dict(core)
-
-    def replace(self, flat: dict[str, Any]) -> RegistrationConfig:
-        """Copy with ``{'section.field': value}`` applied, type-checked and validated."""
-        sections = {name: dataclasses.asdict(getattr(self, name)) for name in SECTIONS}
+    def replace(self, flat: dict[str, Any]) -> Self:
+        """Copy with ``{'flat.name': value}`` applied, type-checked and validated."""
+        values = self.to_flat_dict()
         for key, value in flat.items():
-            section, _, name = key.partition('.')
-            if section not in SECTIONS or name not in sections[section]:
-                raise ConfigError(f'unknown parameter {key!r}')
-            sections[section][name] = coerce(key, value, field_of(key))
-        new = RegistrationConfig(**{s: SECTIONS[s](**v) for s, v in sections.items()})
+            values[key] = coerce(key, value, self.field_of(key))
+        sections = self.sections()
+        top = {k: v for k, v in values.items() if '.' not in k}
+        parts = {s: kind(**{k.partition('.')[2]: v for k, v in values.items()
+                            if k.partition('.')[0] == s}) for s, kind in sections.items()}
+        new = type(self)(**top, **parts)
         errors = new.errors()
         if errors:
             raise ConfigError('; '.join(errors))
         return new
 
     # -- export --------------------------------------------------------------------
-    def to_dict(self) -> dict[str, dict[str, Any]]:
+    def to_dict(self) -> dict[str, Any]:
         """Nested plain dict (YAML/JSON friendly)."""
-        return {name: dataclasses.asdict(getattr(self, name)) for name in SECTIONS}
+        return {f.name: (dataclasses.asdict(getattr(self, f.name))
+                         if f.name in self.sections() else getattr(self, f.name))
+                for f in dataclasses.fields(self)}
 
     def to_flat_dict(self) -> dict[str, Any]:
-        """``{'section.field': value}`` for every field."""
-        return {f'{s}.{k}': v for s, values in self.to_dict().items() for k, v in values.items()}
+        """``{'field' or 'section.field': value}`` for every parameter."""
+        out: dict[str, Any] = {}
+        for key, value in self.to_dict().items():
+            if isinstance(value, dict):
+                out.update({f'{key}.{k}': v for k, v in value.items()})
+            else:
+                out[key] = value
+        return out
 
-    # -- validation ------------------------------------------------------------------
+    # -- validation ----------------------------------------------------------------
     def errors(self) -> list[str]:
         """Every range, choice and cross-field violation, as readable sentences."""
-        errors = [e for key, value in self.to_flat_dict().items()
-                  for e in metadata_errors(key, value, field_of(key).metadata)]
+        return [e for key, value in self.to_flat_dict().items()
+                for e in metadata_errors(key, value, self.field_of(key).metadata)
+                ] + self.check()
+
+    def check(self) -> list[str]:
+        """Cross-field rules (none by default)."""
+        return []
+
+
+@dataclass
+class RegistrationConfig(Settings):
+    """Everything the core needs (registration and odometry); built from a nested or flat dict."""
+
+    threads: int = param(
+        0, 'Threads of every pool of the core and of the fine alignment (0: all cores).',
+        low=0, high=256)
+    semantic: SemanticConfig = field(default_factory=SemanticConfig)
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    keypoints: KeypointConfig = field(default_factory=KeypointConfig)
+    matcher: MatcherConfig = field(default_factory=MatcherConfig)
+    estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
+    fine: FineAlignmentConfig = field(default_factory=FineAlignmentConfig)
+    local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
+    keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
+
+    REMOVED: ClassVar[dict[str, str]] = REMOVED
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> RegistrationConfig:
+        """
+        Load the core parameters of a node parameter file (or a plain config YAML).
+
+        Node-level keys (frames, topics, QoS) are ignored here; the ROS layer reads them.
+        """
+        core, _ = split_params_yaml(path)
+        return cls.from_dict(core)
+
+    def check(self) -> list[str]:
+        """Cross-field rules of the core."""
+        errors = []
         sem, est = self.semantic, self.estimator
         field_m = sem.ring_count * sem.ring_width
         if field_m > MAX_RECEPTIVE_FIELD_M:
@@ -330,25 +520,13 @@ def metadata_errors(key: str, value: Any, meta: Any) -> list[str]:
 
 
 def field_of(key: str) -> dataclasses.Field:
-    """Return the dataclass field behind a flat name such as ``semantic.top_k``."""
-    section, _, name = key.partition('.')
-    if section not in SECTIONS:
-        raise ConfigError(f'unknown parameter {key!r}')
-    for f in dataclasses.fields(SECTIONS[section]):
-        if f.name == name:
-            return f
-    raise ConfigError(f'unknown parameter {key!r}')
+    """Return the core config field behind a flat name such as ``semantic.top_k``."""
+    return RegistrationConfig.field_of(key)
 
 
 def iter_fields() -> list[tuple[str, dataclasses.Field, Any]]:
     """``(flat_name, field, default)`` for every core parameter, in declaration order."""
-    defaults = RegistrationConfig().to_flat_dict()
-    out = []
-    for section, cls in SECTIONS.items():
-        for f in dataclasses.fields(cls):
-            key = f'{section}.{f.name}'
-            out.append((key, f, defaults[key]))
-    return out
+    return RegistrationConfig.parameter_fields()
 
 
 def coerce(key: str, value: Any, f: dataclasses.Field) -> Any:
@@ -362,6 +540,8 @@ def coerce(key: str, value: Any, f: dataclasses.Field) -> Any:
             return value
     elif kind == 'float':
         if isinstance(value, (int, float)) and not isinstance(value, bool):
+            if not math.isfinite(float(value)):
+                raise ConfigError(f'{key} must be finite, got {value!r}')
             return float(value)
     elif kind == 'str':
         if isinstance(value, str):
@@ -372,17 +552,41 @@ def coerce(key: str, value: Any, f: dataclasses.Field) -> Any:
     raise ConfigError(f'{key} expects {kind}, got {type(value).__name__} {value!r}')
 
 
+def parse_overrides(items: list[str]) -> dict[str, Any]:
+    """
+    ``['section.key=value', ...]`` -> ``{'section.key': value}``, values parsed as YAML.
+
+    The one parser of every tool's ``--set``: ``--set semantic.enabled=false
+    --set keypoints.count=5000 --set semantic.landmark_classes=[pole,trunk]``.
+    """
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition('=')
+        key = key.strip()
+        if not sep or not key:
+            raise ConfigError(f'--set expects KEY=VALUE, got {item!r}')
+        try:
+            out[key] = load_yaml(value) if value.strip() else ''
+        except yaml.YAMLError as error:
+            raise ConfigError(f'--set {key}: cannot parse {value!r}: {error}') from None
+    return out
+
+
 def split_params_yaml(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]]:
     """
-    Read a parameter YAML into ``(core_sections, node_level_params)``.
+    Read a parameter YAML into ``(core_parameters, node_level_params)``.
 
-    Accepts the ROS layout ``{mlsemreg_node: {ros__parameters: {...}}}`` or a
-    plain mapping. Node-level parameters are returned flat (``keyframe.policy``).
+    Accepts the ROS layout ``{mlsemreg_node: {ros__parameters: {...}}}`` or a plain
+    mapping. Core parameters are nested (sections and top-level fields such as
+    ``threads``); node-level parameters are returned flat (``qos.depth``).
     """
-    data = yaml.safe_load(Path(path).read_text()) or {}
+    data = load_yaml(Path(path).read_text()) or {}
+    if not isinstance(data, dict):
+        raise ConfigError(f'{path}: expected a mapping of parameters')
     if NODE_NAME in data:
-        data = data[NODE_NAME].get('ros__parameters', {})
-    core = {k: v for k, v in data.items() if k in SECTIONS}
+        data = (data[NODE_NAME] or {}).get('ros__parameters', {}) or {}
+    core_keys = {f.name for f in dataclasses.fields(RegistrationConfig)}
+    core = {k: v for k, v in data.items() if k in core_keys}
     rest: dict[str, Any] = {}
 
     def flatten(prefix: str, value: Any) -> None:
@@ -393,6 +597,19 @@ def split_params_yaml(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]]
             rest[prefix] = value
 
     for k, v in data.items():
-        if k not in SECTIONS:
+        if k not in core_keys:
             flatten(k, v)
     return core, rest
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()
+                ) -> RegistrationConfig:
+    """
+    Load the core config: defaults < parameter file < ``--set`` overrides (the one loader).
+
+    ``path`` is a node parameter file (``config/params.yaml`` layout) or a plain mapping of
+    core sections; node-level keys in it are ignored. ``overrides`` are ``KEY=VALUE``
+    strings (:func:`parse_overrides`); a node-level or unknown key there is an error.
+    """
+    core = split_params_yaml(path)[0] if path is not None else {}
+    return RegistrationConfig.from_dict(core).replace(parse_overrides(list(overrides)))

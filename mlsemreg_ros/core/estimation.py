@@ -14,19 +14,18 @@
 
 
 """
-Robust estimator factory: SC2-PCR (default) or the RANSAC baseline, plus ICP refinement.
+Robust estimator factory: SC2-PCR (default) or the RANSAC baseline.
 
-The pipeline imports ``estimate`` and ``refine_icp`` from here.
+The pipeline imports ``estimate`` from here.
 """
 
 from __future__ import annotations
 
 from mlsemreg_ros.core.config import EstimatorConfig
-from mlsemreg_ros.core.icp import refine_icp
 from mlsemreg_ros.core.results import EstimateResult
 import numpy as np
 
-__all__ = ['estimate', 'refine_icp']
+__all__ = ['estimate']
 
 
 def estimate(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> EstimateResult:

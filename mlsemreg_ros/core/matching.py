@@ -56,6 +56,7 @@ import threading
 import time
 from typing import Any
 
+from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.config import SemanticConfig
 from mlsemreg_ros.core.results import Correspondences, PreparedScan
 from mlsemreg_ros.core.signatures import binary_multi_ring_signature
@@ -73,8 +74,7 @@ _LOW32 = np.uint64(0xFFFFFFFF)
 _DENSE_BLOCK_ELEMENTS = 2_000_000  # rows x targets per dense distance block
 _CHUNK_ELEMENTS = 600_000  # rows x target patterns per Mask Matching chunk (cache sized)
 _DENSE_FRACTION = 0.1  # candidate share of a chunk above which it is resolved densely
-_MAX_THREADS = 2
-_POOL = LazyPool('mlsemreg-match', _MAX_THREADS)  # shared by all calls
+_POOL = LazyPool('mlsemreg-match')  # shared by all calls
 _BLAS: Any = None  # threadpoolctl controller, created on first use
 _BLAS_LOCK = threading.Lock()
 
@@ -477,7 +477,7 @@ def _run_tasks(function: Callable[[Any], Any], tasks: list[Any]) -> list[Any]:
     The chunk GEMMs are small: multithreaded BLAS on them (and inside worker threads) was
     measured 3x slower, so BLAS runs single-threaded here and the chunks use the cores.
     """
-    workers = max(1, min(len(tasks), os.cpu_count() or 1, _MAX_THREADS))
+    workers = max(1, min(len(tasks), threads.workers()))
     if ThreadpoolController is None or workers == 1:
         with _single_threaded_blas():
             return [function(task) for task in tasks]

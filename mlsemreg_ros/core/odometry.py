@@ -13,81 +13,71 @@
 # limitations under the License.
 
 """
-Scan-to-keyframe odometry on top of :class:`~mlsemreg_ros.core.pipeline.Registration`.
+LiDAR odometry: global ML-SemReg registration for robustness, fine alignment to a local map.
 
-The code path shared by the ROS node and the offline bag evaluation::
+The code path shared by the ROS node, the offline bag evaluation and the demo. Per scan::
 
-    prepare(scan)                          once per scan; the keyframe's is cached
-    register(current, keyframe)            T_keyframe_current (p_keyframe = T p_current)
-    pose = pose_keyframe @ T               accumulated, only if the registration succeeded
-    keyframe <- current                    per the keyframe policy, only after a success
+    prepare(scan)                                 once per scan; the keyframe's is cached
+    in parallel:
+      global   = register(current, keyframe)      ML-SemReg + SC2-PCR: T_keyframe_current
+      predicted = map.align(scan, T_cv)           the constant-velocity prediction, refined
+    if predicted agrees with pose_keyframe @ global:  accept it (one alignment paid for)
+    else: refined = map.align(scan, pose_keyframe @ global), accept the better candidate
+    map.insert(scan, pose)                        only an accepted, aligned scan
+    keyframe <- current                           per the keyframe policy
 
-The first scan becomes the keyframe at identity. A failed registration
-(``RegistrationResult.success`` false) never advances anything: the pose stays
-at the last accepted one and the keyframe is kept, so the next scan is
-registered against the same keyframe.
+The decision (:meth:`Odometry._decide`) is documented there; what it guarantees:
+
+- **Never a silent jump.** A candidate is acceptable only if its fine alignment kept
+  ``odometry.min_inlier_fraction`` of the scan as map inliers, and at least
+  ``odometry.min_relative_inlier_fraction`` of the median fraction of the last accepted
+  frames, and moved its initial guess by at most ``odometry.max_correction_*``. Without
+  an acceptable candidate the frame is rejected: the pose, the keyframe and the map
+  stay, and ``reason`` says why.
+- **The global estimate and the prediction check each other.** When both exist and
+  disagree, the candidate whose alignment explains more of the scan wins (a wrong global
+  estimate, e.g. the mirror pose of a street, loses against the prediction; a wrong
+  prediction, e.g. after a jump in speed, loses against the global estimate).
+- **The core owns the odometry state**: pose, keyframe, local map, covariances, twist.
+
+With ``fine.method: off`` the odometry is the earlier scan-to-keyframe chain: the pose
+is ``pose_keyframe @ global`` when the registration succeeded.
+
+Covariance (ROS order ``[x, y, z, roll, pitch, yaw]``): the accepted alignment's
+(:meth:`Alignment.covariance`, current-frame axes) is the frame's covariance; the pose
+covariance adds it, rotated into odom axes, to the previous one (a random walk: drift
+grows with every frame). Twist: the motion between the last two accepted poses over
+their stamp difference, in the current frame; its covariance is the frame's / dt^2.
 """
 
 from __future__ import annotations
 
+import collections
 from dataclasses import dataclass, field
 import time
-from typing import Any
 
-from mlsemreg_ros.core.config import ConfigError, RegistrationConfig
+from mlsemreg_ros.core.alignment import Alignment, LocalMap, UNKNOWN_VARIANCE
+from mlsemreg_ros.core.config import KeyframeConfig, RegistrationConfig
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
+from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg, scale_motion
+from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
+from scipy.spatial.transform import Rotation
 
-POLICIES = ('every_frame', 'distance')
-
-
-@dataclass
-class KeyframePolicy:
-    """
-    When the current scan replaces the keyframe (after a successful registration).
-
-    Same names and units as the node's ``keyframe.*`` parameters
-    (``mlsemreg_ros/ros/node_config.py``): ``policy`` every_frame | distance,
-    ``min_distance`` in metres, ``min_rotation`` in degrees.
-    """
-
-    policy: str = 'every_frame'
-    min_distance: float = 1.0
-    min_rotation: float = 10.0
-
-    def __post_init__(self) -> None:
-        if self.policy not in POLICIES:
-            raise ConfigError(f'keyframe.policy={self.policy!r} is not one of {list(POLICIES)}')
-        if self.min_distance < 0.0 or self.min_rotation < 0.0:
-            raise ConfigError('keyframe.min_distance and keyframe.min_rotation must be >= 0')
-
-    @classmethod
-    def from_config(cls, config: Any) -> KeyframePolicy:
-        """From any object with ``policy, min_distance, min_rotation`` (e.g. the node's)."""
-        return cls(str(config.policy), float(config.min_distance), float(config.min_rotation))
-
-    @classmethod
-    def from_flat(cls, flat: dict[str, Any]) -> KeyframePolicy:
-        """From ``{'keyframe.policy': ..., ...}`` (node-level keys of a params YAML)."""
-        defaults = cls()
-        return cls(str(flat.get('keyframe.policy', defaults.policy)),
-                   float(flat.get('keyframe.min_distance', defaults.min_distance)),
-                   float(flat.get('keyframe.min_rotation', defaults.min_rotation)))
-
-    def is_new_keyframe(self, T_keyframe_current: np.ndarray) -> bool:
-        """Whether a scan registered with this relative transform becomes the keyframe."""
-        if self.policy == 'every_frame':
-            return True
-        T = np.asarray(T_keyframe_current, dtype=np.float64)
-        return (float(np.linalg.norm(T[:3, 3])) >= self.min_distance
-                or rotation_angle_deg(T) >= self.min_rotation)
+#: Sections whose change makes the cached keyframe be prepared again.
+_PREPARE_SECTIONS = ('semantic', 'features', 'keypoints')
+#: Minimum lever arm of the sparse-inlier covariance model (fine alignment off).
+MIN_LEVER_ARM_M = 1.0
 
 
-def rotation_angle_deg(T: np.ndarray) -> float:
-    """Rotation angle of a transform (4, 4) or rotation (3, 3), degrees."""
-    R = np.asarray(T, dtype=np.float64)[:3, :3]
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+def is_new_keyframe(policy: KeyframeConfig, T_keyframe_current: np.ndarray) -> bool:
+    """Whether a scan accepted with this relative transform becomes the keyframe."""
+    if policy.policy == 'every_frame':
+        return True
+    T = np.asarray(T_keyframe_current, dtype=np.float64)
+    return (float(np.linalg.norm(T[:3, 3])) >= policy.min_distance
+            or rotation_angle_deg(T) >= policy.min_rotation)
 
 
 @dataclass
@@ -103,86 +93,326 @@ class Keyframe:
 
 
 @dataclass
+class Candidate:
+    """One initial guess of the current pose and its refinement against the local map."""
+
+    name: str  # 'global' (ML-SemReg estimate) or 'prediction' (constant velocity)
+    T_initial: np.ndarray  # (4, 4) T_odom_current guess
+    alignment: Alignment
+    refusal: str  # why it is not acceptable ('' if it is)
+
+    @property
+    def acceptable(self) -> bool:
+        """Whether the refined pose may be published."""
+        return not self.refusal
+
+
+@dataclass
 class OdometryStep:
     """What one scan did to the odometry."""
 
     index: int  # frame counter (0 = first scan after construction or reset)
     stamp_ns: int
-    pose: np.ndarray  # (4, 4) T_odom_current: accumulated, or the last accepted if rejected
-    relative: np.ndarray | None  # (4, 4) T_keyframe_current estimate; None for the first scan
-    result: RegistrationResult | None  # None for the first scan
-    accepted: bool  # the registration succeeded and moved the pose (True for the first scan)
+    pose: np.ndarray  # (4, 4) T_odom_current: accepted, or the last accepted if rejected
+    relative: np.ndarray | None  # (4, 4) T_keyframe_current (accepted, refined); else the
+    #                              global estimate (for diagnostics); None for the first scan
+    result: RegistrationResult | None  # the global registration; None for the first scan
+    accepted: bool  # the frame moved the pose (True for the first scan)
     keyframe_index: int  # frame counter of the keyframe registered onto (own index if first)
     keyframe_stamp_ns: int
     new_keyframe: bool  # this scan became the keyframe
-    latency_ms: float  # prepare + register wall time
+    latency_ms: float  # wall time of process()
     prepared: PreparedScan | None = None  # the current scan as prepared (markers, plots)
     timings_ms: dict[str, float] = field(default_factory=dict)
+    source: str = ''  # what gave the accepted pose: first, global, prediction, prediction+global
+    reason: str = ''  # why the frame was rejected, or notes on an accepted one
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))  # pose, odom axes
+    frame_covariance: np.ndarray | None = None  # (6, 6) of this frame's alignment: the pose
+    #                                 perturbation T exp(delta), current-frame axes
+    twist: np.ndarray | None = None  # (6,) [vx, vy, vz, wx, wy, wz] current frame, m/s rad/s
+    twist_covariance: np.ndarray | None = None  # (6, 6)
+    candidates: list[Candidate] = field(default_factory=list)
+    map_voxels: int = 0  # local map size after this frame
 
 
 class Odometry:
-    """Registers every scan onto a cached keyframe and accumulates the poses."""
+    """Registers every scan onto a keyframe and refines it against a local map."""
 
     def __init__(self, registration: Registration | None = None,
-                 policy: KeyframePolicy | None = None) -> None:
+                 config: RegistrationConfig | None = None) -> None:
         self.registration = registration if registration is not None else Registration()
-        self.policy = policy if policy is not None else KeyframePolicy()
+        if config is not None:
+            self.registration.config = config
+        cfg = self.registration.config
+        self.local_map = LocalMap(cfg.fine, cfg.local_map)
         self.keyframe: Keyframe | None = None
         self.pose = np.eye(4)
+        self.covariance = np.zeros((6, 6))
         self._count = 0
+        self._accepted: list[tuple[np.ndarray, int]] = []  # last two accepted (pose, stamp)
+        self._raw: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3)), np.zeros(0))
+        self._fractions: collections.deque[float] = collections.deque(maxlen=FRACTION_HISTORY)
 
     @property
     def config(self) -> RegistrationConfig:
-        """Return the registration configuration in use."""
+        """Return the configuration in use."""
         return self.registration.config
 
     def reconfigure(self, config: RegistrationConfig) -> None:
         """
-        Apply a new registration config from the next scan on.
+        Apply a new configuration from the next scan on.
 
         The cached keyframe is prepared again only when a section that
-        :meth:`Registration.prepare` reads (semantic, features, keypoints) changed.
+        :meth:`Registration.prepare` reads (semantic, features, keypoints) changed; its
+        alignment cloud only when ``fine`` changed; the local map is cleared when its
+        structure (method, voxel size) changed.
         """
         old = self.registration.config
         self.registration.config = config
-        reprepare = any(getattr(old, s) != getattr(config, s)
-                        for s in ('semantic', 'features', 'keypoints'))
-        if self.keyframe is not None and reprepare:
-            self.keyframe.prepared = self.registration.prepare(self.keyframe.points,
-                                                               self.keyframe.labels)
+        if self.keyframe is not None:
+            if any(getattr(old, s) != getattr(config, s) for s in _PREPARE_SECTIONS):
+                self.keyframe.prepared = self.registration.prepare(self.keyframe.points,
+                                                                   self.keyframe.labels)
+            elif old.fine != config.fine:
+                self.keyframe.prepared.alignment = None  # rebuilt when needed
+        if self.local_map.reconfigure(config.fine, config.local_map) and self.keyframe:
+            self._insert(self.keyframe.prepared, self.keyframe.pose)  # restart from the keyframe
 
     def reset(self) -> None:
-        """Drop the keyframe; the next scan restarts the odometry at identity."""
+        """Drop the keyframe and the map; the next scan restarts the odometry at identity."""
         self.keyframe = None
         self.pose = np.eye(4)
+        self.covariance = np.zeros((6, 6))
+        self.local_map.clear()
         self._count = 0
+        self._accepted = []
+        self._fractions.clear()
 
+    # ------------------------------------------------------------------------------
     def process(self, points: np.ndarray, labels: np.ndarray, stamp_ns: int = 0
                 ) -> OdometryStep:
-        """Register one scan (points (N, 3) metres, labels (N,)) onto the keyframe."""
+        """Register one scan (points (N, 3) metres, labels (N,)) and update the odometry."""
         index = self._count
         self._count += 1
         start = time.perf_counter()
         current = self.registration.prepare(points, labels)
+        self._raw = (np.asarray(points), np.asarray(labels))  # kept if it becomes the keyframe
         timings = {f'prepare.{k}': v for k, v in current.timings_ms.items()}
-        if self.keyframe is None:  # first scan: keyframe at identity
-            self.keyframe = Keyframe(index, stamp_ns, np.asarray(points), np.asarray(labels),
-                                     current, self.pose.copy())
+        if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
+            self.keyframe = Keyframe(index, stamp_ns, *self._raw, current, self.pose.copy())
+            self._insert(current, self.pose)
+            self._accepted = [(self.pose.copy(), stamp_ns)]
             return OdometryStep(index, stamp_ns, self.pose.copy(), None, None, True, index,
                                 stamp_ns, True, 1e3 * (time.perf_counter() - start), current,
-                                timings)
+                                timings, source='first', covariance=self.covariance.copy(),
+                                map_voxels=len(self.local_map))
         keyframe = self.keyframe
-        result = self.registration.register(current, keyframe.prepared)
-        latency = 1e3 * (time.perf_counter() - start)
-        timings.update({f'register.{k}': v for k, v in result.timings_ms.items()})
-        accepted = bool(result.success) and bool(np.all(np.isfinite(result.transform)))
-        new_keyframe = False
-        if accepted:
-            self.pose = keyframe.pose @ result.transform
-            new_keyframe = self.policy.is_new_keyframe(result.transform)
-            if new_keyframe:
-                self.keyframe = Keyframe(index, stamp_ns, np.asarray(points),
-                                         np.asarray(labels), current, self.pose.copy())
-        return OdometryStep(index, stamp_ns, self.pose.copy(), result.transform, result,
-                            accepted, keyframe.index, keyframe.stamp_ns, new_keyframe, latency,
-                            current, timings)
+        if self.config.fine.method == 'off':
+            result = self.registration.register(current, keyframe.prepared, refine=False)
+            step = self._chain(index, stamp_ns, current, keyframe, result)
+        else:
+            result, predicted = self._register_and_predict(current, keyframe, stamp_ns)
+            step = self._decide(index, stamp_ns, current, keyframe, result, predicted)
+        step.timings_ms = {**timings, **{f'register.{k}': v
+                                         for k, v in result.timings_ms.items()},
+                           **step.timings_ms}
+        step.latency_ms = 1e3 * (time.perf_counter() - start)
+        return step
+
+    # -- the two candidates ----------------------------------------------------------
+    def _register_and_predict(self, current: PreparedScan, keyframe: Keyframe, stamp_ns: int
+                              ) -> tuple[RegistrationResult, Candidate | None]:
+        """Run the global registration and, on a second thread, refine the prediction."""
+        cloud = self.registration.alignment_cloud(current)
+        prediction = self.predict(stamp_ns) if self.config.odometry.constant_velocity else None
+        timings: dict[str, float] = {}
+
+        def register() -> RegistrationResult:
+            return self.registration.register(current, keyframe.prepared, refine=False)
+
+        def refine_prediction() -> Candidate:
+            tic = time.perf_counter()
+            candidate = self._candidate('prediction', prediction, cloud, num_threads=1)
+            timings['fine_prediction_ms'] = 1e3 * (time.perf_counter() - tic)
+            return candidate
+
+        if prediction is None:
+            return register(), None
+        result, predicted = _ODOMETRY_POOL.run(lambda task: task(),
+                                               [register, refine_prediction])
+        result.timings_ms.update(timings)
+        return result, predicted
+
+    def predict(self, stamp_ns: int) -> np.ndarray | None:
+        """
+        Constant-velocity prediction of ``T_odom_current`` at ``stamp_ns``, or None.
+
+        The motion between the last two accepted poses, scaled by the ratio of the stamp
+        differences (so a dropped or rejected frame is bridged); without usable stamps the
+        motion is repeated once. Before two poses were accepted there is no velocity, and
+        no prediction: a zero-motion guess would be a guess, not evidence.
+        """
+        if len(self._accepted) < 2:
+            return None
+        last, last_stamp = self._accepted[-1]
+        before, before_stamp = self._accepted[-2]
+        motion = invert_transform(before) @ last
+        factor = 1.0
+        if last_stamp > before_stamp and stamp_ns > last_stamp:
+            factor = (stamp_ns - last_stamp) / (last_stamp - before_stamp)
+        return last @ scale_motion(motion, min(factor, MAX_PREDICTION_FACTOR))
+
+    def _candidate(self, name: str, T_initial: np.ndarray, cloud: object,
+                   num_threads: int | None = None) -> Candidate:
+        alignment = self.local_map.align(cloud, T_initial, num_threads=num_threads)
+        refusal = self.registration.refinement_refusal(alignment)
+        share = self.config.odometry.min_relative_inlier_fraction
+        if not refusal and share > 0 and self._fractions:
+            typical = float(np.median(self._fractions))
+            if alignment.inlier_fraction < share * typical:
+                refusal = (f'fine alignment kept {alignment.inlier_fraction:.2f} of the scan '
+                           f'as inliers < odometry.min_relative_inlier_fraction={share:g} x '
+                           f'{typical:.2f} (median of the last accepted frames)')
+        return Candidate(name, np.asarray(T_initial).copy(), alignment, refusal)
+
+    # -- the decision ----------------------------------------------------------------------
+    def _decide(self, index: int, stamp_ns: int, current: PreparedScan, keyframe: Keyframe,
+                result: RegistrationResult, predicted: Candidate | None) -> OdometryStep:
+        """
+        Accept one candidate or reject the frame.
+
+        1. The global estimate counts when the registration succeeded (enough sparse
+           inliers) and is finite: ``T_global = pose_keyframe @ T_keyframe_current``.
+        2. If the refined prediction is acceptable and within ``odometry.agreement_*`` of
+           ``T_global``, it is accepted (source ``prediction+global``): both agree, and
+           the second alignment is not needed.
+        3. Otherwise ``T_global`` is refined too, and among the acceptable candidates the
+           one with the most alignment inliers wins (a tie goes to the global one).
+        4. No acceptable candidate: the frame is rejected; pose, keyframe and map stay.
+        """
+        cfg = self.config.odometry
+        timings: dict[str, float] = {}
+        candidates = [predicted] if predicted is not None else []
+        global_ok = bool(result.success) and bool(np.all(np.isfinite(result.transform)))
+        T_global = keyframe.pose @ result.transform if global_ok else None
+        chosen: Candidate | None = None
+        source = ''
+        notes = []
+        if not global_ok:
+            notes.append(f'global registration failed ({result.message or "non-finite"})')
+        if (T_global is not None and predicted is not None and predicted.acceptable
+                and _within(predicted.alignment.T_target_source, T_global,
+                            cfg.agreement_translation, cfg.agreement_rotation)):
+            chosen, source = predicted, 'prediction+global'
+        else:
+            if T_global is not None:
+                tic = time.perf_counter()
+                candidates.append(self._candidate(
+                    'global', T_global, self.registration.alignment_cloud(current)))
+                timings['fine_global_ms'] = 1e3 * (time.perf_counter() - tic)
+            acceptable = [c for c in candidates if c.acceptable]
+            if acceptable:
+                # most inliers wins; a tie goes to the global candidate (listed last)
+                chosen = max(reversed(acceptable), key=lambda c: c.alignment.num_inliers)
+                source = chosen.name
+                if T_global is not None and chosen.name == 'prediction':
+                    notes.append('the global estimate disagrees with the local map')
+        if chosen is None:
+            reasons = [f'{c.name}: {c.refusal}' for c in candidates]
+            reason = '; '.join(notes + reasons) or 'no candidate'
+            relative = result.transform if global_ok else None
+            return OdometryStep(index, stamp_ns, self.pose.copy(), relative, result, False,
+                                keyframe.index, keyframe.stamp_ns, False, 0.0, current,
+                                timings, reason=reason, covariance=self.covariance.copy(),
+                                candidates=candidates, map_voxels=len(self.local_map))
+        pose = chosen.alignment.T_target_source
+        self._fractions.append(chosen.alignment.inlier_fraction)
+        frame_cov = chosen.alignment.covariance(cfg.covariance_scale, axes='source')
+        step = self._accept(index, stamp_ns, current, keyframe, result, pose, frame_cov,
+                            source, '; '.join(notes))
+        step.candidates, step.timings_ms = candidates, timings
+        return step
+
+    def _chain(self, index: int, stamp_ns: int, current: PreparedScan, keyframe: Keyframe,
+               result: RegistrationResult) -> OdometryStep:
+        """``fine.method: off``: the pose is ``pose_keyframe @ T`` of a successful registration."""
+        if not (result.success and np.all(np.isfinite(result.transform))):
+            return OdometryStep(index, stamp_ns, self.pose.copy(), result.transform, result,
+                                False, keyframe.index, keyframe.stamp_ns, False, 0.0, current,
+                                reason=result.message or 'non-finite transform',
+                                covariance=self.covariance.copy(),
+                                map_voxels=len(self.local_map))
+        frame_cov = sparse_inlier_covariance(result, self.config.estimator.inlier_threshold)
+        return self._accept(index, stamp_ns, current, keyframe, result,
+                            keyframe.pose @ result.transform, frame_cov, 'global', '')
+
+    def _accept(self, index: int, stamp_ns: int, current: PreparedScan, keyframe: Keyframe,
+                result: RegistrationResult, pose: np.ndarray, frame_cov: np.ndarray,
+                source: str, reason: str) -> OdometryStep:
+        """Move the pose, feed the map, move the keyframe; the step of an accepted frame."""
+        relative = invert_transform(keyframe.pose) @ pose
+        twist, twist_cov = self._twist(pose, stamp_ns, frame_cov)
+        axes = np.zeros((6, 6))
+        axes[:3, :3] = axes[3:, 3:] = pose[:3, :3]
+        self.pose = pose.copy()
+        self.covariance = self.covariance + axes @ frame_cov @ axes.T
+        if self.config.fine.method != 'off':
+            self._insert(current, pose)
+        self._accepted = [*self._accepted[-1:], (pose.copy(), stamp_ns)]
+        new_keyframe = is_new_keyframe(self.config.keyframe, relative)
+        if new_keyframe:
+            self.keyframe = Keyframe(index, stamp_ns, *self._raw, current, pose.copy())
+        return OdometryStep(index, stamp_ns, pose.copy(), relative, result, True,
+                            keyframe.index, keyframe.stamp_ns, new_keyframe, 0.0, current,
+                            source=source, reason=reason, covariance=self.covariance.copy(),
+                            frame_covariance=frame_cov, twist=twist,
+                            twist_covariance=twist_cov, map_voxels=len(self.local_map))
+
+    def _twist(self, pose: np.ndarray, stamp_ns: int, body_cov: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+        """Twist since the last accepted pose (current frame) and its covariance."""
+        last, last_stamp = self._accepted[-1]
+        if stamp_ns <= last_stamp:
+            return np.zeros(6), np.eye(6) * UNKNOWN_VARIANCE
+        dt = 1e-9 * (stamp_ns - last_stamp)
+        motion = invert_transform(last) @ pose
+        twist = np.concatenate([motion[:3, 3], Rotation.from_matrix(motion[:3, :3]).as_rotvec()])
+        return twist / dt, body_cov / dt**2
+
+    def _insert(self, scan: PreparedScan, pose: np.ndarray) -> None:
+        if self.config.fine.method != 'off':
+            self.local_map.insert(self.registration.alignment_cloud(scan), pose)
+
+
+#: Accepted frames whose median inlier fraction is the typical one.
+FRACTION_HISTORY = 10
+#: The prediction bridges at most this many nominal frame intervals.
+MAX_PREDICTION_FACTOR = 5.0
+
+_ODOMETRY_POOL = LazyPool('mlsemreg-odometry')  # global registration | refined prediction
+
+
+def _within(T_a: np.ndarray, T_b: np.ndarray, translation: float, rotation_deg: float) -> bool:
+    delta = invert_transform(T_a) @ T_b
+    return (float(np.linalg.norm(delta[:3, 3])) <= translation
+            and rotation_angle_deg(delta) <= rotation_deg)
+
+
+def sparse_inlier_covariance(result: RegistrationResult, inlier_threshold: float) -> np.ndarray:
+    """
+    Covariance (6, 6) of a registration from its sparse inliers (fine alignment off).
+
+    ``[x, y, z, roll, pitch, yaw]`` in m^2 and rad^2, body axes. An inlier's residual is
+    bounded by the inlier threshold tau, so the translation's standard error is
+    ``sigma_t = tau / sqrt(IN)``; a rotation error theta moves inliers at a lever arm rho
+    by about ``rho * theta``, so ``sigma_r = sigma_t / rho`` with rho the RMS distance of
+    the inlier keypoints from their centroid (at least 1 m).
+    """
+    inliers = result.source_points[result.inlier_mask]
+    count = max(int(inliers.shape[0]), 1)
+    sigma_t = inlier_threshold / np.sqrt(count)
+    lever = 0.0
+    if inliers.shape[0] > 1:
+        lever = float(np.sqrt(((inliers - inliers.mean(axis=0)) ** 2).sum(axis=1).mean()))
+    sigma_r = sigma_t / max(lever, MIN_LEVER_ARM_M)
+    return np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)

@@ -16,8 +16,9 @@ The registration pipeline: two labeled scans in, a rigid transform out.
 
 Per pair the steps are (cf. Fig. 2 of the paper)::
 
-    prepare(scan)      voxelize, keypoints, descriptors, Local-SS, landmarks  (cached per scan)
-    register(src, dst) ML-SemReg correspondences -> robust estimator -> optional ICP
+    prepare(scan)      voxelize, keypoints, descriptors, Local-SS, landmarks, alignment cloud
+                       (cached per scan)
+    register(src, dst) ML-SemReg correspondences -> robust estimator -> fine alignment (GICP)
 
 :meth:`Registration.prepare` is separate so a node can keep its keyframe's
 prepared scan and pay only for the new scan on every frame.
@@ -30,9 +31,10 @@ from contextlib import contextmanager
 import time
 from typing import Any
 
-from mlsemreg_ros.core import features, fpfh, landmarks, matching, signatures
+from mlsemreg_ros.core import features, fpfh, landmarks, matching, signatures, threads
+from mlsemreg_ros.core.alignment import align_pair, Alignment, AlignmentCloud
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.estimation import estimate, refine_icp
+from mlsemreg_ros.core.estimation import estimate
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.core.results import (
     Correspondences,
@@ -40,6 +42,7 @@ from mlsemreg_ros.core.results import (
     PreparedScan,
     RegistrationResult,
 )
+from mlsemreg_ros.core.rigid import rotation_angle_deg
 from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
 
@@ -71,6 +74,7 @@ class Registration:
     @config.setter
     def config(self, config: RegistrationConfig) -> None:
         sem = config.semantic
+        threads.configure(config.threads)
         # Resolve class names once; unknown names raise ConfigError here.
         self._landmark_ids = self.label_map.ids_of(sem.landmark_classes)
         self._ignored_ids = self.label_map.ids_of(sem.ignored_classes)
@@ -126,17 +130,32 @@ class Registration:
                                                     cfg.semantic.cluster_min_points)
             return local_ss, marks
 
-        # Descriptors and the semantic signatures are independent: two threads.
-        described, (local_ss, marks) = _SCAN_POOL.run(lambda task: task(), [describe, semantics])
+        def semantics_and_alignment() -> tuple[np.ndarray, Landmarks, AlignmentCloud | None]:
+            local_ss, marks = semantics()
+            alignment = None
+            if cfg.fine.method != 'off':
+                with _timed(timings, 'alignment_cloud_ms'):
+                    alignment = AlignmentCloud.build(points, cfg.fine, num_threads=1)
+            return local_ss, marks, alignment
+
+        # Descriptors | semantic signatures + the alignment cloud are independent: 2 threads.
+        described, (local_ss, marks, alignment) = _SCAN_POOL.run(
+            lambda task: task(), [describe, semantics_and_alignment])
         valid = features.valid_descriptor_mask(described)
         keypoints, indices = keypoints[valid], indices[valid]
         descriptors, local_ss = described[valid], local_ss[valid]
         return PreparedScan(points, labels, keypoints, indices, descriptors, local_ss, marks,
-                            timings)
+                            timings, alignment)
 
     # ------------------------------------------------------------------------------
-    def register(self, source: PreparedScan, target: PreparedScan) -> RegistrationResult:
-        """Register ``source`` onto ``target`` (both from :meth:`prepare`)."""
+    def register(self, source: PreparedScan, target: PreparedScan, *,
+                 refine: bool = True) -> RegistrationResult:
+        """
+        Register ``source`` onto ``target`` (both from :meth:`prepare`).
+
+        ``refine=False`` stops after the estimator (the odometry refines against its local
+        map instead of the target scan).
+        """
         cfg, timings = self.config, {}
         diagnostics: dict = {'source_keypoints': len(source.keypoints),
                              'target_keypoints': len(target.keypoints)}
@@ -159,11 +178,6 @@ class Registration:
             estimate_result = estimate(src_pts, dst_pts, cfg.estimator)
         transform = estimate_result.transform
         diagnostics.update(estimate_result.diagnostics)
-        # 3. optional point-to-plane ICP on the scans
-        if cfg.refine.icp and len(corr) > 0:
-            with _timed(timings, 'icp_ms'):
-                transform = refine_icp(source.points, target.points, transform, cfg.refine,
-                                       cfg.features.normal_radius)
         residual = np.linalg.norm(src_pts @ transform[:3, :3].T + transform[:3, 3] - dst_pts,
                                   axis=1)
         inliers = residual < cfg.estimator.inlier_threshold
@@ -171,8 +185,50 @@ class Registration:
         if not success:
             message = (f'{int(inliers.sum())} inliers < estimator.min_inliers='
                        f'{cfg.estimator.min_inliers}' + (f'; {message}' if message else ''))
+        # 3. fine alignment of the scans (GICP/VGICP), from the estimate
+        alignment = None
+        if refine and success and cfg.fine.method != 'off':
+            with _timed(timings, 'fine_ms'):
+                alignment = align_pair(self.alignment_cloud(source),
+                                       self.alignment_cloud(target), transform, cfg.fine)
+            refused = self.refinement_refusal(alignment)
+            diagnostics.update(fine_inlier_fraction=alignment.inlier_fraction,
+                               fine_iterations=alignment.iterations,
+                               fine_refused=refused or '')
+            if not refused:
+                transform = alignment.T_target_source
         return RegistrationResult(transform, corr, src_pts, dst_pts, inliers, success, mode,
-                                  message, timings, diagnostics)
+                                  message, timings, diagnostics, estimate_result.transform,
+                                  alignment)
+
+    def alignment_cloud(self, scan: PreparedScan) -> AlignmentCloud:
+        """Return the scan's fine-alignment cloud (built by :meth:`prepare`, or now)."""
+        if scan.alignment is None:
+            scan.alignment = AlignmentCloud.build(scan.points, self.config.fine)
+        return scan.alignment
+
+    def refinement_refusal(self, alignment: Alignment) -> str:
+        """
+        Why a fine alignment's result is not trusted ('' if it is).
+
+        It must keep ``odometry.min_inlier_fraction`` of the scan as inliers and move its
+        initial guess by at most the ``odometry.max_correction_*`` bounds: a refinement
+        that runs away or converges with little overlap is refused, not believed.
+        """
+        bounds = self.config.odometry
+        moved = alignment.correction
+        shift, turn = float(np.linalg.norm(moved[:3, 3])), rotation_angle_deg(moved)
+        if not np.all(np.isfinite(alignment.T_target_source)):
+            return 'non-finite fine alignment'
+        if alignment.inlier_fraction < bounds.min_inlier_fraction:
+            return (f'fine alignment kept {alignment.inlier_fraction:.2f} of the scan as '
+                    f'inliers < odometry.min_inlier_fraction={bounds.min_inlier_fraction:g}')
+        if shift > bounds.max_correction_translation or turn > bounds.max_correction_rotation:
+            return (f'fine alignment moved its guess by {shift:.2f} m / {turn:.2f} deg, more '
+                    f'than odometry.max_correction_translation/rotation='
+                    f'{bounds.max_correction_translation:g} m / '
+                    f'{bounds.max_correction_rotation:g} deg')
+        return ''
 
     def prepare_scans(self, *scans: dict[str, Any]) -> list[PreparedScan]:
         """
@@ -199,8 +255,8 @@ class Registration:
         return result
 
 
-_PREPARE_POOL = LazyPool('mlsemreg-prepare', 2)  # scans of prepare_scans
-_SCAN_POOL = LazyPool('mlsemreg-scan', 2)  # stages inside one prepare (never waits on a pool)
+_PREPARE_POOL = LazyPool('mlsemreg-prepare')  # scans of prepare_scans
+_SCAN_POOL = LazyPool('mlsemreg-scan')  # stages inside one prepare (never waits on a pool)
 
 
 def _fpfh(points: np.ndarray, indices: np.ndarray, cfg: RegistrationConfig) -> np.ndarray:

@@ -17,9 +17,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:  # small_gicp is only needed where the fine alignment runs
+    from mlsemreg_ros.core.alignment import Alignment, AlignmentCloud
 
 
 @dataclass
@@ -59,6 +62,7 @@ class PreparedScan:
     local_ss: np.ndarray  # (M, C) bool: Local Semantic Signature, C = number of classes
     landmarks: Landmarks
     timings_ms: dict[str, float] = field(default_factory=dict)
+    alignment: AlignmentCloud | None = None  # small_gicp cloud of the fine alignment
 
 
 @dataclass
@@ -91,16 +95,18 @@ class EstimateResult:
 class RegistrationResult:
     """Everything one pairwise registration produces."""
 
-    transform: np.ndarray  # (4, 4) T_target_source: p_target = T @ p_source
+    transform: np.ndarray  # (4, 4) T_target_source: p_target = T @ p_source (final)
     correspondences: Correspondences
     source_points: np.ndarray  # (K, 3) source keypoints of the correspondences
     target_points: np.ndarray  # (K, 3) target keypoints of the correspondences
     inlier_mask: np.ndarray  # (K,) bool
-    success: bool  # enough inliers (estimator.min_inliers)
+    success: bool  # enough inliers (estimator.min_inliers) under the estimate
     mode: str  # 'ml-semreg', 'gm-only' (no usable landmark) or 'plain'
     message: str = ''  # why a fallback or a failure happened
     timings_ms: dict[str, float] = field(default_factory=dict)
     diagnostics: dict[str, Any] = field(default_factory=dict)
+    estimate: np.ndarray | None = None  # (4, 4) the estimator's T_target_source
+    alignment: Alignment | None = None  # the fine alignment, when it ran
 
     @property
     def num_inliers(self) -> int:

@@ -103,3 +103,26 @@ def invert_transform(transform: np.ndarray) -> np.ndarray:
     out[..., :3, 3] = -np.einsum('...ij,...j->...i', rotation_t, transform[..., :3, 3])
     out[..., 3, 3] = 1.0
     return out
+
+
+def rotation_angle_deg(transform: np.ndarray) -> float:
+    """Rotation angle of a transform (4, 4) or rotation (3, 3), degrees."""
+    rotation = np.asarray(transform, dtype=np.float64)[:3, :3]
+    cos = np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.degrees(np.arccos(cos)))
+
+
+def scale_motion(motion: np.ndarray, factor: float) -> np.ndarray:
+    """
+    ``motion`` (4, 4) scaled in time: rotation vector and translation times ``factor``.
+
+    The constant-velocity prediction of a motion observed over ``dt`` for ``factor * dt``
+    (first order in the rotation: exact for pure rotations and pure translations).
+    """
+    from scipy.spatial.transform import Rotation
+
+    out = np.eye(4)
+    rotvec = Rotation.from_matrix(np.asarray(motion, dtype=np.float64)[:3, :3]).as_rotvec()
+    out[:3, :3] = Rotation.from_rotvec(rotvec * factor).as_matrix()
+    out[:3, 3] = np.asarray(motion, dtype=np.float64)[:3, 3] * factor
+    return out

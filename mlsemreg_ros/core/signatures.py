@@ -21,18 +21,17 @@ semantic labels, landmarks (cluster centroids of landmark classes), N rings of w
 from __future__ import annotations
 
 from collections.abc import Callable
-import os
 from typing import Any
 
+from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.results import Landmarks
 from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-_MAX_THREADS = 2
 _MIN_PART = 400  # keypoints per parallel part of the Local-SS search
-_POOL = LazyPool('mlsemreg-signatures', _MAX_THREADS)
+_POOL = LazyPool('mlsemreg-signatures')
 
 
 def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: np.ndarray,
@@ -79,7 +78,7 @@ def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: 
 
 def _parts(num_keypoints: int) -> int:
     """Return the number of keypoint parts searched in parallel (1 for small inputs)."""
-    return max(1, min(_MAX_THREADS, os.cpu_count() or 1, num_keypoints // _MIN_PART))
+    return max(1, min(threads.workers(), num_keypoints // _MIN_PART))
 
 
 def _map(function: Callable[[Any], Any], items: list[Any]) -> list[Any]:

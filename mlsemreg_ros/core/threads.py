@@ -19,7 +19,9 @@ two threads use both cores of the target machine. Each caller level (scan
 preparation, Local-SS search, the matcher's chunks) owns its own pool, so a
 task running on one pool may wait for another pool without deadlocking.
 Pools are created on first use and forgotten in a forked child, whose copy
-of the threads does not exist.
+of the threads does not exist. Every pool honours one worker count,
+:func:`configure` (the core config's ``threads``; 0 = all cores), which the
+fine alignment (small_gicp's OpenMP threads) reads too through :func:`workers`.
 """
 
 from __future__ import annotations
@@ -34,26 +36,55 @@ Item = TypeVar('Item')
 Result = TypeVar('Result')
 
 
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the OS tells it)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # pragma: no cover (not Linux)
+        return max(1, os.cpu_count() or 1)
+
+
+_requested = 0  # the configured thread count; 0 = all cores
+
+
+def configure(threads: int) -> None:
+    """Set the worker count of every pool and of the fine alignment (0: all cores)."""
+    global _requested
+    if threads < 0:
+        raise ValueError(f'threads must be >= 0, got {threads}')
+    _requested = int(threads)
+
+
+def workers() -> int:
+    """Return the worker count in force: the configured count, or all cores for 0."""
+    return _requested if _requested > 0 else available_cores()
+
+
 class LazyPool:
-    """A named thread pool of at most ``workers`` threads, created on first use."""
+    """A named thread pool with :func:`workers` threads, created on first use."""
 
     _instances: ClassVar[list[LazyPool]] = []
 
-    def __init__(self, name: str, workers: int = 2) -> None:
-        self.name, self.workers = name, workers
+    def __init__(self, name: str) -> None:
+        self.name = name
         self._pool: ThreadPoolExecutor | None = None
+        self._size = 0
         self._lock = threading.Lock()
         LazyPool._instances.append(self)
 
     def run(self, function: Callable[[Item], Result], items: Sequence[Item]) -> list[Result]:
         """Return ``[function(x) for x in items]``, on the pool when there is more than one."""
-        workers = max(1, min(len(items), os.cpu_count() or 1, self.workers))
-        if workers == 1:
+        size = workers()
+        if min(len(items), size) <= 1:
             return [function(x) for x in items]
         with self._lock:
-            if self._pool is None:
-                self._pool = ThreadPoolExecutor(self.workers, thread_name_prefix=self.name)
-        return list(self._pool.map(function, items))
+            if self._pool is None or self._size != size:
+                if self._pool is not None:  # resized: running tasks finish on the old one
+                    self._pool.shutdown(wait=False)
+                self._pool, self._size = ThreadPoolExecutor(
+                    size, thread_name_prefix=self.name), size
+            pool = self._pool
+        return list(pool.map(function, items))
 
     def _forget(self) -> None:
         self._pool, self._lock = None, threading.Lock()

@@ -17,8 +17,8 @@ Message building for the node's outputs: transform, odometry, path, diagnostics.
 
 Poses are 4x4 homogeneous matrices ``T_parent_child`` (``p_parent = T @ p_child``).
 The only arithmetic here is what turning a registration result into messages
-needs (composition, inversion, quaternions, a covariance formula); the
-registration itself lives in the core.
+needs (inversion, quaternions); the registration, covariances and twist live in
+the core.
 """
 
 from __future__ import annotations
@@ -28,15 +28,12 @@ from typing import Any
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Pose, PoseStamped, Transform, TransformStamped
-from mlsemreg_ros.core.results import RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
 from nav_msgs.msg import Odometry
 import numpy as np
 from scipy.spatial.transform import Rotation
 from std_msgs.msg import Header
 
-#: Minimum lever arm for the rotation uncertainty (see :func:`relative_variances`).
-MIN_LEVER_ARM_M = 1.0
 #: Variance reported when a quantity is unknown (first frame's twist, zero stamp difference).
 UNKNOWN_VARIANCE = 1e6
 
@@ -87,48 +84,18 @@ def pose_stamped(stamp: Time, frame: str, transform: np.ndarray) -> PoseStamped:
     return PoseStamped(header=Header(stamp=stamp, frame_id=frame), pose=pose_msg(transform))
 
 
-def relative_variances(result: RegistrationResult, inlier_threshold: float) -> np.ndarray:
-    """
-    Variances (6,) of one registration: ``[x, y, z, roll, pitch, yaw]`` in m^2 and rad^2.
-
-    Confidence model: an inlier's residual is bounded by the inlier threshold
-    tau, so the translation's standard error is ``sigma_t = tau / sqrt(IN)``
-    (IN = inlier count); a rotation error theta moves inliers at a lever arm rho
-    by about ``rho * theta``, so ``sigma_r = sigma_t / rho`` with rho the RMS
-    distance of the inlier keypoints from their centroid (at least 1 m).
-    Fewer or more clustered inliers give a larger covariance.
-    """
-    inliers = result.source_points[result.inlier_mask]
-    count = max(int(inliers.shape[0]), 1)
-    sigma_t = inlier_threshold / np.sqrt(count)
-    lever = 0.0
-    if inliers.shape[0] > 1:
-        lever = float(np.sqrt(((inliers - inliers.mean(axis=0)) ** 2).sum(axis=1).mean()))
-    sigma_r = sigma_t / max(lever, MIN_LEVER_ARM_M)
-    return np.array([sigma_t**2] * 3 + [sigma_r**2] * 3)
-
-
-def twist_between(previous: np.ndarray, current: np.ndarray, dt: float) -> np.ndarray:
-    """Twist ``[vx, vy, vz, wx, wy, wz]`` (m/s, rad/s) in the current frame, poses ``dt`` apart."""
-    if dt <= 0.0:
-        return np.zeros(6)
-    relative = invert(previous) @ current
-    return np.concatenate([relative[:3, 3], Rotation.from_matrix(relative[:3, :3]).as_rotvec()
-                           ]) / dt
-
-
 def odometry_msg(stamp: Time, frame: str, child: str, pose: np.ndarray,
-                 pose_variances: np.ndarray, twist: np.ndarray,
-                 twist_variances: np.ndarray) -> Odometry:
-    """nav_msgs/Odometry with diagonal covariances (row-major 6x6)."""
+                 pose_covariance: np.ndarray, twist: np.ndarray,
+                 twist_covariance: np.ndarray) -> Odometry:
+    """nav_msgs/Odometry; covariances (6, 6) in ROS order ``[x, y, z, roll, pitch, yaw]``."""
     msg = Odometry(header=Header(stamp=stamp, frame_id=frame), child_frame_id=child)
     msg.pose.pose = pose_msg(pose)
-    msg.pose.covariance = np.diag(pose_variances).reshape(-1).astype(np.float64)
+    msg.pose.covariance = np.asarray(pose_covariance, dtype=np.float64).reshape(-1)
     msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.linear.z = (
         float(v) for v in twist[:3])
     msg.twist.twist.angular.x, msg.twist.twist.angular.y, msg.twist.twist.angular.z = (
         float(v) for v in twist[3:])
-    msg.twist.covariance = np.diag(twist_variances).reshape(-1).astype(np.float64)
+    msg.twist.covariance = np.asarray(twist_covariance, dtype=np.float64).reshape(-1)
     return msg
 
 

@@ -19,10 +19,11 @@ Interface (DESIGN.md section 5; names are part of the contract):
 
 - subscribes ``points`` (sensor_msgs/PointCloud2 with x, y, z and a label field);
 - publishes ``mlsemreg/transform`` (TransformStamped ``T_keyframe_current``,
-  ``p_keyframe = T @ p_current``, stamped with the current scan's stamp; only
-  for successful registrations), ``mlsemreg/odometry`` (Odometry in
-  ``odom_frame``, child ``base_frame``), ``mlsemreg/path``,
-  ``mlsemreg/correspondences`` (MarkerArray) and ``/diagnostics``;
+  ``p_keyframe = T @ p_current``, refined by the fine alignment, stamped with the
+  current scan's stamp; only for accepted frames), ``mlsemreg/odometry`` (Odometry
+  in ``odom_frame``, child ``base_frame``: the map-aligned pose), ``mlsemreg/path``,
+  ``mlsemreg/correspondences`` (MarkerArray), ``mlsemreg/local_map`` (PointCloud2,
+  throttled, only while subscribed) and ``/diagnostics``;
 - broadcasts TF ``odom_frame -> base_frame`` when tf2_ros is importable;
 - serves ``mlsemreg/reset`` (std_srvs/Trigger): drop the keyframe, restart at identity.
 
@@ -31,18 +32,10 @@ The subscription callback only converts and hands the scan to a worker thread
 through a latest-only slot (a scan still waiting when a newer one arrives is
 dropped and counted), so a slow registration never blocks the executor. The
 worker runs :class:`mlsemreg_ros.core.odometry.Odometry` (the code path of the
-offline bag evaluation too): prepare once per scan (the keyframe's is cached),
-register onto the keyframe, accumulate ``pose = pose_keyframe @ T`` only on
-success, move the keyframe per the ``keyframe.*`` policy. A failed registration
-publishes no transform/odometry, keeps the keyframe and says why in
-``/diagnostics``.
-
-Covariance: the registration's variances (diagonal; translation sigma =
-tau / sqrt(inliers), rotation sigma = that / rho with rho the RMS spread of the
-inliers, see :func:`messages.relative_variances`) are added to the keyframe's
-accumulated variances for the pose covariance. Twist = relative motion since
-the previously published pose / stamp difference, in the child frame, with
-covariance = registration variances / dt^2.
+offline bag evaluation too), which owns all odometry state: keyframe, local map,
+pose, covariance and twist. A rejected frame publishes no transform/odometry,
+keeps the keyframe and says why in ``/diagnostics``; this layer only converts
+and publishes.
 """
 
 from __future__ import annotations
@@ -59,15 +52,19 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
 from mlsemreg_ros.core.config import ConfigError, NODE_NAME
 from mlsemreg_ros.core.labels import LabelError, LabelMap
-from mlsemreg_ros.core.odometry import KeyframePolicy, OdometryStep
 from mlsemreg_ros.core.odometry import Odometry as ScanOdometry
+from mlsemreg_ros.core.odometry import OdometryStep
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.ros import messages
 from mlsemreg_ros.ros.markers import correspondence_markers
 from mlsemreg_ros.ros.node_config import NodeConfig
 from mlsemreg_ros.ros.parameters import ConfigSnapshot, LiveParameters
-from mlsemreg_ros.ros.pointcloud2 import pointcloud2_to_arrays, PointCloudError
+from mlsemreg_ros.ros.pointcloud2 import (
+    arrays_to_pointcloud2,
+    pointcloud2_to_arrays,
+    PointCloudError,
+)
 from nav_msgs.msg import Odometry, Path
 import numpy as np
 import rclpy
@@ -75,7 +72,7 @@ from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
-from sensor_msgs.msg import PointCloud2
+from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
@@ -142,14 +139,12 @@ class MlSemRegNode(Node):
         self._label_map = LabelMap.load()
         self._params = LiveParameters(self, self._label_map)
         config = self._params.snapshot()
-        self._odometry = ScanOdometry(Registration(config.core, self._label_map),
-                                      KeyframePolicy.from_config(config.node.keyframe))
+        self._odometry = ScanOdometry(Registration(config.core, self._label_map))
         self._core_version = config.core_version
         self._lock = threading.Lock()  # guards the published state and the counters
         self._reset_pending = False  # set by the reset service, applied by the worker
-        self._keyframe_variances = np.zeros(6)  # accumulated pose variances of the keyframe
-        self._last: tuple[np.ndarray, float] | None = None  # last published pose, stamp (s)
         self._path = Path()
+        self._local_map_published = -float('inf')  # time.monotonic() of the last map cloud
         self._counts = collections.Counter()
         self._latencies: collections.deque[float] = collections.deque(maxlen=100)
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=config.node.qos.depth,
@@ -160,6 +155,7 @@ class MlSemRegNode(Node):
         self._pub_odometry = self.create_publisher(Odometry, 'mlsemreg/odometry', 10)
         self._pub_path = self.create_publisher(Path, 'mlsemreg/path', 1)
         self._pub_markers = self.create_publisher(MarkerArray, 'mlsemreg/correspondences', 1)
+        self._pub_local_map = self.create_publisher(PointCloud2, 'mlsemreg/local_map', 1)
         self._pub_diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(PointCloud2, 'points', self._on_points, qos)
         self.create_service(Trigger, 'mlsemreg/reset', self._on_reset)
@@ -191,7 +187,7 @@ class MlSemRegNode(Node):
                   ) -> Trigger.Response:
         """Drop the keyframe and restart the odometry at identity (from the next scan)."""
         with self._lock:
-            self._reset_pending, self._last, self._path = True, None, Path()
+            self._reset_pending, self._path = True, Path()
         self.get_logger().info('reset: keyframe dropped, odometry restarts at identity')
         response.success, response.message = True, 'keyframe dropped; odometry restarts'
         return response
@@ -226,22 +222,23 @@ class MlSemRegNode(Node):
             self._diagnose(scan, 'ok', 'first scan: keyframe set, odometry at identity', step)
             return
         self._publish_markers(scan, result, step.prepared, config.node)
+        self._publish_local_map(scan, config.node)
         if step.accepted:
             self.get_logger().debug(f'latency {latency_ms:.1f} ms, stages {step.timings_ms}')
-            self._diagnose(scan, 'ok', f'registered ({result.mode})', step, latency_ms)
+            self._diagnose(scan, 'ok', f'registered ({result.mode}, {step.source})', step,
+                           latency_ms)
         else:
-            reason = result.message or 'non-finite transform'
+            reason = step.reason or result.message or 'rejected'
             self._count('failures')
-            self.get_logger().warning(f'registration failed, keyframe kept: {reason}',
+            self.get_logger().warning(f'frame rejected, keyframe kept: {reason}',
                                       throttle_duration_sec=LOG_THROTTLE_S)
-            self._diagnose(scan, 'warn', f'registration failed: {reason}', step)
+            self._diagnose(scan, 'warn', f'frame rejected: {reason}', step)
 
     def _sync(self, config: ConfigSnapshot) -> ConfigSnapshot:
         """Apply a pending reset and parameter changes (they hold from this frame on)."""
         with self._lock:
             if self._reset_pending:
                 self._odometry.reset()
-                self._keyframe_variances = np.zeros(6)
                 self._reset_pending = False
         if config.core_version != self._core_version:
             self._core_version = config.core_version
@@ -249,43 +246,31 @@ class MlSemRegNode(Node):
                 self._odometry.reconfigure(config.core)  # re-prepares the cached keyframe
             except LabelError as error:  # e.g. label_scheme changed under a raw keyframe
                 self._odometry.reset()
-                self._keyframe_variances = np.zeros(6)
                 self.get_logger().warning(f'keyframe unusable with the new parameters ({error}):'
                                           ' odometry restarts at identity')
-        self._odometry.policy = KeyframePolicy.from_config(config.node.keyframe)
         return config
 
     def _publish_step(self, scan: Scan, step: OdometryStep, config: ConfigSnapshot) -> float:
         """Publish transform, odometry, path and TF of an accepted step (lock held)."""
-        relative = None
-        variances = np.zeros(6)
-        if step.result is not None:
+        if step.relative is not None:
             self._pub_transform.publish(messages.transform_msg(
                 scan.stamp, scan.frame_id, scan.frame_id, step.relative))
-            relative = messages.relative_variances(step.result,
-                                                   config.core.estimator.inlier_threshold)
-            variances = self._keyframe_variances + relative
             self._counts['registrations'] += 1
         latency_ms = 1e3 * (time.perf_counter() - scan.received)
         self._latencies.append(latency_ms)
-        if step.new_keyframe:
-            self._keyframe_variances = variances
-        self._publish_pose(scan, step.pose, variances, relative, config.node)
+        self._publish_pose(scan, step, config.node)
         return latency_ms
 
     # -- publishing --------------------------------------------------------------------------
-    def _publish_pose(self, scan: Scan, pose: np.ndarray, variances: np.ndarray,
-                      relative: np.ndarray | None, node: NodeConfig) -> None:
-        """Odometry, path and TF of the current pose (called with the lock held)."""
+    def _publish_pose(self, scan: Scan, step: OdometryStep, node: NodeConfig) -> None:
+        """Odometry, path and TF of the step's pose (called with the lock held)."""
         child = node.base_frame or scan.frame_id
-        stamp_s = messages.seconds(scan.stamp)
-        twist, twist_var = np.zeros(6), np.full(6, messages.UNKNOWN_VARIANCE)
-        if self._last is not None and relative is not None and stamp_s > self._last[1]:
-            dt = stamp_s - self._last[1]
-            twist, twist_var = messages.twist_between(self._last[0], pose, dt), relative / dt**2
-        self._last = (pose, stamp_s)
+        pose = step.pose
+        twist = step.twist if step.twist is not None else np.zeros(6)
+        twist_cov = (step.twist_covariance if step.twist_covariance is not None
+                     else np.eye(6) * messages.UNKNOWN_VARIANCE)
         self._pub_odometry.publish(messages.odometry_msg(
-            scan.stamp, node.odom_frame, child, pose, variances, twist, twist_var))
+            scan.stamp, node.odom_frame, child, pose, step.covariance, twist, twist_cov))
         self._path.header = Header(stamp=scan.stamp, frame_id=node.odom_frame)
         self._path.poses.append(messages.pose_stamped(scan.stamp, node.odom_frame, pose))
         if node.path.max_length and len(self._path.poses) > node.path.max_length:
@@ -296,6 +281,17 @@ class MlSemRegNode(Node):
                 messages.transform_msg(scan.stamp, child, node.odom_frame, messages.invert(pose))
                 if node.invert_tf else
                 messages.transform_msg(scan.stamp, node.odom_frame, child, pose))
+
+    def _publish_local_map(self, scan: Scan, node: NodeConfig) -> None:
+        """Publish the local map, at most every ``local_map_period`` s and only if watched."""
+        now = time.monotonic()
+        if (node.local_map_period <= 0.0 or self._pub_local_map.get_subscription_count() == 0
+                or now - self._local_map_published < node.local_map_period):
+            return
+        self._local_map_published = now
+        header = Header(stamp=scan.stamp, frame_id=node.odom_frame)
+        self._pub_local_map.publish(arrays_to_pointcloud2(
+            PointCloud2, PointField, header, self._odometry.local_map.points()))
 
     def _publish_markers(self, scan: Scan, result: RegistrationResult, current: PreparedScan,
                          node: NodeConfig) -> None:
@@ -322,6 +318,12 @@ class MlSemRegNode(Node):
             values['latency_ms'] = latency_ms
             values['latency_p50_ms'] = float(np.median(self._latencies))
         values.update({f'stage.{k}': float(v) for k, v in step.timings_ms.items()})
+        values.update({'pose_source': step.source, 'local_map_voxels': step.map_voxels})
+        for candidate in step.candidates:
+            values[f'fine.{candidate.name}.inlier_fraction'] = \
+                candidate.alignment.inlier_fraction
+            if candidate.refusal:
+                values[f'fine.{candidate.name}.refused'] = candidate.refusal
         if step.result is not None:
             result = step.result
             values.update({'mode': result.mode, 'num_inliers': result.num_inliers,

@@ -13,13 +13,14 @@
 # limitations under the License.
 
 """
-Node-level parameters (frames, keyframe policy, QoS, output); no rclpy here.
+Node-level parameters (frames, QoS, output); no rclpy here.
 
 The algorithm's parameters live in :mod:`mlsemreg_ros.core.config`; this module
-holds only what the ROS node adds around them, declared with the same
-:func:`~mlsemreg_ros.core.config.param` metadata so both are turned into ROS
+holds only what the ROS node adds around them, with the same engine
+(:class:`~mlsemreg_ros.core.config.Settings`) and
+:func:`~mlsemreg_ros.core.config.param` metadata, so both are turned into ROS
 parameters (with descriptors) by the same code. Flat names are
-``<field>`` or ``<section>.<field>``, e.g. ``odom_frame``, ``keyframe.policy``.
+``<field>`` or ``<section>.<field>``, e.g. ``odom_frame``, ``qos.depth``.
 """
 
 from __future__ import annotations
@@ -29,31 +30,8 @@ from dataclasses import dataclass, field
 import textwrap
 from typing import Any
 
-from mlsemreg_ros.core.config import (
-    coerce,
-    ConfigError,
-    iter_fields,
-    metadata_errors,
-    NODE_NAME,
-    param,
-)
+from mlsemreg_ros.core.config import iter_fields, NODE_NAME, param, Settings
 import yaml
-
-
-@dataclass
-class KeyframeConfig:
-    """When the current scan replaces the keyframe (after a successful registration)."""
-
-    policy: str = param(
-        'every_frame', 'every_frame: each registered scan becomes the keyframe (frame-to-frame '
-        'odometry); distance: only once it moved keyframe.min_distance or turned '
-        'keyframe.min_rotation away from the keyframe.', choices=('every_frame', 'distance'))
-    min_distance: float = param(
-        1.0, 'distance policy: translation from the keyframe that makes a new keyframe.',
-        unit='m', low=0.0, high=1000.0)
-    min_rotation: float = param(
-        10.0, 'distance policy: rotation from the keyframe that makes a new keyframe.',
-        unit='deg', low=0.0, high=180.0)
 
 
 @dataclass
@@ -75,19 +53,13 @@ class PathConfig:
         low=0, high=10000000)
 
 
-NODE_SECTIONS: dict[str, type] = {
-    'keyframe': KeyframeConfig,
-    'qos': QosConfig,
-    'path': PathConfig,
-}
-
 #: Parameters that only take effect at startup (declared read-only).
 READ_ONLY: tuple[str, ...] = ('qos.reliability', 'qos.depth')
 
 
 @dataclass
-class NodeConfig:
-    """Everything the node needs besides the registration core's RegistrationConfig."""
+class NodeConfig(Settings):
+    """Everything the node needs besides the core's RegistrationConfig (same engine)."""
 
     label_field: str = param(
         'label', 'Name of the PointCloud2 field holding the semantic label (any integer or '
@@ -103,43 +75,15 @@ class NodeConfig:
     invert_tf: bool = param(
         False, 'Broadcast base_frame -> odom_frame instead (when base_frame already has a '
         'parent in the TF tree).')
-    keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)
+    local_map_period: float = param(
+        1.0, 'Minimum time between two mlsemreg/local_map clouds (published only while '
+        'someone subscribes; 0: never).', unit='s', low=0.0, high=3600.0)
     qos: QosConfig = field(default_factory=QosConfig)
     path: PathConfig = field(default_factory=PathConfig)
 
-    def to_flat_dict(self) -> dict[str, Any]:
-        """``{'name' or 'section.name': value}`` for every field."""
-        out: dict[str, Any] = {}
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            if f.name in NODE_SECTIONS:
-                for k, v in dataclasses.asdict(value).items():
-                    out[f'{f.name}.{k}'] = v
-            else:
-                out[f.name] = value
-        return out
-
-    def replace(self, flat: dict[str, Any]) -> NodeConfig:
-        """Copy with ``{'flat.name': value}`` applied, type-checked and validated."""
-        values = self.to_flat_dict()
-        for key, value in flat.items():
-            if key not in values:
-                raise ConfigError(f'unknown node parameter {key!r}')
-            values[key] = coerce(key, value, node_field_of(key))
-        top = {k: v for k, v in values.items() if '.' not in k}
-        sections = {s: cls(**{k.partition('.')[2]: v for k, v in values.items()
-                              if k.partition('.')[0] == s})
-                    for s, cls in NODE_SECTIONS.items()}
-        new = NodeConfig(**top, **sections)
-        errors = new.errors()
-        if errors:
-            raise ConfigError('; '.join(errors))
-        return new
-
-    def errors(self) -> list[str]:
-        """Every range, choice and consistency violation, as readable sentences."""
-        errors = [e for key, value in self.to_flat_dict().items()
-                  for e in metadata_errors(key, value, node_field_of(key).metadata)]
+    def check(self) -> list[str]:
+        """Frame names and the label field."""
+        errors = []
         if not self.label_field:
             errors.append('label_field must not be empty')
         if not self.odom_frame:
@@ -154,20 +98,13 @@ class NodeConfig:
 
 
 def node_field_of(key: str) -> dataclasses.Field:
-    """Return the dataclass field behind a node parameter such as ``keyframe.policy``."""
-    section, dot, name = key.partition('.')
-    cls = NODE_SECTIONS.get(section) if dot else NodeConfig
-    if cls is not None:
-        for f in dataclasses.fields(cls):
-            if f.name == (name if dot else key) and (dot or f.name not in NODE_SECTIONS):
-                return f
-    raise ConfigError(f'unknown node parameter {key!r}')
+    """Return the dataclass field behind a node parameter such as ``qos.depth``."""
+    return NodeConfig.field_of(key)
 
 
 def iter_node_fields() -> list[tuple[str, dataclasses.Field, Any]]:
     """``(flat_name, field, default)`` for every node parameter, in declaration order."""
-    defaults = NodeConfig().to_flat_dict()
-    return [(key, node_field_of(key), value) for key, value in defaults.items()]
+    return NodeConfig.parameter_fields()
 
 
 def all_parameter_fields() -> list[tuple[str, dataclasses.Field, Any]]:

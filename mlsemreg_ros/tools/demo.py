@@ -283,6 +283,7 @@ def score(bag: Path, recording: Recording) -> Any:
 
 def correspondence_pair(bag: Path, run: Any, params: list[str]) -> dict | None:
     """Register the middle pair offline (same core and parameters) for correspondences.png."""
+    from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.metrics import inlier_mask
     from mlsemreg_ros.core.pipeline import Registration
     from mlsemreg_ros.datasets.bag import BagScanReader
@@ -293,8 +294,9 @@ def correspondence_pair(bag: Path, run: Any, params: list[str]) -> dict | None:
     if not pairs:
         return None
     record = pairs[len(pairs) // 2]
-    core = [p for p in params if not p.startswith('keyframe.') and '.' in p.partition('=')[0]]
-    config, _ = load_parameters(None, core)
+    core_keys = set(RegistrationConfig().to_flat_dict())
+    core = [p for p in params if p.partition('=')[0].strip() in core_keys]
+    config = load_parameters(None, core)
     source = BagScanReader(bag)
     try:
         scans = {s.index: s for s in source.scans()

@@ -29,7 +29,7 @@ RE/TE are averaged over successful pairs. Results folder (``--output``, default
 
     summary.json          n_frames, registration_recall_pct, rotation_error_deg,
                           translation_error_cm, kitti_t_err_pct, kitti_r_err_deg_per_100m,
-                          ate_rmse_m, latency_ms_p50, latency_ms_p95
+                          ate_rmse_m, latency_ms_p50, latency_ms_p95, nees_mean
     details.json          run information (bag, stride, counts, mean IR/IN, stage timings)
     frames.csv            one row per scan
     trajectory_kitti.txt  estimated poses (KITTI); ground_truth_kitti.txt likewise
@@ -42,7 +42,7 @@ from __future__ import annotations
 
 import argparse
 import csv
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields
 from datetime import datetime
 import json
 import math
@@ -51,7 +51,7 @@ import sys
 import time
 from typing import Any
 
-from mlsemreg_ros.core.config import ConfigError, NODE_NAME, RegistrationConfig, split_params_yaml
+from mlsemreg_ros.core.config import ConfigError, load_config, NODE_NAME, RegistrationConfig
 from mlsemreg_ros.core.metrics import (
     ate_rmse,
     inlier_mask,
@@ -67,7 +67,7 @@ import yaml
 #: summary.json keys, in order (the issue's contract).
 SUMMARY_KEYS = ('n_frames', 'registration_recall_pct', 'rotation_error_deg',
                 'translation_error_cm', 'kitti_t_err_pct', 'kitti_r_err_deg_per_100m',
-                'ate_rmse_m', 'latency_ms_p50', 'latency_ms_p95')
+                'ate_rmse_m', 'latency_ms_p50', 'latency_ms_p95', 'nees_mean')
 #: Success bounds (paper, KITTI).
 MAX_RE_DEG = 5.0
 MAX_TE_M = 0.6
@@ -100,6 +100,8 @@ class FrameRecord:
     gt_y: float
     gt_z: float
     message: str = ''
+    source: str = ''  # what gave the accepted pose (first, global, prediction, ...)
+    nees: float = math.nan  # normalized estimation error squared of the frame's covariance
 
 
 @dataclass
@@ -123,44 +125,14 @@ def _nan_to_none(value: Any) -> Any:
     return value
 
 
-def load_parameters(config_path: Path | None, overrides: list[str]
-                    ) -> tuple[RegistrationConfig, Any]:
-    """
-    Load the RegistrationConfig and KeyframePolicy from a params YAML and overrides.
-
-    Keys are flat core names (``semantic.enabled``) or ``keyframe.policy`` /
-    ``keyframe.min_distance`` / ``keyframe.min_rotation``; values are parsed as YAML.
-    """
-    from mlsemreg_ros.core.odometry import KeyframePolicy
-
-    core: dict[str, Any] = {}
-    node: dict[str, Any] = {}
-    if config_path is not None:
-        core, node = split_params_yaml(config_path)
-    config = RegistrationConfig.from_dict(core)
-    flat: dict[str, Any] = {}
-    for item in overrides:
-        key, sep, value = item.partition('=')
-        if not sep:
-            raise ConfigError(f'--set expects KEY=VALUE, got {item!r}')
-        parsed = yaml.safe_load(value)
-        if key.startswith('keyframe.'):
-            node[key] = parsed
-        else:
-            flat[key.strip()] = parsed
-    config = config.replace(flat)
-    unknown = sorted(k for k in node if k.startswith('keyframe.') and k not in (
-        'keyframe.policy', 'keyframe.min_distance', 'keyframe.min_rotation'))
-    if unknown:
-        raise ConfigError(f'unknown keyframe parameter(s) {unknown}')
-    return config, KeyframePolicy.from_flat(node)
+def load_parameters(config_path: Path | None, overrides: list[str]) -> RegistrationConfig:
+    """Load the core config (odometry and keyframe included) from a YAML and ``--set``."""
+    return load_config(config_path, overrides)
 
 
-def effective_config(config: RegistrationConfig, policy: Any) -> dict:
+def effective_config(config: RegistrationConfig) -> dict:
     """Return the parameters in the node's YAML layout (loadable with ``--config``)."""
-    params: dict[str, Any] = {'keyframe': asdict(policy)}
-    params.update(config.to_dict())
-    return {NODE_NAME: {'ros__parameters': params}}
+    return {NODE_NAME: {'ros__parameters': config.to_dict()}}
 
 
 def _expected_frames(total: int, stride: int, max_frames: int | None) -> int:
@@ -306,18 +278,22 @@ def _score(step: Any, scan: Any, gt: np.ndarray | None, gt_keyframe: np.ndarray 
     nan = math.nan
     gt_xyz = gt[:3, 3] if gt is not None else (nan, nan, nan)
     result = step.result
-    re = te = nan
-    gt_inliers, correspondences, inliers, message, mode = 0, 0, 0, '', ''
+    re = te = nees = nan
+    gt_inliers, correspondences, inliers, mode = 0, 0, 0, ''
+    message = step.reason or (result.message if result is not None else '')
     success = False
     if result is not None:
         correspondences = len(result.correspondences)
         inliers = result.num_inliers
-        message, mode = result.message, result.mode
+        mode = result.mode
         if gt is not None and gt_keyframe is not None:
             T_gt = inverse(gt_keyframe) @ gt
-            if np.all(np.isfinite(result.transform)):
-                re = rotation_error_deg(result.transform[:3, :3], T_gt[:3, :3])
-                te = 100.0 * translation_error_m(result.transform[:3, 3], T_gt[:3, 3])
+            T = step.relative
+            if T is not None and np.all(np.isfinite(T)):
+                re = rotation_error_deg(T[:3, :3], T_gt[:3, :3])
+                te = 100.0 * translation_error_m(T[:3, 3], T_gt[:3, 3])
+                if step.accepted and step.frame_covariance is not None:
+                    nees = normalized_error_squared(T, T_gt, step.frame_covariance)
             if correspondences:
                 gt_inliers = int(np.count_nonzero(inlier_mask(
                     result.source_points, result.target_points, T_gt, threshold)))
@@ -326,13 +302,35 @@ def _score(step: Any, scan: Any, gt: np.ndarray | None, gt_keyframe: np.ndarray 
     return FrameRecord(frame, scan.index, scan.stamp_ns, kf_index, result is not None,
                        bool(step.accepted), success, re, te, correspondences, inliers,
                        gt_inliers, ir, mode, bool(step.new_keyframe), step.latency_ms,
-                       *map(float, step.pose[:3, 3]), *map(float, gt_xyz), message)
+                       *map(float, step.pose[:3, 3]), *map(float, gt_xyz), message,
+                       step.source, nees)
+
+
+def normalized_error_squared(T_estimate: np.ndarray, T_truth: np.ndarray,
+                             covariance: np.ndarray) -> float:
+    """
+    NEES ``e^T inv(C) e`` of an estimate whose error ``T_truth^-1 T_estimate = exp(e)``.
+
+    ``e = [translation, rotation vector]`` in the estimate's own frame (ROS order, as
+    the step's ``frame_covariance``). A consistent covariance gives a mean NEES of 6 (the
+    dimension); larger means overconfident, smaller underconfident.
+    """
+    from scipy.spatial.transform import Rotation
+
+    error = inverse(T_truth) @ T_estimate
+    e = np.concatenate([error[:3, 3], Rotation.from_matrix(error[:3, :3]).as_rotvec()])
+    try:
+        return float(e @ np.linalg.solve(covariance, e))
+    except np.linalg.LinAlgError:
+        return math.nan
 
 
 def summarize(run: EvalRun) -> dict[str, Any]:
     """summary.json: exactly :data:`SUMMARY_KEYS` (None where undefined)."""
-    pairs = [r for r in run.records if r.registered and math.isfinite(r.re_deg)]
+    # every registered scan with ground truth counts; a rejected one is a failure
+    pairs = [r for r in run.records if r.registered and math.isfinite(r.gt_x)]
     ok = [r for r in pairs if r.success]
+    nees = [r.nees for r in run.records if math.isfinite(r.nees)]
     latencies = [r.latency_ms for r in run.records if r.registered] or \
         [r.latency_ms for r in run.records]
     kitti = None
@@ -350,6 +348,7 @@ def summarize(run: EvalRun) -> dict[str, Any]:
         'ate_rmse_m': ate,
         'latency_ms_p50': float(np.percentile(latencies, 50)) if latencies else None,
         'latency_ms_p95': float(np.percentile(latencies, 95)) if latencies else None,
+        'nees_mean': float(np.mean(nees)) if nees else None,
     }
     assert tuple(summary) == SUMMARY_KEYS
     return {k: _nan_to_none(v) for k, v in summary.items()}
@@ -360,8 +359,10 @@ def run_details(run: EvalRun, **extra: Any) -> dict[str, Any]:
     registered = [r for r in run.records if r.registered]
     irs = [r.ir_gt_pct for r in registered if math.isfinite(r.ir_gt_pct)]
     modes: dict[str, int] = {}
+    sources: dict[str, int] = {}
     for r in registered:
         modes[r.mode] = modes.get(r.mode, 0) + 1
+        sources[r.source or 'rejected'] = sources.get(r.source or 'rejected', 0) + 1
     details = {
         'sequence': run.name,
         'n_pairs': len(registered),
@@ -375,6 +376,7 @@ def run_details(run: EvalRun, **extra: Any) -> dict[str, Any]:
         'correspondences_mean': (float(np.mean([r.correspondences for r in registered]))
                                  if registered else None),
         'modes': modes,
+        'pose_sources': sources,
         'path_length_m': (float(np.sum(np.linalg.norm(np.diff(run.gt_poses[:, :3, 3], axis=0),
                                                       axis=1)))
                           if run.gt_poses is not None else None),
@@ -446,7 +448,7 @@ def format_table(summary: dict, others: dict[str, dict] | None = None) -> str:
     units = {'n_frames': '', 'registration_recall_pct': '%', 'rotation_error_deg': 'deg',
              'translation_error_cm': 'cm', 'kitti_t_err_pct': '%',
              'kitti_r_err_deg_per_100m': 'deg/100m', 'ate_rmse_m': 'm',
-             'latency_ms_p50': 'ms', 'latency_ms_p95': 'ms'}
+             'latency_ms_p50': 'ms', 'latency_ms_p95': 'ms', 'nees_mean': '(6 ideal)'}
     columns = {'value' if not others else 'ML-SemReg': summary, **(others or {})}
 
     def shown(value: Any) -> str:
@@ -533,7 +535,7 @@ def main(argv: list[str] | None = None) -> int:
         print('error: --stride must be >= 1', file=sys.stderr)
         return 2
     try:
-        config, policy = load_parameters(args.config, args.set)
+        config = load_parameters(args.config, args.set)
     except (ConfigError, OSError) as exc:
         print(f'error: {exc}', file=sys.stderr)
         return 2
@@ -561,7 +563,7 @@ def main(argv: list[str] | None = None) -> int:
         gt_poses = read_kitti_poses(args.gt_poses)
         if args.gt_calib is not None:
             gt_poses = camera_to_lidar_poses(gt_poses, read_kitti_calib(args.gt_calib)['Tr'])
-    odometry = Odometry(Registration(config), policy)
+    odometry = Odometry(Registration(config))
     try:
         run = evaluate_sequence(source, odometry, args.stride, args.max_frames, gt_poses,
                                 args.plot_frame, progress=not args.quiet)
@@ -591,7 +593,7 @@ def main(argv: list[str] | None = None) -> int:
         write_results(out / 'kiss-icp', baseline, others['KISS-ICP'],
                       run_details(baseline, bag=str(args.bag), stride=args.stride),
                       None, plots=False)
-    write_results(out, run, summary, details, effective_config(config, policy),
+    write_results(out, run, summary, details, effective_config(config),
                   plots=not args.no_plots, extra=extra)
     if args.output is None:
         link_latest(out)

@@ -229,8 +229,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument('--no-semantic', action='store_true',
                         help='plain matcher (the paper baseline): semantic.enabled=false')
     parser.add_argument('--estimator', choices=('sc2pcr', 'ransac'), help='estimator.kind')
-    parser.add_argument('--refine', action='store_true',
-                        help='point-to-plane ICP after the estimator: refine.icp=true')
+    parser.add_argument('--no-refine', action='store_true',
+                        help='the estimator alone, no fine alignment: fine.method=off')
     add_config_arguments(parser)
     parser.add_argument('--json', type=Path, metavar='PATH', help='write the report as JSON')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
@@ -247,8 +247,8 @@ def main(argv: list[str] | None = None) -> int:
         flags['semantic.enabled'] = False
     if args.estimator:
         flags['estimator.kind'] = args.estimator
-    if args.refine:
-        flags['refine.icp'] = True
+    if args.no_refine:
+        flags['fine.method'] = 'off'
     try:
         config = build_config(args.config, flags, args.overrides)
     except (ValueError, OSError) as error:
@@ -262,7 +262,8 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     mode = 'plain' if not config.semantic.enabled else 'ML-SemReg'
     print(f'{args.descriptor.upper()} + {config.matcher.kind.upper()} ({mode}) + '
-          f'{config.estimator.kind}{" + ICP" if config.refine.icp else ""}, '
+          f'{config.estimator.kind}'
+          f'{"" if config.fine.method == "off" else " + " + config.fine.method.upper()}, '
           f'{len(report["pairs"])} pairs from {args.directory}')
     print(format_table(report['pairs'], report['summary']))
     stages = ', '.join(f'{k} {v:.0f}' for k, v in report['summary']['time_ms'].items())
