@@ -52,10 +52,10 @@ def test_a_perturbed_scene_is_recovered_to_a_centimetre(method: str) -> None:
     truth = motion(6.0, (1.5, -0.3, 0.05))
     target = world[rng.permutation(len(world))[:30000]]
     source = apply_transform(invert_transform(truth), world[rng.permutation(len(world))[:30000]])
-    cfg = FineAlignmentConfig(method=method, downsampling_resolution=0.3)
+    cfg = FineAlignmentConfig()
     guess = _perturbed(truth, 1.5, (0.3, -0.25, 0.05))
-    alignment = align_pair(AlignmentCloud.build(source, cfg), AlignmentCloud.build(target, cfg),
-                           guess, cfg)
+    alignment = align_pair(AlignmentCloud.build(source, cfg, 0.3),
+                           AlignmentCloud.build(target, cfg, 0.3), guess, cfg, method)
     re, te = _errors(alignment.T_target_source, truth)
     assert re < 0.05 and te < 0.01, (method, re, te)
     assert alignment.converged and alignment.inlier_fraction > 0.9
@@ -75,9 +75,9 @@ def test_covariance_is_largest_along_a_corridor_in_the_target_axes() -> None:
     corridor = np.c_[rng.uniform(-20, 20, n), y, z] + rng.normal(0, 0.01, (n, 3))
     truth = motion(90.0, (0.0, 0.0, 0.0))
     source = apply_transform(invert_transform(truth), corridor)
-    cfg = FineAlignmentConfig(method='gicp', downsampling_resolution=0.3)
-    alignment = align_pair(AlignmentCloud.build(source, cfg), AlignmentCloud.build(target, cfg),
-                           truth, cfg)
+    cfg = FineAlignmentConfig(pair_method='gicp')
+    alignment = align_pair(AlignmentCloud.build(source, cfg, 0.3),
+                           AlignmentCloud.build(target, cfg, 0.3), truth, cfg)
     target_axes, source_axes = alignment.covariance(), alignment.covariance(axes='source')
     # [x, y, z, roll, pitch, yaw]: translation along the corridor is the weak direction
     assert np.argmax(np.diag(target_axes)) == 0  # the target's x axis
@@ -142,21 +142,22 @@ def test_pair_registration_refines_the_estimate_and_reports_it() -> None:
                                                                            pair.trans_gt)
     assert refined[0] < 0.1 and refined[1] < 0.03, refined
     assert refined[1] <= estimated[1] + 1e-3
-    off = Registration(registration.config.replace({'fine.method': 'off'}))
+    off = Registration(registration.config.replace({'fine.pair_method': 'off'}))
     plain = off.register_scans(pair.pts_src, pair.label_src, pair.pts_dst, pair.label_dst)
     assert plain.alignment is None
     np.testing.assert_array_equal(plain.transform, plain.estimate)
 
 
-def test_a_runaway_refinement_is_refused_and_the_estimate_kept() -> None:
-    registration = Registration(RegistrationConfig())
+def test_a_refinement_that_moves_too_far_or_keeps_too_little_is_refused() -> None:
+    registration = Registration(RegistrationConfig().replace(
+        {'odometry.max_correction_translation': 0.5}))
     cfg = registration.config.fine
     world, labels = street_scene(seed=2)
     points, _ = scan_at(world, labels, np.eye(4), seed=1)
-    cloud = AlignmentCloud.build(points, cfg)
-    guess = motion(40.0, (3.0, 0.0, 0.0))  # far outside the basin: GICP converges elsewhere
-    alignment = align_pair(cloud, cloud, guess, cfg)
-    refusal = registration.refinement_refusal(alignment)
-    assert refusal and ('moved its guess' in refusal or 'inliers' in refusal
-                        or 'cost per inlier' in refusal)
+    cloud = AlignmentCloud.build(points, cfg, 0.3)
+    moved = align_pair(cloud, cloud, motion(0.0, (0.8, 0.3, 0.0)), cfg)  # back to identity
+    assert _errors(moved.T_target_source, np.eye(4))[1] < 0.01
+    assert 'moved its guess by 0.85 m' in registration.refinement_refusal(moved)
     assert registration.refinement_refusal(align_pair(cloud, cloud, np.eye(4), cfg)) == ''
+    apart = align_pair(cloud, cloud, motion(0.0, (0.0, 0.0, 30.0)), cfg)  # nothing overlaps
+    assert 'kept 0.00 of the scan' in registration.refinement_refusal(apart)

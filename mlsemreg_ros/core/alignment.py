@@ -35,7 +35,7 @@ test on a corridor). ``inv(H)`` is scaled by the residual variance ``2 E / (n - 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.config import FineAlignmentConfig, LocalMapConfig
@@ -54,18 +54,19 @@ class AlignmentCloud:
     tree: small_gicp.KdTree
 
     @classmethod
-    def build(cls, points: np.ndarray, cfg: FineAlignmentConfig,
+    def build(cls, points: np.ndarray, cfg: FineAlignmentConfig, resolution: float = 0.0,
               num_threads: int | None = None) -> AlignmentCloud:
         """
-        Downsample ``points`` (N, 3) to ``cfg.downsampling_resolution``, estimate local features.
+        Downsample ``points`` (N, 3) to ``resolution`` metres, estimate local features.
 
         With resolution 0 the points are used as they are (they are voxelized already).
-        ``num_threads`` defaults to :func:`threads.workers`; 1 inside a pool task.
+        Normals and covariances from ``cfg.num_neighbors`` neighbours. ``num_threads``
+        defaults to :func:`threads.workers`; 1 inside a pool task.
         """
         points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         n = num_threads or threads.workers()
-        if cfg.downsampling_resolution > 0 and points.shape[0]:
-            cloud = small_gicp.voxelgrid_sampling(points, cfg.downsampling_resolution, n)
+        if resolution > 0 and points.shape[0]:
+            cloud = small_gicp.voxelgrid_sampling(points, resolution, n)
         else:
             cloud = small_gicp.PointCloud(points)
         tree = small_gicp.KdTree(cloud, n)
@@ -152,27 +153,28 @@ def _failed(T_initial: np.ndarray, num_points: int) -> Alignment:
 
 
 def align_pair(source: AlignmentCloud, target: AlignmentCloud, T_initial: np.ndarray,
-               cfg: FineAlignmentConfig) -> Alignment:
+               cfg: FineAlignmentConfig, method: str | None = None) -> Alignment:
     """
-    Refine ``T_target_source`` of two scans from ``T_initial`` with ``cfg.method``.
+    Refine ``T_target_source`` of two scans from ``T_initial``.
 
-    VGICP builds a Gaussian voxel map (``cfg.voxel_size``) of the target; the point-based
-    methods use the target's KD-tree. ``method == 'off'`` is not an alignment: callers
-    skip the stage.
+    ``method`` (default ``cfg.pair_method``): VGICP builds a Gaussian voxel map
+    (``cfg.voxel_size``) of the target; the point-based methods use the target's KD-tree.
+    ``'off'`` is not an alignment: callers skip the stage.
     """
+    method = method or cfg.pair_method
     if len(source) < 6 or len(target) < 6:
         return _failed(T_initial, len(source))
     n = threads.workers()
     common = {'max_correspondence_distance': cfg.max_correspondence_distance,
               'num_threads': n, 'max_iterations': cfg.max_iterations}
     init = np.asarray(T_initial, dtype=np.float64)
-    if cfg.method == 'vgicp':
+    if method == 'vgicp':
         voxels = small_gicp.GaussianVoxelMap(cfg.voxel_size)
         voxels.insert(target.cloud)
         result = small_gicp.align(voxels, source.cloud, init, **common)
     else:
         result = small_gicp.align(target.cloud, source.cloud, target.tree, init,
-                                  registration_type=_REGISTRATION_TYPES[cfg.method], **common)
+                                  registration_type=_REGISTRATION_TYPES[method], **common)
     return _alignment(result, init, len(source))
 
 
@@ -252,8 +254,7 @@ class LocalMap:
             result = small_gicp.align(self._map, scan.cloud, init, **common)
         else:
             if self._indexed is None:
-                self._indexed = AlignmentCloud.build(
-                    self.points(), replace(self.fine, downsampling_resolution=0.0))
+                self._indexed = AlignmentCloud.build(self.points(), self.fine)
             result = small_gicp.align(
                 self._indexed.cloud, scan.cloud, self._indexed.tree, init,
                 registration_type=_REGISTRATION_TYPES[self.fine.method], **common)

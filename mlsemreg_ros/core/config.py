@@ -243,14 +243,19 @@ class FineAlignmentConfig:
     """
 
     method: str = param(
-        'vgicp', 'Fine alignment after the estimator: vgicp (voxelized GICP; the local map '
-        'is a Gaussian voxel map), gicp, plane_icp (point-to-plane), icp (point-to-point; '
-        'with gicp/plane_icp/icp the map points are re-indexed each frame, slower) or off '
-        '(the estimate as it is, chained scan to keyframe).',
+        'vgicp', 'Odometry: alignment of each scan to the local map. vgicp (voxelized GICP; '
+        'the map is a Gaussian voxel map), gicp, plane_icp (point-to-plane), icp '
+        '(point-to-point; with gicp/plane_icp/icp the map points are indexed again every '
+        'frame, slower) or off (the estimate as it is, chained scan to keyframe).',
         choices=('vgicp', 'gicp', 'plane_icp', 'icp', 'off'))
+    pair_method: str = param(
+        'gicp', 'Pairs (Registration.register, mlsemreg-eval-pairs): alignment of the source '
+        'scan onto the target scan, both as voxelized at features.voxel_size. gicp, vgicp, '
+        'plane_icp, icp or off (the estimate as it is).',
+        choices=('gicp', 'vgicp', 'plane_icp', 'icp', 'off'))
     downsampling_resolution: float = param(
-        0.5, 'Voxel edge to which the scan (already voxelized at features.voxel_size) is '
-        'downsampled for the fine alignment (0: the features.voxel_size scan as it is).',
+        0.5, 'Odometry: voxel edge to which the scan (already voxelized at '
+        'features.voxel_size) is downsampled for the map alignment (0: as it is).',
         unit='m', low=0.0, high=5.0)
     voxel_size: float = param(
         1.0, 'VGICP voxel edge: of the local map and of the target scan of a pair; with '

@@ -174,7 +174,7 @@ class Odometry:
                 self.keyframe.prepared = self.registration.prepare(self.keyframe.points,
                                                                    self.keyframe.labels)
             elif old.fine != config.fine:
-                self.keyframe.prepared.alignment = None  # rebuilt when needed
+                self.keyframe.prepared.alignment_clouds.clear()  # rebuilt when needed
         if self.local_map.reconfigure(config.fine, config.local_map) and self.keyframe:
             self._insert(self.keyframe.prepared, self.keyframe.pose)  # restart from the keyframe
 

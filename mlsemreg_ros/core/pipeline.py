@@ -130,22 +130,24 @@ class Registration:
                                                     cfg.semantic.cluster_min_points)
             return local_ss, marks
 
-        def semantics_and_alignment() -> tuple[np.ndarray, Landmarks, AlignmentCloud | None]:
+        def semantics_and_alignment() -> tuple[np.ndarray, Landmarks, dict]:
             local_ss, marks = semantics()
-            alignment = None
-            if cfg.fine.method != 'off':
+            clouds = {}
+            if cfg.fine.method != 'off':  # the odometry's cloud (pairs build theirs later)
+                resolution = cfg.fine.downsampling_resolution
                 with _timed(timings, 'alignment_cloud_ms'):
-                    alignment = AlignmentCloud.build(points, cfg.fine, num_threads=1)
-            return local_ss, marks, alignment
+                    clouds[resolution] = AlignmentCloud.build(points, cfg.fine, resolution,
+                                                              num_threads=1)
+            return local_ss, marks, clouds
 
         # Descriptors | semantic signatures + the alignment cloud are independent: 2 threads.
-        described, (local_ss, marks, alignment) = _SCAN_POOL.run(
+        described, (local_ss, marks, clouds) = _SCAN_POOL.run(
             lambda task: task(), [describe, semantics_and_alignment])
         valid = features.valid_descriptor_mask(described)
         keypoints, indices = keypoints[valid], indices[valid]
         descriptors, local_ss = described[valid], local_ss[valid]
         return PreparedScan(points, labels, keypoints, indices, descriptors, local_ss, marks,
-                            timings, alignment)
+                            timings, clouds)
 
     # ------------------------------------------------------------------------------
     def register(self, source: PreparedScan, target: PreparedScan, *,
@@ -187,10 +189,11 @@ class Registration:
                        f'{cfg.estimator.min_inliers}' + (f'; {message}' if message else ''))
         # 3. fine alignment of the scans (GICP/VGICP), from the estimate
         alignment = None
-        if refine and success and cfg.fine.method != 'off':
+        if refine and success and cfg.fine.pair_method != 'off':
             with _timed(timings, 'fine_ms'):
-                alignment = align_pair(self.alignment_cloud(source),
-                                       self.alignment_cloud(target), transform, cfg.fine)
+                alignment = align_pair(self.alignment_cloud(source, 0.0),
+                                       self.alignment_cloud(target, 0.0), transform, cfg.fine,
+                                       cfg.fine.pair_method)
             refused = self.refinement_refusal(alignment)
             diagnostics.update(fine_inlier_fraction=alignment.inlier_fraction,
                                fine_iterations=alignment.iterations,
@@ -201,11 +204,20 @@ class Registration:
                                   message, timings, diagnostics, estimate_result.transform,
                                   alignment)
 
-    def alignment_cloud(self, scan: PreparedScan) -> AlignmentCloud:
-        """Return the scan's fine-alignment cloud (built by :meth:`prepare`, or now)."""
-        if scan.alignment is None:
-            scan.alignment = AlignmentCloud.build(scan.points, self.config.fine)
-        return scan.alignment
+    def alignment_cloud(self, scan: PreparedScan, resolution: float | None = None
+                        ) -> AlignmentCloud:
+        """
+        Return the scan's fine-alignment cloud at ``resolution`` (built once, then cached).
+
+        ``None``: ``fine.downsampling_resolution`` (the odometry's, made by :meth:`prepare`);
+        0: the prepared (voxelized) scan as it is (pairs).
+        """
+        if resolution is None:
+            resolution = self.config.fine.downsampling_resolution
+        if resolution not in scan.alignment_clouds:
+            scan.alignment_clouds[resolution] = AlignmentCloud.build(
+                scan.points, self.config.fine, resolution)
+        return scan.alignment_clouds[resolution]
 
     def refinement_refusal(self, alignment: Alignment) -> str:
         """

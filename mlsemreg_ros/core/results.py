@@ -62,7 +62,8 @@ class PreparedScan:
     local_ss: np.ndarray  # (M, C) bool: Local Semantic Signature, C = number of classes
     landmarks: Landmarks
     timings_ms: dict[str, float] = field(default_factory=dict)
-    alignment: AlignmentCloud | None = None  # small_gicp cloud of the fine alignment
+    #: small_gicp clouds of the fine alignment, by downsampling resolution (m; 0: as is)
+    alignment_clouds: dict[float, AlignmentCloud] = field(default_factory=dict)
 
 
 @dataclass

@@ -230,7 +230,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help='plain matcher (the paper baseline): semantic.enabled=false')
     parser.add_argument('--estimator', choices=('sc2pcr', 'ransac'), help='estimator.kind')
     parser.add_argument('--no-refine', action='store_true',
-                        help='the estimator alone, no fine alignment: fine.method=off')
+                        help='the estimator alone, no fine alignment: fine.pair_method=off')
     add_config_arguments(parser)
     parser.add_argument('--json', type=Path, metavar='PATH', help='write the report as JSON')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
@@ -248,7 +248,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.estimator:
         flags['estimator.kind'] = args.estimator
     if args.no_refine:
-        flags['fine.method'] = 'off'
+        flags['fine.pair_method'] = 'off'
     try:
         config = build_config(args.config, flags, args.overrides)
     except (ValueError, OSError) as error:
@@ -261,9 +261,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f'mlsemreg-eval-pairs: {error}', file=sys.stderr)
         return 1
     mode = 'plain' if not config.semantic.enabled else 'ML-SemReg'
+    fine = config.fine.pair_method
     print(f'{args.descriptor.upper()} + {config.matcher.kind.upper()} ({mode}) + '
-          f'{config.estimator.kind}'
-          f'{"" if config.fine.method == "off" else " + " + config.fine.method.upper()}, '
+          f'{config.estimator.kind}{"" if fine == "off" else " + " + fine.upper()}, '
           f'{len(report["pairs"])} pairs from {args.directory}')
     print(format_table(report['pairs'], report['summary']))
     stages = ', '.join(f'{k} {v:.0f}' for k, v in report['summary']['time_ms'].items())
