@@ -103,6 +103,7 @@ def label_bit_patterns(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray | Non
             raise LabelError('labels contain NaN or inf')
         if np.any(values != np.round(values)):
             raise LabelError('float labels must hold integral values')
+        values = values.astype(np.float64, copy=False)  # float16 cannot hold the bounds
         fits = (values >= -2.0**31) & (values < 2.0**32)
         values = np.where(fits, values, 0.0)
     elif kind == 'u' and values.dtype.itemsize > 4:

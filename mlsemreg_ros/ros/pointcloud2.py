@@ -186,7 +186,8 @@ def pointcloud2_to_arrays(msg: Any, label_field: str = 'label',
     intensity = None
     if 'intensity' in names:
         values = points['intensity'] if keep is None else points['intensity'][keep]
-        intensity = values.astype(np.float32)
+        with np.errstate(over='ignore'):  # float64 beyond float32 range: inf, no warning
+            intensity = values.astype(np.float32)
     return CloudArrays(xyz if keep is None else xyz[keep], labels, intensity, dropped,
                        tuple(ignored))
 
