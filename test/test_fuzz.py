@@ -30,7 +30,7 @@ size (0, 1, 3 points, identical points, ...) and on any scan after :func:`saniti
 from __future__ import annotations
 
 import array
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 import os
 from typing import Any
 
@@ -50,6 +50,7 @@ from mlsemreg_ros.ros.pointcloud2 import (
     PointCloudError,
 )
 from mlsemreg_ros.tools.synthetic_scene import motion, scan_at, street_scene
+from msg_stubs import Cloud, Field
 import numpy as np
 import pytest
 
@@ -63,32 +64,6 @@ def fuzz_settings(max_examples: int, deadline_ms: int, **kwargs: Any) -> setting
                     derandomize=True, database=None, print_blob=True,
                     suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
                     **kwargs)
-
-
-# -- duck-typed sensor_msgs stand-ins (the decoder reads attributes only) ----------------
-@dataclass
-class Field:
-    """Stand-in for sensor_msgs/PointField."""
-
-    name: str
-    offset: int
-    datatype: int
-    count: int = 1
-
-
-@dataclass
-class Cloud:
-    """Stand-in for sensor_msgs/PointCloud2."""
-
-    height: int = 1
-    width: int = 0
-    fields: list = field(default_factory=list)
-    is_bigendian: bool = False
-    point_step: int = 0
-    row_step: int = 0
-    data: Any = b''
-    is_dense: bool = True
-    header: Any = None
 
 
 def _containers(data: bytes) -> st.SearchStrategy:

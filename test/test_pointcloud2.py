@@ -17,7 +17,6 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
 from typing import Any
 
 from mlsemreg_ros.ros.pointcloud2 import (
@@ -29,33 +28,9 @@ from mlsemreg_ros.ros.pointcloud2 import (
     UINT16,
     UINT32,
 )
+from msg_stubs import Cloud, Field
 import numpy as np
 import pytest
-
-
-@dataclass
-class Field:
-    """Stand-in for sensor_msgs/PointField."""
-
-    name: str
-    offset: int
-    datatype: int
-    count: int = 1
-
-
-@dataclass
-class Cloud:
-    """Stand-in for sensor_msgs/PointCloud2 (rclpy-style: data as bytes)."""
-
-    header: Any = None
-    height: int = 1
-    width: int = 0
-    fields: list = field(default_factory=list)
-    is_bigendian: bool = False
-    point_step: int = 0
-    row_step: int = 0
-    data: Any = b''
-    is_dense: bool = True
 
 
 def _scene(n: int = 50, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
