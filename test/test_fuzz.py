@@ -67,7 +67,7 @@ def fuzz_settings(max_examples: int, deadline_ms: int, **kwargs: Any) -> setting
 
 
 def _containers(data: bytes) -> st.SearchStrategy:
-    """The ``data`` of a message as rclpy (bytes, array), rosbags (uint8 array) or a list."""
+    """Wrap ``data`` as rclpy (bytes, array), rosbags (uint8 array) or other containers."""
     return st.sampled_from([
         data, bytearray(data), np.frombuffer(data, np.uint8).copy(), list(data),
         array.array('B', data), memoryview(data)])
@@ -128,7 +128,7 @@ def _label_values(dtype: np.dtype, n: int) -> st.SearchStrategy:
 
 @st.composite
 def well_formed_clouds(draw: st.DrawFn) -> tuple[Cloud, list[Spec], str, bool]:
-    """A valid little-endian cloud, random layout, padding and content; its field specs."""
+    """Draw a valid little-endian cloud of random layout, padding and content, and its specs."""
     height, width = draw(st.integers(1, 3)), draw(st.integers(1, 6))
     n = height * width
     types = st.sampled_from(sorted(DATATYPES))
@@ -179,7 +179,7 @@ def well_formed_clouds(draw: st.DrawFn) -> tuple[Cloud, list[Spec], str, bool]:
 
 
 def _expected_error(specs: list[Spec], label_field: str, require_labels: bool) -> str | None:
-    """The reason a well-formed cloud must be rejected for its content, or None."""
+    """Return why a well-formed cloud must be rejected for its content, or None."""
     by_name = {s.name: s for s in specs if s.count != 0}
     if label_field not in by_name and require_labels:
         return 'missing label field'
@@ -423,9 +423,11 @@ _WORLD = street_scene(0)  # (points, learning ids) of a labeled street, ~42k poi
 @st.composite
 def scans(draw: st.DrawFn, hostile: bool) -> tuple[np.ndarray, np.ndarray]:
     """
-    A scan: a street seen from a random nearby pose, or 0-2000 random, identical,
-    collinear, planar or clustered points; labels in either scheme, corrupted or garbage,
-    of several dtypes; optionally poisoned with NaN/inf/huge coordinates.
+    Draw a scan (points (N, 3), labels (N,)) for the core.
+
+    A street seen from a random nearby pose, or 0-2000 random, identical, collinear,
+    planar or clustered points; labels in either scheme, corrupted or garbage, of several
+    dtypes; optionally poisoned with NaN/inf/huge coordinates.
     """
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     shape = draw(st.sampled_from(['street', 'uniform', 'identical', 'line', 'plane',
@@ -509,7 +511,7 @@ def _check_step(step: OdometryStep) -> None:
 
 
 def _odometry_run(stream: list[tuple], sanitize: bool) -> None:
-    """Scans through a fresh Odometry (the node's core); only LabelError may escape."""
+    """Run scans through a fresh Odometry (the node's core); only LabelError may escape."""
     odometry = Odometry(_REGISTRATION)
     for stamp_ns, (points, labels) in enumerate(stream):
         if sanitize:

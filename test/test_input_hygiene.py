@@ -49,13 +49,13 @@ LABELS = LabelMap.load()
 
 @pytest.fixture(scope='module')
 def pair():
-    """A labeled street pair (learning ids, trunk/pole/sign/car landmarks), 8000 points."""
+    """Return two labeled street scans with learning ids and trunk/pole/sign/car landmarks."""
     return synthetic_pair(0, max_points=8000)
 
 
 @pytest.fixture(scope='module')
 def registration() -> Registration:
-    """Default registration (the node's parameters)."""
+    """Return a registration with the default (node) parameters."""
     return Registration()
 
 

@@ -34,8 +34,8 @@ Input rules (issue 11, "input hygiene"):
 - ``auto`` reads a scan as raw ids when the share of its values that are valid
   raw ids exceeds the share of valid learning ids by at least
   :data:`AUTO_RAW_MARGIN`, both shares taken over the non-zero values (0 is
-  unlabeled in both schemes and says nothing); otherwise as learning ids. One
-  stray value cannot flip a scan.
+  unlabeled in both schemes and says nothing); otherwise as learning ids. Stray
+  values cannot flip a scan: it takes a quarter of its labeled values.
 - Values outside the chosen scheme become 0 (``unlabeled``) and are counted
   in :attr:`LabelConversion.out_of_scheme`, unless they are more than
   :data:`MAX_OUT_OF_SCHEME_SHARE` of the scan: then the scheme is wrong for the
