@@ -17,7 +17,6 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
 from typing import Any
 
 from mlsemreg_ros.ros.pointcloud2 import (
@@ -29,33 +28,9 @@ from mlsemreg_ros.ros.pointcloud2 import (
     UINT16,
     UINT32,
 )
+from msg_stubs import Cloud, Field
 import numpy as np
 import pytest
-
-
-@dataclass
-class Field:
-    """Stand-in for sensor_msgs/PointField."""
-
-    name: str
-    offset: int
-    datatype: int
-    count: int = 1
-
-
-@dataclass
-class Cloud:
-    """Stand-in for sensor_msgs/PointCloud2 (rclpy-style: data as bytes)."""
-
-    header: Any = None
-    height: int = 1
-    width: int = 0
-    fields: list = field(default_factory=list)
-    is_bigendian: bool = False
-    point_step: int = 0
-    row_step: int = 0
-    data: Any = b''
-    is_dense: bool = True
 
 
 def _scene(n: int = 50, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -183,6 +158,13 @@ MALFORMED = {
     'zero height': (lambda m: dataclasses.replace(m, height=0), 'zero points'),
     'duplicate field': (lambda m: dataclasses.replace(m, fields=m.fields + m.fields[:1]),
                         "'x' appears twice"),
+    'count-0 x': (lambda m: _with_field(m, 'x', count=0),
+                  r"missing coordinate field\(s\) \['x'\].*ignored count-0 field\(s\): \['x'\]"),
+    'count-0 label': (lambda m: _with_field(m, 'label', count=0),
+                      "missing label field 'label'.*count-0 field"),
+    'negative count': (lambda m: _with_field(m, 'label', count=-1), "'label' has count -1"),
+    'negative sizes': (lambda m: dataclasses.replace(m, height=-1, width=-8),
+                       'negative height -1 or width -8'),
 }
 
 
@@ -244,3 +226,44 @@ def test_rosbags_typestore_round_trip_through_cdr() -> None:
     out = pointcloud2_to_arrays(back)
     np.testing.assert_array_equal(out.labels, raw)
     np.testing.assert_allclose(out.xyz, xyz, atol=1e-5)
+
+
+def _with_extra_field(msg: Cloud, extra: Field) -> Cloud:
+    return dataclasses.replace(msg, fields=[*msg.fields, extra])
+
+
+def test_count_0_fields_are_ignored() -> None:
+    # Issue 11: an unused intensity declared with count 0 made a usable cloud rejected.
+    xyz, labels = _scene(8)
+    msg = _cloud(xyz, labels)
+    for extra in (Field('intensity', 0, FLOAT32, count=0), Field('ring', 40, 99, count=0),
+                  Field('x', 999, 0, count=0)):  # even a second, count-0 'x'
+        out = pointcloud2_to_arrays(_with_extra_field(msg, extra))
+        assert out.ignored_fields == (extra.name,) and out.intensity is None
+        np.testing.assert_array_equal(out.labels, labels)
+        np.testing.assert_allclose(out.xyz, xyz, atol=1e-5)
+    assert pointcloud2_to_arrays(msg).ignored_fields == ()
+
+
+def test_unreadable_optional_intensity_is_ignored() -> None:
+    xyz, labels = _scene(8)
+    msg = _cloud(xyz, labels, intensity=np.ones(8))
+    for changes in ({'count': 3}, {'datatype': 9}):
+        out = pointcloud2_to_arrays(_with_field(msg, 'intensity', **changes))
+        assert out.intensity is None and out.ignored_fields == ('intensity',)
+        np.testing.assert_array_equal(out.labels, labels)
+    # A layout error stays an error, optional field or not.
+    with pytest.raises(PointCloudError, match=r"'intensity' .* does not fit"):
+        pointcloud2_to_arrays(_with_field(msg, 'intensity', offset=msg.point_step - 2))
+
+
+def test_int32_raw_label_of_minus_2_31_decodes_and_converts() -> None:
+    from mlsemreg_ros.core.labels import LabelMap
+
+    xyz, _ = _scene(4)
+    raw = np.array([0x80000000, 40 | (3 << 16), 70, 81 | (0xFFFF << 16)], dtype=np.uint32)
+    out = pointcloud2_to_arrays(_cloud(xyz, raw.view(np.int32), label_datatype='int32'))
+    assert out.labels.dtype == np.int64 and out.labels[0] == -2**31
+    converted = LabelMap.load().convert(out.labels)
+    assert converted.scheme == 'raw' and converted.out_of_scheme == 0
+    np.testing.assert_array_equal(converted.ids, [0, 9, 15, 19])

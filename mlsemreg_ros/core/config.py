@@ -152,6 +152,15 @@ class FeatureConfig:
         'centroid (no neighbourhood search per keypoint; about 3x faster at 5000 keypoints). '
         'false computes its own normal and SPFH at its position (dev pairs: FPFH RR 90 % '
         'instead of 80 %).')
+    max_range: float = param(
+        200.0, 'Points farther than this from the sensor (the origin of the cloud frame) are '
+        'dropped before voxelization, as are points with a NaN/inf coordinate, and counted; '
+        'this also bounds the voxel grid (one point at 1e30 collapses it).',
+        unit='m', low=1.0, high=1e6)
+    min_range: float = param(
+        0.0, 'Points closer than this to the sensor are dropped before voxelization and '
+        'counted (0 keeps them all; e.g. returns from the vehicle itself). Must be below '
+        'features.max_range.', unit='m', low=0.0, high=100.0)
 
 
 @dataclass

@@ -23,6 +23,14 @@ datatype, count], is_bigendian, point_step, row_step, data, is_dense``).
 Reading builds one structured dtype from the fields (offsets, ``itemsize =
 point_step``) and views the buffer with strides ``(row_step, point_step)``, so
 organized clouds with row padding need no copy and no Python loop over points.
+
+Only ``x, y, z`` and the label field are required. Fields with ``count 0`` are
+ignored wherever they are (a required one then counts as missing), and so is an
+optional ``intensity`` field that cannot be read (count above 1, unknown
+datatype); :attr:`CloudArrays.ignored_fields` names them. Labels are returned
+as stored (int64); :meth:`mlsemreg_ros.core.labels.LabelMap.convert` reads them as
+uint32 bit patterns, so an int32 raw label of -2**31 (instance bits set, class 0)
+is an ordinary raw id.
 """
 
 from __future__ import annotations
@@ -69,13 +77,14 @@ class CloudArrays:
     labels: np.ndarray | None  # (N,) int64 raw label values as stored (instance bits kept)
     intensity: np.ndarray | None  # (N,) float32
     dropped_nonfinite: int  # points dropped because x, y or z was NaN/inf
+    ignored_fields: tuple[str, ...] = ()  # count-0 fields and unreadable optional fields
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
 
 
 def _field_dtype(field: Any) -> np.dtype:
-    """Return the NumPy dtype of one PointField, or raise PointCloudError."""
+    """Return the NumPy dtype of one count-1 PointField, or raise PointCloudError."""
     if int(field.count) != 1:
         raise PointCloudError(
             f'field {field.name!r} has count {field.count}; only count 1 is supported')
@@ -103,34 +112,45 @@ def pointcloud2_to_arrays(msg: Any, label_field: str = 'label',
     Convert a PointCloud2 to xyz (N, 3) float64, raw labels (N,) int64 and intensity.
 
     Any integer or float label datatype is accepted and converted losslessly to
-    int64; float labels must hold integral values. SemanticKITTI instance bits
-    are kept here (the core's LabelMap masks them). Points with a NaN/inf
-    coordinate are dropped and counted; every other defect raises
-    :class:`PointCloudError` with the reason.
+    int64 (signed types keep their sign; the core reads the uint32 bit pattern);
+    float labels must hold integral values. SemanticKITTI instance bits are kept
+    here (the core's LabelMap masks them). Points with a NaN/inf coordinate are
+    dropped and counted; count-0 fields and an unreadable optional ``intensity``
+    are ignored and named; every other defect raises :class:`PointCloudError`
+    with the reason.
     """
     if bool(msg.is_bigendian):
         raise PointCloudError('big-endian point clouds are not supported')
     height, width = int(msg.height), int(msg.width)
     point_step, row_step = int(msg.point_step), int(msg.row_step)
+    if height < 0 or width < 0:
+        raise PointCloudError(f'negative height {height} or width {width}')
     if height * width == 0:
         raise PointCloudError(f'cloud has zero points (height={height}, width={width})')
-    fields = {}
+    fields, ignored = {}, []
     for f in msg.fields:
+        if int(f.count) == 0:  # declared but holds no value (e.g. an unused intensity)
+            ignored.append(str(f.name))
+            continue
         if f.name in fields:
             raise PointCloudError(f'field {f.name!r} appears twice')
         fields[f.name] = f
     missing = [name for name in ('x', 'y', 'z') if name not in fields]
     if missing:
-        raise PointCloudError(f'missing coordinate field(s) {missing}; fields: {list(fields)}')
+        raise PointCloudError(f'missing coordinate field(s) {missing}; fields: {list(fields)}'
+                              + _count0_note(ignored))
     wanted = ['x', 'y', 'z']
     if label_field in fields:
         wanted.append(label_field)
     elif require_labels:
         raise PointCloudError(
             f'missing label field {label_field!r}; fields: {list(fields)} '
-            f'(set the label_field parameter)')
+            f'(set the label_field parameter)' + _count0_note(ignored))
     if 'intensity' in fields and 'intensity' not in wanted:
-        wanted.append('intensity')
+        if _readable(fields['intensity']):
+            wanted.append('intensity')
+        else:
+            ignored.append('intensity')
     names, formats, offsets = [], [], []
     for name in wanted:
         dtype, offset = _field_dtype(fields[name]), int(fields[name].offset)
@@ -166,8 +186,20 @@ def pointcloud2_to_arrays(msg: Any, label_field: str = 'label',
     intensity = None
     if 'intensity' in names:
         values = points['intensity'] if keep is None else points['intensity'][keep]
-        intensity = values.astype(np.float32)
-    return CloudArrays(xyz if keep is None else xyz[keep], labels, intensity, dropped)
+        with np.errstate(over='ignore'):  # float64 beyond float32 range: inf, no warning
+            intensity = values.astype(np.float32)
+    return CloudArrays(xyz if keep is None else xyz[keep], labels, intensity, dropped,
+                       tuple(ignored))
+
+
+def _readable(field: Any) -> bool:
+    """Whether an optional field has count 1 and a known datatype."""
+    return int(field.count) == 1 and int(field.datatype) in DATATYPES
+
+
+def _count0_note(ignored: list[str]) -> str:
+    """Name the count-0 fields in a missing-field error, if any."""
+    return f'; ignored count-0 field(s): {ignored}' if ignored else ''
 
 
 def _labels_to_int64(values: np.ndarray, name: str) -> np.ndarray:
