@@ -546,11 +546,6 @@ def test_odometry_survives_hostile_scans_after_sanitize_scan(stream: list[tuple]
     _odometry_run(stream, sanitize=True)
 
 
-@pytest.mark.xfail(strict=True, raises=ValueError, reason=(
-    'core/pipeline.py + core/fpfh.py (not owned here): Registration.prepare passes NaN/inf '
-    'coordinates to scipy cKDTree ("data must be finite") and 1e300 to query_pairs '
-    '("Encountering floating point overflow"): an undocumented ValueError. Guarded by '
-    'sanitize_scan once pipeline.py calls it; reported to the pipeline owner'))
 @fuzz_settings(40, 5000, phases=[Phase.explicit, Phase.generate])
 @given(scan=scans(hostile=True))
 @example(scan=(np.vstack([np.random.default_rng(0).uniform(-20, 20, (500, 3)),

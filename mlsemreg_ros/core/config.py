@@ -511,6 +511,9 @@ class RegistrationConfig(Settings):
                 f'{MAX_RECEPTIVE_FIELD_M:g} m receptive-field limit')
         if est.k2 > est.k1:
             errors.append(f'estimator.k2={est.k2} must not exceed estimator.k1={est.k1}')
+        if self.features.min_range >= self.features.max_range:
+            errors.append(f'features.min_range={self.features.min_range:g} must be below '
+                          f'features.max_range={self.features.max_range:g}')
         overlap = set(sem.landmark_classes) & set(sem.ignored_classes)
         if overlap:
             errors.append(f'classes both landmark and ignored: {sorted(overlap)}')

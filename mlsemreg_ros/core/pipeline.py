@@ -43,6 +43,7 @@ from mlsemreg_ros.core.results import (
     RegistrationResult,
 )
 from mlsemreg_ros.core.rigid import rotation_angle_deg
+from mlsemreg_ros.core.scan_input import sanitize_scan_for
 from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
 
@@ -87,16 +88,26 @@ class Registration:
                 descriptors: np.ndarray | None = None,
                 voxelize: bool = True) -> PreparedScan:
         """
-        Prepare one scan: learning ids, voxels, keypoints, descriptors, signatures, landmarks.
+        Prepare one scan: sanitize, learning ids, voxels, keypoints, descriptors, signatures.
+
+        Points with a non-finite coordinate or outside ``features.min_range ..
+        features.max_range`` are dropped first, and labels outside the scheme become
+        unlabeled; both are counted in ``input_stats``.
 
         ``keypoints`` (M, 3) and ``descriptors`` (M, D) may be given (e.g. GEDI from a
         pair file); keypoints without descriptors get FPFH at their nearest scan point.
         Keypoints whose descriptor is non-finite or all-zero are dropped.
         """
         cfg, timings = self.config, {}
-        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         with _timed(timings, 'labels_ms'):
-            labels = self.label_map.to_learning(labels, cfg.semantic.label_scheme)
+            # non-finite and out-of-range points out first (they would wreck the voxel grid)
+            scan = sanitize_scan_for(points, labels, cfg.features)
+            conversion = self.label_map.convert(scan.labels, cfg.semantic.label_scheme)
+        points, labels = scan.points, conversion.ids
+        input_stats = {'dropped_nonfinite': scan.dropped_nonfinite,
+                       'dropped_far': scan.dropped_far, 'dropped_near': scan.dropped_near,
+                       'label_scheme': conversion.scheme,
+                       'labels_out_of_scheme': conversion.out_of_scheme}
         if voxelize and cfg.features.voxel_size > 0:
             with _timed(timings, 'voxelize_ms'):
                 points, labels = features.voxel_downsample(points, labels, cfg.features.voxel_size)
@@ -147,7 +158,7 @@ class Registration:
         keypoints, indices = keypoints[valid], indices[valid]
         descriptors, local_ss = described[valid], local_ss[valid]
         return PreparedScan(points, labels, keypoints, indices, descriptors, local_ss, marks,
-                            timings, clouds)
+                            timings, clouds, input_stats)
 
     # ------------------------------------------------------------------------------
     def register(self, source: PreparedScan, target: PreparedScan, *,

@@ -319,6 +319,8 @@ class MlSemRegNode(Node):
             values['latency_p50_ms'] = float(np.median(self._latencies))
         values.update({f'stage.{k}': float(v) for k, v in step.timings_ms.items()})
         values.update({'pose_source': step.source, 'local_map_voxels': step.map_voxels})
+        if step.prepared is not None:  # dropped points, label scheme, out-of-scheme labels
+            values.update({f'input.{k}': v for k, v in step.prepared.input_stats.items()})
         for candidate in step.candidates:
             values[f'fine.{candidate.name}.inlier_fraction'] = \
                 candidate.alignment.inlier_fraction
