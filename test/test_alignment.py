@@ -54,8 +54,8 @@ def test_a_perturbed_scene_is_recovered_to_a_centimetre(method: str) -> None:
     source = apply_transform(invert_transform(truth), world[rng.permutation(len(world))[:30000]])
     cfg = FineAlignmentConfig()
     guess = _perturbed(truth, 1.5, (0.3, -0.25, 0.05))
-    alignment = align_pair(AlignmentCloud.build(source, cfg, 0.3),
-                           AlignmentCloud.build(target, cfg, 0.3), guess, cfg, method)
+    alignment = align_pair(AlignmentCloud.build(source, 0.3, 20),
+                           AlignmentCloud.build(target, 0.3, 20), guess, cfg, method)
     re, te = _errors(alignment.T_target_source, truth)
     assert re < 0.05 and te < 0.01, (method, re, te)
     assert alignment.converged and alignment.inlier_fraction > 0.9
@@ -76,8 +76,8 @@ def test_covariance_is_largest_along_a_corridor_in_the_target_axes() -> None:
     truth = motion(90.0, (0.0, 0.0, 0.0))
     source = apply_transform(invert_transform(truth), corridor)
     cfg = FineAlignmentConfig(pair_method='gicp')
-    alignment = align_pair(AlignmentCloud.build(source, cfg, 0.3),
-                           AlignmentCloud.build(target, cfg, 0.3), truth, cfg)
+    alignment = align_pair(AlignmentCloud.build(source, 0.3, 20),
+                           AlignmentCloud.build(target, 0.3, 20), truth, cfg)
     target_axes, source_axes = alignment.covariance(), alignment.covariance(axes='source')
     # [x, y, z, roll, pitch, yaw]: translation along the corridor is the weak direction
     assert np.argmax(np.diag(target_axes)) == 0  # the target's x axis
@@ -93,8 +93,8 @@ def test_covariance_is_largest_along_a_corridor_in_the_target_axes() -> None:
 
 def test_alignment_of_empty_or_tiny_clouds_keeps_the_guess() -> None:
     cfg = FineAlignmentConfig()
-    empty = AlignmentCloud.build(np.zeros((0, 3)), cfg)
-    full = AlignmentCloud.build(np.random.default_rng(0).uniform(-5, 5, (500, 3)), cfg)
+    empty = AlignmentCloud.build(np.zeros((0, 3)))
+    full = AlignmentCloud.build(np.random.default_rng(0).uniform(-5, 5, (500, 3)))
     guess = motion(10.0, (1.0, 2.0, 3.0))
     for source, target in ((empty, full), (full, empty)):
         alignment = align_pair(source, target, guess, cfg)
@@ -116,12 +116,12 @@ def test_local_map_is_bounded_by_its_horizon_and_cleared_by_reset(method: str) -
     rng = np.random.default_rng(1)
     fine = FineAlignmentConfig(method=method, downsampling_resolution=0.0, voxel_size=1.0)
     local_map = LocalMap(fine, LocalMapConfig(horizon=3, clear_cycle=1))
-    first = AlignmentCloud.build(_block(0.0, rng), fine)
+    first = AlignmentCloud.build(_block(0.0, rng))
     local_map.insert(first, np.eye(4))
     near_origin = lambda: int(np.count_nonzero(np.abs(local_map.points()[:, 0]) < 6.0))  # noqa
     assert near_origin() > 0 and len(local_map) > 0
     for k in range(1, 6):  # scans far from the first: its voxels age out after 3 insertions
-        local_map.insert(AlignmentCloud.build(_block(0.0, rng), fine), motion(0, (50.0 * k, 0, 0)))
+        local_map.insert(AlignmentCloud.build(_block(0.0, rng)), motion(0, (50.0 * k, 0, 0)))
         if k <= 2:
             assert near_origin() > 0
     assert near_origin() == 0
@@ -154,7 +154,7 @@ def test_a_refinement_that_moves_too_far_or_keeps_too_little_is_refused() -> Non
     cfg = registration.config.fine
     world, labels = street_scene(seed=2)
     points, _ = scan_at(world, labels, np.eye(4), seed=1)
-    cloud = AlignmentCloud.build(points, cfg, 0.3)
+    cloud = AlignmentCloud.build(points, 0.3)
     moved = align_pair(cloud, cloud, motion(0.0, (0.8, 0.3, 0.0)), cfg)  # back to identity
     assert _errors(moved.T_target_source, np.eye(4))[1] < 0.01
     assert 'moved its guess by 0.85 m' in registration.refinement_refusal(moved)

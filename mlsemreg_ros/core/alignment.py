@@ -21,7 +21,7 @@ in koide3/small_gicp, take it to the precision of the dense scans. small_gicp do
 work (voxel grid, KD-tree, covariances, Gauss-Newton, voxel maps with an LRU horizon);
 this module only chooses its inputs and reads its result:
 
-    AlignmentCloud.build(points, cfg)    downsample, KD-tree, normals and covariances, once
+    AlignmentCloud.build(points, res)    downsample, KD-tree, normals and covariances, once
     align_pair(source, target, T_init)   T_target_source refined scan to scan
     LocalMap.align(source, T_init)       T_map_source refined against the local map
     LocalMap.insert(source, T)           the aligned scan joins the map (LRU-bounded)
@@ -54,13 +54,13 @@ class AlignmentCloud:
     tree: small_gicp.KdTree
 
     @classmethod
-    def build(cls, points: np.ndarray, cfg: FineAlignmentConfig, resolution: float = 0.0,
+    def build(cls, points: np.ndarray, resolution: float = 0.0, num_neighbors: int = 10,
               num_threads: int | None = None) -> AlignmentCloud:
         """
         Downsample ``points`` (N, 3) to ``resolution`` metres, estimate local features.
 
         With resolution 0 the points are used as they are (they are voxelized already).
-        Normals and covariances from ``cfg.num_neighbors`` neighbours. ``num_threads``
+        Normals and covariances from ``num_neighbors`` neighbours. ``num_threads``
         defaults to :func:`threads.workers`; 1 inside a pool task.
         """
         points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
@@ -71,7 +71,7 @@ class AlignmentCloud:
             cloud = small_gicp.PointCloud(points)
         tree = small_gicp.KdTree(cloud, n)
         if cloud.size() > 0:
-            small_gicp.estimate_normals_covariances(cloud, tree, cfg.num_neighbors, n)
+            small_gicp.estimate_normals_covariances(cloud, tree, num_neighbors, n)
         return cls(cloud, tree)
 
     def __len__(self) -> int:
@@ -138,6 +138,14 @@ class Alignment:
 UNKNOWN_VARIANCE = 1e6
 
 
+def _solver_settings(cfg: FineAlignmentConfig, num_threads: int) -> dict[str, float]:
+    """Keyword arguments of ``small_gicp.align`` shared by every method."""
+    return {'max_correspondence_distance': cfg.max_correspondence_distance,
+            'num_threads': num_threads, 'max_iterations': cfg.max_iterations,
+            'rotation_epsilon': float(np.radians(cfg.rotation_epsilon)),
+            'translation_epsilon': cfg.translation_epsilon}
+
+
 def _alignment(result: small_gicp.RegistrationResult, T_initial: np.ndarray,
                num_points: int) -> Alignment:
     return Alignment(np.asarray(result.T_target_source, dtype=np.float64).copy(),
@@ -165,8 +173,7 @@ def align_pair(source: AlignmentCloud, target: AlignmentCloud, T_initial: np.nda
     if len(source) < 6 or len(target) < 6:
         return _failed(T_initial, len(source))
     n = threads.workers()
-    common = {'max_correspondence_distance': cfg.max_correspondence_distance,
-              'num_threads': n, 'max_iterations': cfg.max_iterations}
+    common = _solver_settings(cfg, n)
     init = np.asarray(T_initial, dtype=np.float64)
     if method == 'vgicp':
         voxels = small_gicp.GaussianVoxelMap(cfg.voxel_size)
@@ -247,14 +254,13 @@ class LocalMap:
         if len(scan) < 6 or len(self) == 0:
             return _failed(T_initial, len(scan))
         init = np.asarray(T_initial, dtype=np.float64)
-        common = {'max_correspondence_distance': self.fine.max_correspondence_distance,
-                  'num_threads': num_threads or threads.workers(),
-                  'max_iterations': self.fine.max_iterations}
+        common = _solver_settings(self.fine, num_threads or threads.workers())
         if isinstance(self._map, small_gicp.GaussianVoxelMap):
             result = small_gicp.align(self._map, scan.cloud, init, **common)
         else:
             if self._indexed is None:
-                self._indexed = AlignmentCloud.build(self.points(), self.fine)
+                self._indexed = AlignmentCloud.build(self.points(), 0.0,
+                                                     self.fine.num_neighbors)
             result = small_gicp.align(
                 self._indexed.cloud, scan.cloud, self._indexed.tree, init,
                 registration_type=_REGISTRATION_TYPES[self.fine.method], **common)

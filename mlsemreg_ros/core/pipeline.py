@@ -145,10 +145,9 @@ class Registration:
             local_ss, marks = semantics()
             clouds = {}
             if cfg.fine.method != 'off':  # the odometry's cloud (pairs build theirs later)
-                resolution = cfg.fine.downsampling_resolution
+                key = (cfg.fine.downsampling_resolution, cfg.fine.num_neighbors)
                 with _timed(timings, 'alignment_cloud_ms'):
-                    clouds[resolution] = AlignmentCloud.build(points, cfg.fine, resolution,
-                                                              num_threads=1)
+                    clouds[key] = AlignmentCloud.build(points, *key, num_threads=1)
             return local_ss, marks, clouds
 
         # Descriptors | semantic signatures + the alignment cloud are independent: 2 threads.
@@ -202,9 +201,9 @@ class Registration:
         alignment = None
         if refine and success and cfg.fine.pair_method != 'off':
             with _timed(timings, 'fine_ms'):
-                alignment = align_pair(self.alignment_cloud(source, 0.0),
-                                       self.alignment_cloud(target, 0.0), transform, cfg.fine,
-                                       cfg.fine.pair_method)
+                alignment = align_pair(self.alignment_cloud(source, pair=True),
+                                       self.alignment_cloud(target, pair=True), transform,
+                                       cfg.fine, cfg.fine.pair_method)
             refused = self.refinement_refusal(alignment)
             diagnostics.update(fine_inlier_fraction=alignment.inlier_fraction,
                                fine_iterations=alignment.iterations,
@@ -215,20 +214,20 @@ class Registration:
                                   message, timings, diagnostics, estimate_result.transform,
                                   alignment)
 
-    def alignment_cloud(self, scan: PreparedScan, resolution: float | None = None
-                        ) -> AlignmentCloud:
+    def alignment_cloud(self, scan: PreparedScan, pair: bool = False) -> AlignmentCloud:
         """
-        Return the scan's fine-alignment cloud at ``resolution`` (built once, then cached).
+        Return the scan's fine-alignment cloud (built once, then cached on the scan).
 
-        ``None``: ``fine.downsampling_resolution`` (the odometry's, made by :meth:`prepare`);
-        0: the prepared (voxelized) scan as it is (pairs).
+        Odometry: downsampled to ``fine.downsampling_resolution``, ``fine.num_neighbors``
+        (made by :meth:`prepare`). Pairs (``pair=True``): the prepared scan as it is,
+        ``fine.pair_num_neighbors``.
         """
-        if resolution is None:
-            resolution = self.config.fine.downsampling_resolution
-        if resolution not in scan.alignment_clouds:
-            scan.alignment_clouds[resolution] = AlignmentCloud.build(
-                scan.points, self.config.fine, resolution)
-        return scan.alignment_clouds[resolution]
+        fine = self.config.fine
+        key = (0.0, fine.pair_num_neighbors) if pair else (fine.downsampling_resolution,
+                                                           fine.num_neighbors)
+        if key not in scan.alignment_clouds:
+            scan.alignment_clouds[key] = AlignmentCloud.build(scan.points, *key)
+        return scan.alignment_clouds[key]
 
     def refinement_refusal(self, alignment: Alignment) -> str:
         """

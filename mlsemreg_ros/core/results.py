@@ -62,8 +62,8 @@ class PreparedScan:
     local_ss: np.ndarray  # (M, C) bool: Local Semantic Signature, C = number of classes
     landmarks: Landmarks
     timings_ms: dict[str, float] = field(default_factory=dict)
-    #: small_gicp clouds of the fine alignment, by downsampling resolution (m; 0: as is)
-    alignment_clouds: dict[float, AlignmentCloud] = field(default_factory=dict)
+    #: small_gicp clouds of the fine alignment by (downsampling resolution m, neighbours)
+    alignment_clouds: dict[tuple[float, int], AlignmentCloud] = field(default_factory=dict)
     #: what the input hygiene did: dropped points by kind, label scheme, out-of-scheme labels
     input_stats: dict[str, Any] = field(default_factory=dict)
 
