@@ -497,8 +497,12 @@ def _check_step(step: OdometryStep) -> None:
     assert isinstance(step.accepted, bool) and isinstance(step.new_keyframe, bool)
     if step.prepared is not None:
         _check_prepared(step.prepared)
-    if step.result is None:
-        assert step.relative is None and step.accepted
+    if step.new_keyframe:  # a degenerate scan never becomes the keyframe
+        keyframe = RegistrationConfig().keyframe
+        assert len(step.prepared.points) >= keyframe.min_points
+    if step.result is None:  # the first scan, or a scan that could not start the odometry
+        assert step.relative is None and step.accepted == (step.source == 'first')
+        assert step.accepted or step.reason
         return
     result = step.result
     k = len(result.correspondences)

@@ -63,7 +63,8 @@ def _next_stamp() -> Any:
 
 @pytest.fixture(scope='module')
 def ros() -> Any:
-    args = ['--ros-args', '-p', f'keypoints.count:={KEYPOINTS}']
+    args = ['--ros-args', '-p', f'keypoints.count:={KEYPOINTS}',
+            '-p', 'path.publish_period:=0.0']  # every path, for the checks
     with node_and_probe(DOMAIN_ID, args) as (node, probe):
         yield node, probe
 

@@ -48,10 +48,12 @@ def transform(x: float, yaw_deg: float = 0.0) -> np.ndarray:
 
 @dataclass
 class Tagged:
-    """Stand-in for a PreparedScan."""
+    """Stand-in for a PreparedScan (with enough points and keypoints to be a keyframe)."""
 
     scan_id: int
     timings_ms: dict[str, float] = field(default_factory=dict)
+    points: np.ndarray = field(default_factory=lambda: np.zeros((2000, 3)))
+    keypoints: np.ndarray = field(default_factory=lambda: np.zeros((500, 3)))
 
 
 class ScriptedRegistration:
@@ -66,6 +68,8 @@ class ScriptedRegistration:
 
     def prepare(self, points: np.ndarray, labels: np.ndarray) -> Any:
         self.prepared += 1
+        if len(points) < 4:  # a degenerate scan
+            return Tagged(int(points[0, 0]), points=points, keypoints=points)
         return Tagged(int(points[0, 0]))  # the scan id, written into its first point
 
     def register(self, source: Any, target: Any, refine: bool = True) -> RegistrationResult:
@@ -140,6 +144,49 @@ def test_keyframe_policy_validation_and_helpers() -> None:
     assert is_new_keyframe(policy, transform(0.5, 6.0)) and is_new_keyframe(policy, transform(1))
     assert is_new_keyframe(KeyframeConfig(), np.eye(4))
     assert abs(rotation_angle_deg(transform(0.0, 30.0)) - 30.0) < 1e-9
+
+
+def test_a_degenerate_scan_never_becomes_the_keyframe() -> None:
+    registration = ScriptedRegistration([(transform(1.0), True)])
+    odometry = Odometry(registration)
+    tiny = odometry.process(np.zeros((3, 3)), np.zeros(3, np.int64), stamp_ns=5)
+    assert not tiny.accepted and 'no keyframe yet' in tiny.reason
+    assert 'keyframe.min_points' in tiny.reason and odometry.keyframe is None
+    first = odometry.process(*scan(1), stamp_ns=10)
+    assert first.index == 0 and first.new_keyframe and first.source == 'first'
+    assert odometry.process(*scan(2), stamp_ns=20).accepted
+
+
+def test_a_run_of_failures_reinitialises_at_the_last_pose() -> None:
+    script = [(transform(1.0), True)] + [(transform(9.0), False)] * 3 + [(transform(2.0), True)]
+    config = CHAIN.replace({'keyframe.max_failures': 3})
+    odometry = Odometry(ScriptedRegistration(script, config))
+    steps = [odometry.process(*scan(k), stamp_ns=10 * (k + 1)) for k in range(6)]
+    assert [s.accepted for s in steps] == [True, True, False, False, False, True]
+    third = steps[4]
+    assert third.source == 'reinitialized' and third.new_keyframe and 'the last accepted pose' \
+        in third.reason
+    np.testing.assert_allclose(third.pose, transform(1.0))  # held, not moved
+    assert steps[5].keyframe_index == 4  # registered onto the re-initialised keyframe
+    np.testing.assert_allclose(steps[5].pose, transform(3.0))
+    assert steps[5].covariance[0, 0] >= 100.0  # the unknown motion of the gap is admitted
+    assert steps[2].source == steps[3].source == ''
+
+
+def test_duplicate_stamps_are_skipped_and_backward_stamps_reset() -> None:
+    registration = ScriptedRegistration([(transform(1.0), True), (transform(1.0), True)])
+    odometry = Odometry(registration)
+    odometry.process(*scan(0), stamp_ns=100)
+    assert odometry.process(*scan(1), stamp_ns=200).accepted
+    duplicate = odometry.process(*scan(2), stamp_ns=200)
+    assert not duplicate.accepted and 'duplicate stamp' in duplicate.reason
+    assert registration.prepared == 2  # not even prepared
+    looped = odometry.process(*scan(3), stamp_ns=50)  # the bag started again
+    assert looped.accepted and looped.source == 'first' and 'went backwards' in looped.reason
+    np.testing.assert_array_equal(looped.pose, np.eye(4))
+    assert odometry.process(*scan(4), stamp_ns=150).keyframe_index == 0
+    unstamped = Odometry(ScriptedRegistration([(transform(1.0), True)] * 2))
+    assert all(unstamped.process(*scan(k)).accepted for k in range(3))  # 0 = unstamped
 
 
 def test_reconfigure_prepares_the_keyframe_again_only_when_preparation_changes() -> None:

@@ -317,6 +317,17 @@ class KeyframeConfig:
     min_rotation: float = param(
         10.0, 'distance policy: rotation from the keyframe that makes a new keyframe.',
         unit='deg', low=0.0, high=180.0)
+    min_points: int = param(
+        1000, 'A scan becomes a keyframe only with at least this many points after '
+        'voxelization (a degenerate scan would make every later one fail).',
+        low=1, high=10000000)
+    min_keypoints: int = param(
+        100, 'A scan becomes a keyframe only with at least this many keypoints (with a '
+        'valid descriptor; at most keypoints.count are asked for).', low=3, high=100000)
+    max_failures: int = param(
+        10, 'After this many rejected frames in a row against one keyframe, the odometry '
+        're-initialises on the current scan at the last accepted pose (the map restarts '
+        'from it; 0: never).', low=0, high=100000)
 
 
 @dataclass

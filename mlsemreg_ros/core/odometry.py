@@ -124,7 +124,7 @@ class OdometryStep:
     latency_ms: float  # wall time of process()
     prepared: PreparedScan | None = None  # the current scan as prepared (markers, plots)
     timings_ms: dict[str, float] = field(default_factory=dict)
-    source: str = ''  # what gave the accepted pose: first, global, prediction, prediction+global
+    source: str = ''  # first, global, prediction, prediction+global; reinitialized (rejected)
     reason: str = ''  # why the frame was rejected, or notes on an accepted one
     covariance: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))  # pose, odom axes
     frame_covariance: np.ndarray | None = None  # (6, 6) of this frame's alignment: the pose
@@ -152,6 +152,8 @@ class Odometry:
         self._accepted: list[tuple[np.ndarray, int]] = []  # last two accepted (pose, stamp)
         self._raw: tuple[np.ndarray, np.ndarray] = (np.zeros((0, 3)), np.zeros(0))
         self._fractions: collections.deque[float] = collections.deque(maxlen=FRACTION_HISTORY)
+        self._failures = 0  # rejected frames in a row
+        self._last_stamp = 0  # stamp of the last scan (0: none or unstamped)
 
     @property
     def config(self) -> RegistrationConfig:
@@ -187,24 +189,58 @@ class Odometry:
         self._count = 0
         self._accepted = []
         self._fractions.clear()
+        self._failures = 0
+        self._last_stamp = 0
+
+    def keyframe_refusal(self, scan: PreparedScan) -> str:
+        """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
+        policy = self.config.keyframe
+        needed = min(policy.min_keypoints, self.config.keypoints.count)
+        points, keypoints = len(scan.points), len(scan.keypoints)
+        if points < policy.min_points or keypoints < needed:
+            return (f'{points} points / {keypoints} keypoints < keyframe.min_points='
+                    f'{policy.min_points} / keyframe.min_keypoints={needed}')
+        return ''
 
     # ------------------------------------------------------------------------------
     def process(self, points: np.ndarray, labels: np.ndarray, stamp_ns: int = 0
                 ) -> OdometryStep:
-        """Register one scan (points (N, 3) metres, labels (N,)) and update the odometry."""
+        """
+        Register one scan (points (N, 3) metres, labels (N,)) and update the odometry.
+
+        Stream rules (stamps of 0 mean unstamped and are exempt): a stamp equal to the
+        last one is skipped; a stamp before it resets the odometry first (a bag that
+        loops, a replay restarted).
+        """
+        start = time.perf_counter()
+        notes = []
+        if stamp_ns and self._last_stamp and stamp_ns <= self._last_stamp:
+            if stamp_ns == self._last_stamp:
+                return self._skipped(stamp_ns, f'duplicate stamp {stamp_ns} ns: skipped', start)
+            notes.append(f'stamp went backwards ({stamp_ns} < {self._last_stamp} ns): '
+                         'odometry reset')
+            self.reset()
+        if stamp_ns:
+            self._last_stamp = stamp_ns
         index = self._count
         self._count += 1
-        start = time.perf_counter()
         current = self.registration.prepare(points, labels)
         self._raw = (np.asarray(points), np.asarray(labels))  # kept if it becomes the keyframe
         timings = {f'prepare.{k}': v for k, v in current.timings_ms.items()}
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
-            self.keyframe = Keyframe(index, stamp_ns, *self._raw, current, self.pose.copy())
-            self._insert(current, self.pose)
-            self._accepted = [(self.pose.copy(), stamp_ns)]
+            refusal = self.keyframe_refusal(current)
+            if refusal:
+                self._count = 0  # the next scan tries to start the odometry again
+                return OdometryStep(index, stamp_ns, self.pose.copy(), None, None, False, -1,
+                                    0, False, 1e3 * (time.perf_counter() - start), current,
+                                    timings, reason='; '.join([*notes, f'no keyframe yet: '
+                                                               f'{refusal}']),
+                                    covariance=self.covariance.copy())
+            self._start(index, stamp_ns, current, self.pose)
             return OdometryStep(index, stamp_ns, self.pose.copy(), None, None, True, index,
                                 stamp_ns, True, 1e3 * (time.perf_counter() - start), current,
-                                timings, source='first', covariance=self.covariance.copy(),
+                                timings, source='first', reason='; '.join(notes),
+                                covariance=self.covariance.copy(),
                                 map_voxels=len(self.local_map))
         keyframe = self.keyframe
         if self.config.fine.method == 'off':
@@ -213,11 +249,46 @@ class Odometry:
         else:
             result, predicted = self._register_and_predict(current, keyframe, stamp_ns)
             step = self._decide(index, stamp_ns, current, keyframe, result, predicted)
+        self._count_failure(step, current)
         step.timings_ms = {**timings, **{f'register.{k}': v
                                          for k, v in result.timings_ms.items()},
                            **step.timings_ms}
         step.latency_ms = 1e3 * (time.perf_counter() - start)
         return step
+
+    def _start(self, index: int, stamp_ns: int, scan: PreparedScan, pose: np.ndarray) -> None:
+        """Make ``scan`` the keyframe at ``pose`` and the first scan of a new map."""
+        self.keyframe = Keyframe(index, stamp_ns, *self._raw, scan, pose.copy())
+        self.local_map.clear()
+        self._insert(scan, pose)
+        self._accepted = [(pose.copy(), stamp_ns)]
+        self._fractions.clear()
+        self._failures = 0
+
+    def _count_failure(self, step: OdometryStep, current: PreparedScan) -> None:
+        """After ``keyframe.max_failures`` rejections in a row, re-initialise on ``current``."""
+        if step.accepted:
+            self._failures = 0
+            return
+        self._failures += 1
+        limit = self.config.keyframe.max_failures
+        if not limit or self._failures < limit or self.keyframe_refusal(current):
+            return
+        self._start(step.index, step.stamp_ns, current, self.pose)
+        self.covariance = self.covariance + np.eye(6) * REINITIALIZATION_VARIANCE
+        step.new_keyframe, step.source = True, 'reinitialized'
+        step.keyframe_index, step.map_voxels = step.index, len(self.local_map)
+        step.reason += (f'; {limit} frames rejected in a row: re-initialised on this scan at '
+                        'the last accepted pose (the motion since is unknown)')
+
+    def _skipped(self, stamp_ns: int, reason: str, start: float) -> OdometryStep:
+        """Return the step of a scan that was not processed at all."""
+        keyframe = self.keyframe
+        return OdometryStep(self._count, stamp_ns, self.pose.copy(), None, None, False,
+                            keyframe.index if keyframe else -1,
+                            keyframe.stamp_ns if keyframe else 0, False,
+                            1e3 * (time.perf_counter() - start), reason=reason,
+                            covariance=self.covariance.copy(), map_voxels=len(self.local_map))
 
     # -- the two candidates ----------------------------------------------------------
     def _register_and_predict(self, current: PreparedScan, keyframe: Keyframe, stamp_ns: int
@@ -359,7 +430,8 @@ class Odometry:
         if self.config.fine.method != 'off':
             self._insert(current, pose)
         self._accepted = [*self._accepted[-1:], (pose.copy(), stamp_ns)]
-        new_keyframe = is_new_keyframe(self.config.keyframe, relative)
+        new_keyframe = (is_new_keyframe(self.config.keyframe, relative)
+                        and not self.keyframe_refusal(current))
         if new_keyframe:
             self.keyframe = Keyframe(index, stamp_ns, *self._raw, current, pose.copy())
         return OdometryStep(index, stamp_ns, pose.copy(), relative, result, True,
@@ -384,6 +456,8 @@ class Odometry:
             self.local_map.insert(self.registration.alignment_cloud(scan), pose)
 
 
+#: Variance (m^2, rad^2) added to the pose covariance when the odometry re-initialises.
+REINITIALIZATION_VARIANCE = 1e2
 #: Accepted frames whose median inlier fraction is the typical one.
 FRACTION_HISTORY = 10
 #: The prediction bridges at most this many nominal frame intervals.

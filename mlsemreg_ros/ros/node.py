@@ -99,6 +99,27 @@ class Scan:
     dropped_nonfinite: int
 
 
+class StampGaps:
+    """Estimates input frames lost before the node saw them, from gaps between stamps."""
+
+    def __init__(self, history: int = 50) -> None:
+        self._periods: collections.deque[int] = collections.deque(maxlen=history)
+        self._last = 0
+        self.lost = 0  # scans estimated missing (transport losses, a publisher's drops)
+
+    def observe(self, stamp_ns: int) -> None:
+        """Take the stamp of a received scan; a gap of k typical periods counts k - 1."""
+        if stamp_ns <= 0:
+            return
+        if self._last and stamp_ns > self._last:
+            gap = stamp_ns - self._last
+            if len(self._periods) >= 5:
+                period = float(np.median(self._periods))
+                self.lost += max(round(gap / period) - 1, 0)
+            self._periods.append(gap)
+        self._last = stamp_ns
+
+
 class LatestSlot:
     """A one-element hand-over between threads; a newer item replaces an unclaimed one."""
 
@@ -145,6 +166,9 @@ class MlSemRegNode(Node):
         self._reset_pending = False  # set by the reset service, applied by the worker
         self._path = Path()
         self._local_map_published = -float('inf')  # time.monotonic() of the last map cloud
+        self._path_published = -float('inf')  # time.monotonic() of the last path
+        self._frame_id: str | None = None  # frame of the clouds the odometry runs in
+        self._stream = StampGaps()
         self._counts = collections.Counter()
         self._latencies: collections.deque[float] = collections.deque(maxlen=100)
         qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=config.node.qos.depth,
@@ -208,31 +232,60 @@ class MlSemRegNode(Node):
     def _process(self, scan: Scan) -> None:
         """Register the scan onto the keyframe (core odometry) and publish the outcome."""
         config = self._sync(self._params.snapshot())
+        if not self._check_frame(scan, config.node):
+            return
+        self._stream.observe(messages.nanoseconds(scan.stamp))
         try:
             step = self._odometry.process(scan.xyz, scan.labels, messages.nanoseconds(scan.stamp))
         except LabelError as error:
             self._skip(scan.stamp, f'skipped scan with unusable labels: {error}')
             return
         with self._lock:
-            if self._reset_pending:  # a reset arrived while registering: discard
-                return
-            latency_ms = self._publish_step(scan, step, config) if step.accepted else None
-        result = step.result
-        if result is None:
-            self._diagnose(scan, 'ok', 'first scan: keyframe set, odometry at identity', step)
+            reset = self._reset_pending  # a reset arrived while registering: discard
+            latency_ms = (self._publish_step(scan, step, config)
+                          if step.accepted and not reset else None)
+        if reset:
+            self._count('frames_dropped_by_reset')
+            self._publish_diagnostics(scan.stamp, 'warn', 'scan dropped: a reset arrived '
+                                      'while it was being registered', {})
             return
-        self._publish_markers(scan, result, step.prepared, config.node)
+        result = step.result
+        if step.accepted and result is None:
+            note = f' ({step.reason})' if step.reason else ''
+            self._diagnose(scan, 'ok', f'first scan: keyframe set, odometry at identity{note}',
+                           step)
+            return
+        if result is not None:
+            self._publish_markers(scan, result, step.prepared, config.node)
         self._publish_local_map(scan, config.node)
         if step.accepted:
             self.get_logger().debug(f'latency {latency_ms:.1f} ms, stages {step.timings_ms}')
             self._diagnose(scan, 'ok', f'registered ({result.mode}, {step.source})', step,
                            latency_ms)
         else:
-            reason = step.reason or result.message or 'rejected'
+            reason = step.reason or (result.message if result is not None else '') or 'rejected'
             self._count('failures')
             self.get_logger().warning(f'frame rejected, keyframe kept: {reason}',
                                       throttle_duration_sec=LOG_THROTTLE_S)
             self._diagnose(scan, 'warn', f'frame rejected: {reason}', step)
+
+    def _check_frame(self, scan: Scan, node: NodeConfig) -> bool:
+        """Handle a change of the clouds' frame_id per ``frame_change`` (False: skip it)."""
+        previous, self._frame_id = self._frame_id, scan.frame_id
+        if previous is None or previous == scan.frame_id:
+            return True
+        self._count('frame_changes')
+        if node.frame_change == 'skip':
+            self._frame_id = previous  # the odometry stays in the old frame
+            self._skip(scan.stamp, f'skipped scan in frame {scan.frame_id!r}: the odometry runs '
+                       f'in {previous!r} (frame_change: skip)')
+            return False
+        self._odometry.reset()
+        self.get_logger().warning(f'frame_id changed from {previous!r} to {scan.frame_id!r}: '
+                                  'odometry reset (frame_change: reset)')
+        with self._lock:
+            self._path = Path()
+        return True
 
     def _sync(self, config: ConfigSnapshot) -> ConfigSnapshot:
         """Apply a pending reset and parameter changes (they hold from this frame on)."""
@@ -275,7 +328,11 @@ class MlSemRegNode(Node):
         self._path.poses.append(messages.pose_stamped(scan.stamp, node.odom_frame, pose))
         if node.path.max_length and len(self._path.poses) > node.path.max_length:
             del self._path.poses[:len(self._path.poses) - node.path.max_length]
-        self._pub_path.publish(self._path)
+        now = time.monotonic()  # the whole path is O(length): only when watched, throttled
+        if (self._pub_path.get_subscription_count() > 0
+                and now - self._path_published >= node.path.publish_period):
+            self._path_published = now
+            self._pub_path.publish(self._path)
         if node.publish_tf and self._tf is not None:
             self._tf.sendTransform(
                 messages.transform_msg(scan.stamp, child, node.odom_frame, messages.invert(pose))
@@ -341,7 +398,8 @@ class MlSemRegNode(Node):
         with self._lock:
             counts = dict(self._counts)
         values = {'scan_stamp': f'{messages.seconds(stamp):.9f}',
-                  'frames_dropped': self._slot.dropped, **counts, **values}
+                  'frames_dropped': self._slot.dropped,
+                  'frames_lost_estimate': self._stream.lost, **counts, **values}
         self._pub_diagnostics.publish(messages.diagnostics_msg(
             self.get_clock().now().to_msg(), f'{self.get_name()}: registration',
             self.get_fully_qualified_name(), level, message, values))

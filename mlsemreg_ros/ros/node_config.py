@@ -51,6 +51,10 @@ class PathConfig:
     max_length: int = param(
         10000, 'Poses kept in mlsemreg/path; the oldest are dropped (0: unlimited).',
         low=0, high=10000000)
+    publish_period: float = param(
+        1.0, 'Minimum time between two mlsemreg/path messages; the path is published only '
+        'while someone subscribes (its cost grows with its length).', unit='s', low=0.0,
+        high=3600.0)
 
 
 #: Parameters that only take effect at startup (declared read-only).
@@ -75,6 +79,10 @@ class NodeConfig(Settings):
     invert_tf: bool = param(
         False, 'Broadcast base_frame -> odom_frame instead (when base_frame already has a '
         'parent in the TF tree).')
+    frame_change: str = param(
+        'reset', "What a change of the clouds' frame_id does: reset (the odometry restarts "
+        'in the new frame) or skip (scans in another frame are skipped).',
+        choices=('reset', 'skip'))
     local_map_period: float = param(
         1.0, 'Minimum time between two mlsemreg/local_map clouds (published only while '
         'someone subscribes; 0: never).', unit='s', low=0.0, high=3600.0)
