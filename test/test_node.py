@@ -353,3 +353,76 @@ def test_label_scheme_change_that_invalidates_the_keyframe_restarts(
         probe.reset()
         assert all(r.successful for r in probe.set_parameters({'semantic.label_scheme': 'auto'}))
     assert status['level'] == 0 and 'first scan' in status['message']
+
+
+# -- issue 11: named regressions through the real node ---------------------------------
+def test_a_degenerate_first_scan_does_not_become_the_keyframe(probe: NodeProbe,
+                                                              scene: Any) -> None:
+    for points in (scene.pts_dst[:1], scene.pts_dst[:12], np.repeat(scene.pts_dst[:1], 500, 0)):
+        _, status = send(probe, points, scene.label_dst[:len(points)]
+                         if len(points) <= 12 else np.full(len(points), 9))
+        assert status['level'] == 1 and 'no keyframe yet' in status['message']
+    _, src_stamp, status = send_pair(probe, scene)  # not stuck: the next good pair
+    assert status['level'] == 0, status['message']
+    assert_close_to(matrix(probe.wait_for('transform', src_stamp, 5.0).transform),
+                    scene.trans_gt)
+
+
+def test_duplicate_stamps_are_skipped_and_backward_stamps_restart(probe: NodeProbe,
+                                                                  scene: Any) -> None:
+    dst_stamp, status = send(probe, scene.pts_dst, scene.label_dst)
+    probe.publish(probe.cloud(scene.pts_src, scene.label_src.astype(np.uint32), dst_stamp))
+    status = probe.status_for(dst_stamp, TIMEOUT_S, skip=1)
+    assert status is not None and status['level'] == 1
+    assert 'duplicate stamp' in status['message']
+    earlier = to_stamp(1.0)  # before every stamp of this module: a bag that loops
+    probe.publish(probe.cloud(scene.pts_src, scene.label_src.astype(np.uint32), earlier))
+    status = probe.status_for(earlier, TIMEOUT_S)
+    assert 'first scan' in status['message'] and 'went backwards' in status['message']
+    odom = probe.wait_for('odometry', earlier, 5.0)
+    np.testing.assert_allclose(matrix(odom.pose.pose), np.eye(4), atol=1e-9)
+
+
+def test_a_frame_id_change_restarts_the_odometry(probe: NodeProbe, scene: Any) -> None:
+    send_pair(probe, scene)
+    stamp = _next_stamp()
+    probe.publish(probe.cloud(scene.pts_src, scene.label_src.astype(np.uint32), stamp,
+                              frame_id='os_sensor'))
+    status = probe.status_for(stamp, TIMEOUT_S)
+    assert 'first scan' in status['message'] and int(status['frame_changes']) >= 1
+    assert probe.wait_for('odometry', stamp, 5.0).child_frame_id == 'os_sensor'
+    assert all(r.successful for r in probe.set_parameters({'frame_change': 'skip'}))
+    try:
+        other = _next_stamp()
+        probe.publish(probe.cloud(scene.pts_dst, scene.label_dst.astype(np.uint32), other))
+        status = probe.status_for(other, TIMEOUT_S)
+        assert status['level'] == 1 and 'frame_change: skip' in status['message']
+    finally:
+        assert all(r.successful for r in probe.set_parameters({'frame_change': 'reset'}))
+
+
+def test_input_the_old_node_got_wrong_now_registers(probe: NodeProbe, scene: Any) -> None:
+    """One label 20, a signed raw label -2^31, a point at 1e30, a count-0 intensity field."""
+    from mlsemreg_ros.core.labels import LabelMap
+
+    raw_dst = LabelMap.load().to_raw(scene.label_dst).astype(np.int64)
+    raw_dst[0] = -2**31  # instance bits only, class 0: valid
+    dst = probe.cloud(scene.pts_dst, raw_dst.astype(np.int32), _next_stamp(),
+                      label_datatype='int32')
+    labels_src = scene.label_src.astype(np.uint32)
+    labels_src[0] = 20  # one value outside the learning ids
+    points_src = scene.pts_src.copy()
+    points_src[1] = 1e30  # one absurd point
+    src = probe.cloud(points_src, labels_src, _next_stamp())
+    fields = list(src.fields)
+    fields.append(type(fields[0])(name='intensity', offset=0, datatype=7, count=0))
+    src.fields = fields
+    for msg in (dst, src):
+        probe.publish(msg)
+        status = probe.status_for(msg.header.stamp, TIMEOUT_S)
+        assert status['level'] == 0, status['message']
+    assert status['mode'] == 'ml-semreg' and status['input.label_scheme'] == 'learning'
+    assert int(status['input.labels_out_of_scheme']) == 1
+    assert int(status['input.dropped_far']) == 1
+    assert_close_to(matrix(probe.wait_for('transform', src.header.stamp, 5.0).transform),
+                    scene.trans_gt)

@@ -170,17 +170,24 @@ class NodeProbe:
             (m for _, m in self.received['markers']
              if m.markers and stamp_key(m.markers[-1].header.stamp) == want), None), timeout)
 
-    def status_for(self, stamp: Any, timeout: float) -> dict[str, str] | None:
-        """Return the node's diagnostics of the scan stamped ``stamp`` (+ level, message)."""
+    def status_for(self, stamp: Any, timeout: float, skip: int = 0) -> dict[str, str] | None:
+        """
+        Return the node's diagnostics of the scan stamped ``stamp`` (+ level, message).
+
+        ``skip``: ignore the first ``skip`` reports of that stamp (a stamp sent twice).
+        """
         want = f'{stamp.sec + 1e-9 * stamp.nanosec:.9f}'
 
         def lookup() -> dict[str, str] | None:
+            seen = 0
             for _, msg in self.received['diagnostics']:
                 for status in msg.status:
                     values = {kv.key: kv.value for kv in status.values}
                     if values.get('scan_stamp') == want:
-                        return {**values, 'level': int.from_bytes(status.level, 'little'),
-                                'message': status.message}
+                        if seen == skip:
+                            return {**values, 'level': int.from_bytes(status.level, 'little'),
+                                    'message': status.message}
+                        seen += 1
             return None
         return self.wait_until(lookup, timeout)
 
