@@ -121,3 +121,24 @@ def test_bad_parameters_are_reported(bag: Path, tmp_path: Path,
     assert 'unknown parameter' in capsys.readouterr().err
     assert eval_bag.main([str(bag), '--set', 'keyframe.policy=sometimes']) == 2
     assert eval_bag.main([str(tmp_path), '--quiet']) == 2
+
+
+@pytest.fixture(scope='module')
+def drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Twenty simulated scans of seed 1 (a coarser sensor keeps it fast)."""
+    out = tmp_path_factory.mktemp('drive') / 'sim'
+    assert simulate.main([str(out), '--frames', '20', '--seed', '1', '--azimuth-steps', '1024',
+                          '--quiet']) == 0
+    return out
+
+
+def test_covariance_is_consistent_on_a_simulated_drive(drive: Path, tmp_path: Path) -> None:
+    """Mean NEES of the frames' covariances within [1.5, 15] (6 = consistent), two strides."""
+    for stride in (1, 4):
+        out = tmp_path / f'stride{stride}'
+        assert eval_bag.main([str(drive), '-o', str(out), '--stride', str(stride), '--quiet',
+                              '--no-plots']) == 0
+        summary = json.loads((out / 'summary.json').read_text())
+        assert summary['registration_recall_pct'] == 100.0
+        assert 1.5 <= summary['nees_mean'] <= 15.0, (stride, summary['nees_mean'])
+        assert summary['translation_error_cm'] < 2.0 and summary['rotation_error_deg'] < 0.1

@@ -368,9 +368,10 @@ class OdometryConfig:
         'mirror pose of a street, a different street) keeps far fewer inliers than the '
         'frames before it (0: no such check).', low=0.0, high=1.0)
     covariance_scale: float = param(
-        1.0, 'Factor on the pose covariance inv(H) * 2E / (n - 6) of the fine alignment '
-        '(H Hessian, E final error, n inliers), calibrated on the simulated drives.',
-        low=1e-6, high=1e6)
+        7.0, 'Factor on the pose covariance inv(H) * 2E / (n - 6) of the fine alignment '
+        '(H Hessian, E final error, n inliers). Calibrated on the simulated drives (seeds '
+        '0-2, strides 1-20, 756 frames): the mean NEES of the relative pose errors was 41 '
+        'with factor 1, about 6 (consistent) with 7.', low=1e-6, high=1e6)
 
 
 SECTIONS: dict[str, type] = {
