@@ -81,16 +81,18 @@ def sanitize_scan(points: np.ndarray, labels: np.ndarray | None = None, *,
         labels = np.asarray(labels).reshape(-1)
         if labels.shape[0] != points.shape[0]:
             raise ValueError(f'{points.shape[0]} points but {labels.shape[0]} labels')
-    finite = np.isfinite(points).all(axis=1)
     with np.errstate(over='ignore', invalid='ignore'):
-        squared = np.einsum('ij,ij->i', points, points)  # inf for huge finite points
+        squared = np.einsum('ij,ij->i', points, points)  # inf for huge, NaN for NaN points
+        keep = squared <= max_range * max_range  # False for NaN: one pass decides
+        if min_range > 0.0:
+            keep &= squared >= min_range * min_range
+    if keep.all():  # the common case: nothing to count
+        return SanitizedScan(points, labels, keep, 0, 0, 0)
+    finite = np.isfinite(points).all(axis=1)
     far = finite & (squared > max_range * max_range)
     near = finite & (squared < min_range * min_range)
-    keep = finite & ~far & ~near
     n_far, n_near = int(np.count_nonzero(far)), int(np.count_nonzero(near))
     n_nonfinite = int(finite.size - np.count_nonzero(finite))
-    if n_far + n_near + n_nonfinite == 0:
-        return SanitizedScan(points, labels, keep, 0, 0, 0)
     return SanitizedScan(points[keep], None if labels is None else labels[keep], keep,
                          n_nonfinite, n_far, n_near)
 
