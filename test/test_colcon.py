@@ -174,3 +174,48 @@ def test_launch_file_compiles_and_declares_its_arguments(tmp_path: Path) -> None
     assert declared == {'points_topic', 'params_file', 'use_sim_time'}
     assert 'generate_launch_description' in {n.name for n in tree.body
                                              if isinstance(n, ast.FunctionDef)}
+
+
+def _start_node(tmp_path: Path, name: str) -> tuple[subprocess.Popen, Path]:
+    """Start the venv's mlsemreg_node (reliable QoS); wait for its first log line."""
+    log_path = tmp_path / f'{name}.log'
+    with log_path.open('w') as log:
+        process = subprocess.Popen(
+            [str(VENV_BIN / 'mlsemreg_node'), '--ros-args', '-p', 'keypoints.count:=1500',
+             '-p', 'qos.reliability:=reliable'], cwd=tmp_path,
+            env=_env(ROS_DOMAIN_ID=str(DOMAIN_ID)), stdout=log, stderr=subprocess.STDOUT)
+    for _ in range(600):
+        if 'registering scans on' in log_path.read_text() or process.poll() is not None:
+            break
+        threading.Event().wait(0.1)
+    return process, log_path
+
+
+@pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGINT])
+def test_the_node_stops_within_2_s_idle_and_mid_frame(probe: NodeProbe, tmp_path: Path,
+                                                      sig: signal.Signals) -> None:
+    import time
+
+    pair = synthetic_pair(seed=0)
+    for when in ('idle', 'mid-frame'):
+        process, log_path = _start_node(tmp_path, f'{sig.name}-{when}')
+        try:
+            assert process.poll() is None, log_path.read_text()
+            if when == 'mid-frame':
+                assert probe.wait_connected(timeout=60.0)
+                stamp = to_stamp(70.0)
+                probe.publish(probe.cloud(pair.pts_dst, pair.label_dst.astype(np.uint32), stamp))
+                assert probe.status_for(stamp, 60.0) is not None  # the keyframe is set
+                probe.publish(probe.cloud(pair.pts_src, pair.label_src.astype(np.uint32),
+                                          to_stamp(70.1)))
+                threading.Event().wait(0.02)  # the worker is registering now
+            start = time.monotonic()
+            process.send_signal(sig)
+            code = process.wait(timeout=10.0)
+            elapsed = time.monotonic() - start
+        finally:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+        assert code == 0, f'{sig.name} {when}: exit code {code}\n{log_path.read_text()}'
+        assert elapsed < 2.0, f'{sig.name} {when}: {elapsed:.1f} s to stop'
