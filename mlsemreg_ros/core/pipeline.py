@@ -17,7 +17,8 @@ The registration pipeline: two labeled scans in, a rigid transform out.
 Per pair the steps are (cf. Fig. 2 of the paper)::
 
     prepare(scan)      voxelize, keypoints, descriptors, Local-SS, landmarks  (cached per scan)
-    register(src, dst) ML-SemReg correspondences -> robust estimator -> optional ICP
+    register(src, dst) ML-SemReg correspondences -> robust estimator -> verification
+                       on the dense scans -> optional ICP
 
 :meth:`Registration.prepare` is separate so a node can keep its keyframe's
 prepared scan and pay only for the new scan on every frame.
@@ -41,6 +42,7 @@ from mlsemreg_ros.core.results import (
     RegistrationResult,
 )
 from mlsemreg_ros.core.threads import LazyPool
+from mlsemreg_ros.core.verification import label_compatibility, verify_hypotheses
 import numpy as np
 
 
@@ -75,6 +77,7 @@ class Registration:
         self._landmark_ids = self.label_map.ids_of(sem.landmark_classes)
         self._ignored_ids = self.label_map.ids_of(sem.ignored_classes)
         self._undefined_ids = self.label_map.ids_of(sem.undefined_classes)
+        self._label_compatibility = label_compatibility(self.label_map, config.verification)
         self._config = config
 
     # ------------------------------------------------------------------------------
@@ -159,6 +162,14 @@ class Registration:
             estimate_result = estimate(src_pts, dst_pts, cfg.estimator)
         transform = estimate_result.transform
         diagnostics.update(estimate_result.diagnostics)
+        # 2b. hypothesis verification on the dense labeled scans (core/verification.py)
+        if cfg.verification.enabled:
+            with _timed(timings, 'verification_ms'):
+                verified = verify_hypotheses(estimate_result, src_pts, dst_pts, source, target,
+                                             cfg.verification, cfg.estimator,
+                                             self._label_compatibility)
+            transform = verified.T_target_source
+            diagnostics.update(verified.diagnostics)
         # 3. optional point-to-plane ICP on the scans
         if cfg.refine.icp and len(corr) > 0:
             with _timed(timings, 'icp_ms'):

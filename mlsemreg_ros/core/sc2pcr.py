@@ -32,7 +32,10 @@ following the stages of the authors' reference code, in NumPy/SciPy for a CPU:
    among those the ``k2`` best by their local second-order score, a weighted
    SVD whose weights are the leading eigenvector of the local ``SC`` (Sec. 3.4);
 5. the hypothesis with most inliers (residual < ``inlier_threshold``) wins and
-   is refined by reweighted least squares on its inliers.
+   is refined by reweighted least squares on its inliers.  All hypotheses are
+   returned too, most inliers first (:class:`Hypotheses`):
+   :func:`distinct_hypotheses` picks the best distinct ones for hypothesis
+   verification on the dense scans (``core/verification.py``, beyond the paper).
 
 Departures from the reference code, all deliberate:
 
@@ -62,7 +65,7 @@ import dataclasses
 import time
 
 from mlsemreg_ros.core.config import EstimatorConfig
-from mlsemreg_ros.core.results import EstimateResult
+from mlsemreg_ros.core.results import EstimateResult, Hypotheses
 from mlsemreg_ros.core.rigid import apply_transform, weighted_rigid_transform
 import numpy as np
 from scipy import sparse
@@ -115,8 +118,9 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
       ``max_points`` sampling of the SC2-PCR reference code; every hypothesis is still
       scored, and the winner refined, on all ``K``.
 
-    Returns the transform, ``inlier_mask = residual < inlier_threshold`` under it, and
-    diagnostics: ``n_seeds`` (``n_seeds_nms`` before the work budget),
+    Returns the transform, ``inlier_mask = residual < inlier_threshold`` under it, every
+    seed's hypothesis (unrefined, most inliers first; the first is the refined winner's
+    start) and diagnostics: ``n_seeds`` (``n_seeds_nms`` before the work budget),
     ``best_hypothesis_inliers``, ``refine_iterations``,
     ``leading_eigenvalue`` (Rayleigh quotient of the first-order compatibility matrix, the
     spectral confidence of SC2-PCR), ``sc_density`` and per-stage times ``sc2_*_ms``.
@@ -177,6 +181,8 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
     tick = time.perf_counter()
     inlier_counts = count_inliers(hypotheses, p_all, q_all, config.inlier_threshold)
     best = int(np.argmax(inlier_counts))
+    ranking = np.argsort(-inlier_counts, kind='stable')  # ranking[0] == best
+    candidates = Hypotheses(hypotheses[ranking], inlier_counts[ranking])
     diagnostics['best_hypothesis_inliers'] = int(inlier_counts[best])
     timings['sc2_selection_ms'] = _ms(tick)
     if count < rows.size and inlier_counts[best] < config.graph_retry_inliers:
@@ -196,7 +202,38 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
     inlier_mask[rows] = residuals(transform, p_all, q_all) < config.inlier_threshold
     timings['sc2_total_ms'] = _ms(start)
     diagnostics.update(timings)
-    return EstimateResult(transform, inlier_mask, diagnostics)
+    return EstimateResult(transform, inlier_mask, diagnostics, candidates)
+
+
+def distinct_hypotheses(transforms: np.ndarray, limit: int, rotation_deg: float,
+                        translation_m: float) -> np.ndarray:
+    """
+    Return the indices of at most ``limit`` distinct hypotheses, best first.
+
+    Greedy: the first is kept, then every hypothesis within ``rotation_deg`` *and*
+    ``translation_m`` of a kept one is dropped, and the next remaining one is kept.
+    With the success bounds (5 deg, 0.6 m) two kept hypotheses can never both count
+    as the same registration. One vectorized pass over all ``S`` per kept hypothesis.
+
+    - ``transforms``: ``(S, 4, 4)``, best first (e.g. :class:`Hypotheses`).
+    - ``limit``: most hypotheses to keep (``>= 1``).
+
+    Returns ``(n,)`` int64 indices, ``n <= limit``, ascending; ``0`` first when ``S > 0``.
+    """
+    count = transforms.shape[0]
+    rotations, translations = transforms[:, :3, :3], transforms[:, :3, 3]
+    cos_bound = np.cos(np.radians(rotation_deg))
+    available = np.ones(count, dtype=bool)
+    kept: list[int] = []
+    while len(kept) < limit and available.any():
+        first = int(np.argmax(available))
+        kept.append(first)
+        # angle of R_first^T R_j: (trace - 1) / 2 = (sum of the elementwise product - 1) / 2
+        cos = (np.einsum('ab,sab->s', rotations[first], rotations) - 1.0) / 2.0
+        near = (cos >= cos_bound - 1e-12)
+        near &= np.linalg.norm(translations - translations[first], axis=1) <= translation_m
+        available &= ~near
+    return np.asarray(kept, dtype=np.int64)
 
 
 def graph_rows(count: int, graph_size: int) -> np.ndarray:
