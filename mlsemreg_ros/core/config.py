@@ -242,6 +242,12 @@ class VerificationConfig:
     overlap_distance: float = param(
         0.6, 'A sampled source point overlaps when a target scan point lies within this '
         'distance of it under the hypothesis.', unit='m', low=0.01, high=10.0)
+    range_exponent: float = param(
+        2.0, 'Each sampled source point counts with the weight range^this (distance from the '
+        'source sensor) in the overlap and the label agreement. A LiDAR samples a surface at '
+        'range r with a density ~1/r^2: 2 makes both shares of the seen surface, not of the '
+        'points, so the dense ground around the sensor cannot decide; 0: equal weights.',
+        low=0.0, high=4.0)
     overlap_weight: float = param(
         1.0, 'Exponent of the overlap fraction in the combined score.', low=0.0, high=10.0)
     label_weight: float = param(

@@ -27,7 +27,10 @@ level of its "multi-level semantic consistency") weighs it:
    the winner (SC2-PCR post-refinement) and de-duplicated again;
 2. on a seeded sample of ``sample_points`` source scan points, transformed by every
    candidate at once, one nearest-neighbour query in the target scan's KD-tree (built
-   once per target scan, :meth:`PreparedScan.points_tree`) gives
+   once per target scan, :meth:`PreparedScan.points_tree`) gives, each sampled point
+   weighted by its range ``** range_exponent`` (:func:`area_weights`: shares of the seen
+   surface rather than of the points, so the dense ground around the sensor does not
+   decide),
 
    - ``overlap``: the share of sampled points with a target point within
      ``overlap_distance``;
@@ -158,6 +161,7 @@ def dense_scores(transforms: np.ndarray, source: PreparedScan, target_tree: cKDT
     rows = (rng.choice(total, config.sample_points, replace=False)
             if total > config.sample_points else np.arange(total))
     points, source_labels = source.points[rows], source.labels[rows]
+    weight = area_weights(points, config.range_exponent)  # (n,), sums to 1
     moved = points @ transforms[:, :3, :3].transpose(0, 2, 1) + transforms[:, None, :3, 3]
     distance, nearest = target_tree.query(moved.reshape(-1, 3),
                                           distance_upper_bound=config.overlap_distance)
@@ -167,9 +171,26 @@ def dense_scores(transforms: np.ndarray, source: PreparedScan, target_tree: cKDT
     counted = overlapping & labels.counted[source_labels][None, :]
     counted &= labels.counted[nearest_labels]
     agreeing = counted & labels.compatible[source_labels[None, :], nearest_labels]
-    n_counted = counted.sum(axis=1)
-    agreement = np.where(n_counted > 0, agreeing.sum(axis=1) / np.maximum(n_counted, 1), 1.0)
-    return overlapping.mean(axis=1), agreement
+    counted_weight = counted @ weight
+    agreement = np.where(counted_weight > 0,
+                         (agreeing @ weight) / np.maximum(counted_weight, 1e-300), 1.0)
+    return np.clip(overlapping @ weight, 0.0, 1.0), np.clip(agreement, 0.0, 1.0)
+
+
+def area_weights(points: np.ndarray, exponent: float) -> np.ndarray:
+    """
+    ``(n,)`` weights ``range ** exponent`` of sensor-frame points, normalised to sum 1.
+
+    A LiDAR samples a surface at range ``r`` with a density ``~ 1 / r^2``, so with
+    ``exponent = 2`` a weighted share is a share of the *seen surface*, not of the
+    points, and the dense ground next to the sensor cannot outvote the rest of the scene
+    (a pose that drops the source scan onto the target sensor overlaps many points).
+    ``exponent = 0``: every point counts the same. All weights zero (all points at the
+    origin) fall back to equal weights.
+    """
+    weight = np.linalg.norm(points, axis=1) ** exponent if exponent else np.ones(len(points))
+    total = weight.sum()
+    return weight / total if total > 0 else np.full(len(points), 1.0 / max(len(points), 1))
 
 
 def combined_score(overlap: np.ndarray, agreement: np.ndarray,
