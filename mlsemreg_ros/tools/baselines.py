@@ -49,7 +49,7 @@ class KissMatcherResult:
     T_target_source: np.ndarray  # (4, 4)
     valid: bool  # KISS-Matcher's own success flag
     num_final_inliers: int  # its translation inliers
-    src_matched: np.ndarray  # (K, 3) its initial correspondences (fed to ROBIN + GNC)
+    src_matched: np.ndarray  # (K, 3) its initial Faster-PFH matches (fed to ROBIN + GNC)
     dst_matched: np.ndarray  # (K, 3)
     time_ms: float  # wall time of estimate(): voxelization, features, matching, solver
     stage_ms: dict[str, float] = field(default_factory=dict)
@@ -76,11 +76,12 @@ def kiss_matcher_register(pts_src: np.ndarray, pts_dst: np.ndarray,
     transform = np.eye(4)
     transform[:3, :3] = np.asarray(solution.rotation, dtype=np.float64).reshape(3, 3)
     transform[:3, 3] = np.asarray(solution.translation, dtype=np.float64).reshape(3)
-    matched_src, matched_dst = matcher.get_keypoints_from_initial_matching()
+    keypoints_src, keypoints_dst = (np.asarray(k, dtype=np.float64).reshape(-1, 3)
+                                    for k in matcher.get_keypoints_from_faster_pfh())
+    pairs = np.asarray(matcher.get_initial_correspondences(), dtype=np.int64).reshape(-1, 2)
     return KissMatcherResult(
         transform, bool(solution.valid), int(matcher.get_num_final_inliers()),
-        np.asarray(matched_src, dtype=np.float64).reshape(-1, 3),
-        np.asarray(matched_dst, dtype=np.float64).reshape(-1, 3), time_ms,
+        keypoints_src[pairs[:, 0]], keypoints_dst[pairs[:, 1]], time_ms,
         {'processing_ms': 1e3 * matcher.get_processing_time(),
          'extraction_ms': 1e3 * matcher.get_extraction_time(),
          'matching_ms': 1e3 * matcher.get_matching_time(),

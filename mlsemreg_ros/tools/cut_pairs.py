@@ -71,7 +71,7 @@ class PairChoice:
 
 def read_frames(bag: Path, voxel_size: float, max_range: float,
                 progress: bool = True) -> list[Frame]:
-    """Every scan of ``bag`` that has ground truth, cropped, voxelized, in learning ids."""
+    """Read every scan of ``bag`` with ground truth: cropped, voxelized, in learning ids."""
     from mlsemreg_ros.core.features import voxel_downsample
     from mlsemreg_ros.core.labels import LabelMap
     from mlsemreg_ros.datasets.scans import open_scan_source
@@ -105,7 +105,7 @@ def relative_motion(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def ground_truth_overlap(source: Frame, target: Frame, tree: Any) -> float:
-    """Share of source points within 0.6 m of a target point under the ground truth."""
+    """Return the share of source points within 0.6 m of a target point under the truth."""
     T = np.linalg.inv(target.T_world_sensor) @ source.T_world_sensor
     moved = source.points @ T[:3, :3].T + T[:3, 3]
     distance, _ = tree.query(moved, distance_upper_bound=OVERLAP_DISTANCE_M)
@@ -148,7 +148,7 @@ def choose_pairs(frames: list[Frame], args: argparse.Namespace) -> list[PairChoi
 
 def make_pair(frames: list[Frame], choice: PairChoice, name: str, keypoints: int,
               seed: int) -> Any:
-    """The :class:`~mlsemreg_ros.core.pairs.Pair` of one choice, with random keypoints."""
+    """Build the :class:`~mlsemreg_ros.core.pairs.Pair` of one choice, with random keypoints."""
     from mlsemreg_ros.core.features import sample_keypoints
     from mlsemreg_ros.core.pairs import Pair
 
