@@ -61,6 +61,7 @@ for OpenBLAS to run them single-threaded.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import dataclasses
 import time
 
@@ -220,20 +221,27 @@ def distinct_hypotheses(transforms: np.ndarray, limit: int, rotation_deg: float,
 
     Returns ``(n,)`` int64 indices, ``n <= limit``, ascending; ``0`` first when ``S > 0``.
     """
-    count = transforms.shape[0]
-    rotations, translations = transforms[:, :3, :3], transforms[:, :3, 3]
-    cos_bound = np.cos(np.radians(rotation_deg))
-    available = np.ones(count, dtype=bool)
+    available = np.ones(transforms.shape[0], dtype=bool)
     kept: list[int] = []
     while len(kept) < limit and available.any():
         first = int(np.argmax(available))
         kept.append(first)
-        # angle of R_first^T R_j: (trace - 1) / 2 = (sum of the elementwise product - 1) / 2
-        cos = (np.einsum('ab,sab->s', rotations[first], rotations) - 1.0) / 2.0
-        near = (cos >= cos_bound - 1e-12)
-        near &= np.linalg.norm(translations - translations[first], axis=1) <= translation_m
-        available &= ~near
+        available &= ~same_pose(transforms[first], transforms, rotation_deg, translation_m)
     return np.asarray(kept, dtype=np.int64)
+
+
+def same_pose(pose: np.ndarray, others: np.ndarray, rotation_deg: float,
+              translation_m: float) -> np.ndarray:
+    """
+    ``(S,)`` bool: ``pose`` ``(4, 4)`` is within both bounds of each of ``others`` ``(S, 4, 4)``.
+
+    The rotation angle of ``R^T R_s`` comes from its trace, the elementwise product sum
+    ``(trace - 1) / 2 = cos``; the translation bound is on ``||t - t_s||``, as in the
+    success test of the evaluation protocol.
+    """
+    cos = (np.einsum('ab,sab->s', pose[:3, :3], others[:, :3, :3]) - 1.0) / 2.0
+    close = np.linalg.norm(others[:, :3, 3] - pose[:3, 3], axis=1) <= translation_m
+    return close & (cos >= np.cos(np.radians(rotation_deg)) - 1e-12)
 
 
 def graph_rows(count: int, graph_size: int) -> np.ndarray:
@@ -697,14 +705,16 @@ def count_inliers(transforms: np.ndarray, src: np.ndarray, dst: np.ndarray,
 
 
 def post_refinement(transform: np.ndarray, src: np.ndarray, dst: np.ndarray, threshold: float,
-                    iterations: int) -> tuple[np.ndarray, int]:
+                    iterations: int,
+                    stop: Callable[[np.ndarray], bool] | None = None) -> tuple[np.ndarray, int]:
     """
     Reweighted least squares on the inliers of ``transform`` (SC2-PCR post-refinement).
 
     Each step takes the correspondences with residual ``r < threshold`` and
     re-estimates with weights ``1 / (1 + (r / threshold)^2)``; it stops when the
-    inlier count no longer changes, after ``iterations`` steps, or when fewer
-    than three inliers remain.
+    inlier count no longer changes, after ``iterations`` steps, when fewer
+    than three inliers remain, or when ``stop(transform)`` (if given) is true after a
+    step (hypothesis verification: the pose has joined one already refined).
 
     Returns ``(refined (4, 4) transform, re-estimations done)``.
     """
@@ -720,6 +730,8 @@ def post_refinement(transform: np.ndarray, src: np.ndarray, dst: np.ndarray, thr
         weights = 1.0 / (1.0 + (residual[inliers] / threshold) ** 2)
         transform = weighted_rigid_transform(src[inliers], dst[inliers], weights)
         done += 1
+        if stop is not None and stop(transform):
+            break
     return transform, done
 
 

@@ -67,6 +67,7 @@ from mlsemreg_ros.core.sc2pcr import (
     distinct_hypotheses,
     post_refinement,
     residuals,
+    same_pose,
 )
 import numpy as np
 from scipy.spatial import cKDTree
@@ -109,8 +110,9 @@ def candidate_hypotheses(estimate: EstimateResult, src: np.ndarray, dst: np.ndar
 
     ``estimate.transform`` comes first as it is. The next best distinct hypotheses of
     ``estimate.hypotheses`` (at most ``config.hypotheses`` in all; distinct from each
-    other and from the refined choice) get SC2-PCR's post-refinement, and refined poses
-    that fell within the distinct bounds of a better one are dropped. The refinement runs
+    other and from the refined choice) get SC2-PCR's post-refinement; one that comes
+    within the distinct bounds of a better refined one is dropped (its refinement ends
+    there, as most of them join the estimator's choice). The refinement runs
     on the finite correspondences within ``_REFINE_SUPPORT x refine_threshold`` of the
     starting pose (a fraction of them, so it is several times faster): a correspondence
     that far off would have to move by more than the refinement threshold to become an
@@ -131,14 +133,19 @@ def candidate_hypotheses(estimate: EstimateResult, src: np.ndarray, dst: np.ndar
         for rank in picked[1:]:  # at most config.hypotheses - 1 refinements
             start = pool[rank]
             near = residuals(start, p, q) < support
+            known = np.stack(transforms)
+
+            def joined(pose: np.ndarray, known: np.ndarray = known) -> bool:
+                return same_pose(pose, known, config.distinct_rotation,
+                                 config.distinct_translation).any()
+
             refined, _ = post_refinement(start, p[near], q[near], estimator.refine_threshold,
-                                         estimator.refine_iterations)
+                                         estimator.refine_iterations, stop=joined)
+            if joined(refined):
+                continue  # converged onto a better candidate: a duplicate
             transforms.append(refined)
             ranks.append(int(rank))
-    stacked = np.stack(transforms)
-    keep = distinct_hypotheses(stacked, len(transforms), config.distinct_rotation,
-                               config.distinct_translation)
-    return stacked[keep], np.asarray(ranks, dtype=np.int64)[keep]
+    return np.stack(transforms), np.asarray(ranks, dtype=np.int64)
 
 
 def dense_scores(transforms: np.ndarray, source: PreparedScan, target_tree: cKDTree,
