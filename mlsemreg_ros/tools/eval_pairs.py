@@ -342,6 +342,9 @@ def run_baselines(directory: Path, names: list[str], config: Any,
             report = evaluate_kiss_matcher(list_pairs(directory), progress=progress)
             out[report['method']] = report
         else:
+            import open3d as o3d
+
+            o3d.utility.random.seed(0)  # RANSAC samples (its threads still vary the order)
             baseline = fpfh_ransac_config(config)
             report = evaluate_directory(directory, 'fpfh', baseline, progress=progress)
             out[method_label('fpfh', baseline)] = report
