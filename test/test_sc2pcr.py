@@ -247,6 +247,29 @@ def test_sc2pcr_recovers_transform_with_90_percent_outliers(seed: int) -> None:
     assert all(isinstance(diag[k], float) for k in diag if k.endswith('_ms'))
 
 
+def test_every_hypothesis_is_returned_most_inliers_first() -> None:
+    src, dst, truth, _ = _problem(0)
+    config = EstimatorConfig()
+    result = sc2.sc2pcr(src, dst, config)
+    hypotheses = result.hypotheses
+    assert len(hypotheses) == result.diagnostics['n_seeds']
+    assert hypotheses.T_target_source.shape == (len(hypotheses), 4, 4)
+    assert np.all(np.diff(hypotheses.num_inliers) <= 0)
+    assert hypotheses.num_inliers[0] == result.diagnostics['best_hypothesis_inliers']
+    np.testing.assert_array_equal(
+        hypotheses.num_inliers,
+        sc2.count_inliers(hypotheses.T_target_source, src, dst, config.inlier_threshold))
+    # the winner is the first hypothesis after post-refinement
+    refined, _ = sc2.post_refinement(hypotheses.T_target_source[0], src, dst,
+                                     config.refine_threshold, config.refine_iterations)
+    np.testing.assert_allclose(refined, result.transform, atol=1e-9)
+    # the best distinct hypothesis is the truth
+    kept = sc2.distinct_hypotheses(hypotheses.T_target_source, 5, 5.0, 0.6)
+    assert kept[0] == 0
+    assert _errors(hypotheses.T_target_source[kept[0]], truth)[0] < 2.0
+    assert estimate(src, dst, EstimatorConfig(kind='ransac')).hypotheses is None
+
+
 def test_thresholds_come_from_config() -> None:
     src, dst, truth, _ = _problem(3, noise=0.2)
     loose = sc2.sc2pcr(src, dst, EstimatorConfig(inlier_threshold=1.0))

@@ -242,6 +242,68 @@ class EstimatorConfig:
 
 
 @dataclass
+class VerificationConfig:
+    """
+    Hypothesis verification on the dense labeled scans, after the estimator.
+
+    The estimator's best distinct hypotheses are scored on the voxelized scans:
+    ``score = overlap ** overlap_weight * label_agreement ** label_weight``
+    (core/verification.py).
+    """
+
+    enabled: bool = param(
+        True, 'Verify the best distinct hypotheses of the estimator on the dense labeled scans '
+        '(overlap and label agreement); false keeps the choice of the estimator (most inliers).')
+    hypotheses: int = param(
+        5, 'Hypotheses verified: the choice of the estimator and up to this many minus one other '
+        'distinct ones, by descending inlier count (SC2-PCR: one per seed).', low=1, high=256)
+    distinct_rotation: float = param(
+        5.0, 'Two hypotheses are the same pose when they differ by at most this rotation and '
+        'at most verification.distinct_translation (the success bounds).', unit='deg',
+        low=0.0, high=180.0)
+    distinct_translation: float = param(
+        0.6, 'Translation bound of the same-pose test (see verification.distinct_rotation).',
+        unit='m', low=0.0, high=100.0)
+    sample_points: int = param(
+        2000, 'Source scan points (seeded random subset) scored per hypothesis.',
+        low=10, high=1000000)
+    overlap_distance: float = param(
+        0.6, 'A sampled source point overlaps when a target scan point lies within this '
+        'distance of it under the hypothesis.', unit='m', low=0.01, high=10.0)
+    range_exponent: float = param(
+        2.0, 'Each sampled source point counts with the weight range^this (distance from the '
+        'source sensor) in the overlap and the label agreement. A LiDAR samples a surface at '
+        'range r with a density ~1/r^2: 2 makes both shares of the seen surface, not of the '
+        'points, so the dense ground around the sensor cannot decide; 0: equal weights.',
+        low=0.0, high=4.0)
+    overlap_weight: float = param(
+        1.0, 'Exponent of the overlap fraction in the combined score.', low=0.0, high=10.0)
+    label_weight: float = param(
+        1.0, 'Exponent of the label agreement in the combined score (0: geometry only).',
+        low=0.0, high=10.0)
+    min_gain: float = param(
+        0.05, 'Another hypothesis replaces the choice of the estimator only when its score is '
+        'higher by more than this share (0.05 = 5 %).', low=0.0, high=10.0)
+    compatible_classes: list[str] = param(
+        ['vegetation~terrain', 'vegetation~trunk', 'road~parking', 'building~fence',
+         'pole~traffic-sign'],
+        'Label pairs (or groups, a~b~c) that count as agreeing besides equal labels '
+        '(class names of the label map).')
+    ignored_classes: list[str] = param(
+        ['unlabeled'], 'Classes left out of the label agreement (their points still count '
+        'for the overlap).')
+    seed: int = param(0, 'Seed of the source point sample.', low=0, high=2**31 - 1)
+
+    def __post_init__(self) -> None:
+        """Reject a compatibility rule that is not ``class~class[~class...]``."""
+        for rule in self.compatible_classes:
+            names = rule.split('~')
+            if len(names) < 2 or not all(n.strip() for n in names):
+                raise ConfigError(f'verification.compatible_classes: {rule!r} is not of the '
+                                  "form 'class~class' (e.g. 'vegetation~terrain')")
+
+
+@dataclass
 class FineAlignmentConfig:
     """
     Fine alignment of the dense scans with small_gicp, after the global estimate.
@@ -380,6 +442,7 @@ SECTIONS: dict[str, type] = {
     'keypoints': KeypointConfig,
     'matcher': MatcherConfig,
     'estimator': EstimatorConfig,
+    'verification': VerificationConfig,
     'fine': FineAlignmentConfig,
     'local_map': LocalMapConfig,
     'keyframe': KeyframeConfig,
@@ -508,6 +571,7 @@ class RegistrationConfig(Settings):
     keypoints: KeypointConfig = field(default_factory=KeypointConfig)
     matcher: MatcherConfig = field(default_factory=MatcherConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
+    verification: VerificationConfig = field(default_factory=VerificationConfig)
     fine: FineAlignmentConfig = field(default_factory=FineAlignmentConfig)
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
     keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)

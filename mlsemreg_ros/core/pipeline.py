@@ -18,7 +18,8 @@ Per pair the steps are (cf. Fig. 2 of the paper)::
 
     prepare(scan)      voxelize, keypoints, descriptors, Local-SS, landmarks, alignment cloud
                        (cached per scan)
-    register(src, dst) ML-SemReg correspondences -> robust estimator -> fine alignment (GICP)
+    register(src, dst) ML-SemReg correspondences -> robust estimator -> verification on the
+                       dense labeled scans -> fine alignment (GICP)
 
 :meth:`Registration.prepare` is separate so a node can keep its keyframe's
 prepared scan and pay only for the new scan on every frame.
@@ -45,6 +46,7 @@ from mlsemreg_ros.core.results import (
 from mlsemreg_ros.core.rigid import rotation_angle_deg
 from mlsemreg_ros.core.scan_input import sanitize_scan_for
 from mlsemreg_ros.core.threads import LazyPool
+from mlsemreg_ros.core.verification import label_compatibility, verify_hypotheses
 import numpy as np
 
 
@@ -80,6 +82,7 @@ class Registration:
         self._landmark_ids = self.label_map.ids_of(sem.landmark_classes)
         self._ignored_ids = self.label_map.ids_of(sem.ignored_classes)
         self._undefined_ids = self.label_map.ids_of(sem.undefined_classes)
+        self._label_compatibility = label_compatibility(self.label_map, config.verification)
         self._config = config
 
     # ------------------------------------------------------------------------------
@@ -190,6 +193,14 @@ class Registration:
             estimate_result = estimate(src_pts, dst_pts, cfg.estimator)
         transform = estimate_result.transform
         diagnostics.update(estimate_result.diagnostics)
+        # 2b. hypothesis verification on the dense labeled scans (core/verification.py)
+        if cfg.verification.enabled:
+            with _timed(timings, 'verification_ms'):
+                verified = verify_hypotheses(estimate_result, src_pts, dst_pts, source, target,
+                                             cfg.verification, cfg.estimator,
+                                             self._label_compatibility)
+            transform = verified.T_target_source
+            diagnostics.update(verified.diagnostics)
         residual = np.linalg.norm(src_pts @ transform[:3, :3].T + transform[:3, 3] - dst_pts,
                                   axis=1)
         inliers = residual < cfg.estimator.inlier_threshold
@@ -197,8 +208,8 @@ class Registration:
         if not success:
             message = (f'{int(inliers.sum())} inliers < estimator.min_inliers='
                        f'{cfg.estimator.min_inliers}' + (f'; {message}' if message else ''))
-        # 3. fine alignment of the scans (GICP/VGICP), from the estimate
-        alignment = None
+        # 3. fine alignment of the scans (GICP/VGICP), from the (verified) estimate
+        estimated, alignment = transform, None
         if refine and success and cfg.fine.pair_method != 'off':
             with _timed(timings, 'fine_ms'):
                 alignment = align_pair(self.alignment_cloud(source, pair=True),
@@ -211,7 +222,7 @@ class Registration:
             if not refused:
                 transform = alignment.T_target_source
         return RegistrationResult(transform, corr, src_pts, dst_pts, inliers, success, mode,
-                                  message, timings, diagnostics, estimate_result.transform,
+                                  message, timings, diagnostics, estimated,
                                   alignment)
 
     def alignment_cloud(self, scan: PreparedScan, pair: bool = False) -> AlignmentCloud:

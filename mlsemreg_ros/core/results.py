@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 if TYPE_CHECKING:  # small_gicp is only needed where the fine alignment runs
     from mlsemreg_ros.core.alignment import Alignment, AlignmentCloud
@@ -66,6 +67,19 @@ class PreparedScan:
     alignment_clouds: dict[tuple[float, int], AlignmentCloud] = field(default_factory=dict)
     #: what the input hygiene did: dropped points by kind, label scheme, out-of-scheme labels
     input_stats: dict[str, Any] = field(default_factory=dict)
+    _points_tree: cKDTree | None = field(default=None, init=False, repr=False, compare=False)
+
+    def points_tree(self) -> cKDTree:
+        """
+        KD-tree of ``points``, built on first use and kept with the scan.
+
+        Hypothesis verification queries the target scan once per registration; a node
+        registers many scans against one keyframe, so the tree is built once per keyframe.
+        """
+        if self._points_tree is None:
+            # sliding-midpoint splits, no node shrinking: ~40 % cheaper to build, same queries
+            self._points_tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
+        return self._points_tree
 
 
 @dataclass
@@ -81,12 +95,29 @@ class Correspondences:
 
 
 @dataclass
+class Hypotheses:
+    """
+    Every rigid-transform hypothesis of an estimator, most inliers first.
+
+    SC2-PCR (Chen et al., CVPR 2022) makes one hypothesis per seed and keeps the one with
+    most inliers; the others are the candidates of hypothesis verification.
+    """
+
+    T_target_source: np.ndarray  # (S, 4, 4) before post-refinement
+    num_inliers: np.ndarray  # (S,) int64 correspondences with residual < inlier_threshold
+
+    def __len__(self) -> int:
+        return int(self.num_inliers.shape[0])
+
+
+@dataclass
 class EstimateResult:
     """Output of a robust estimator."""
 
     transform: np.ndarray  # (4, 4) T_target_source: p_target = T @ p_source
     inlier_mask: np.ndarray  # (K,) bool, residual < inlier_threshold under transform
     diagnostics: dict[str, Any] = field(default_factory=dict)
+    hypotheses: Hypotheses | None = None  # all candidates (SC2-PCR), hypotheses[0] -> transform
 
     @property
     def num_inliers(self) -> int:
@@ -115,3 +146,34 @@ class RegistrationResult:
     def num_inliers(self) -> int:
         """Correspondences consistent with the estimate."""
         return int(np.count_nonzero(self.inlier_mask))
+
+
+@dataclass
+class HypothesisScore:
+    """One verified hypothesis: its refined transform and its scores on the dense scans."""
+
+    T_target_source: np.ndarray  # (4, 4) after the estimator's post-refinement
+    estimator_rank: int  # position among the estimator's hypotheses (0: its own choice)
+    num_inliers: int  # correspondences with residual < estimator.inlier_threshold
+    overlap: float  # share of sampled source points within overlap_distance of the target
+    label_agreement: float  # share of the overlapping labeled points with compatible labels
+    score: float  # combined score, see core/verification.py
+
+
+@dataclass
+class VerificationResult:
+    """Outcome of hypothesis verification: every candidate's scores and the choice."""
+
+    hypotheses: list[HypothesisScore]  # hypotheses[0] is the estimator's choice
+    chosen: int  # index into hypotheses
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def T_target_source(self) -> np.ndarray:
+        """Transform of the chosen hypothesis."""
+        return self.hypotheses[self.chosen].T_target_source
+
+    @property
+    def switched(self) -> bool:
+        """Whether verification overruled the estimator's choice."""
+        return self.chosen != 0

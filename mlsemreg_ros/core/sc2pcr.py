@@ -32,7 +32,10 @@ following the stages of the authors' reference code, in NumPy/SciPy for a CPU:
    among those the ``k2`` best by their local second-order score, a weighted
    SVD whose weights are the leading eigenvector of the local ``SC`` (Sec. 3.4);
 5. the hypothesis with most inliers (residual < ``inlier_threshold``) wins and
-   is refined by reweighted least squares on its inliers.
+   is refined by reweighted least squares on its inliers.  All hypotheses are
+   returned too, most inliers first (:class:`Hypotheses`):
+   :func:`distinct_hypotheses` picks the best distinct ones for hypothesis
+   verification on the dense scans (``core/verification.py``, beyond the paper).
 
 Departures from the reference code, all deliberate:
 
@@ -58,11 +61,12 @@ for OpenBLAS to run them single-threaded.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import dataclasses
 import time
 
 from mlsemreg_ros.core.config import EstimatorConfig
-from mlsemreg_ros.core.results import EstimateResult
+from mlsemreg_ros.core.results import EstimateResult, Hypotheses
 from mlsemreg_ros.core.rigid import apply_transform, weighted_rigid_transform
 import numpy as np
 from scipy import sparse
@@ -115,8 +119,9 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
       ``max_points`` sampling of the SC2-PCR reference code; every hypothesis is still
       scored, and the winner refined, on all ``K``.
 
-    Returns the transform, ``inlier_mask = residual < inlier_threshold`` under it, and
-    diagnostics: ``n_seeds`` (``n_seeds_nms`` before the work budget),
+    Returns the transform, ``inlier_mask = residual < inlier_threshold`` under it, every
+    seed's hypothesis (unrefined, most inliers first; the first is the refined winner's
+    start) and diagnostics: ``n_seeds`` (``n_seeds_nms`` before the work budget),
     ``best_hypothesis_inliers``, ``refine_iterations``,
     ``leading_eigenvalue`` (Rayleigh quotient of the first-order compatibility matrix, the
     spectral confidence of SC2-PCR), ``sc_density`` and per-stage times ``sc2_*_ms``.
@@ -177,6 +182,8 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
     tick = time.perf_counter()
     inlier_counts = count_inliers(hypotheses, p_all, q_all, config.inlier_threshold)
     best = int(np.argmax(inlier_counts))
+    ranking = np.argsort(-inlier_counts, kind='stable')  # ranking[0] == best
+    candidates = Hypotheses(hypotheses[ranking], inlier_counts[ranking])
     diagnostics['best_hypothesis_inliers'] = int(inlier_counts[best])
     timings['sc2_selection_ms'] = _ms(tick)
     if count < rows.size and inlier_counts[best] < config.graph_retry_inliers:
@@ -196,7 +203,45 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
     inlier_mask[rows] = residuals(transform, p_all, q_all) < config.inlier_threshold
     timings['sc2_total_ms'] = _ms(start)
     diagnostics.update(timings)
-    return EstimateResult(transform, inlier_mask, diagnostics)
+    return EstimateResult(transform, inlier_mask, diagnostics, candidates)
+
+
+def distinct_hypotheses(transforms: np.ndarray, limit: int, rotation_deg: float,
+                        translation_m: float) -> np.ndarray:
+    """
+    Return the indices of at most ``limit`` distinct hypotheses, best first.
+
+    Greedy: the first is kept, then every hypothesis within ``rotation_deg`` *and*
+    ``translation_m`` of a kept one is dropped, and the next remaining one is kept.
+    With the success bounds (5 deg, 0.6 m) two kept hypotheses can never both count
+    as the same registration. One vectorized pass over all ``S`` per kept hypothesis.
+
+    - ``transforms``: ``(S, 4, 4)``, best first (e.g. :class:`Hypotheses`).
+    - ``limit``: most hypotheses to keep (``>= 1``).
+
+    Returns ``(n,)`` int64 indices, ``n <= limit``, ascending; ``0`` first when ``S > 0``.
+    """
+    available = np.ones(transforms.shape[0], dtype=bool)
+    kept: list[int] = []
+    while len(kept) < limit and available.any():
+        first = int(np.argmax(available))
+        kept.append(first)
+        available &= ~same_pose(transforms[first], transforms, rotation_deg, translation_m)
+    return np.asarray(kept, dtype=np.int64)
+
+
+def same_pose(pose: np.ndarray, others: np.ndarray, rotation_deg: float,
+              translation_m: float) -> np.ndarray:
+    """
+    ``(S,)`` bool: ``pose`` ``(4, 4)`` is within both bounds of each of ``others`` ``(S, 4, 4)``.
+
+    The rotation angle of ``R^T R_s`` comes from its trace, the elementwise product sum
+    ``(trace - 1) / 2 = cos``; the translation bound is on ``||t - t_s||``, as in the
+    success test of the evaluation protocol.
+    """
+    cos = (np.einsum('ab,sab->s', pose[:3, :3], others[:, :3, :3]) - 1.0) / 2.0
+    close = np.linalg.norm(others[:, :3, 3] - pose[:3, 3], axis=1) <= translation_m
+    return close & (cos >= np.cos(np.radians(rotation_deg)) - 1e-12)
 
 
 def graph_rows(count: int, graph_size: int) -> np.ndarray:
@@ -660,14 +705,16 @@ def count_inliers(transforms: np.ndarray, src: np.ndarray, dst: np.ndarray,
 
 
 def post_refinement(transform: np.ndarray, src: np.ndarray, dst: np.ndarray, threshold: float,
-                    iterations: int) -> tuple[np.ndarray, int]:
+                    iterations: int,
+                    stop: Callable[[np.ndarray], bool] | None = None) -> tuple[np.ndarray, int]:
     """
     Reweighted least squares on the inliers of ``transform`` (SC2-PCR post-refinement).
 
     Each step takes the correspondences with residual ``r < threshold`` and
     re-estimates with weights ``1 / (1 + (r / threshold)^2)``; it stops when the
-    inlier count no longer changes, after ``iterations`` steps, or when fewer
-    than three inliers remain.
+    inlier count no longer changes, after ``iterations`` steps, when fewer
+    than three inliers remain, or when ``stop(transform)`` (if given) is true after a
+    step (hypothesis verification: the pose has joined one already refined).
 
     Returns ``(refined (4, 4) transform, re-estimations done)``.
     """
@@ -683,6 +730,8 @@ def post_refinement(transform: np.ndarray, src: np.ndarray, dst: np.ndarray, thr
         weights = 1.0 / (1.0 + (residual[inliers] / threshold) ** 2)
         transform = weighted_rigid_transform(src[inliers], dst[inliers], weights)
         done += 1
+        if stop is not None and stop(transform):
+            break
     return transform, done
 
 

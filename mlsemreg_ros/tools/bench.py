@@ -23,6 +23,8 @@ pair (both clouds):
 - ``gm_mm_ms``: Group Matching + Mask Matching (NN), BMR-SS excluded;
 - ``fpfh_ms``: FPFH at the keypoints of both clouds (normals included);
 - ``sc2pcr_ms``: the estimator (SC2-PCR by default);
+- ``verification_ms``: hypothesis verification on the dense scans (0 when
+  ``verification.enabled`` is false), the target's KD-tree included;
 - ``total_ms``: wall time of preparing both clouds and registering them;
 - ``total_parallel_ms``: the same with both clouds prepared concurrently
   (``Registration.prepare_scans``, as ``register_scans`` does).
@@ -46,8 +48,8 @@ from typing import Any
 from mlsemreg_ros.tools.eval_pairs import add_config_arguments, build_config, write_json
 
 KEYPOINT_COUNTS = (250, 500, 1000, 2500, 5000)
-STAGES = ('local_ss_ms', 'bmr_ss_ms', 'gm_mm_ms', 'fpfh_ms', 'sc2pcr_ms', 'total_ms',
-          'total_parallel_ms')
+STAGES = ('local_ss_ms', 'bmr_ss_ms', 'gm_mm_ms', 'fpfh_ms', 'sc2pcr_ms', 'verification_ms',
+          'total_ms', 'total_parallel_ms')
 #: Paper appendix, Table "Average consumed time (ms) per point cloud pair on KITTI".
 PAPER_MS = {250: (9.88, 6.67, 14.59), 500: (12.61, 5.98, 27.28), 1000: (18.15, 6.32, 58.93),
             2500: (35.19, 6.72, 187.23), 5000: (62.87, 6.38, 513.56)}
@@ -88,7 +90,7 @@ def stage_times(source: Any, target: Any, result: Any, total_ms: float) -> dict[
 
     ``prepare`` reports ``local_ss_ms``, ``landmarks_ms`` and ``fpfh_ms`` per cloud;
     ``register`` reports ``gm_mm_ms`` (which contains its ``bmr_ss_ms`` sub-timing, absent
-    in a GM-only fallback) and ``estimator_ms``.
+    in a GM-only fallback), ``estimator_ms`` and ``verification_ms``.
     """
     prep = [source.timings_ms, target.timings_ms]
     reg = result.timings_ms
@@ -99,6 +101,7 @@ def stage_times(source: Any, target: Any, result: Any, total_ms: float) -> dict[
         'gm_mm_ms': reg.get('gm_mm_ms', 0.0) - bmr,
         'fpfh_ms': sum(t.get('fpfh_ms', 0.0) for t in prep),
         'sc2pcr_ms': reg.get('estimator_ms', 0.0),
+        'verification_ms': reg.get('verification_ms', 0.0),
         'total_ms': total_ms,
     }
 
@@ -136,15 +139,16 @@ def bench_pair(registration: Any, pair: Any, counts: tuple[int, ...], repeats: i
 
 def format_table(rows: dict[str, dict[str, Any]]) -> str:
     """Aligned table of the medians, plus the paper's Local-SS/BMR-SS/GM+MM for reference."""
-    header = ('keypoints', 'Local-SS', 'BMR-SS', 'GM+MM', 'Total-1', 'FPFH', 'SC2-PCR', 'total',
-              'total 2 threads', 'paper Total-1')
+    header = ('keypoints', 'Local-SS', 'BMR-SS', 'GM+MM', 'Total-1', 'FPFH', 'SC2-PCR',
+              'verification', 'total', 'total 2 threads', 'paper Total-1')
     lines = []
     for n, row in rows.items():
         total1 = row['local_ss_ms'] + row['bmr_ss_ms'] + row['gm_mm_ms']
         paper = PAPER_MS.get(int(n))
         lines.append([n] + [f'{row[s]:.1f}' for s in ('local_ss_ms', 'bmr_ss_ms', 'gm_mm_ms')]
                      + [f'{total1:.1f}', f'{row["fpfh_ms"]:.1f}', f'{row["sc2pcr_ms"]:.1f}',
-                        f'{row["total_ms"]:.1f}', f'{row["total_parallel_ms"]:.1f}',
+                        f'{row["verification_ms"]:.1f}', f'{row["total_ms"]:.1f}',
+                        f'{row["total_parallel_ms"]:.1f}',
                         f'{sum(paper):.2f}' if paper else '-'])
     widths = [max(len(h), *(len(line[i]) for line in lines)) for i, h in enumerate(header)]
     text = ['  '.join(c.rjust(w) for c, w in zip(line, widths, strict=True))

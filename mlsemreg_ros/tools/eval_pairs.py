@@ -23,6 +23,10 @@ IN / IR are measured on the correspondences fed to the estimator, under
 
 Configuration precedence: defaults < ``--config`` YAML < dedicated flags
 (``--matcher``, ``--no-semantic``, ...) < ``--set section.field=value``.
+
+``--baseline kiss-matcher`` / ``--baseline fpfh-ransac`` (repeatable) run the baselines of
+:mod:`mlsemreg_ros.tools.baselines` on the same pairs and print RR / RE / TE / time of
+every method side by side.
 """
 
 from __future__ import annotations
@@ -34,6 +38,15 @@ from pathlib import Path
 import sys
 import time
 from typing import Any
+
+from mlsemreg_ros.tools.baselines import (
+    BASELINES,
+    BaselineUnavailable,
+    comparison_table,
+    evaluate_kiss_matcher,
+    fpfh_ransac_config,
+    per_pair_table,
+)
 
 INLIER_THRESHOLD_M = 0.6  # paper, KITTI
 MAX_ROTATION_DEG = 5.0
@@ -113,6 +126,32 @@ def run_pair(registration: Any, pair: Any, descriptor: str) -> tuple[Any, Any, d
     return result, metrics, timings
 
 
+def pair_row(name: str, metrics: Any, timings: dict[str, float]) -> dict[str, Any]:
+    """One pair of the JSON report: the paper metrics and the stage times."""
+    return {
+        'name': name,
+        'n_correspondences': metrics.n_correspondences,
+        'inlier_number': metrics.inlier_number,
+        'inlier_ratio_pct': metrics.inlier_ratio_pct,
+        'rotation_error_deg': _finite_or_none(metrics.rotation_error_deg),
+        'translation_error_cm': _finite_or_none(metrics.translation_error_cm),
+        'success': metrics.success,
+        'time_ms': timings,
+    }
+
+
+def verification_summary(diagnostics: dict[str, Any]) -> dict[str, Any] | None:
+    """Collect the verification stage's choice and per-hypothesis scores from diagnostics."""
+    count = diagnostics.get('verification_hypotheses')
+    if count is None:
+        return None
+    fields = ('rank', 'inliers', 'overlap', 'label_agreement', 'score')
+    return {'switched': diagnostics['verification_switched'],
+            'chosen_rank': diagnostics['verification_chosen_rank'],
+            'hypotheses': [{f: diagnostics[f'verification_h{i}_{f}'] for f in fields}
+                           for i in range(count)]}
+
+
 def _finite_or_none(value: Any) -> Any:
     if isinstance(value, float) and not math.isfinite(value):
         return None
@@ -177,19 +216,11 @@ def evaluate_directory(directory: Path, descriptor: str, config: Any,
             raise EvalError(f'{path} has descriptors but no keypoints (kpts_src/kpts_dst)')
         result, metrics, timings = run_pair(registration, pair, descriptor)
         all_metrics.append(metrics)
-        rows.append({
-            'name': pair.name,
-            'n_correspondences': metrics.n_correspondences,
-            'inlier_number': metrics.inlier_number,
-            'inlier_ratio_pct': metrics.inlier_ratio_pct,
-            'rotation_error_deg': _finite_or_none(metrics.rotation_error_deg),
-            'translation_error_cm': _finite_or_none(metrics.translation_error_cm),
-            'success': metrics.success,
-            'mode': result.mode,
-            'estimator_inliers': result.num_inliers,
-            'message': result.message,
-            'time_ms': timings,
-        })
+        row = pair_row(pair.name, metrics, timings)
+        row.update(mode=result.mode, estimator_inliers=result.num_inliers,
+                   message=result.message,
+                   verification=verification_summary(result.diagnostics))
+        rows.append(row)
     summary = summarize(all_metrics)
     stages = sorted({stage for row in rows for stage in row['time_ms']})
     # A stage absent from a pair (e.g. bmr_ss_ms in a GM-only fallback) took 0 ms there.
@@ -231,6 +262,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument('--estimator', choices=('sc2pcr', 'ransac'), help='estimator.kind')
     parser.add_argument('--no-refine', action='store_true',
                         help='the estimator alone, no fine alignment: fine.pair_method=off')
+    parser.add_argument('--no-verification', action='store_true',
+                        help="keep the estimator's choice: verification.enabled=false")
+    parser.add_argument('--baseline', action='append', default=[], choices=BASELINES,
+                        help='also run a baseline on the same pairs and compare (repeatable): '
+                             'kiss-matcher (raw points, voxel 0.3 m, no labels; needs the '
+                             'kiss-matcher package) or fpfh-ransac (Open3D FPFH + NN + Open3D '
+                             'RANSAC)')
     add_config_arguments(parser)
     parser.add_argument('--json', type=Path, metavar='PATH', help='write the report as JSON')
     parser.add_argument('--no-progress', action='store_true', help='no progress bar')
@@ -249,6 +287,8 @@ def main(argv: list[str] | None = None) -> int:
         flags['estimator.kind'] = args.estimator
     if args.no_refine:
         flags['fine.pair_method'] = 'off'
+    if args.no_verification:
+        flags['verification.enabled'] = False
     try:
         config = build_config(args.config, flags, args.overrides)
     except (ValueError, OSError) as error:
@@ -260,18 +300,56 @@ def main(argv: list[str] | None = None) -> int:
     except EvalError as error:
         print(f'mlsemreg-eval-pairs: {error}', file=sys.stderr)
         return 1
-    mode = 'plain' if not config.semantic.enabled else 'ML-SemReg'
-    fine = config.fine.pair_method
-    print(f'{args.descriptor.upper()} + {config.matcher.kind.upper()} ({mode}) + '
-          f'{config.estimator.kind}{"" if fine == "off" else " + " + fine.upper()}, '
-          f'{len(report["pairs"])} pairs from {args.directory}')
+    label = method_label(args.descriptor, config)
+    print(f'{label}, {len(report["pairs"])} pairs from {args.directory}')
     print(format_table(report['pairs'], report['summary']))
     stages = ', '.join(f'{k} {v:.0f}' for k, v in report['summary']['time_ms'].items())
     print(f'mean time per pair (ms, both clouds): {stages}')
+    if args.baseline:
+        try:
+            report['baselines'] = run_baselines(args.directory, args.baseline, config,
+                                                progress=not args.no_progress)
+        except (BaselineUnavailable, EvalError) as error:
+            print(f'mlsemreg-eval-pairs: {error}', file=sys.stderr)
+            return 1
+        reports = {label: report, **report['baselines']}
+        print('\ncomparison on the same pairs (RE/TE: means over successful pairs):')
+        print(comparison_table(reports))
+        print(per_pair_table(reports))
     if args.json is not None:
         write_json(args.json, report)
         print(f'wrote {args.json}')
     return 0
+
+
+def method_label(descriptor: str, config: Any) -> str:
+    """E.g. ``FPFH + NN (ML-SemReg) + sc2pcr + verification``."""
+    mode = 'plain' if not config.semantic.enabled else 'ML-SemReg'
+    name = 'Open3D FPFH' if config.features.descriptor == 'fpfh_open3d' else descriptor.upper()
+    fine = config.fine.pair_method
+    return (f'{name} + {config.matcher.kind.upper()} ({mode}) + {config.estimator.kind}'
+            f'{" + verification" if config.verification.enabled else ""}'
+            f'{"" if fine == "off" else " + " + fine.upper()}')
+
+
+def run_baselines(directory: Path, names: list[str], config: Any,
+                  progress: bool = True) -> dict[str, dict[str, Any]]:
+    """Run the named baselines on the pairs of ``directory``; reports by method label."""
+    from mlsemreg_ros.core.pairs import list_pairs
+
+    out: dict[str, dict[str, Any]] = {}
+    for name in dict.fromkeys(names):  # once each, in the given order
+        if name == 'kiss-matcher':
+            report = evaluate_kiss_matcher(list_pairs(directory), progress=progress)
+            out[report['method']] = report
+        else:
+            import open3d as o3d
+
+            o3d.utility.random.seed(0)  # RANSAC samples (its threads still vary the order)
+            baseline = fpfh_ransac_config(config)
+            report = evaluate_directory(directory, 'fpfh', baseline, progress=progress)
+            out[method_label('fpfh', baseline)] = report
+    return out
 
 
 if __name__ == '__main__':

@@ -1,0 +1,188 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Pair-registration baselines of ``mlsemreg-eval-pairs --baseline``, and the side-by-side table.
+
+- ``kiss-matcher``: KISS-Matcher (Lim et al., "KISS-Matcher: Fast and Robust Point Cloud
+  Registration Revisited", ICRA 2025; PyPI ``kiss-matcher``, optional): its own voxel
+  grid, Faster-PFH, ROBIN matching and GNC solver on the raw pair points, no labels.
+- ``fpfh-ransac``: the classic Open3D global registration: Open3D FPFH at the stored
+  keypoints, plain nearest-neighbour matching, Open3D's correspondence RANSAC, no
+  semantics and no verification (our pipeline configured so).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import math
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+BASELINES = ('kiss-matcher', 'fpfh-ransac')
+KISS_MATCHER_VOXEL_M = 0.3
+KISS_MATCHER_MISSING = ('kiss-matcher is not installed (an optional baseline): '
+                        'pip install kiss-matcher==1.0.2')
+
+
+class BaselineUnavailable(RuntimeError):
+    """The baseline's package is not installed."""
+
+
+@dataclass
+class KissMatcherResult:
+    """One KISS-Matcher registration."""
+
+    T_target_source: np.ndarray  # (4, 4)
+    valid: bool  # KISS-Matcher's own success flag
+    num_final_inliers: int  # its translation inliers
+    src_matched: np.ndarray  # (K, 3) its initial Faster-PFH matches (fed to ROBIN + GNC)
+    dst_matched: np.ndarray  # (K, 3)
+    time_ms: float  # wall time of estimate(): voxelization, features, matching, solver
+    stage_ms: dict[str, float] = field(default_factory=dict)
+
+
+def kiss_matcher_register(pts_src: np.ndarray, pts_dst: np.ndarray,
+                          voxel_size: float = KISS_MATCHER_VOXEL_M) -> KissMatcherResult:
+    """
+    Register raw points with KISS-Matcher (default configuration for ``voxel_size``).
+
+    Raises :class:`BaselineUnavailable` when ``kiss_matcher`` cannot be imported.
+    """
+    try:
+        import kiss_matcher
+    except ImportError:
+        raise BaselineUnavailable(KISS_MATCHER_MISSING) from None
+
+    matcher = kiss_matcher.KISSMatcher(kiss_matcher.KISSMatcherConfig(voxel_size))
+    src = np.ascontiguousarray(pts_src, dtype=np.float32).reshape(-1, 3)
+    dst = np.ascontiguousarray(pts_dst, dtype=np.float32).reshape(-1, 3)
+    start = time.perf_counter()
+    solution = matcher.estimate(src, dst)
+    time_ms = 1e3 * (time.perf_counter() - start)
+    transform = np.eye(4)
+    transform[:3, :3] = np.asarray(solution.rotation, dtype=np.float64).reshape(3, 3)
+    transform[:3, 3] = np.asarray(solution.translation, dtype=np.float64).reshape(3)
+    keypoints_src, keypoints_dst = (np.asarray(k, dtype=np.float64).reshape(-1, 3)
+                                    for k in matcher.get_keypoints_from_faster_pfh())
+    pairs = np.asarray(matcher.get_initial_correspondences(), dtype=np.int64).reshape(-1, 2)
+    return KissMatcherResult(
+        transform, bool(solution.valid), int(matcher.get_num_final_inliers()),
+        keypoints_src[pairs[:, 0]], keypoints_dst[pairs[:, 1]], time_ms,
+        {'processing_ms': 1e3 * matcher.get_processing_time(),
+         'extraction_ms': 1e3 * matcher.get_extraction_time(),
+         'matching_ms': 1e3 * matcher.get_matching_time(),
+         'rejection_ms': 1e3 * matcher.get_rejection_time(),
+         'solver_ms': 1e3 * matcher.get_solver_time()})
+
+
+def evaluate_kiss_matcher(paths: list[Any], voxel_size: float = KISS_MATCHER_VOXEL_M,
+                          progress: bool = True) -> dict[str, Any]:
+    """
+    KISS-Matcher on every pair file; the same report layout as ``evaluate_directory``.
+
+    IN / IR are measured on KISS-Matcher's initial correspondences (those its solver sees).
+    """
+    from mlsemreg_ros.core.metrics import evaluate_pair, summarize
+    from mlsemreg_ros.core.pairs import load_pair
+    from mlsemreg_ros.tools.eval_pairs import (
+        INLIER_THRESHOLD_M,
+        MAX_ROTATION_DEG,
+        MAX_TRANSLATION_M,
+        pair_row,
+    )
+    from tqdm import tqdm
+
+    rows, metrics = [], []
+    for path in tqdm(paths, desc='kiss-matcher', unit='pair', file=sys.stderr,
+                     disable=not progress):
+        pair = load_pair(path)
+        result = kiss_matcher_register(pair.pts_src, pair.pts_dst, voxel_size)
+        pair_metrics = evaluate_pair(result.T_target_source, result.src_matched,
+                                     result.dst_matched, pair.trans_gt, INLIER_THRESHOLD_M,
+                                     MAX_ROTATION_DEG, MAX_TRANSLATION_M)
+        metrics.append(pair_metrics)
+        row = pair_row(pair.name, pair_metrics, {'total_ms': result.time_ms, **result.stage_ms})
+        row.update(mode='kiss-matcher', kiss_matcher_valid=result.valid,
+                   estimator_inliers=result.num_final_inliers, message='')
+        rows.append(row)
+    summary = summarize(metrics)
+    summary['time_ms'] = {'total_ms': float(np.mean([r['time_ms']['total_ms'] for r in rows]))}
+    return {'method': f'KISS-Matcher (voxel {voxel_size:g} m, raw points, no labels)',
+            'pairs': rows, 'summary': summary}
+
+
+def fpfh_ransac_config(config: Any) -> Any:
+    """``config`` turned into Open3D FPFH + plain NN + Open3D RANSAC, no verification."""
+    return config.replace({'features.descriptor': 'fpfh_open3d', 'semantic.enabled': False,
+                           'estimator.kind': 'ransac', 'verification.enabled': False,
+                           'fine.pair_method': 'off'})
+
+
+def _cell(value: float | None, digits: int) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return '-'
+    return f'{value:.{digits}f}'
+
+
+def comparison_table(reports: dict[str, dict[str, Any]]) -> str:
+    """
+    Side by side: one line per method (RR, RE, TE over successes, mean ms per pair).
+
+    ``reports`` maps a method label to a report with ``pairs`` and ``summary``.
+    """
+    header = ('method', 'RR %', 'RE deg', 'TE cm', 'ms/pair', 'pairs')
+    lines = []
+    for label, report in reports.items():
+        s = report['summary']
+        lines.append([label, _cell(s['registration_recall_pct'], 1),
+                      _cell(s['rotation_error_deg'], 2), _cell(s['translation_error_cm'], 1),
+                      _cell(s['time_ms'].get('total_ms'), 0), str(s['n_pairs'])])
+    return _render(header, lines)
+
+
+def per_pair_table(reports: dict[str, dict[str, Any]]) -> str:
+    """Per pair and method: ``RE/TE`` and ``ok`` or ``--`` (the success test)."""
+    labels = list(reports)
+    names = [row['name'] for row in reports[labels[0]]['pairs']]
+    by_name = {label: {row['name']: row for row in reports[label]['pairs']} for label in labels}
+    header = ('pair', *(f'[{i + 1}] RE deg / TE cm' for i in range(len(labels))))
+    lines = []
+    for name in names:
+        cells = [name]
+        for label in labels:
+            row = by_name[label].get(name)
+            if row is None:
+                cells.append('n/a')
+                continue
+            cells.append(f'{_cell(row["rotation_error_deg"], 2)} / '
+                         f'{_cell(row["translation_error_cm"], 1)} '
+                         f'{"ok" if row["success"] else "--"}')
+        lines.append(cells)
+    legend = '\n'.join(f'[{i + 1}] {label}' for i, label in enumerate(labels))
+    return _render(header, lines) + '\n' + legend
+
+
+def _render(header: tuple[str, ...], lines: list[list[str]]) -> str:
+    widths = [max(len(h), *(len(line[i]) for line in lines)) if lines else len(h)
+              for i, h in enumerate(header)]
+
+    def render(cells: list[str] | tuple[str, ...]) -> str:
+        padded = [c.rjust(w) for c, w in zip(cells, widths, strict=True)]
+        padded[0] = cells[0].ljust(widths[0])
+        return '  '.join(padded)
+
+    return '\n'.join([render(header), '-' * len(render(header)), *map(render, lines)])
