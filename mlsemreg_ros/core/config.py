@@ -304,6 +304,26 @@ class VerificationConfig:
 
 
 @dataclass
+class ConfidenceConfig:
+    """
+    When a registration counts as successful (core/confidence.py), besides min_inliers.
+
+    The dense scores are those of hypothesis verification for the chosen pose (overlap of
+    the seen surface within verification.overlap_distance, label agreement of it).
+    """
+
+    min_inlier_ratio: float = param(
+        0.0, 'Smallest share of the correspondences that are inliers of the chosen pose.',
+        low=0.0, high=1.0)
+    min_overlap: float = param(
+        0.0, "Smallest share of the source scan's seen surface that lies on the target scan "
+        'under the chosen pose.', low=0.0, high=1.0)
+    min_label_agreement: float = param(
+        0.0, 'Smallest share of the overlapping labeled points whose labels agree (or are '
+        'compatible, verification.compatible_classes).', low=0.0, high=1.0)
+
+
+@dataclass
 class FineAlignmentConfig:
     """
     Fine alignment of the dense scans with small_gicp, after the global estimate.
@@ -443,6 +463,7 @@ SECTIONS: dict[str, type] = {
     'matcher': MatcherConfig,
     'estimator': EstimatorConfig,
     'verification': VerificationConfig,
+    'confidence': ConfidenceConfig,
     'fine': FineAlignmentConfig,
     'local_map': LocalMapConfig,
     'keyframe': KeyframeConfig,
@@ -572,6 +593,7 @@ class RegistrationConfig(Settings):
     matcher: MatcherConfig = field(default_factory=MatcherConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     verification: VerificationConfig = field(default_factory=VerificationConfig)
+    confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
     fine: FineAlignmentConfig = field(default_factory=FineAlignmentConfig)
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
     keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)

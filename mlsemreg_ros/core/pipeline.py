@@ -32,7 +32,15 @@ from contextlib import contextmanager
 import time
 from typing import Any
 
-from mlsemreg_ros.core import features, fpfh, landmarks, matching, signatures, threads
+from mlsemreg_ros.core import (
+    confidence,
+    features,
+    fpfh,
+    landmarks,
+    matching,
+    signatures,
+    threads,
+)
 from mlsemreg_ros.core.alignment import align_pair, Alignment, AlignmentCloud
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import estimate
@@ -42,11 +50,12 @@ from mlsemreg_ros.core.results import (
     Landmarks,
     PreparedScan,
     RegistrationResult,
+    VerificationResult,
 )
 from mlsemreg_ros.core.rigid import rotation_angle_deg
 from mlsemreg_ros.core.scan_input import sanitize_scan_for
 from mlsemreg_ros.core.threads import LazyPool
-from mlsemreg_ros.core.verification import label_compatibility, verify_hypotheses
+from mlsemreg_ros.core.verification import dense_scores, label_compatibility, verify_hypotheses
 import numpy as np
 
 
@@ -194,6 +203,7 @@ class Registration:
         transform = estimate_result.transform
         diagnostics.update(estimate_result.diagnostics)
         # 2b. hypothesis verification on the dense labeled scans (core/verification.py)
+        verified = None
         if cfg.verification.enabled:
             with _timed(timings, 'verification_ms'):
                 verified = verify_hypotheses(estimate_result, src_pts, dst_pts, source, target,
@@ -204,10 +214,15 @@ class Registration:
         residual = np.linalg.norm(src_pts @ transform[:3, :3].T + transform[:3, 3] - dst_pts,
                                   axis=1)
         inliers = residual < cfg.estimator.inlier_threshold
-        success = int(inliers.sum()) >= cfg.estimator.min_inliers
-        if not success:
-            message = (f'{int(inliers.sum())} inliers < estimator.min_inliers='
-                       f'{cfg.estimator.min_inliers}' + (f'; {message}' if message else ''))
+        # 2c. confidence: sparse and dense evidence must agree (core/confidence.py)
+        with _timed(timings, 'confidence_ms'):
+            evidence = self._evidence(transform, int(inliers.sum()), len(corr), verified,
+                                      source, target)
+        diagnostics.update(evidence.as_diagnostics())
+        refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
+        success = not refused
+        if refused:
+            message = refused + (f'; {message}' if message else '')
         # 3. fine alignment of the scans (GICP/VGICP), from the (verified) estimate
         estimated, alignment = transform, None
         if refine and success and cfg.fine.pair_method != 'off':
@@ -224,6 +239,22 @@ class Registration:
         return RegistrationResult(transform, corr, src_pts, dst_pts, inliers, success, mode,
                                   message, timings, diagnostics, estimated,
                                   alignment)
+
+    def _evidence(self, transform: np.ndarray, num_inliers: int, correspondences: int,
+                  verified: VerificationResult | None, source: PreparedScan,
+                  target: PreparedScan) -> confidence.Evidence:
+        """Collect the sparse and dense evidence of the chosen pose (verification's or new)."""
+        if verified is not None:
+            chosen = verified.hypotheses[verified.chosen]
+            overlap, agreement = chosen.overlap, chosen.label_agreement
+        elif not np.all(np.isfinite(transform)):
+            overlap, agreement = 0.0, 0.0
+        else:
+            scores = dense_scores(transform[None], source, target.points_tree(), target.labels,
+                                  self._label_compatibility, self.config.verification)
+            overlap, agreement = float(scores[0][0]), float(scores[1][0])
+        return confidence.Evidence(num_inliers, correspondences, float(overlap),
+                                   float(agreement))
 
     def alignment_cloud(self, scan: PreparedScan, pair: bool = False) -> AlignmentCloud:
         """

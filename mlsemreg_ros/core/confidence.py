@@ -1,0 +1,77 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Registration confidence: whether the evidence of a registration says it is right.
+
+SC2-PCR's inlier count alone is not enough: two scans that do not overlap at all still
+give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in y gave
+483. A registration is therefore accepted only when every kind of evidence agrees:
+
+- **sparse**: at least ``estimator.min_inliers`` inliers and an inlier ratio (inliers /
+  correspondences) of at least ``confidence.min_inlier_ratio``;
+- **dense** (the chosen pose applied to the voxelized scans, as hypothesis verification
+  scores it, :func:`mlsemreg_ros.core.verification.dense_scores`): at least
+  ``confidence.min_overlap`` of the seen surface of the source scan lies on the target
+  scan, and at least ``confidence.min_label_agreement`` of those overlapping points
+  carry the same (or a compatible) label.
+
+GM-only results (no usable landmark) face the same rule. The thresholds come from the
+distributions measured by ``mlsemreg-confidence`` (correct and wrong registrations of
+the dev pairs, non-overlapping chain pairs, mirrored clouds, label-corrupted scans and
+simulated drives; the README shows them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+from mlsemreg_ros.core.config import ConfidenceConfig
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """What one registration offers as proof of being right."""
+
+    num_inliers: int  # sparse inliers of the chosen pose
+    correspondences: int
+    overlap: float  # share of the source scan's seen surface on the target scan
+    label_agreement: float  # share of the overlapping labeled points that agree
+
+    @property
+    def inlier_ratio(self) -> float:
+        """Sparse inliers / correspondences (0 without correspondences)."""
+        return self.num_inliers / self.correspondences if self.correspondences else 0.0
+
+    def as_diagnostics(self) -> dict[str, float]:
+        """Flat values for the result's diagnostics (``confidence_*``)."""
+        return {f'confidence_{k}': v for k, v in
+                {**asdict(self), 'inlier_ratio': self.inlier_ratio}.items()}
+
+
+def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> str:
+    """Why the evidence is not enough ('' when the registration is accepted)."""
+    reasons = []
+    if evidence.num_inliers < min_inliers:
+        reasons.append(f'{evidence.num_inliers} inliers < estimator.min_inliers={min_inliers}')
+    if evidence.inlier_ratio < config.min_inlier_ratio:
+        reasons.append(f'inlier ratio {evidence.inlier_ratio:.4f} < '
+                       f'confidence.min_inlier_ratio={config.min_inlier_ratio:g}')
+    if evidence.overlap < config.min_overlap:
+        reasons.append(f'overlap {evidence.overlap:.3f} < confidence.min_overlap='
+                       f'{config.min_overlap:g}')
+    if evidence.label_agreement < config.min_label_agreement:
+        reasons.append(f'label agreement {evidence.label_agreement:.3f} < '
+                       f'confidence.min_label_agreement={config.min_label_agreement:g}')
+    return '; '.join(reasons)
