@@ -47,6 +47,11 @@ def test_cache_directory_falls_back_when_the_package_is_read_only(
     chosen = kernels.cache_directory()
     assert chosen == str(tmp_path / 'mlsemreg_ros' / 'numba')
     assert Path(chosen).is_dir()
+    blocked = tmp_path / 'a-file'
+    blocked.write_text('')
+    monkeypatch.setenv('XDG_CACHE_HOME', str(blocked))  # mkdir fails: the temp folder
+    monkeypatch.setattr(kernels.tempfile, 'gettempdir', lambda: str(tmp_path / 'tmp'))
+    assert Path(kernels.cache_directory()).parent == tmp_path / 'tmp'
     monkeypatch.setenv('NUMBA_CACHE_DIR', str(tmp_path / 'explicit'))
     assert kernels.cache_directory() == str(tmp_path / 'explicit')
 
