@@ -101,3 +101,15 @@ def test_prepared_scans_are_identical_with_and_without_kernels(
                   'local_ss'):
         np.testing.assert_array_equal(getattr(ours, field), getattr(reference, field))
     assert len(ours.keypoints) > 100
+
+
+@pytest.mark.parametrize('support_voxel', [0.2, 0.5, 1.3])
+def test_bounded_snapping_finds_the_nearest_support_centroid(support_voxel: float) -> None:
+    from mlsemreg_ros.core.features import voxel_centroids
+    from mlsemreg_ros.core.fpfh import _snap
+    from scipy.spatial import cKDTree
+
+    points = _scene(11)
+    support = voxel_centroids(points, support_voxel, compiled=False)[0]
+    tree = cKDTree(support)
+    np.testing.assert_array_equal(_snap(tree, points, support_voxel), tree.query(points)[1])
