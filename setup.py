@@ -32,7 +32,7 @@ setup(
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'open3d-cpu', 'tqdm', 'rosbags',
-                      'threadpoolctl', 'small-gicp'],
+                      'threadpoolctl', 'small-gicp', 'numba'],
     zip_safe=True,
     maintainer='mlsemreg_ros maintainers',
     maintainer_email='maintainers@mlsemreg-ros.invalid',

@@ -18,15 +18,20 @@ Voxel downsampling with majority labels, keypoint sampling (random as in the
 paper, or spatially uniform voxel sampling), FPFH (Rusu et al., ICRA 2009)
 computed at the keypoints only, and the validity mask that drops keypoints
 whose descriptor is NaN (GEDI) or all zero (FPFH of an isolated point).
-All functions are vectorized; none loops over points in Python.
+All functions are vectorized; none loops over points in Python. The voxel
+functions take ``compiled``: None uses the numba kernels of
+:mod:`mlsemreg_ros.core.kernels` when available, False the NumPy code (the
+reference); both give the same voxels, order, centroids and labels.
 """
 
 from __future__ import annotations
 
+from mlsemreg_ros.core import kernels
 import numpy as np
 
 
-def voxel_groups(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray, int]:
+def voxel_groups(points: np.ndarray, voxel_size: float,
+                 compiled: bool | None = None) -> tuple[np.ndarray, int]:
     """
     Voxel id of every point: ``(inverse (N,) int64, number of occupied voxels)``.
 
@@ -34,6 +39,10 @@ def voxel_groups(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray, int
     """
     if points.shape[0] == 0:
         return np.zeros(0, dtype=np.int64), 0
+    if kernels.use_compiled(compiled):
+        grid = kernels.voxel_grid(points, voxel_size)
+        if grid is not None:
+            return grid[0], grid[2].shape[0]
     keys = np.floor(points / voxel_size).astype(np.int64)
     keys -= keys.min(axis=0)
     extent = keys.max(axis=0) + 1
@@ -53,21 +62,27 @@ def voxel_groups(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray, int
     return inverse, int(inverse.max()) + 1
 
 
-def voxel_centroids(points: np.ndarray, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
+def voxel_centroids(points: np.ndarray, voxel_size: float,
+                    compiled: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
     """
     Centroids of the occupied voxels: ``(centroids (V, 3) float64, voxel of each point (N,))``.
 
     Voxels in the order of :func:`voxel_groups`.
     """
-    inverse, count = voxel_groups(points, voxel_size)
+    if points.shape[0] and kernels.use_compiled(compiled):
+        grid = kernels.voxel_grid(points, voxel_size)
+        if grid is not None:
+            inverse, sums, sizes = grid
+            return sums / sizes.astype(np.float64)[:, None], inverse
+    inverse, count = voxel_groups(points, voxel_size, compiled=False)
     sizes = np.bincount(inverse, minlength=count).astype(np.float64)
     centroids = np.stack([np.bincount(inverse, weights=points[:, k], minlength=count)
                           for k in range(3)], axis=1) / sizes[:, None]
     return centroids, inverse
 
 
-def voxel_downsample(points: np.ndarray, labels: np.ndarray,
-                     voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
+def voxel_downsample(points: np.ndarray, labels: np.ndarray, voxel_size: float,
+                     compiled: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
     """
     One point per occupied voxel: the voxel centroid with the voxel's majority label.
 
@@ -76,7 +91,8 @@ def voxel_downsample(points: np.ndarray, labels: np.ndarray,
     - ``voxel_size``: voxel edge length in metres; ``<= 0`` returns the input unchanged.
 
     Returns ``(points (V, 3) float64, labels (V,) int32)``, voxels in lexicographic order of
-    their integer keys. Label ties go to the smallest label id.
+    their integer keys. Label ties go to the smallest label id. ``compiled``: see the
+    module docstring (the compiled path also counts the majority in one loop).
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     labels = np.asarray(labels).reshape(-1)
@@ -84,12 +100,16 @@ def voxel_downsample(points: np.ndarray, labels: np.ndarray,
         raise ValueError(f'{points.shape[0]} points but {labels.shape[0]} labels')
     if voxel_size <= 0 or points.shape[0] == 0:
         return points, labels.astype(np.int32)
-    centroids, inverse = voxel_centroids(points, voxel_size)
+    compiled = kernels.use_compiled(compiled)
+    centroids, inverse = voxel_centroids(points, voxel_size, compiled=compiled)
     count = centroids.shape[0]
     # Majority label per voxel (ties to the smallest id): a dense (voxel, label) count
     # table when the ids are small, as learning ids are; else count the distinct pairs.
     label_ids, label_inverse = _small_unique(labels)
     if count * len(label_ids) <= 64 * points.shape[0]:
+        if compiled:
+            winner = kernels.majority(inverse, label_inverse, count, len(label_ids))
+            return centroids, label_ids[winner].astype(np.int32)
         table = np.bincount(inverse * len(label_ids) + label_inverse,
                             minlength=count * len(label_ids)).reshape(count, len(label_ids))
         voxel_labels = label_ids[table.argmax(axis=1)].astype(np.int32)

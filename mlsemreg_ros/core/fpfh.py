@@ -38,10 +38,16 @@ nearest support centroid. Pairs, and therefore the cost, drop roughly with the
 square of the voxel ratio (KITTI scan 000003: 746k pairs on the 0.3 m scan grid,
 128k on a 0.5 m support).
 Neighbourhoods are pure radius neighbourhoods (no ``max_nn`` cap), as in PCL.
+
+With numba (:mod:`mlsemreg_ros.core.kernels`) the passes over the pairs run as
+compiled loops (:mod:`mlsemreg_ros.core.fpfh_kernels`) that give the same
+descriptors bit for bit; ``compiled=False`` runs the NumPy passes below.
+The one KD-tree of the support serves the normals, the features and the snapping.
 """
 
 from __future__ import annotations
 
+from mlsemreg_ros.core import fpfh_kernels, kernels
 from mlsemreg_ros.core.features import voxel_centroids
 import numpy as np
 from scipy import sparse
@@ -54,7 +60,7 @@ BINS = 11
 def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: float,
                       feature_radius: float, support_voxel: float = 0.0,
                       viewpoint: np.ndarray | None = None,
-                      snap: bool = False) -> np.ndarray:
+                      snap: bool = False, compiled: bool | None = None) -> np.ndarray:
     """
     FPFH descriptors of the scan points ``points[indices]``.
 
@@ -69,6 +75,8 @@ def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: fl
     - ``snap``: with ``support_voxel`` > 0, give each keypoint the FPFH of its nearest
       support centroid instead (no neighbourhood search per keypoint: the cost no
       longer grows with the number of keypoints).
+    - ``compiled``: None uses the numba kernels when available, False the NumPy passes
+      (the same result).
 
     Returns (M, 33) float32 (blocks alpha | phi | theta); rows of points without any
     neighbour within ``feature_radius`` are all zero.
@@ -82,16 +90,105 @@ def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: fl
     origin = np.zeros(3) if viewpoint is None else np.asarray(viewpoint, dtype=np.float64)
     # Work relative to the viewpoint: orientation needs no offset, float32 keeps precision.
     points = points - origin
-    support = voxel_centroids(points, support_voxel)[0] if support_voxel > 0 else points
+    compiled = kernels.use_compiled(compiled)
+    support = (voxel_centroids(points, support_voxel, compiled=compiled)[0]
+               if support_voxel > 0 else points)
     tree = cKDTree(support, balanced_tree=False, compact_nodes=False)  # cheaper to build
     # Keypoints that are support points reuse the support's rows and pairs.
     on_support = support_voxel <= 0 or snap
-    rows = tree.query(points[indices])[1] if support_voxel > 0 and snap else indices
+    rows = _snap(tree, points[indices], support_voxel) if support_voxel > 0 and snap else indices
     unique, row_of_keypoint = np.unique(rows, return_inverse=True)
     radius = max(feature_radius, normal_radius)
     # 1. Normals and SPFH of the support, from its unordered pairs (each serves both ends).
     pairs = tree.query_pairs(radius, output_type='ndarray')
     first, second = np.ascontiguousarray(pairs[:, 0]), np.ascontiguousarray(pairs[:, 1])
+    keypoints = None if on_support else points[unique]
+    describe = _describe_compiled if compiled else _describe
+    fpfh = describe(support, tree, first, second, unique, keypoints, normal_radius,
+                    feature_radius)
+    return fpfh[row_of_keypoint.reshape(-1)]
+
+
+def _snap(tree: cKDTree, queries: np.ndarray, support_voxel: float) -> np.ndarray:
+    """
+    Row of the nearest support centroid of each query (a scan point).
+
+    A point's own voxel centroid lies within the voxel diagonal ``sqrt(3) * support_voxel``,
+    so the search is bounded there (a third cheaper, the same rows).
+    """
+    rows = tree.query(queries, distance_upper_bound=1.000001 * np.sqrt(3.0) * support_voxel)[1]
+    lost = np.flatnonzero(rows >= tree.n)
+    if lost.size:  # not expected: search without the bound
+        rows[lost] = tree.query(queries[lost])[1]
+    return rows
+
+
+def _describe(support: np.ndarray, tree: cKDTree, first: np.ndarray, second: np.ndarray,
+              rows: np.ndarray, keypoints: np.ndarray | None, normal_radius: float,
+              feature_radius: float) -> np.ndarray:
+    """
+    FPFH (NumPy passes) of the support ``rows``, or of ``keypoints`` off the support.
+
+    ``first, second``: the support's pairs within ``max(r_n, r_f)``. Returns (M, 33) float32.
+    """
+    normals, spfh, first, second, dist2 = _support_terms(support, first, second,
+                                                         normal_radius, feature_radius)
+    if keypoints is None:
+        summed = np.asarray(_pair_weights(first, second, dist2, rows, support.shape[0]) @ spfh)
+        return combine(spfh[rows], summed)
+    own_spfh, summed = _keypoint_terms(keypoints, support, tree, normals, spfh,
+                                       normal_radius, feature_radius)
+    return combine(own_spfh, summed)
+
+
+def _describe_compiled(support: np.ndarray, tree: cKDTree, first: np.ndarray,
+                       second: np.ndarray, rows: np.ndarray, keypoints: np.ndarray | None,
+                       normal_radius: float, feature_radius: float) -> np.ndarray:
+    """:func:`_describe` with the compiled passes of :mod:`fpfh_kernels` (bit-identical)."""
+    first, second = first.astype(np.int64, copy=False), second.astype(np.int64, copy=False)
+    coords = np.ascontiguousarray(support.T, dtype=np.float32)
+    delta, dist2 = fpfh_kernels.pair_offsets(coords, first, second)
+    near = np.flatnonzero(dist2 <= normal_radius**2)
+    covariance = fpfh_kernels.covariances(support.shape[0], first, second, delta, near)
+    normals = _compiled_normals(covariance, support)
+    if normal_radius > feature_radius:  # the pairs were searched with the normal radius
+        within = np.flatnonzero(dist2 <= feature_radius**2)
+        first, second, delta, dist2 = (first.take(within), second.take(within),
+                                       np.ascontiguousarray(delta.take(within, axis=1)),
+                                       dist2.take(within))
+    counts, scale = _compiled_histograms(support.shape[0], delta, normals, first, normals,
+                                         second, pairs=True)
+    if keypoints is None:
+        rows = rows.astype(np.int64, copy=False)
+        summed = fpfh_kernels.support_neighbour_sums(rows, support.shape[0], first, second,
+                                                     dist2, counts, scale)
+        return combine(fpfh_kernels.spfh_rows(counts, scale, rows), summed)
+    keypoints = np.ascontiguousarray(keypoints, dtype=np.float64)
+    m = keypoints.shape[0]
+    owner, other, dist = _keypoint_neighbours(keypoints, tree, normal_radius, feature_radius)
+    offset = fpfh_kernels.keypoint_offsets(keypoints, support, owner, other)
+    near = np.flatnonzero(dist <= normal_radius)
+    covariance = fpfh_kernels.covariances(m, owner, np.zeros(0, dtype=np.int64), offset, near)
+    own_normals = _compiled_normals(covariance, keypoints)
+    within = np.flatnonzero(dist <= feature_radius)
+    owner, other, dist, offset = (owner.take(within), other.take(within), dist.take(within),
+                                  np.ascontiguousarray(offset.take(within, axis=1)))
+    own_counts, own_scale = _compiled_histograms(m, offset, own_normals, owner, normals, other,
+                                                 pairs=False)
+    own_spfh = fpfh_kernels.spfh_rows(own_counts, own_scale, np.arange(m))
+    summed = fpfh_kernels.keypoint_neighbour_sums(m, owner, other, dist, counts, scale)
+    return combine(own_spfh, summed)
+
+
+def _support_terms(support: np.ndarray, first: np.ndarray, second: np.ndarray,
+                   normal_radius: float, feature_radius: float
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """
+    Compute normals and SPFH of the support from its pairs within ``max(r_n, r_f)`` (NumPy).
+
+    Returns ``(normals (3, S) float32, spfh (S, 33), first, second, dist2)``, the last
+    three restricted to the pairs within ``r_f`` (``dist2`` float32).
+    """
     coords = support.T.astype(np.float32)  # (3, S): one contiguous row per axis
     delta = np.stack([row.take(second) - row.take(first) for row in coords])
     dist2 = np.einsum('ij,ij->j', delta, delta)
@@ -104,28 +201,41 @@ def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: fl
                                        delta.take(within, axis=1), dist2.take(within))
     bins = pair_feature_bins(delta, normals.take(first, axis=1), normals.take(second, axis=1))
     spfh = simplified_histograms((first, second), bins, support.shape[0])
-    # 2. The keypoints: their own neighbourhood in the support.
-    if on_support:
-        own_spfh = spfh[unique]
-        weights = _pair_weights(first, second, dist2, unique, support.shape[0])
-    else:
-        own_spfh, weights = _keypoint_terms(points[unique], support, tree, normals,
-                                            normal_radius, feature_radius)
-    fpfh = combine(own_spfh, weights, spfh)
-    return fpfh[row_of_keypoint.reshape(-1)]
+    return normals, spfh, first, second, dist2
 
 
-def combine(own_spfh: np.ndarray, weights: sparse.csr_matrix, spfh: np.ndarray) -> np.ndarray:
+def _compiled_normals(covariance: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """:func:`orient_normals` with compiled loops; NumPy's power, ``arccos`` and ``cos``."""
+    q, p, numerator = fpfh_kernels.eigen_setup(covariance)
+    det = numerator / np.where(p > 0, p, 1.0) ** 3
+    phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
+    cosine = np.cos(phi + 2.0 * np.pi / 3.0)
+    return fpfh_kernels.eigen_vectors(covariance, q, p, cosine,
+                                      np.ascontiguousarray(points, dtype=np.float64))
+
+
+def _compiled_histograms(n: int, delta: np.ndarray, normals_a: np.ndarray, index_a: np.ndarray,
+                         normals_b: np.ndarray, index_b: np.ndarray,
+                         pairs: bool) -> tuple[np.ndarray, np.ndarray]:
+    """SPFH ``(counts, scale)`` of ``n`` points from compiled pair features (NumPy arctan2)."""
+    y, x, bins, regular = fpfh_kernels.pair_angles(delta, normals_a, index_a, normals_b,
+                                                   index_b)
+    alpha = np.arctan2(y, x)
+    second = index_b if pairs else np.zeros(0, dtype=np.int64)
+    return fpfh_kernels.histograms(n, index_a, second, bins, regular, alpha)
+
+
+def combine(own_spfh: np.ndarray, summed: np.ndarray) -> np.ndarray:
     """
     FPFH = own SPFH + per-block normalized, ``1/d^2``-weighted sum of neighbour SPFHs.
 
     - ``own_spfh``: (M, 33) SPFH of the query points.
-    - ``weights``: (M, S) sparse ``1 / |q - p_k|^2`` of each query's support neighbours.
-    - ``spfh``: (S, 33) SPFH of the support.
+    - ``summed``: (M, 33) ``sum_k spfh(p_k) / |q - p_k|^2`` over each query's support
+      neighbours (``weights @ spfh``).
 
     Returns (M, 33) float32; each 11-bin block of the neighbour term sums to 100 (or 0).
     """
-    summed = np.asarray(weights @ spfh)
+    summed = np.array(summed, dtype=np.float64)
     blocks = summed.reshape(-1, 3, BINS)
     totals = blocks.sum(axis=2, keepdims=True)
     blocks *= np.divide(100.0, totals, out=np.zeros_like(totals), where=totals > 0)
@@ -145,15 +255,21 @@ def _pair_weights(first: np.ndarray, second: np.ndarray, dist2: np.ndarray, rows
     return sparse.csr_matrix((1.0 / d2, (target, neighbour)), shape=(rows.shape[0], n))
 
 
-def _keypoint_terms(keypoints: np.ndarray, support: np.ndarray, tree: cKDTree,
-                    support_normals: np.ndarray, normal_radius: float,
-                    feature_radius: float) -> tuple[np.ndarray, sparse.csr_matrix]:
-    """Own SPFH and neighbour weights of keypoints that are not support points."""
-    m = keypoints.shape[0]
+def _keypoint_neighbours(keypoints: np.ndarray, tree: cKDTree, normal_radius: float,
+                         feature_radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Support neighbours of each keypoint: ``(owner, other, dist)`` (a coincident one dropped)."""
     found = cKDTree(keypoints).sparse_distance_matrix(
         tree, max(feature_radius, normal_radius), output_type='ndarray')
     found = found[found['v'] > 0]  # a coincident centroid is the keypoint itself
-    owner, other, dist = found['i'].astype(np.int64), found['j'].astype(np.int64), found['v']
+    return found['i'].astype(np.int64), found['j'].astype(np.int64), found['v']
+
+
+def _keypoint_terms(keypoints: np.ndarray, support: np.ndarray, tree: cKDTree,
+                    support_normals: np.ndarray, spfh: np.ndarray, normal_radius: float,
+                    feature_radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """Own SPFH and weighted neighbour SPFH sum of keypoints that are not support points."""
+    m = keypoints.shape[0]
+    owner, other, dist = _keypoint_neighbours(keypoints, tree, normal_radius, feature_radius)
     offset = np.ascontiguousarray((support[other] - keypoints[owner]).T, dtype=np.float32)
     near = np.flatnonzero(dist <= normal_radius)
     normals = estimate_normals(keypoints, (owner.take(near),), offset.take(near, axis=1))
@@ -165,7 +281,7 @@ def _keypoint_terms(keypoints: np.ndarray, support: np.ndarray, tree: cKDTree,
     own = simplified_histograms((owner,), bins, m)
     weights = sparse.csr_matrix((1.0 / (dist * dist), (owner, other)),
                                 shape=(m, support.shape[0]))
-    return own, weights
+    return own, np.asarray(weights @ spfh)
 
 
 def estimate_normals(points: np.ndarray, owners: tuple[np.ndarray, ...],
@@ -200,6 +316,15 @@ def estimate_normals(points: np.ndarray, owners: tuple[np.ndarray, ...],
         product = offset[a] * offset[b]  # the same for both signs of the offset
         total = sum(np.bincount(owner, weights=product, minlength=n) for owner in owners)
         covariance[:, slot] = total / count - mean[:, a] * mean[:, b]
+    return orient_normals(covariance, points)
+
+
+def orient_normals(covariance: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """
+    Return unit normals of (N, 6) covariances (:func:`smallest_eigenvectors`) facing the origin.
+
+    Returns (3, N) float32, one row per axis.
+    """
     normals = smallest_eigenvectors(covariance)
     flip = np.einsum('ij,ij->i', normals, points) > 0  # facing away from the origin
     normals[flip] *= -1.0
