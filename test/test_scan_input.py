@@ -137,12 +137,6 @@ def test_points_at_the_range_limit_keep_the_voxel_grid_exact() -> None:
     assert voxels.shape[0] == reference.shape[0] + 2
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    'core/features.py (not owned here): voxel_groups casts floor(points / voxel_size) to '
-    'int64 without a range check: a point at (1e30, 1e30, 1e30) becomes INT64_MIN, the '
-    'extents overflow to negative values, the overflow check passes and the linear keys '
-    'wrap (20000 points: 536 voxels instead of 19987). sanitize_scan is the guard; '
-    'reported to the owner of features.py'))
 def test_voxel_groups_alone_survive_a_point_at_1e30() -> None:
     points, _ = _scan(20000, seed=4)
     _, clean = features.voxel_groups(points, 0.3)

@@ -29,16 +29,29 @@ from __future__ import annotations
 from mlsemreg_ros.core import kernels
 import numpy as np
 
+#: Voxel keys at or beyond this magnitude are grouped by their float values (no int64 keys).
+_MAX_EXACT_KEY = 2.0**40
+
 
 def voxel_groups(points: np.ndarray, voxel_size: float,
                  compiled: bool | None = None) -> tuple[np.ndarray, int]:
     """
     Voxel id of every point: ``(inverse (N,) int64, number of occupied voxels)``.
 
-    Voxels are numbered in lexicographic order of their integer (x, y, z) keys.
+    Voxels are numbered in lexicographic order of their integer (x, y, z) keys. Points
+    must be finite (ValueError otherwise; :func:`~mlsemreg_ros.core.scan_input.sanitize_scan`
+    drops the others); keys beyond the exact integer range of float64 (a point at 1e30)
+    are grouped exactly by their float keys, so one absurd point cannot merge the others.
     """
     if points.shape[0] == 0:
         return np.zeros(0, dtype=np.int64), 0
+    reach = float(np.abs(points).max()) / voxel_size  # NaN/inf propagate
+    if not np.isfinite(reach):
+        raise ValueError('voxel_groups needs finite points (sanitize_scan drops the others)')
+    if reach >= _MAX_EXACT_KEY:  # int64 keys and their extents could overflow: exact path
+        _, inverse = np.unique(np.floor(points / voxel_size), axis=0, return_inverse=True)
+        inverse = inverse.reshape(-1).astype(np.int64)
+        return inverse, int(inverse.max()) + 1
     if kernels.use_compiled(compiled):
         grid = kernels.voxel_grid(points, voxel_size)
         if grid is not None:
