@@ -25,7 +25,9 @@ give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in
   scores it, :func:`mlsemreg_ros.core.verification.dense_scores`): at least
   ``confidence.min_overlap`` of the seen surface of the source scan lies on the target
   scan, and at least ``confidence.min_label_agreement`` of those overlapping points
-  carry the same (or a compatible) label.
+  carry the same (or a compatible) label;
+- **plausible**: the pose turns the up axis by at most ``confidence.max_tilt`` (a ground
+  vehicle does not roll over between scans; a mirrored cloud fits best upside down).
 
 GM-only results (no usable landmark) face the same rule. The thresholds come from the
 distributions measured by ``mlsemreg-confidence`` (correct and wrong registrations of
@@ -38,6 +40,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 from mlsemreg_ros.core.config import ConfidenceConfig
+import numpy as np
 
 
 @dataclass(frozen=True)
@@ -48,6 +51,7 @@ class Evidence:
     correspondences: int
     overlap: float  # share of the source scan's seen surface on the target scan
     label_agreement: float  # share of the overlapping labeled points that agree
+    tilt_deg: float  # angle between the two scans' up axes under the chosen pose
 
     @property
     def inlier_ratio(self) -> float:
@@ -58,6 +62,12 @@ class Evidence:
         """Flat values for the result's diagnostics (``confidence_*``)."""
         return {f'confidence_{k}': v for k, v in
                 {**asdict(self), 'inlier_ratio': self.inlier_ratio}.items()}
+
+
+def tilt_deg(transform: np.ndarray) -> float:
+    """Angle (deg) between the target's z axis and the source's z axis under ``transform``."""
+    cos = float(np.clip(np.asarray(transform, dtype=np.float64)[2, 2], -1.0, 1.0))
+    return float(np.degrees(np.arccos(cos))) if np.isfinite(cos) else float('nan')
 
 
 def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> str:
@@ -74,4 +84,7 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
     if evidence.label_agreement < config.min_label_agreement:
         reasons.append(f'label agreement {evidence.label_agreement:.3f} < '
                        f'confidence.min_label_agreement={config.min_label_agreement:g}')
+    if not evidence.tilt_deg <= config.max_tilt:  # NaN fails too
+        reasons.append(f'tilt {evidence.tilt_deg:.1f} deg > confidence.max_tilt='
+                       f'{config.max_tilt:g} deg')
     return '; '.join(reasons)

@@ -254,7 +254,7 @@ class Registration:
                                   self._label_compatibility, self.config.verification)
             overlap, agreement = float(scores[0][0]), float(scores[1][0])
         return confidence.Evidence(num_inliers, correspondences, float(overlap),
-                                   float(agreement))
+                                   float(agreement), confidence.tilt_deg(transform))
 
     def alignment_cloud(self, scan: PreparedScan, pair: bool = False) -> AlignmentCloud:
         """

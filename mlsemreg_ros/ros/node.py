@@ -50,6 +50,7 @@ from typing import Any
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
+from mlsemreg_ros.core import kernels
 from mlsemreg_ros.core.config import ConfigError, NODE_NAME
 from mlsemreg_ros.core.labels import LabelError, LabelMap
 from mlsemreg_ros.core.odometry import Odometry as ScanOdometry
@@ -156,6 +157,7 @@ class MlSemRegNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         """Declare parameters, create the interface and start the worker thread."""
+        started = time.perf_counter()
         super().__init__(NODE_NAME, **kwargs)
         self._label_map = LabelMap.load()
         self._params = LiveParameters(self, self._label_map)
@@ -187,12 +189,17 @@ class MlSemRegNode(Node):
         if self._tf is None:
             self.get_logger().info('tf2_ros is not importable: no TF output '
                                    '(mlsemreg/odometry carries the same pose)')
+        warm = kernels.warm_up()  # compile or load the numba kernels before the first scan
+        self._startup_ms = {'kernels_ms': warm.get('total_ms', 0.0),
+                            'node_ms': 1e3 * (time.perf_counter() - started)}
         self._slot = LatestSlot()
         self._worker = threading.Thread(target=self._work, name='mlsemreg_worker', daemon=True)
         self._worker.start()
         self.get_logger().info(
             f'registering scans on {self.resolve_topic_name("points")} '
-            f'({config.node.qos.reliability}, label field {config.node.label_field!r})')
+            f'({config.node.qos.reliability}, label field {config.node.label_field!r}); ready in '
+            f'{self._startup_ms["node_ms"]:.0f} ms (kernels {self._startup_ms["kernels_ms"]:.0f} '
+            'ms)')
 
     # -- executor thread ------------------------------------------------------------------
     def _on_points(self, msg: PointCloud2) -> None:
@@ -368,9 +375,10 @@ class MlSemRegNode(Node):
     def _diagnose(self, scan: Scan, level: str, message: str, step: OdometryStep,
                   latency_ms: float | None = None) -> None:
         """Report one processed frame: counts, latency, stage timings, result summary."""
-        values: dict[str, Any] = {'dropped_nonfinite_points': scan.dropped_nonfinite,
-                                  'keyframe_stamp': f'{1e-9 * step.keyframe_stamp_ns:.9f}',
-                                  'processing_ms': step.latency_ms}
+        values: dict[str, Any] = {'startup.' + k: v for k, v in self._startup_ms.items()}
+        values.update({'dropped_nonfinite_points': scan.dropped_nonfinite,
+                       'keyframe_stamp': f'{1e-9 * step.keyframe_stamp_ns:.9f}',
+                       'processing_ms': step.latency_ms, 'frame_index': step.index})
         if latency_ms is not None:
             values['latency_ms'] = latency_ms
             values['latency_p50_ms'] = float(np.median(self._latencies))
