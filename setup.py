@@ -50,6 +50,7 @@ setup(
             'mlsemreg-play = mlsemreg_ros.tools.play:main',
             'mlsemreg-demo = mlsemreg_ros.tools.demo:main',
             'mlsemreg-bench-node = mlsemreg_ros.tools.bench_node:main',
+            'mlsemreg-confidence = mlsemreg_ros.tools.confidence:main',
             'mlsemreg-cut-pairs = mlsemreg_ros.tools.cut_pairs:main',
         ],
     },

@@ -184,6 +184,82 @@ def summary_lines(rows: list[dict[str, Any]]) -> list[str]:
     return lines
 
 
+def stream_cases(directory: Path) -> list[tuple[str, list[tuple[Case, bool]]]]:
+    """
+    The issue's failure cases as scan streams for a fresh odometry (the node's code path).
+
+    Each stream is ``(kind, [(case, expected right), ...])``: after a reset the first scan
+    (``case.target``) starts the odometry, then ``case.source`` is processed; a degenerate
+    stream starts with unusable scans. ``expected right`` marks scans a correct odometry
+    publishes (the others must be rejected).
+    """
+    from mlsemreg_ros.core.pairs import list_pairs, load_pair
+
+    pairs = [load_pair(p) for p in list_pairs(directory)]
+    streams: list[tuple[str, list[tuple[Case, bool]]]] = []
+    for case in dev_cases(directory):
+        if case.kind in ('chain-far', 'mirror'):
+            streams.append((case.kind, [(case, False)]))
+    for p in pairs:
+        huge = p.pts_src.copy()
+        huge[0] = 1e30
+        streams.append(('huge-point', [(Case('huge-point', p.name, (huge, p.label_src),
+                                             (p.pts_dst, p.label_dst), p.trans_gt), True)]))
+        one = np.array(p.label_src, dtype=np.int64)
+        one[0] = 20
+        streams.append(('labels-20', [(Case('labels-20', p.name, (p.pts_src, one),
+                                            (p.pts_dst, p.label_dst), p.trans_gt), True)]))
+        tiny = [Case('degenerate', f'{p.name} {n} points', (p.pts_dst[:n], p.label_dst[:n]),
+                     (p.pts_dst[:n], p.label_dst[:n]), None) for n in (1, 3, 12)]
+        streams.append(('degenerate-first', [(c, False) for c in tiny] + [
+            (Case('degenerate', p.name, (p.pts_src, p.label_src), (p.pts_dst, p.label_dst),
+                  p.trans_gt), True)]))
+    return streams
+
+
+def run_streams(streams: list[tuple[str, list[tuple[Case, bool]]]], config: Any
+                ) -> list[dict[str, Any]]:
+    """Feed each stream to a fresh :class:`Odometry`; count published and wrong frames."""
+    from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
+    from mlsemreg_ros.core.odometry import Odometry
+    from mlsemreg_ros.core.pipeline import Registration
+    from tqdm import tqdm
+
+    odometry = Odometry(Registration(config))
+    out = []
+    for kind, stream in tqdm(streams, desc='streams', unit='stream', file=sys.stderr):
+        odometry.reset()
+        published = wrong = rejected = tried = 0
+        for case, expected_right in stream:
+            odometry.process(*case.target)  # the keyframe (or an unusable scan)
+            step = odometry.process(*case.source)
+            tried += 1
+            if not step.accepted:
+                rejected += 1
+                continue
+            published += 1
+            T = step.relative
+            right = (case.T_target_source is not None and expected_right
+                     and rotation_error_deg(T[:3, :3], case.T_target_source[:3, :3]) <= MAX_RE_DEG
+                     and translation_error_m(T[:3, 3], case.T_target_source[:3, 3]) <= MAX_TE_M)
+            wrong += not right
+        out.append({'kind': kind, 'tried': tried, 'rejected': rejected, 'published': published,
+                    'wrong_published': wrong})
+    return out
+
+
+def stream_table(rows: list[dict[str, Any]]) -> list[str]:
+    """One line per kind of stream: tried, rejected, published, wrong published."""
+    lines = [f'{"case":<18} {"tried":>6} {"rejected":>9} {"published":>10} {"wrong":>6}']
+    for kind in dict.fromkeys(r['kind'] for r in rows):
+        of_kind = [r for r in rows if r['kind'] == kind]
+        total = {k: sum(r[k] for r in of_kind) for k in ('tried', 'rejected', 'published',
+                                                          'wrong_published')}
+        lines.append(f'{kind:<18} {total["tried"]:>6} {total["rejected"]:>9} '
+                     f'{total["published"]:>10} {total["wrong_published"]:>6}')
+    return lines
+
+
 def plot(rows: list[dict[str, Any]], path: Path, config: Any) -> None:
     """Overlap vs label agreement and inlier ratio, right vs wrong, with the thresholds."""
     import matplotlib
@@ -252,6 +328,14 @@ def main(argv: list[str] | None = None) -> int:
         writer.writerows(rows)
     plot(rows, args.out / 'evidence.png', config)
     print('\n'.join(summary_lines(rows)))
+    if args.dev.is_dir():
+        streams = run_streams(stream_cases(args.dev), config)
+        with open(args.out / 'streams.csv', 'w', newline='') as f:
+            writer = csv.DictWriter(f, fieldnames=list(streams[0]))
+            writer.writeheader()
+            writer.writerows(streams)
+        print('\nthrough the odometry (the node\'s code path), default parameters:')
+        print('\n'.join(stream_table(streams)))
     print(f'results: {args.out}')
     return 0
 
