@@ -29,18 +29,21 @@ def _message(transform: np.ndarray) -> SimpleNamespace:
         translation=SimpleNamespace(x=tx, y=ty, z=tz)))
 
 
-def test_odd_frames_compare_with_the_truth_and_even_frames_with_its_inverse():
+def test_the_truth_follows_the_keyframe_the_node_reports():
     truth = np.eye(4)
     truth[:3, :3] = Rotation.from_euler('z', 30, degrees=True).as_matrix()
     truth[:3, 3] = (20.0, 1.0, 0.0)
-    exact = _errors(_message(truth), truth, frame=1)
+    exact = _errors(_message(truth), truth, current=1, keyframe=0)  # src onto dst
     assert exact['correct'] and exact['rotation_error_deg'] < 1e-6
     assert exact['translation_error_m'] < 1e-9
-    inverse = _errors(_message(np.linalg.inv(truth)), truth, frame=2)
+    inverse = _errors(_message(np.linalg.inv(truth)), truth, current=0, keyframe=1)
     assert inverse['correct'] and inverse['translation_error_m'] < 1e-9
-    wrong = _errors(_message(truth), truth, frame=2)  # T where T^-1 was due
+    wrong = _errors(_message(truth), truth, current=0, keyframe=1)  # T where T^-1 was due
     assert not wrong['correct'] and wrong['translation_error_m'] > 10.0
-    assert _errors(None, truth, frame=1) == {}
+    # after a rejected frame the keyframe stays: dst onto the dst keyframe is the identity
+    same = _errors(_message(np.eye(4)), truth, current=0, keyframe=0)
+    assert same['correct'] and same['translation_error_m'] < 1e-9
+    assert _errors(None, truth, current=1, keyframe=0) == {}
 
 
 def test_set_overrides_become_ros_parameter_arguments():

@@ -275,10 +275,12 @@ def bench(pairs: list[Any], repeats: int, rate_hz: float, probe: NodeProbe) -> l
         if not probe.reset():
             raise RuntimeError('mlsemreg/reset did not answer')
         scans = [(pair.pts_dst, pair.label_dst), (pair.pts_src, pair.label_src)]
+        which: dict[str, int] = {}  # stamp text -> 0 (dst) or 1 (src): to find the keyframe
         for frame in range(2 * repeats + 1):
             points, labels = scans[frame % 2]
             stamp_s += period
             stamp = to_stamp(stamp_s)
+            which[f'{stamp.sec + 1e-9 * stamp.nanosec:.9f}'] = frame % 2
             msg = probe.cloud(points, np.asarray(labels).astype(np.uint32), stamp)
             tick = time.perf_counter()
             published = probe.publish(msg)
@@ -292,7 +294,8 @@ def bench(pairs: list[Any], repeats: int, rate_hz: float, probe: NodeProbe) -> l
                     'e2e_ms': 1e3 * (found[0] - published) if found else None,
                     'processing_ms': float(status['processing_ms']) if status else None,
                     'success': found is not None,
-                    **_errors(found[1] if found else None, pair.trans_gt, frame),
+                    **_errors(found[1] if found else None, pair.trans_gt, frame % 2,
+                              which.get((status or {}).get('keyframe_stamp', ''), 1 - frame % 2)),
                     'stages_ms': {k[6:]: float(v) for k, v in (status or {}).items()
                                   if k.startswith('stage.')},
                 })
@@ -300,8 +303,15 @@ def bench(pairs: list[Any], repeats: int, rate_hz: float, probe: NodeProbe) -> l
     return records
 
 
-def _errors(message: Any, truth: np.ndarray | None, frame: int) -> dict[str, Any]:
-    """RE (deg), TE (m) of a transform message against the pair's ground truth."""
+def _errors(message: Any, truth: np.ndarray | None, current: int, keyframe: int
+            ) -> dict[str, Any]:
+    """
+    RE (deg), TE (m) of a transform message against the pair's ground truth.
+
+    ``current`` and ``keyframe`` say which scan each is (0 dst, 1 src): src onto a dst
+    keyframe is ``trans_gt``, dst onto src its inverse, a scan onto itself the identity
+    (after a rejected frame the keyframe stays).
+    """
     if message is None or truth is None:
         return {}
     from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
@@ -313,8 +323,8 @@ def _errors(message: Any, truth: np.ndarray | None, frame: int) -> dict[str, Any
     estimate[:3, :3] = Rotation.from_quat([r.x, r.y, r.z, r.w]).as_matrix()
     t = transform.translation
     estimate[:3, 3] = (t.x, t.y, t.z)
-    # odd frames register src onto the dst keyframe (trans_gt), even ones the reverse
-    expected = truth if frame % 2 else np.linalg.inv(truth)
+    expected = (np.eye(4) if current == keyframe else truth if current == 1
+                else np.linalg.inv(truth))
     rotation_error = rotation_error_deg(estimate[:3, :3], expected[:3, :3])
     translation_error = translation_error_m(estimate[:3, 3], expected[:3, 3])
     return {'rotation_error_deg': rotation_error, 'translation_error_m': translation_error,
