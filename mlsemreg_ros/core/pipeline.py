@@ -153,23 +153,25 @@ class Registration:
                                                     cfg.semantic.cluster_min_points)
             return local_ss, marks
 
-        def semantics_and_alignment() -> tuple[np.ndarray, Landmarks, dict]:
+        def semantics_and_alignment() -> tuple[np.ndarray, Landmarks, dict, Any]:
             local_ss, marks = semantics()
             clouds = {}
             if cfg.fine.method != 'off':  # the odometry's cloud (pairs build theirs later)
                 key = (cfg.fine.downsampling_resolution, cfg.fine.num_neighbors)
                 with _timed(timings, 'alignment_cloud_ms'):
                     clouds[key] = AlignmentCloud.build(points, *key, num_threads=1)
-            return local_ss, marks, clouds
+            with _timed(timings, 'points_tree_ms'):  # for the dense scores, as a target
+                tree = PreparedScan.build_points_tree(points)
+            return local_ss, marks, clouds, tree
 
-        # Descriptors | semantic signatures + the alignment cloud are independent: 2 threads.
-        described, (local_ss, marks, clouds) = _SCAN_POOL.run(
+        # Descriptors | semantic signatures, alignment cloud, KD-tree: two threads.
+        described, (local_ss, marks, clouds, tree) = _SCAN_POOL.run(
             lambda task: task(), [describe, semantics_and_alignment])
         valid = features.valid_descriptor_mask(described)
         keypoints, indices = keypoints[valid], indices[valid]
         descriptors, local_ss = described[valid], local_ss[valid]
         return PreparedScan(points, labels, keypoints, indices, descriptors, local_ss, marks,
-                            timings, clouds, input_stats)
+                            timings, clouds, input_stats, tree)
 
     # ------------------------------------------------------------------------------
     def register(self, source: PreparedScan, target: PreparedScan, *,

@@ -67,7 +67,8 @@ class PreparedScan:
     alignment_clouds: dict[tuple[float, int], AlignmentCloud] = field(default_factory=dict)
     #: what the input hygiene did: dropped points by kind, label scheme, out-of-scheme labels
     input_stats: dict[str, Any] = field(default_factory=dict)
-    _points_tree: cKDTree | None = field(default=None, init=False, repr=False, compare=False)
+    #: KD-tree of ``points`` (built by :meth:`Registration.prepare`, or on first use)
+    kdtree: cKDTree | None = field(default=None, repr=False, compare=False)
 
     def points_tree(self) -> cKDTree:
         """
@@ -76,10 +77,14 @@ class PreparedScan:
         Hypothesis verification queries the target scan once per registration; a node
         registers many scans against one keyframe, so the tree is built once per keyframe.
         """
-        if self._points_tree is None:
-            # sliding-midpoint splits, no node shrinking: ~40 % cheaper to build, same queries
-            self._points_tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
-        return self._points_tree
+        if self.kdtree is None:
+            self.kdtree = self.build_points_tree(self.points)
+        return self.kdtree
+
+    @staticmethod
+    def build_points_tree(points: np.ndarray) -> cKDTree:
+        """KD-tree of a scan: sliding-midpoint splits, no node shrinking (~40 % cheaper)."""
+        return cKDTree(points, balanced_tree=False, compact_nodes=False)
 
 
 @dataclass

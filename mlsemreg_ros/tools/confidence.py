@@ -116,7 +116,7 @@ def sim_cases(bag: Path, strides: tuple[int, ...] = (1, 10, 20), per_stride: int
         source.close()
     cases: list[Case] = []
     last = max(scans)
-    for stride in strides:
+    for stride in (s for s in strides if s <= last):  # strides the bag is long enough for
         for start in np.linspace(0, last - stride, per_stride).astype(int):
             a, b = scans[int(start)], scans[int(start) + stride]
             T = invert_transform(a.pose) @ b.pose  # b onto a
@@ -186,7 +186,7 @@ def summary_lines(rows: list[dict[str, Any]]) -> list[str]:
 
 def stream_cases(directory: Path) -> list[tuple[str, list[tuple[Case, bool]]]]:
     """
-    The issue's failure cases as scan streams for a fresh odometry (the node's code path).
+    Build the issue's failure cases as scan streams for a fresh odometry (the node's path).
 
     Each stream is ``(kind, [(case, expected right), ...])``: after a reset the first scan
     (``case.target``) starts the odometry, then ``case.source`` is processed; a degenerate
@@ -253,8 +253,8 @@ def stream_table(rows: list[dict[str, Any]]) -> list[str]:
     lines = [f'{"case":<18} {"tried":>6} {"rejected":>9} {"published":>10} {"wrong":>6}']
     for kind in dict.fromkeys(r['kind'] for r in rows):
         of_kind = [r for r in rows if r['kind'] == kind]
-        total = {k: sum(r[k] for r in of_kind) for k in ('tried', 'rejected', 'published',
-                                                          'wrong_published')}
+        keys = ('tried', 'rejected', 'published', 'wrong_published')
+        total = {k: sum(r[k] for r in of_kind) for k in keys}
         lines.append(f'{kind:<18} {total["tried"]:>6} {total["rejected"]:>9} '
                      f'{total["published"]:>10} {total["wrong_published"]:>6}')
     return lines
@@ -334,7 +334,7 @@ def main(argv: list[str] | None = None) -> int:
             writer = csv.DictWriter(f, fieldnames=list(streams[0]))
             writer.writeheader()
             writer.writerows(streams)
-        print('\nthrough the odometry (the node\'s code path), default parameters:')
+        print("\nthrough the odometry (the node's code path), default parameters:")
         print('\n'.join(stream_table(streams)))
     print(f'results: {args.out}')
     return 0
