@@ -33,8 +33,8 @@ import sysconfig
 import threading
 from typing import Any
 
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 from mlsemreg_ros.tools.bench_node import NodeProbe, to_stamp
-from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
 import numpy as np
 import pytest
 from ros_domains import domain_id

@@ -22,8 +22,8 @@ most inliers; verification on the dense labeled scans must bring the true pose b
 from dev_pairs import dev_pair_files
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.metrics import evaluate_pair
-from mlsemreg_ros.core.pairs import load_pair
 from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.datasets.pairs import load_pair
 import pytest
 
 

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.datasets.poses import read_kitti_poses, read_tum_poses
+from mlsemreg_ros.datasets.pose_files import read_kitti_poses, read_tum_poses
 from mlsemreg_ros.tools import eval_bag, simulate
 import numpy as np
 import pytest

@@ -17,9 +17,9 @@ import json
 
 from mlsemreg_ros.core.features import sample_keypoints
 from mlsemreg_ros.core.fpfh import fpfh_at_keypoints
-from mlsemreg_ros.core.pairs import list_pairs, load_pair, save_pair
+from mlsemreg_ros.datasets.pairs import list_pairs, load_pair, save_pair
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 from mlsemreg_ros.tools import bench, eval_pairs
-from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
 import numpy as np
 import pytest
 

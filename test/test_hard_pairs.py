@@ -22,10 +22,10 @@ from pathlib import Path
 
 from mlsemreg_ros.core.features import sample_keypoints
 from mlsemreg_ros.core.metrics import evaluate_pair
-from mlsemreg_ros.core.pairs import list_pairs, load_pair, save_pair
+from mlsemreg_ros.datasets.pairs import list_pairs, load_pair, save_pair
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 from mlsemreg_ros.tools import bench, cut_pairs, eval_pairs, simulate
 from mlsemreg_ros.tools.baselines import KISS_MATCHER_MISSING
-from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree

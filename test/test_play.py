@@ -23,8 +23,8 @@ import sys
 import time
 from typing import Any
 
+from mlsemreg_ros.codec.pointcloud2 import pointcloud2_to_arrays
 from mlsemreg_ros.datasets.bag import BagWriter
-from mlsemreg_ros.ros.pointcloud2 import pointcloud2_to_arrays
 import numpy as np
 import pytest
 from ros_domains import domain_id

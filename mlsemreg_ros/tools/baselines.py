@@ -97,7 +97,7 @@ def evaluate_kiss_matcher(paths: list[Any], voxel_size: float = KISS_MATCHER_VOX
     IN / IR are measured on KISS-Matcher's initial correspondences (those its solver sees).
     """
     from mlsemreg_ros.core.metrics import evaluate_pair, summarize
-    from mlsemreg_ros.core.pairs import load_pair
+    from mlsemreg_ros.datasets.pairs import load_pair
     from mlsemreg_ros.tools.eval_pairs import (
         INLIER_THRESHOLD_M,
         MAX_ROTATION_DEG,

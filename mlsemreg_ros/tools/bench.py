@@ -69,10 +69,10 @@ def generated_pair(seed: int = 0, keypoints: int = 5000) -> Any:
     Pair in a generated labeled street scene, with ``keypoints`` random keypoints per cloud.
 
     The scene (ground, facades, cars, poles, trunks, signs) comes from
-    :mod:`mlsemreg_ros.tools.synthetic_scene`; ``trans_gt`` is the known motion.
+    :mod:`mlsemreg_ros.datasets.synthetic_scene`; ``trans_gt`` is the known motion.
     """
     from mlsemreg_ros.core.features import sample_keypoints
-    from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
+    from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
     import numpy as np
 
     pair = synthetic_pair(seed)
@@ -189,8 +189,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``mlsemreg-bench``."""
     args = parse_args(argv)
-    from mlsemreg_ros.core.pairs import load_pair
     from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.datasets.pairs import load_pair
     import numpy
 
     try:

@@ -57,8 +57,8 @@ def dev_pairs_dir() -> Path:
 
 def load_pairs(directory: Path | None, limit: int) -> list[Any]:
     """Up to ``limit`` pairs from ``directory``; the synthetic street if it holds none."""
-    from mlsemreg_ros.core.pairs import list_pairs, load_pair
-    from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
+    from mlsemreg_ros.datasets.pairs import list_pairs, load_pair
+    from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 
     if directory is not None and directory.is_dir() and list_pairs(directory):
         return [load_pair(p) for p in list_pairs(directory)[:limit]]
@@ -195,7 +195,7 @@ class NodeProbe:
     def cloud(self, points: np.ndarray, labels: np.ndarray | None, stamp: Any,
               frame_id: str = 'velodyne', label_datatype: str = 'uint32') -> Any:
         """Build a PointCloud2 message of the scan (labels stored as ``label_datatype``)."""
-        from mlsemreg_ros.ros.pointcloud2 import arrays_to_pointcloud2
+        from mlsemreg_ros.codec.pointcloud2 import arrays_to_pointcloud2
         from std_msgs.msg import Header
 
         return arrays_to_pointcloud2(*self._msg_classes, Header(stamp=stamp, frame_id=frame_id),

@@ -16,7 +16,7 @@
 
 The paper's hard KITTI pairs are scans far apart; this tool makes such a set from any
 bag with ground-truth poses (``mlsemreg-simulate`` bags, converted KITTI sequences), in the
-pair-file format of :mod:`mlsemreg_ros.core.pairs` (``mlsemreg-eval-pairs`` reads it):
+pair-file format of :mod:`mlsemreg_ros.datasets.pairs` (``mlsemreg-eval-pairs`` reads it):
 
 - ``stride`` pairs: sensor positions ``--min-distance``..``--max-distance`` apart (default
   20-40 m) with a relative rotation below ``--turn-angle``;
@@ -74,7 +74,7 @@ def read_frames(bag: Path, voxel_size: float, max_range: float,
     """Read every scan of ``bag`` with ground truth: cropped, voxelized, in learning ids."""
     from mlsemreg_ros.core.features import voxel_downsample
     from mlsemreg_ros.core.labels import LabelMap
-    from mlsemreg_ros.datasets.scans import open_scan_source
+    from mlsemreg_ros.datasets.factory import open_scan_source
     from tqdm import tqdm
 
     label_map = LabelMap.load()
@@ -148,9 +148,9 @@ def choose_pairs(frames: list[Frame], args: argparse.Namespace) -> list[PairChoi
 
 def make_pair(frames: list[Frame], choice: PairChoice, name: str, keypoints: int,
               seed: int) -> Any:
-    """Build the :class:`~mlsemreg_ros.core.pairs.Pair` of one choice, with random keypoints."""
+    """Build the :class:`~mlsemreg_ros.datasets.pairs.Pair` of a choice, random keypoints."""
     from mlsemreg_ros.core.features import sample_keypoints
-    from mlsemreg_ros.core.pairs import Pair
+    from mlsemreg_ros.datasets.pairs import Pair
 
     source, target = frames[choice.source], frames[choice.target]
     src_rows = sample_keypoints(source.points, keypoints, 'random', 1.0, seed)
@@ -195,8 +195,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of ``mlsemreg-cut-pairs``."""
     args = build_parser().parse_args(argv)
-    from mlsemreg_ros.core.pairs import save_pair
-    from mlsemreg_ros.datasets.scans import SourceError
+    from mlsemreg_ros.datasets.pairs import save_pair
+    from mlsemreg_ros.datasets.source import SourceError
 
     if min(args.stride_pairs, args.turn_pairs, args.keypoints) < 0 or args.voxel_size < 0:
         print('mlsemreg-cut-pairs: counts and sizes must be >= 0', file=sys.stderr)

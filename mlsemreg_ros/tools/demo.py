@@ -128,7 +128,7 @@ def stop_node(process: subprocess.Popen) -> None:
 
 
 def _transform(msg: Any) -> np.ndarray:
-    from mlsemreg_ros.datasets.poses import pose_to_matrix
+    from mlsemreg_ros.codec.poses import pose_to_matrix
 
     t, q = msg.translation, msg.rotation
     return pose_to_matrix((t.x, t.y, t.z), (q.x, q.y, q.z, q.w))
@@ -149,8 +149,8 @@ def record_and_play(bag: Path, domain_id: int, rate: float, timeout: float,
     """Play ``/points`` paced by the node's diagnostics and record what the node says."""
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import TransformStamped
+    from mlsemreg_ros.codec.poses import pose_to_matrix
     from mlsemreg_ros.datasets.bag import POINTS_TOPIC
-    from mlsemreg_ros.datasets.poses import pose_to_matrix
     from mlsemreg_ros.tools.play import Player, PlayOptions
     from nav_msgs.msg import Odometry
     import rclpy
@@ -235,8 +235,8 @@ def scan_stamps(bag: Path) -> np.ndarray:
 def score(bag: Path, recording: Recording) -> Any:
     """Turn the recording into an EvalRun (frames in bag order, ground truth from the bag)."""
     from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
+    from mlsemreg_ros.core.rigid import invert_transform as inverse
     from mlsemreg_ros.datasets.bag import GT_TOPIC, read_poses
-    from mlsemreg_ros.datasets.poses import inverse
     from mlsemreg_ros.tools.eval_bag import EvalRun, FrameRecord, MAX_RE_DEG, MAX_TE_M
 
     stamps = scan_stamps(bag).tolist()
@@ -286,8 +286,8 @@ def correspondence_pair(bag: Path, run: Any, params: list[str]) -> dict | None:
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.metrics import inlier_mask
     from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.core.rigid import invert_transform as inverse
     from mlsemreg_ros.datasets.bag import BagScanReader
-    from mlsemreg_ros.datasets.poses import inverse
     from mlsemreg_ros.tools.eval_bag import load_parameters
 
     pairs = [r for r in run.records if r.registered]

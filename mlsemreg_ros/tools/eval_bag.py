@@ -59,7 +59,7 @@ from mlsemreg_ros.core.metrics import (
     rotation_error_deg,
     translation_error_m,
 )
-from mlsemreg_ros.datasets.poses import inverse
+from mlsemreg_ros.core.rigid import invert_transform as inverse
 from mlsemreg_ros.tools.cli_help import HelpFormatter
 import numpy as np
 import yaml
@@ -146,7 +146,7 @@ def evaluate_sequence(source: Any, odometry: Any, stride: int = 1,
     """
     Run every selected scan of ``source`` through ``odometry`` and score the pairs.
 
-    - ``source``: a :class:`~mlsemreg_ros.datasets.scans.ScanSource`.
+    - ``source``: a :class:`~mlsemreg_ros.datasets.source.ScanSource`.
     - ``odometry``: a fresh :class:`~mlsemreg_ros.core.odometry.Odometry`.
     - ``stride``: keep scans 0, stride, 2 * stride, ...
     - ``max_frames``: stop after this many kept scans.
@@ -390,7 +390,7 @@ def run_details(run: EvalRun, **extra: Any) -> dict[str, Any]:
 def write_results(out: Path, run: EvalRun, summary: dict, details: dict, config: dict | None,
                   plots: bool = True, extra: dict[str, np.ndarray] | None = None) -> None:
     """Write the results folder (see the module docstring); ``extra``: more trajectories."""
-    from mlsemreg_ros.datasets.poses import write_kitti_poses, write_tum_poses
+    from mlsemreg_ros.datasets.pose_files import write_kitti_poses, write_tum_poses
 
     out.mkdir(parents=True, exist_ok=True)
     (out / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')
@@ -416,7 +416,7 @@ def write_results(out: Path, run: EvalRun, summary: dict, details: dict, config:
 def write_plots(out: Path, run: EvalRun, summary: dict,
                 extra: dict[str, np.ndarray] | None = None) -> None:
     """Plot trajectory.png, errors.png and correspondences.png (``extra``: more paths)."""
-    from mlsemreg_ros.tools import plots
+    from mlsemreg_ros.evaluation import plots
 
     rejected = np.array([r.registered and not r.accepted for r in run.records])
     rr = summary['registration_recall_pct']
@@ -541,12 +541,13 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
-    from mlsemreg_ros.datasets.poses import (
+    from mlsemreg_ros.datasets.factory import is_rosbag2, open_scan_source
+    from mlsemreg_ros.datasets.pose_files import (
         camera_to_lidar_poses,
         read_kitti_calib,
         read_kitti_poses,
     )
-    from mlsemreg_ros.datasets.scans import is_rosbag2, open_scan_source, SourceError
+    from mlsemreg_ros.datasets.source import SourceError
 
     kwargs: dict[str, Any] = {}
     if is_rosbag2(args.bag):

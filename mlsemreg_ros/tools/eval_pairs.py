@@ -14,7 +14,7 @@
 """
 ``mlsemreg-eval-pairs DIR``: register every pair file of a folder, print the paper's table.
 
-Each ``.npz`` pair (see :mod:`mlsemreg_ros.core.pairs`) goes through
+Each ``.npz`` pair (see :mod:`mlsemreg_ros.datasets.pairs`) goes through
 :class:`~mlsemreg_ros.core.pipeline.Registration` with the stored keypoints (the
 points are already voxelized, so ``voxelize=False``): ``--descriptor gedi`` uses
 the stored GEDI descriptors, ``--descriptor fpfh`` computes FPFH at the keypoints.
@@ -192,8 +192,8 @@ def evaluate_directory(directory: Path, descriptor: str, config: Any,
                        progress: bool = True) -> dict[str, Any]:
     """Run every pair of ``directory``; return the JSON report (config, pairs, summary)."""
     from mlsemreg_ros.core.metrics import summarize
-    from mlsemreg_ros.core.pairs import list_pairs, load_pair, PairFileError
     from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.datasets.pairs import list_pairs, load_pair, PairFileError
     from tqdm import tqdm
 
     try:
@@ -335,7 +335,7 @@ def method_label(descriptor: str, config: Any) -> str:
 def run_baselines(directory: Path, names: list[str], config: Any,
                   progress: bool = True) -> dict[str, dict[str, Any]]:
     """Run the named baselines on the pairs of ``directory``; reports by method label."""
-    from mlsemreg_ros.core.pairs import list_pairs
+    from mlsemreg_ros.datasets.pairs import list_pairs
 
     out: dict[str, dict[str, Any]] = {}
     for name in dict.fromkeys(names):  # once each, in the given order

@@ -68,7 +68,7 @@ def convert(args: argparse.Namespace) -> dict:
     """Write the bag and pose files; returns a small report."""
     from mlsemreg_ros.datasets.bag import BagWriter
     from mlsemreg_ros.datasets.kitti import KittiSequence
-    from mlsemreg_ros.datasets.poses import write_kitti_poses
+    from mlsemreg_ros.datasets.pose_files import write_kitti_poses
     from tqdm import tqdm
 
     start = time.perf_counter()
@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     if problem:
         print(f'error: {problem}', file=sys.stderr)
         return 2
-    from mlsemreg_ros.datasets.scans import SourceError
+    from mlsemreg_ros.datasets.source import SourceError
 
     warnings.simplefilter('default')
     try:

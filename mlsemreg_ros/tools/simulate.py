@@ -89,7 +89,7 @@ def simulation_config(args: argparse.Namespace) -> object:
 def write_sequence(args: argparse.Namespace) -> dict:
     """Simulate and write the bag and pose files; returns a small report."""
     from mlsemreg_ros.datasets.bag import BagWriter
-    from mlsemreg_ros.datasets.poses import write_kitti_poses
+    from mlsemreg_ros.datasets.pose_files import write_kitti_poses
     from mlsemreg_ros.simulation.sequence import Simulation
     from tqdm import tqdm
 

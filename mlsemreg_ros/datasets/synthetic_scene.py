@@ -26,7 +26,7 @@ learning ids.
 
 from __future__ import annotations
 
-from mlsemreg_ros.core.pairs import Pair
+from mlsemreg_ros.datasets.pairs import Pair
 import numpy as np
 from scipy.spatial.transform import Rotation
 
