@@ -40,8 +40,8 @@ class EvaluationConfig:
         0.6, 'A registration succeeds when its translation error TE is at most this.',
         unit='m', low=0.0, high=100.0)
     inlier_threshold: float = param(
-        0.6, 'A correspondence (p, q) is a ground-truth inlier when the distance of T_gt p to q is '
-        'below this (IN, IR).', unit='m', low=0.001, high=10.0)
+        0.6, 'A correspondence (p, q) is a ground-truth inlier when the distance of T_gt p '
+        'to q is below this (IN, IR).', unit='m', low=0.001, high=10.0)
 
     def succeeded(self, rotation_error_deg: float, translation_error_m: float) -> bool:
         """The success test of every tool: RE <= max and TE <= max (NaN fails)."""
