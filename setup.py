@@ -42,6 +42,7 @@ setup(
     entry_points={
         'console_scripts': [
             'mlsemreg_node = mlsemreg_ros.ros.node:main',
+            'mlsemreg = mlsemreg_ros.tools.cli:main',
             'mlsemreg-eval-pairs = mlsemreg_ros.tools.eval_pairs:main',
             'mlsemreg-bench = mlsemreg_ros.tools.bench:main',
             'mlsemreg-simulate = mlsemreg_ros.tools.simulate:main',
@@ -51,6 +52,7 @@ setup(
             'mlsemreg-demo = mlsemreg_ros.tools.demo:main',
             'mlsemreg-bench-node = mlsemreg_ros.tools.bench_node:main',
             'mlsemreg-cut-pairs = mlsemreg_ros.tools.cut_pairs:main',
+            'mlsemreg-params = mlsemreg_ros.tools.params:main',
         ],
     },
 )

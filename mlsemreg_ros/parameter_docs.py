@@ -91,17 +91,17 @@ def _table(fields: list[tuple[str, dataclasses.Field, object]]) -> list[str]:
 
 
 def parameter_table_markdown() -> str:
-    """The README's table of the node's parameters (name, default, unit/range, description)."""
+    """Render the README's table of the node parameters (name, default, unit, description)."""
     return '\n'.join(_table(all_parameter_fields())) + '\n'
 
 
 def evaluation_table_markdown() -> str:
-    """The README's table of the tools' evaluation settings (``--set evaluation.*``)."""
+    """Render the README's table of the tools' evaluation settings (``evaluation.*``)."""
     return '\n'.join(_table(EvaluationSettings.parameter_fields())) + '\n'
 
 
 def readme_block() -> str:
-    """The generated README block, markers included."""
+    """Render the generated README block, markers included."""
     return '\n'.join([
         README_BEGIN, '',
         'Node parameters (`config/params.yaml`, live-tunable with `ros2 param set`; the tools '

@@ -34,7 +34,7 @@ import threading
 from typing import Any
 
 from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
-from mlsemreg_ros.tools.bench_node import NodeProbe, to_stamp
+from mlsemreg_ros.ros.probe import NodeProbe, to_stamp
 import numpy as np
 import pytest
 from ros_domains import domain_id

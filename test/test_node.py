@@ -34,14 +34,9 @@ from typing import Any
 from mlsemreg_ros.codec.pointcloud2 import FLOAT64
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
-from mlsemreg_ros.datasets.pairs import list_pairs, load_pair
+from mlsemreg_ros.datasets.pairs import dev_pairs_dir, list_pairs, load_pair
 from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
-from mlsemreg_ros.tools.bench_node import (
-    dev_pairs_dir,
-    node_and_probe,
-    NodeProbe,
-    to_stamp,
-)
+from mlsemreg_ros.ros.probe import node_and_probe, NodeProbe, to_stamp
 import numpy as np
 import pytest
 from ros_domains import domain_id

@@ -44,7 +44,7 @@ class EvaluationConfig:
         'to q is below this (IN, IR).', unit='m', low=0.001, high=10.0)
 
     def succeeded(self, rotation_error_deg: float, translation_error_m: float) -> bool:
-        """The success test of every tool: RE <= max and TE <= max (NaN fails)."""
+        """Tell whether RE <= max and TE <= max (NaN fails): the success test of every tool."""
         return bool(math.isfinite(rotation_error_deg) and math.isfinite(translation_error_m)
                     and rotation_error_deg <= self.max_rotation_deg
                     and translation_error_m <= self.max_translation_m)

@@ -29,7 +29,7 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-from mlsemreg_ros.core.config import iter_fields, param, Settings
+from mlsemreg_ros.core.config import param, RegistrationConfig, Settings
 
 
 @dataclass
@@ -103,16 +103,6 @@ class NodeConfig(Settings):
         return errors
 
 
-def node_field_of(key: str) -> dataclasses.Field:
-    """Return the dataclass field behind a node parameter such as ``qos.depth``."""
-    return NodeConfig.field_of(key)
-
-
-def iter_node_fields() -> list[tuple[str, dataclasses.Field, Any]]:
-    """``(flat_name, field, default)`` for every node parameter, in declaration order."""
-    return NodeConfig.parameter_fields()
-
-
 def all_parameter_fields() -> list[tuple[str, dataclasses.Field, Any]]:
     """``(flat_name, field, default)`` of every node parameter: node-level, then core."""
-    return iter_node_fields() + iter_fields()
+    return NodeConfig.parameter_fields() + RegistrationConfig.parameter_fields()
