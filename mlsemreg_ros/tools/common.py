@@ -31,7 +31,6 @@ import shutil
 import sys
 from typing import Annotated, Any, Literal
 
-import click
 import typer
 
 #: Help panels of the options.
@@ -62,12 +61,13 @@ WorldFrameOption = Annotated[str, typer.Option(help='frame of the ground truth',
                                                rich_help_panel=TOPICS)]
 
 
-class CommandError(click.ClickException):
+class CommandError(Exception):
     """A command cannot do what it was asked; the message says why (printed by :func:`run`)."""
 
     def __init__(self, message: str, exit_code: int = 1) -> None:
         """``exit_code`` 2: bad arguments or settings; 1: the work itself failed."""
         super().__init__(message)
+        self.message = message
         self.exit_code = exit_code
 
 
@@ -96,33 +96,33 @@ def _print_error(prog: str, message: str) -> None:
     console(stderr=True).print(f'{prog}: error: {message}', markup=False, style='red')
 
 
-def invocation_argv() -> list[str]:
-    """Return the arguments of the running command (recorded in result files)."""
-    context = click.get_current_context(silent=True)
-    root = context.find_root() if context is not None else None
-    return list((root.obj or {}).get('argv', sys.argv[1:])) if root is not None else []
+def invocation_argv(context: typer.Context) -> list[str]:
+    """Return the arguments the command was called with (recorded in result files)."""
+    return list((context.find_root().obj or {}).get('argv', sys.argv[1:]))
 
 
-def run(command: click.Command, argv: Sequence[str] | None, prog: str) -> int:
-    """Run a click/typer command on ``argv`` and return its exit code (one error style)."""
+def run(command: Any, argv: Sequence[str] | None, prog: str) -> int:
+    """Run a typer (click) command on ``argv``; return its exit code (one error style)."""
     args = list(argv) if argv is not None else sys.argv[1:]
     try:
         result = command.main(args=args, prog_name=prog, standalone_mode=False,
                               obj={'argv': args})
-    except click.exceptions.UsageError as error:
-        where = f'{error.ctx.command_path}' if error.ctx is not None else prog
-        _print_error(where, f'{error.format_message()} (see {where} --help)')
+    except CommandError as error:
+        _print_error(prog, error.message)
         return error.exit_code
-    except click.ClickException as error:
-        _print_error(prog, error.format_message())
-        return error.exit_code
-    except click.exceptions.Abort:
+    except typer.Abort:
         return 130
+    except typer.TyperException as error:  # usage errors: unknown option, bad value, ...
+        context = getattr(error, 'ctx', None)
+        where = context.command_path if context is not None else prog
+        message = error.format_message() if hasattr(error, 'format_message') else str(error)
+        if message:  # (none when the help was shown for a bare 'mlsemreg')
+            _print_error(where, f'{message} (see {where} --help)')
+        return int(getattr(error, 'exit_code', 2))
     return result if isinstance(result, int) else 0
 
 
-def single_command_app(function: Callable[..., int], help_text: str | None = None
-                       ) -> click.Command:
+def single_command_app(function: Callable[..., int], help_text: str | None = None) -> Any:
     """Build the click command of one subcommand function (its ``mlsemreg-<name>`` alias)."""
     app = typer.Typer(add_completion=False, rich_markup_mode='rich',
                       context_settings={'help_option_names': ['-h', '--help']})

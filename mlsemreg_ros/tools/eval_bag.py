@@ -45,6 +45,7 @@ HELP = ("Replay a bag (mcap or sqlite3) or SemanticKITTI folder offline through 
 
 
 def eval_bag(
+    context: typer.Context,
     bag: Annotated[Path, typer.Argument(
         exists=True, help='rosbag2 directory / .mcap / .db3, or a SemanticKITTI sequence '
         'folder')],
@@ -131,7 +132,7 @@ def eval_bag(
         raise CommandError('no scans read')
     summary = summarize_run(run_)
     details = run_details(run_, bag=str(bag), stride=stride, max_frames=max_frames,
-                          argv=invocation_argv())
+                          argv=invocation_argv(context))
     out = output or reports.default_output(results_root, 'eval_bag', run_.name)
     others: dict[str, dict] = {}
     extra = {}
