@@ -15,14 +15,18 @@
 """ament_python package setup for mlsemreg_ros."""
 
 from glob import glob
+from pathlib import Path
+from xml.etree import ElementTree
 
 from setuptools import find_packages, setup
 
 PACKAGE = 'mlsemreg_ros'
+#: The one version source: package.xml (ROS tooling reads it there; bloom bumps it).
+VERSION = ElementTree.parse(Path(__file__).resolve().parent / 'package.xml').findtext('version')
 
 setup(
     name=PACKAGE,
-    version='0.1.0',
+    version=VERSION,
     packages=find_packages(exclude=['test']),
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
@@ -32,7 +36,7 @@ setup(
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'open3d-cpu', 'tqdm', 'rosbags',
-                      'threadpoolctl', 'small-gicp'],
+                      'threadpoolctl', 'small-gicp', 'matplotlib', 'typer', 'rich'],
     zip_safe=True,
     maintainer='mlsemreg_ros maintainers',
     maintainer_email='maintainers@mlsemreg-ros.invalid',

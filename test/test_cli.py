@@ -56,6 +56,7 @@ def test_one_version_source():
 
     package_xml = (ROOT / 'package.xml').read_text()
     assert f'<version>{__version__}</version>' in package_xml
+    assert 'version=VERSION' in (ROOT / 'setup.py').read_text()  # read from package.xml
 
 
 def test_declared_validation_and_one_error_style(tmp_path, capsys):

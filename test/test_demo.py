@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 from pathlib import Path
 
 from mlsemreg_ros.codec.stamps import parse_seconds
@@ -27,9 +26,7 @@ from mlsemreg_ros.tools import demo
 import pytest
 from ros_domains import domain_id
 
-os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-pytest.importorskip('rclpy', reason='rclpy (ROS 2 Jazzy wheels) not installed')
+pytestmark = [pytest.mark.slow, pytest.mark.usefixtures('rclpy_module')]  # conftest.py
 
 DOMAIN_ID = domain_id('demo')
 

@@ -26,6 +26,8 @@ from mlsemreg_ros.datasets.pairs import load_pair
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.slow  # the real KITTI dev pairs at 5000 keypoints
+
 
 def _run(descriptor: str, semantic: bool = True) -> dict:
     config = RegistrationConfig().replace({'semantic.enabled': semantic})

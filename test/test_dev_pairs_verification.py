@@ -26,6 +26,8 @@ from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.datasets.pairs import load_pair
 import pytest
 
+pytestmark = pytest.mark.slow  # the real KITTI dev pairs at 5000 keypoints
+
 
 def _register(path, verification: bool, descriptor: str = 'fpfh', **flat):
     config = RegistrationConfig().replace({'verification.enabled': verification, **flat})

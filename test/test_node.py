@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import os
 from typing import Any
 
 from mlsemreg_ros.codec.pointcloud2 import FLOAT64
@@ -41,10 +40,7 @@ import numpy as np
 import pytest
 from ros_domains import domain_id
 
-# The rmw implementation and discovery range are read when rclpy is first imported/initialized.
-os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-pytest.importorskip('rclpy', reason='rclpy (ROS 2 Jazzy wheels) not installed')
+pytestmark = pytest.mark.usefixtures('rclpy_module')  # skip without rclpy (conftest.py)
 
 DOMAIN_ID = domain_id('node')
 TIMEOUT_S = 60.0

@@ -16,7 +16,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
@@ -123,25 +122,19 @@ def test_parameter_table_lists_every_parameter() -> None:
 
 
 @pytest.fixture(scope='module')
-def declared() -> Any:
+def declared(ros_context: Any) -> Any:
     """Collect declared parameters and descriptors (node with and without params.yaml)."""
-    os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-    rclpy = pytest.importorskip('rclpy', reason='rclpy (ROS 2 Jazzy wheels) not installed')
     from mlsemreg_ros.ros.node import MlSemRegNode
 
     out = {}
     with_file = ['--ros-args', '--params-file', str(PARAMS)]
     for label, args in (('defaults', None), ('params.yaml', with_file)):
-        context = rclpy.Context()
-        rclpy.init(context=context, domain_id=DOMAIN_ID, args=args)
-        try:
+        with ros_context(DOMAIN_ID, args) as context:
             node = MlSemRegNode(context=context)
             names = [name for name, _, _ in all_parameter_fields()]
             out[label] = ({p.name: p.value for p in node.get_parameters(names)},
                           dict(zip(names, node.describe_parameters(names), strict=True)))
             node.destroy_node()
-        finally:
-            rclpy.try_shutdown(context=context)
     return out
 
 

@@ -127,4 +127,3 @@ def bench(
 
 
 main = alias(bench, HELP, 'mlsemreg-bench')
-

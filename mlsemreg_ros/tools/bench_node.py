@@ -108,4 +108,3 @@ def bench_node(
 
 
 main = alias(bench_node, HELP, 'mlsemreg-bench-node')
-

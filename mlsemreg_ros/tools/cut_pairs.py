@@ -94,4 +94,3 @@ def cut_pairs(
 
 
 main = alias(cut_pairs, HELP, 'mlsemreg-cut-pairs')
-

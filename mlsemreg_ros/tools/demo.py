@@ -170,4 +170,3 @@ def demo(
 
 
 main = alias(demo, HELP, 'mlsemreg-demo')
-

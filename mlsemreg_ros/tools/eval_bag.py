@@ -161,4 +161,3 @@ def eval_bag(
 
 
 main = alias(eval_bag, HELP, 'mlsemreg-eval-bag')
-

@@ -168,4 +168,3 @@ def eval_pairs(
 
 
 main = alias(eval_pairs, HELP, 'mlsemreg-eval-pairs')
-

@@ -125,4 +125,3 @@ def kitti_to_bag(
 
 
 main = alias(kitti_to_bag, HELP, 'mlsemreg-kitti-to-bag')
-

@@ -65,4 +65,3 @@ def params(
 
 
 main = alias(params, HELP, 'mlsemreg-params')
-

@@ -100,4 +100,3 @@ def simulate(
 
 
 main = alias(simulate, HELP, 'mlsemreg-simulate')
-
