@@ -321,7 +321,7 @@ class FineAlignmentConfig:
         'frame, slower) or off (the estimate as it is, chained scan to keyframe).',
         choices=('vgicp', 'gicp', 'plane_icp', 'icp', 'off'))
     pair_method: str = param(
-        'gicp', 'Pairs (Registration.register, mlsemreg-eval-pairs): alignment of the source '
+        'gicp', 'Pairs (Registration.register, mlsemreg eval-pairs): alignment of the source '
         'scan onto the target scan, both as voxelized at features.voxel_size. gicp, vgicp, '
         'plane_icp, icp or off (the estimate as it is).',
         choices=('gicp', 'vgicp', 'plane_icp', 'icp', 'off'))
