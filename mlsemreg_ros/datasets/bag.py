@@ -32,7 +32,6 @@ from __future__ import annotations
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-import shutil
 from typing import Any
 import warnings
 
@@ -341,12 +340,3 @@ def write_sequence_bag(out: str | Path, scans: Iterable[Scan],
         seconds = (np.asarray(stamps) - stamps[0]) / 1e9
         np.savetxt(out / 'times.txt', seconds, fmt='%.6e')
     return WrittenSequence(len(stamps), points, labeled and bool(stamps), bool(poses))
-
-
-def replace_output(path: Path, force: bool) -> str | None:
-    """Make room for a new output folder: an error message if it exists without ``force``."""
-    if path.exists():
-        if not force:
-            return f'{path} exists (use --force to replace it)'
-        shutil.rmtree(path)
-    return None
