@@ -36,7 +36,7 @@ setup(
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'open3d-cpu', 'tqdm', 'rosbags',
-                      'threadpoolctl', 'small-gicp', 'matplotlib', 'typer', 'rich'],
+                      'threadpoolctl', 'small-gicp', 'matplotlib', 'typer>=0.29', 'rich>=13'],
     zip_safe=True,
     maintainer='mlsemreg_ros maintainers',
     maintainer_email='maintainers@mlsemreg-ros.invalid',
