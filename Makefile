@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 export ROS_DOMAIN_ID ?= 42
 export RMW_IMPLEMENTATION ?= rmw_fastrtps_cpp
 
-.PHONY: setup test demo bench bench-node eval-pairs lint format clean
+.PHONY: setup test test-fast demo bench bench-node eval-pairs params lint format clean
 
 setup:
 	@bash scripts/bootstrap.sh
@@ -13,24 +13,33 @@ setup:
 test: setup
 	$(PY) -m pytest -q test
 
+# the quick subset (under a minute): everything but the tests marked slow
+test-fast: setup
+	$(PY) -m pytest -q -m "not slow" test
+
 lint: setup
 	$(VENV)/bin/ruff check mlsemreg_ros test setup.py
+	$(VENV)/bin/pre-commit run --all-files
 	$(PY) -m pytest -q test/test_flake8.py test/test_pep257.py test/test_copyright.py
 
 format: setup
 	$(VENV)/bin/ruff format mlsemreg_ros test setup.py
 
 demo: setup
-	$(VENV)/bin/mlsemreg-demo
+	$(VENV)/bin/mlsemreg demo
+
+# regenerate config/params.yaml and the README parameter tables
+params: setup
+	$(VENV)/bin/mlsemreg params
 
 bench: setup
-	$(VENV)/bin/mlsemreg-bench --json results/bench.json
+	$(VENV)/bin/mlsemreg bench --json results/bench.json
 
 bench-node: setup
-	$(VENV)/bin/mlsemreg-bench-node
+	$(VENV)/bin/mlsemreg bench-node
 
 eval-pairs: setup
-	$(VENV)/bin/mlsemreg-eval-pairs ../shared/data/kitti_pairs_dev --json results/eval_pairs.json
+	$(VENV)/bin/mlsemreg eval-pairs ../shared/data/kitti_pairs_dev --json results/eval_pairs.json
 
 clean:
 	rm -rf build install log results .pytest_cache

@@ -15,14 +15,18 @@
 """ament_python package setup for mlsemreg_ros."""
 
 from glob import glob
+from pathlib import Path
+from xml.etree import ElementTree
 
 from setuptools import find_packages, setup
 
 PACKAGE = 'mlsemreg_ros'
+#: The one version source: package.xml (ROS tooling reads it there; bloom bumps it).
+VERSION = ElementTree.parse(Path(__file__).resolve().parent / 'package.xml').findtext('version')
 
 setup(
     name=PACKAGE,
-    version='0.1.0',
+    version=VERSION,
     packages=find_packages(exclude=['test']),
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
@@ -32,7 +36,8 @@ setup(
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
     ],
     install_requires=['setuptools', 'numpy', 'scipy', 'pyyaml', 'open3d-cpu', 'tqdm', 'rosbags',
-                      'threadpoolctl', 'small-gicp', 'numba'],
+                      'threadpoolctl', 'small-gicp', 'numba', 'matplotlib', 'typer>=0.29',
+                      'rich>=13'],
     zip_safe=True,
     maintainer='mlsemreg_ros maintainers',
     maintainer_email='maintainers@mlsemreg-ros.invalid',
@@ -42,6 +47,7 @@ setup(
     entry_points={
         'console_scripts': [
             'mlsemreg_node = mlsemreg_ros.ros.node:main',
+            'mlsemreg = mlsemreg_ros.tools.cli:main',
             'mlsemreg-eval-pairs = mlsemreg_ros.tools.eval_pairs:main',
             'mlsemreg-bench = mlsemreg_ros.tools.bench:main',
             'mlsemreg-simulate = mlsemreg_ros.tools.simulate:main',
@@ -52,6 +58,7 @@ setup(
             'mlsemreg-bench-node = mlsemreg_ros.tools.bench_node:main',
             'mlsemreg-confidence = mlsemreg_ros.tools.confidence:main',
             'mlsemreg-cut-pairs = mlsemreg_ros.tools.cut_pairs:main',
+            'mlsemreg-params = mlsemreg_ros.tools.params:main',
         ],
     },
 )

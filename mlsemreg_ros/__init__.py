@@ -14,4 +14,19 @@
 
 """ML-SemReg registration of semantically labeled LiDAR scans, with a ROS 2 node."""
 
-__version__ = '0.1.0'
+from importlib import metadata
+from pathlib import Path
+import re
+
+
+def _package_xml_version() -> str:
+    """Return the ``<version>`` of the source tree's package.xml (never-installed checkout)."""
+    text = (Path(__file__).resolve().parents[1] / 'package.xml').read_text()
+    match = re.search(r'<version>([^<]+)</version>', text)
+    return match.group(1).strip() if match else '0+unknown'
+
+
+try:  # the one version source is package.xml; setup.py copies it into the metadata
+    __version__ = metadata.version('mlsemreg_ros')
+except metadata.PackageNotFoundError:
+    __version__ = _package_xml_version()

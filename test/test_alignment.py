@@ -23,7 +23,7 @@ from mlsemreg_ros.core.config import FineAlignmentConfig, LocalMapConfig, Regist
 from mlsemreg_ros.core.metrics import rotation_error_deg
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.rigid import apply_transform, invert_transform
-from mlsemreg_ros.tools.synthetic_scene import motion, scan_at, street_scene, synthetic_pair
+from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene, synthetic_pair
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation

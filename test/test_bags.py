@@ -19,16 +19,17 @@ from __future__ import annotations
 from pathlib import Path
 
 from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.rigid import relative_transform
 from mlsemreg_ros.datasets.bag import BagScanReader, BagWriter, read_poses
+from mlsemreg_ros.datasets.factory import open_scan_source
 from mlsemreg_ros.datasets.kitti import KittiSequence
-from mlsemreg_ros.datasets.poses import (
-    inverse,
+from mlsemreg_ros.datasets.pose_files import (
     read_kitti_poses,
     read_tum_poses,
     write_kitti_poses,
     write_tum_poses,
 )
-from mlsemreg_ros.datasets.scans import open_scan_source, ScanSource, SourceError
+from mlsemreg_ros.datasets.source import ScanSource, SourceError
 from mlsemreg_ros.simulation.trajectory import euler_to_matrix
 from mlsemreg_ros.tools import kitti_to_bag, simulate
 import numpy as np
@@ -135,7 +136,7 @@ def write_fake_kitti(root: Path, rng: np.random.Generator, frames: int = 3,
         clouds.append(data)
         raws.append(raw)
     camera = random_poses(rng, frames)
-    camera = inverse(camera[0]) @ camera
+    camera = relative_transform(camera[0], camera)
     write_kitti_poses(root / 'poses.txt', camera)
     tr = random_poses(rng, 1)[0]
     calib = '\n'.join([f'P{i}: ' + ' '.join(['0.0'] * 12) for i in range(4)] +

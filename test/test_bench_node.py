@@ -15,10 +15,15 @@
 
 from types import SimpleNamespace
 
-from mlsemreg_ros.tools.bench_node import _errors, parameter_overrides
+from mlsemreg_ros.core.config import ConfigError, load_settings, RegistrationConfig
+from mlsemreg_ros.evaluation.node_latency import transform_errors as _errors
+from mlsemreg_ros.evaluation.settings import EvaluationConfig
+from mlsemreg_ros.ros.node_config import NodeConfig
+from mlsemreg_ros.ros.node_process import write_params_file
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+import yaml
 
 
 def _message(transform: np.ndarray) -> SimpleNamespace:
@@ -46,9 +51,26 @@ def test_the_truth_follows_the_keyframe_the_node_reports():
     assert _errors(None, truth, current=1, keyframe=0) == {}
 
 
-def test_set_overrides_become_ros_parameter_arguments():
-    assert parameter_overrides([]) is None
-    assert parameter_overrides(['keypoints.count=1500', 'semantic.landmark_classes=[pole]']) == [
-        '--ros-args', '-p', 'keypoints.count:=1500', '-p', 'semantic.landmark_classes:=[pole]']
-    with pytest.raises(SystemExit):
-        parameter_overrides(['keypoints.count'])
+def test_the_success_bounds_are_inclusive_and_settable():
+    truth = np.eye(4)
+    at_bound = truth.copy()
+    at_bound[0, 3] = 0.6  # TE exactly 0.6 m: a success (RE <= 5 deg and TE <= 0.6 m)
+    assert _errors(_message(at_bound), truth, current=1, keyframe=0)['correct']
+    strict = EvaluationConfig(max_translation_m=0.5)
+    assert not _errors(_message(at_bound), truth, current=1, keyframe=0,
+                       bounds=strict)['correct']
+
+
+def test_set_overrides_reach_the_node_as_a_validated_parameter_file(tmp_path):
+    core, node = load_settings((RegistrationConfig, NodeConfig), None, [
+        'keypoints.count=1500', 'semantic.landmark_classes=[pole]', 'fine.method=off',
+        'qos.depth=7'])
+    path = write_params_file(tmp_path / 'params.yaml', core, node)
+    params = yaml.safe_load(path.read_text())['mlsemreg_node']['ros__parameters']  # YAML 1.1
+    assert params['keypoints']['count'] == 1500 and params['qos']['depth'] == 7
+    assert params['semantic']['landmark_classes'] == ['pole']
+    assert params['fine']['method'] == 'off'  # a string, not the boolean of YAML 1.1
+    assert load_settings((RegistrationConfig, NodeConfig), path) == (core, node)
+    for bad in (['keypoints.count'], ['keypoints.count=many'], ['keypoints.bogus=1']):
+        with pytest.raises(ConfigError):
+            load_settings((RegistrationConfig, NodeConfig), None, bad)

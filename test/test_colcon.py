@@ -33,11 +33,13 @@ import sysconfig
 import threading
 from typing import Any
 
-from mlsemreg_ros.tools.bench_node import NodeProbe, to_stamp
-from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
+from mlsemreg_ros.ros.probe import NodeProbe, to_stamp
 import numpy as np
 import pytest
 from ros_domains import domain_id
+
+pytestmark = pytest.mark.slow  # a colcon build and node processes
 
 REPO = Path(__file__).resolve().parents[1]
 VENV_BIN = Path(sys.executable).parent
@@ -91,22 +93,18 @@ def _site_packages(prefix: Path) -> Path:
 
 
 @pytest.fixture
-def probe() -> Any:
+def probe(ros_context: Any) -> Any:
     """Yield a NodeProbe in its own context on DOMAIN_ID, spun in a thread."""
-    os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-    rclpy = pytest.importorskip('rclpy', reason='rclpy (ROS 2 Jazzy wheels) not installed')
     from rclpy.executors import SingleThreadedExecutor
 
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    probe = NodeProbe(context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(probe.node)
-    threading.Thread(target=executor.spin, daemon=True).start()
-    yield probe
-    executor.shutdown(timeout_sec=5.0)
-    probe.node.destroy_node()
-    rclpy.try_shutdown(context=context)
+    with ros_context(DOMAIN_ID) as context:
+        probe = NodeProbe(context)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(probe.node)
+        threading.Thread(target=executor.spin, daemon=True).start()
+        yield probe
+        executor.shutdown(timeout_sec=5.0)
+        probe.node.destroy_node()
 
 
 def test_installed_node_registers_a_pair_and_exits_cleanly_on_sigint(

@@ -23,9 +23,10 @@ from mlsemreg_ros.core.confidence import Evidence, refusal, tilt_deg
 from mlsemreg_ros.core.config import ConfidenceConfig, RegistrationConfig
 from mlsemreg_ros.core.odometry import Odometry
 from mlsemreg_ros.core.pipeline import Registration
-from mlsemreg_ros.tools import confidence as study
+from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene, synthetic_pair
+from mlsemreg_ros.evaluation import confidence as study
+from mlsemreg_ros.tools import confidence as confidence_tool
 from mlsemreg_ros.tools import simulate
-from mlsemreg_ros.tools.synthetic_scene import motion, scan_at, street_scene, synthetic_pair
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -109,8 +110,8 @@ def test_the_study_measures_simulated_pairs_and_writes_its_outputs(bag: Path,
     lines = study.summary_lines(rows)
     assert lines[0].startswith('evidence') and any(line.startswith('sim ') for line in lines)
     out = tmp_path / 'out'
-    assert study.main(['--dev', str(tmp_path / 'none'), '--bags', str(bag), '--out',
-                       str(out)]) == 0
+    assert confidence_tool.main(['--dev', str(tmp_path / 'none'), '--bags', str(bag),
+                                 '--out', str(out)]) == 0
     assert (out / 'evidence.png').stat().st_size > 10_000
     assert (out / 'evidence.csv').read_text().count('\n') == 1 + 8  # stride 1 only
 

@@ -116,3 +116,39 @@ def test_yaml_words_that_yaml_1_1_reads_as_booleans_stay_strings():
     assert parse_overrides(['fine.method=off'])['fine.method'] == 'off'
     assert load_yaml('a: off\nb: yes\nc: true\nd: False\n') == {
         'a': 'off', 'b': 'yes', 'c': True, 'd': False}
+
+
+def test_one_apply_overrides_routes_every_key_to_the_settings_that_declare_it(tmp_path):
+    from mlsemreg_ros.core.config import apply_overrides, load_settings
+    from mlsemreg_ros.evaluation.settings import EvaluationSettings
+    from mlsemreg_ros.ros.node_config import NodeConfig
+
+    core, node, evaluation = apply_overrides(
+        (RegistrationConfig(), NodeConfig(), EvaluationSettings()),
+        ['semantic.top_k=3', 'qos.depth=7', 'evaluation.max_rotation_deg=15', 'threads=1'])
+    assert (core.semantic.top_k, core.threads, node.qos.depth) == (3, 1, 7)
+    assert evaluation.evaluation.max_rotation_deg == 15.0
+    assert apply_overrides(RegistrationConfig(), []) == RegistrationConfig()
+    for bad, reason in ((['evaluation.nope=1'], 'unknown parameter'),
+                        (['refine.icp=true'], 'was removed'),
+                        (['evaluation.max_translation_m=-1'], 'below its minimum'),
+                        (['qos.depth'], 'KEY=VALUE')):
+        with pytest.raises(ConfigError, match=reason):
+            apply_overrides((RegistrationConfig(), NodeConfig(), EvaluationSettings()), bad)
+    path = tmp_path / 'params.yaml'
+    path.write_text(yaml.safe_dump({'mlsemreg_node': {'ros__parameters': {
+        'semantic': {'top_k': 4}, 'odom_frame': 'map', 'use_sim_time': True,
+        'evaluation': {'max_translation_m': 0.3}}}}))
+    core, evaluation = load_settings((RegistrationConfig, EvaluationSettings), path,
+                                     ['evaluation.max_rotation_deg=15'])
+    assert core.semantic.top_k == 4
+    assert (evaluation.evaluation.max_rotation_deg,
+            evaluation.evaluation.max_translation_m) == (15.0, 0.3)
+
+
+def test_the_success_test_is_inclusive_and_nan_fails():
+    from mlsemreg_ros.evaluation.settings import EvaluationConfig
+
+    bounds = EvaluationConfig()
+    assert bounds.succeeded(5.0, 0.6) and not bounds.succeeded(5.0001, 0.1)
+    assert not bounds.succeeded(float('nan'), 0.1) and not bounds.succeeded(1.0, float('inf'))

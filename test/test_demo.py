@@ -18,16 +18,15 @@ from __future__ import annotations
 
 import csv
 import json
-import os
 from pathlib import Path
 
-from mlsemreg_ros.tools import demo, eval_bag
+from mlsemreg_ros.codec.stamps import parse_seconds
+from mlsemreg_ros.evaluation.scoring import SUMMARY_KEYS
+from mlsemreg_ros.tools import demo
 import pytest
 from ros_domains import domain_id
 
-os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-pytest.importorskip('rclpy', reason='rclpy (ROS 2 Jazzy wheels) not installed')
+pytestmark = [pytest.mark.slow, pytest.mark.usefixtures('rclpy_module')]  # conftest.py
 
 DOMAIN_ID = domain_id('demo')
 
@@ -38,7 +37,7 @@ def test_demo_runs_the_node_on_a_short_drive_and_scores_it(tmp_path: Path) -> No
             '--domain-id', str(DOMAIN_ID), '--set', 'keypoints.count=1200', '--quiet']
     assert demo.main(args) == 0, (out / 'node.log').read_text()
     summary = json.loads((out / 'summary.json').read_text())
-    assert tuple(summary) == eval_bag.SUMMARY_KEYS
+    assert tuple(summary) == SUMMARY_KEYS
     assert summary['n_frames'] == 4
     assert summary['registration_recall_pct'] == 100.0
     assert summary['translation_error_cm'] < 20.0
@@ -55,5 +54,5 @@ def test_demo_runs_the_node_on_a_short_drive_and_scores_it(tmp_path: Path) -> No
 
 
 def test_parse_stamp_is_exact() -> None:
-    assert demo.parse_stamp('1700000000.200000048') == 1_700_000_000_200_000_048
-    assert demo.parse_stamp('12.5') == 12_500_000_000
+    assert parse_seconds('1700000000.200000048') == 1_700_000_000_200_000_048
+    assert parse_seconds('12.5') == 12_500_000_000

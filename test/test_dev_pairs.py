@@ -21,10 +21,12 @@ RR 100 %; FPFH NN+ML-SemReg+SC2-PCR IN 299.5, IR 4.41 %, RR 80 %.
 from dev_pairs import dev_pair_files
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.metrics import evaluate_pair, summarize
-from mlsemreg_ros.core.pairs import load_pair
 from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.datasets.pairs import load_pair
 import numpy as np
 import pytest
+
+pytestmark = pytest.mark.slow  # the real KITTI dev pairs at 5000 keypoints
 
 
 def _run(descriptor: str, semantic: bool = True) -> dict:

@@ -22,9 +22,11 @@ most inliers; verification on the dense labeled scans must bring the true pose b
 from dev_pairs import dev_pair_files
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.metrics import evaluate_pair
-from mlsemreg_ros.core.pairs import load_pair
 from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.datasets.pairs import load_pair
 import pytest
+
+pytestmark = pytest.mark.slow  # the real KITTI dev pairs at 5000 keypoints
 
 
 def _register(path, verification: bool, descriptor: str = 'fpfh', **flat):

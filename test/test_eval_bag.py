@@ -28,8 +28,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.datasets.poses import read_kitti_poses, read_tum_poses
+from mlsemreg_ros.core.config import load_config, RegistrationConfig
+from mlsemreg_ros.datasets.pose_files import read_kitti_poses, read_tum_poses
+from mlsemreg_ros.evaluation.scoring import SUMMARY_KEYS
 from mlsemreg_ros.tools import eval_bag, simulate
 import numpy as np
 import pytest
@@ -64,7 +65,7 @@ def test_eval_bag_registers_the_simulated_bag_and_writes_every_output(
         default_run: Path) -> None:
     out = default_run
     summary = json.loads((out / 'summary.json').read_text())
-    assert tuple(summary) == eval_bag.SUMMARY_KEYS
+    assert tuple(summary) == SUMMARY_KEYS
     assert summary['n_frames'] == 3
     assert summary['registration_recall_pct'] == 100.0
     assert summary['rotation_error_deg'] < 0.1  # fine alignment against the local map
@@ -90,7 +91,7 @@ def test_eval_bag_registers_the_simulated_bag_and_writes_every_output(
     for png in ('trajectory.png', 'errors.png', 'correspondences.png'):
         assert (out / png).stat().st_size > 10_000
     # The effective config loads back and equals what ran.
-    config = eval_bag.load_parameters(out / 'config.yaml', [])
+    config = load_config(out / 'config.yaml', [])
     assert config.keypoints.count == 1500 and config.keyframe.policy == 'every_frame'
     assert config == RegistrationConfig().replace({'keypoints.count': 1500})
 

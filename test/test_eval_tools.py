@@ -17,9 +17,10 @@ import json
 
 from mlsemreg_ros.core.features import sample_keypoints
 from mlsemreg_ros.core.fpfh import fpfh_at_keypoints
-from mlsemreg_ros.core.pairs import list_pairs, load_pair, save_pair
+from mlsemreg_ros.datasets.pairs import list_pairs, load_pair, save_pair
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
+from mlsemreg_ros.evaluation.benchmark import STAGES
 from mlsemreg_ros.tools import bench, eval_pairs
-from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
 import numpy as np
 import pytest
 
@@ -112,8 +113,8 @@ def test_bench_writes_per_stage_medians(pair_dir, tmp_path, capsys):
     report = json.loads(out.read_text())
     assert set(report['keypoints']) == {'100', '300'}
     for row in report['keypoints'].values():
-        assert set(row) >= set(bench.STAGES)
-        assert all(row[s] >= 0 for s in bench.STAGES)
+        assert set(row) >= set(STAGES)
+        assert all(row[s] >= 0 for s in STAGES)
         # FPFH runs beside Local-SS and landmarks inside prepare(): those overlap
         serial = row['fpfh_ms'] + row['gm_mm_ms'] + row['sc2pcr_ms']
         assert row['total_ms'] >= 0.9 * serial

@@ -16,7 +16,7 @@
 from mlsemreg_ros.core import kernels
 from mlsemreg_ros.core.fpfh import fpfh_at_keypoints
 from mlsemreg_ros.core.pipeline import Registration
-from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 import numpy as np
 import pytest
 

@@ -37,19 +37,19 @@ from typing import Any
 from hypothesis import event, example, given, HealthCheck, Phase, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
+from mlsemreg_ros.codec.pointcloud2 import (
+    CloudArrays,
+    DATATYPES,
+    pointcloud2_to_arrays,
+    PointCloudError,
+)
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.labels import LabelConversion, LabelError, LabelMap, SCHEMES
 from mlsemreg_ros.core.odometry import Odometry, OdometryStep
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan
 from mlsemreg_ros.core.scan_input import sanitize_scan
-from mlsemreg_ros.ros.pointcloud2 import (
-    CloudArrays,
-    DATATYPES,
-    pointcloud2_to_arrays,
-    PointCloudError,
-)
-from mlsemreg_ros.tools.synthetic_scene import motion, scan_at, street_scene
+from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 from msg_stubs import Cloud, Field
 import numpy as np
 import pytest

@@ -22,10 +22,10 @@ from pathlib import Path
 
 from mlsemreg_ros.core.features import sample_keypoints
 from mlsemreg_ros.core.metrics import evaluate_pair
-from mlsemreg_ros.core.pairs import list_pairs, load_pair, save_pair
+from mlsemreg_ros.datasets.pairs import list_pairs, load_pair, save_pair
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
+from mlsemreg_ros.evaluation.baselines import KISS_MATCHER_MISSING
 from mlsemreg_ros.tools import bench, cut_pairs, eval_pairs, simulate
-from mlsemreg_ros.tools.baselines import KISS_MATCHER_MISSING
-from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
@@ -91,7 +91,7 @@ def test_cut_pairs_reports_a_bag_without_scans(tmp_path, capsys):
 
 @needs_kiss_matcher
 def test_kiss_matcher_registers_a_generated_pair():
-    from mlsemreg_ros.tools.baselines import kiss_matcher_register
+    from mlsemreg_ros.evaluation.baselines import kiss_matcher_register
 
     pair = synthetic_pair(0, max_points=25000)
     result = kiss_matcher_register(pair.pts_src, pair.pts_dst)

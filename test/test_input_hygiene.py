@@ -29,17 +29,17 @@ from __future__ import annotations
 import dataclasses
 import warnings
 
+from mlsemreg_ros.codec.pointcloud2 import (
+    arrays_to_pointcloud2,
+    FLOAT32,
+    pointcloud2_to_arrays,
+)
 from mlsemreg_ros.core import features
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.scan_input import sanitize_scan_for
-from mlsemreg_ros.ros.pointcloud2 import (
-    arrays_to_pointcloud2,
-    FLOAT32,
-    pointcloud2_to_arrays,
-)
-from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 from msg_stubs import Cloud, Field
 import numpy as np
 import pytest

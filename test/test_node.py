@@ -28,28 +28,19 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import os
 from typing import Any
 
+from mlsemreg_ros.codec.pointcloud2 import FLOAT64
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
-from mlsemreg_ros.core.pairs import list_pairs, load_pair
-from mlsemreg_ros.ros.pointcloud2 import FLOAT64
-from mlsemreg_ros.tools.bench_node import (
-    dev_pairs_dir,
-    node_and_probe,
-    NodeProbe,
-    to_stamp,
-)
-from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
+from mlsemreg_ros.datasets.pairs import dev_pairs_dir, list_pairs, load_pair
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
+from mlsemreg_ros.ros.probe import node_and_probe, NodeProbe, to_stamp
 import numpy as np
 import pytest
 from ros_domains import domain_id
 
-# The rmw implementation and discovery range are read when rclpy is first imported/initialized.
-os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-pytest.importorskip('rclpy', reason='rclpy (ROS 2 Jazzy wheels) not installed')
+pytestmark = pytest.mark.usefixtures('rclpy_module')  # skip without rclpy (conftest.py)
 
 DOMAIN_ID = domain_id('node')
 TIMEOUT_S = 60.0

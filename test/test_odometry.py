@@ -31,8 +31,8 @@ from mlsemreg_ros.core.odometry import is_new_keyframe, Odometry
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import Correspondences, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg
+from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 from mlsemreg_ros.simulation.trajectory import euler_to_matrix
-from mlsemreg_ros.tools.synthetic_scene import motion, scan_at, street_scene
 import numpy as np
 import pytest
 

@@ -16,24 +16,27 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
 from mlsemreg_ros.core.config import ConfigError, NODE_NAME, RegistrationConfig, split_params_yaml
-from mlsemreg_ros.ros.node_config import (
-    all_parameter_fields,
-    NodeConfig,
+from mlsemreg_ros.evaluation.settings import EvaluationSettings
+from mlsemreg_ros.parameter_docs import (
+    MarkerError,
     parameter_table_markdown,
     params_yaml_text,
+    readme_block,
+    update_readme,
 )
+from mlsemreg_ros.ros.node_config import all_parameter_fields, NodeConfig
 import pytest
 from ros_domains import domain_id
 import yaml
 
-PARAMS = Path(__file__).resolve().parents[1] / 'config' / 'params.yaml'
-REGENERATE = ('regenerate with: python -c "from mlsemreg_ros.ros.node_config import '
-              "params_yaml_text; print(params_yaml_text(), end='')\" > config/params.yaml")
+ROOT = Path(__file__).resolve().parents[1]
+PARAMS = ROOT / 'config' / 'params.yaml'
+README = ROOT / 'README.md'
+REGENERATE = 'regenerate config/params.yaml and the README tables with: mlsemreg params'
 DOMAIN_ID = domain_id('params_yaml')
 
 
@@ -70,6 +73,27 @@ def test_generated_text_matches_the_file() -> None:
     assert yaml.safe_load(params_yaml_text()) == yaml.safe_load(PARAMS.read_text()), REGENERATE
 
 
+def test_params_yaml_is_the_generated_text_comments_included() -> None:
+    """A changed description, range or unit in the metadata must reach the file's comments."""
+    assert PARAMS.read_text() == params_yaml_text(), REGENERATE
+
+
+def test_readme_parameter_tables_are_the_generated_block() -> None:
+    text = README.read_text()
+    assert readme_block() in text, REGENERATE
+    assert update_readme(text) == text, REGENERATE
+    for name, _, _ in all_parameter_fields() + EvaluationSettings.parameter_fields():
+        assert f'| `{name}` |' in text, name
+
+
+def test_readme_block_replaces_only_what_lies_between_the_markers() -> None:
+    stale = 'intro\n' + readme_block().replace('| `qos.depth` | `5` |', '| `qos.depth` | `6` |') \
+        + '\noutro\n'
+    assert update_readme(stale) == 'intro\n' + readme_block() + '\noutro\n'
+    with pytest.raises(MarkerError):
+        update_readme('no markers here')
+
+
 def test_core_loader_reads_params_yaml() -> None:
     assert RegistrationConfig.from_yaml(PARAMS) == RegistrationConfig()
     _, node_level = split_params_yaml(PARAMS)
@@ -98,25 +122,19 @@ def test_parameter_table_lists_every_parameter() -> None:
 
 
 @pytest.fixture(scope='module')
-def declared() -> Any:
+def declared(ros_context: Any) -> Any:
     """Collect declared parameters and descriptors (node with and without params.yaml)."""
-    os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-    rclpy = pytest.importorskip('rclpy', reason='rclpy (ROS 2 Jazzy wheels) not installed')
     from mlsemreg_ros.ros.node import MlSemRegNode
 
     out = {}
     with_file = ['--ros-args', '--params-file', str(PARAMS)]
     for label, args in (('defaults', None), ('params.yaml', with_file)):
-        context = rclpy.Context()
-        rclpy.init(context=context, domain_id=DOMAIN_ID, args=args)
-        try:
+        with ros_context(DOMAIN_ID, args) as context:
             node = MlSemRegNode(context=context)
             names = [name for name, _, _ in all_parameter_fields()]
             out[label] = ({p.name: p.value for p in node.get_parameters(names)},
                           dict(zip(names, node.describe_parameters(names), strict=True)))
             node.destroy_node()
-        finally:
-            rclpy.try_shutdown(context=context)
     return out
 
 

@@ -23,16 +23,13 @@ import sys
 import time
 from typing import Any
 
+from mlsemreg_ros.codec.pointcloud2 import pointcloud2_to_arrays
 from mlsemreg_ros.datasets.bag import BagWriter
-from mlsemreg_ros.ros.pointcloud2 import pointcloud2_to_arrays
 import numpy as np
 import pytest
 from ros_domains import domain_id
 
-os.environ.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-rclpy = pytest.importorskip('rclpy', reason='rclpy (ROS 2 Jazzy wheels) not installed')
-
+pytestmark = pytest.mark.slow  # a player process per test (rclpy: see conftest.py)
 DOMAIN_ID = domain_id('play')
 START_NS = 1_700_000_000 * 10**9
 N_CLOUDS = 12
@@ -56,7 +53,8 @@ def bag(tmp_path: Path) -> tuple[Path, list[np.ndarray]]:
     return path, clouds
 
 
-def test_player_delivers_every_message_to_a_subscriber(bag: tuple[Path, list[np.ndarray]]
+def test_player_delivers_every_message_to_a_subscriber(bag: tuple[Path, list[np.ndarray]],
+                                                       rclpy_module: Any, ros_context: Any
                                                        ) -> None:
     from nav_msgs.msg import Odometry
     from rclpy.executors import SingleThreadedExecutor
@@ -66,10 +64,8 @@ def test_player_delivers_every_message_to_a_subscriber(bag: tuple[Path, list[np.
 
     path, clouds = bag
     received: dict[str, list[Any]] = {'points': [], 'odom': [], 'clock': []}
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    try:
-        node = rclpy.create_node('test_play_subscriber', context=context)
+    with ros_context(DOMAIN_ID) as context:
+        node = rclpy_module.create_node('test_play_subscriber', context=context)
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
         node.create_subscription(PointCloud2, '/test_play/points',
                                  received['points'].append, qos)
@@ -93,8 +89,6 @@ def test_player_delivers_every_message_to_a_subscriber(bag: tuple[Path, list[np.
             executor.spin_once(timeout_sec=0.02)
         output = player.communicate(timeout=30)[0].decode()
         assert player.returncode == 0, output
-    finally:
-        rclpy.try_shutdown(context=context)
     assert len(received['points']) == N_CLOUDS, output
     assert len(received['odom']) == N_CLOUDS
     assert len(received['clock']) >= N_CLOUDS
@@ -109,7 +103,7 @@ def test_player_delivers_every_message_to_a_subscriber(bag: tuple[Path, list[np.
 
 
 def test_pace_topic_holds_playback_until_a_slow_consumer_answered(
-        bag: tuple[Path, list[np.ndarray]]) -> None:
+        bag: tuple[Path, list[np.ndarray]], rclpy_module: Any, ros_context: Any) -> None:
     """A consumer keeping only the latest cloud and answering after 0.2 s gets every cloud."""
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
@@ -118,10 +112,8 @@ def test_pace_topic_holds_playback_until_a_slow_consumer_answered(
 
     path, _ = bag
     received: list[int] = []
-    context = rclpy.Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    try:
-        node = rclpy.create_node('test_play_slow_consumer', context=context)
+    with ros_context(DOMAIN_ID) as context:
+        node = rclpy_module.create_node('test_play_slow_consumer', context=context)
         answer = node.create_publisher(DiagnosticArray, '/test_play/answer', 10)
 
         def on_cloud(msg: PointCloud2) -> None:
@@ -146,7 +138,5 @@ def test_pace_topic_holds_playback_until_a_slow_consumer_answered(
             executor.spin_once(timeout_sec=0.05)
         output = player.communicate(timeout=30)[0].decode()
         assert player.returncode == 0, output
-    finally:
-        rclpy.try_shutdown(context=context)
     assert len(received) == N_CLOUDS, output
     assert received == sorted(received)

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any
 
-from mlsemreg_ros.ros.pointcloud2 import (
+from mlsemreg_ros.codec.pointcloud2 import (
     arrays_to_pointcloud2,
     DATATYPE_BY_NAME,
     FLOAT32,

@@ -20,7 +20,7 @@ from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features import fpfh_open3d_at, valid_descriptor_mask
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.threads import LazyPool
-from mlsemreg_ros.tools.synthetic_scene import synthetic_pair
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 import numpy as np
 
 

@@ -28,12 +28,13 @@ inlier threshold 0.6 m; SC2-PCR's KITTI settings (Chen et al., CVPR 2022).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 import dataclasses
 from dataclasses import dataclass, field
 import math
 from pathlib import Path
 import re
-from typing import Any, ClassVar, Self
+from typing import Any, ClassVar, overload, Self, TypeVar
 
 import yaml
 
@@ -350,7 +351,7 @@ class FineAlignmentConfig:
         'frame, slower) or off (the estimate as it is, chained scan to keyframe).',
         choices=('vgicp', 'gicp', 'plane_icp', 'icp', 'off'))
     pair_method: str = param(
-        'gicp', 'Pairs (Registration.register, mlsemreg-eval-pairs): alignment of the source '
+        'gicp', 'Pairs (Registration.register, mlsemreg eval-pairs): alignment of the source '
         'scan onto the target scan, both as voxelized at features.voxel_size. gicp, vgicp, '
         'plane_icp, icp or off (the estimate as it is).',
         choices=('gicp', 'vgicp', 'plane_icp', 'icp', 'off'))
@@ -511,6 +512,11 @@ class Settings:
                 if dataclasses.is_dataclass(f.default_factory)}
 
     @classmethod
+    def top_level_names(cls) -> set[str]:
+        """Names of the top-level fields and sections (the keys of a parameter file)."""
+        return {f.name for f in dataclasses.fields(cls)}
+
+    @classmethod
     def parameter_fields(cls) -> list[tuple[str, dataclasses.Field, Any]]:
         """``(flat_name, field, default)`` of every parameter, in declaration order."""
         defaults = cls().to_flat_dict()
@@ -545,6 +551,17 @@ class Settings:
             else:
                 flat[key] = value
         return cls().replace(flat)
+
+    @classmethod
+    def from_file(cls, path: str | Path) -> Self:
+        """
+        Build from a parameter YAML: the node layout (``config/params.yaml``) or a plain mapping.
+
+        Only this class's keys are read; the keys of the other settings in the same file
+        (node-level keys for the core, ``use_sim_time``, ...) are left to their readers.
+        """
+        data = read_parameter_file(path)
+        return cls.from_dict({k: v for k, v in data.items() if k in cls.top_level_names()})
 
     def replace(self, flat: dict[str, Any]) -> Self:
         """Copy with ``{'flat.name': value}`` applied, type-checked and validated."""
@@ -618,8 +635,7 @@ class RegistrationConfig(Settings):
 
         Node-level keys (frames, topics, QoS) are ignored here; the ROS layer reads them.
         """
-        core, _ = split_params_yaml(path)
-        return cls.from_dict(core)
+        return cls.from_file(path)
 
     def check(self) -> list[str]:
         """Cross-field rules of the core."""
@@ -642,6 +658,10 @@ class RegistrationConfig(Settings):
         if overlap:
             errors.append(f'classes both undefined and ignored: {sorted(overlap)}')
         return errors
+
+
+#: Any settings class of this engine (the argument and result of :func:`apply_overrides`).
+SettingsT = TypeVar('SettingsT', bound=Settings)
 
 
 def metadata_errors(key: str, value: Any, meta: Any) -> list[str]:
@@ -710,20 +730,74 @@ def parse_overrides(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def split_params_yaml(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]]:
+def _owner(parts: Sequence[Settings], key: str) -> int:
+    """Index of the settings that declare ``key``; ConfigError (with the reason) if none."""
+    for i, part in enumerate(parts):
+        try:
+            part.field_of(key)
+        except ConfigError:
+            continue
+        return i
+    for part in parts:
+        if key in part.REMOVED:
+            raise ConfigError(f'parameter {key!r} was removed: {part.REMOVED[key]}')
+    raise ConfigError(f'unknown parameter {key!r}')
+
+
+@overload
+def apply_overrides(config: SettingsT, items: Sequence[str]) -> SettingsT: ...
+
+
+@overload
+def apply_overrides(config: tuple[Settings, ...], items: Sequence[str]
+                    ) -> tuple[Settings, ...]: ...
+
+
+def apply_overrides(config: Settings | tuple[Settings, ...], items: Sequence[str]
+                    ) -> Settings | tuple[Settings, ...]:
     """
-    Read a parameter YAML into ``(core_parameters, node_level_params)``.
+    Apply ``['section.key=value', ...]`` (every tool's ``--set``) to settings; return a copy.
+
+    ``config`` is one :class:`Settings` (e.g. :class:`RegistrationConfig`) or a tuple of
+    settings with disjoint names (e.g. the core, the node's and the evaluation's): each
+    key goes to the one that declares it and an unknown key is an error. Values are
+    parsed as YAML (:func:`parse_overrides`), then type-, range- and cross-checked.
+    """
+    flat = parse_overrides(list(items))
+    if isinstance(config, Settings):
+        return config.replace(flat) if flat else config
+    parts = tuple(config)
+    changes: list[dict[str, Any]] = [{} for _ in parts]
+    for key, value in flat.items():
+        changes[_owner(parts, key)][key] = value
+    return tuple(part.replace(change) if change else part
+                 for part, change in zip(parts, changes, strict=True))
+
+
+def read_parameter_file(path: str | Path) -> dict[str, Any]:
+    """
+    Read a parameter YAML as a nested mapping.
 
     Accepts the ROS layout ``{mlsemreg_node: {ros__parameters: {...}}}`` or a plain
-    mapping. Core parameters are nested (sections and top-level fields such as
-    ``threads``); node-level parameters are returned flat (``qos.depth``).
+    mapping of sections and top-level fields.
     """
     data = load_yaml(Path(path).read_text()) or {}
     if not isinstance(data, dict):
         raise ConfigError(f'{path}: expected a mapping of parameters')
     if NODE_NAME in data:
         data = (data[NODE_NAME] or {}).get('ros__parameters', {}) or {}
-    core_keys = {f.name for f in dataclasses.fields(RegistrationConfig)}
+    return data
+
+
+def split_params_yaml(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]]:
+    """
+    Read a parameter YAML into ``(core_parameters, node_level_params)``.
+
+    Core parameters are nested (sections and top-level fields such as ``threads``);
+    the rest (node-level parameters) is returned flat (``qos.depth``).
+    """
+    data = read_parameter_file(path)
+    core_keys = RegistrationConfig.top_level_names()
     core = {k: v for k, v in data.items() if k in core_keys}
     rest: dict[str, Any] = {}
 
@@ -740,14 +814,26 @@ def split_params_yaml(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]]
     return core, rest
 
 
-def load_config(path: str | Path | None = None, overrides: list[str] | tuple[str, ...] = ()
+def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()
                 ) -> RegistrationConfig:
     """
-    Load the core config: defaults < parameter file < ``--set`` overrides (the one loader).
+    Load the core config: defaults < parameter file < ``--set`` overrides.
 
     ``path`` is a node parameter file (``config/params.yaml`` layout) or a plain mapping of
     core sections; node-level keys in it are ignored. ``overrides`` are ``KEY=VALUE``
-    strings (:func:`parse_overrides`); a node-level or unknown key there is an error.
+    strings (:func:`apply_overrides`); a node-level or unknown key there is an error.
     """
-    core = split_params_yaml(path)[0] if path is not None else {}
-    return RegistrationConfig.from_dict(core).replace(parse_overrides(list(overrides)))
+    config = RegistrationConfig.from_file(path) if path is not None else RegistrationConfig()
+    return apply_overrides(config, overrides)
+
+
+def load_settings(kinds: tuple[type[Settings], ...], path: str | Path | None = None,
+                  overrides: Sequence[str] = ()) -> tuple[Settings, ...]:
+    """
+    Load several settings at once (the one loader of the tools' ``--config``/``--set``).
+
+    Each kind reads its own keys of the parameter file (:meth:`Settings.from_file`), then
+    every override goes to the kind that declares it (:func:`apply_overrides`).
+    """
+    parts = tuple(kind.from_file(path) if path is not None else kind() for kind in kinds)
+    return apply_overrides(parts, overrides)

@@ -144,6 +144,26 @@ def summarize(metrics: list[PairMetrics]) -> dict:
     }
 
 
+def normalized_estimation_error_squared(T_estimate: np.ndarray, T_truth: np.ndarray,
+                                        covariance: np.ndarray) -> float:
+    """
+    NEES ``e^T inv(C) e`` of an estimate whose error ``T_truth^-1 T_estimate = exp(e)``.
+
+    ``e = [translation, rotation vector]`` in the estimate's own frame (ROS order, as the
+    odometry's ``frame_covariance``). A consistent covariance gives a mean NEES of 6 (the
+    dimension); larger means overconfident, smaller underconfident. NaN when ``C`` is
+    singular.
+    """
+    from scipy.spatial.transform import Rotation
+
+    error = invert_transform(T_truth) @ np.asarray(T_estimate, dtype=np.float64)
+    e = np.concatenate([error[:3, 3], Rotation.from_matrix(error[:3, :3]).as_rotvec()])
+    try:
+        return float(e @ np.linalg.solve(covariance, e))
+    except np.linalg.LinAlgError:
+        return math.nan
+
+
 # -- sequences -----------------------------------------------------------------------------
 def _check_poses(poses_est: np.ndarray, poses_gt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     est = np.asarray(poses_est, dtype=np.float64)

@@ -105,6 +105,15 @@ def invert_transform(transform: np.ndarray) -> np.ndarray:
     return out
 
 
+def relative_transform(T_world_a: np.ndarray, T_world_b: np.ndarray) -> np.ndarray:
+    """
+    ``T_a_b = T_world_a^-1 T_world_b``: pose ``b`` seen from ``a`` (both ``(..., 4, 4)``).
+
+    E.g. the ground truth of scan ``b`` registered onto keyframe ``a`` from their poses.
+    """
+    return invert_transform(T_world_a) @ np.asarray(T_world_b, dtype=np.float64)
+
+
 def rotation_angle_deg(transform: np.ndarray) -> float:
     """Rotation angle of a transform (4, 4) or rotation (3, 3), degrees."""
     rotation = np.asarray(transform, dtype=np.float64)[:3, :3]

@@ -12,4 +12,10 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Sequence I/O: rosbag2 (rosbags), SemanticKITTI folders, KITTI/TUM pose files."""
+"""
+Data in and out: scan sources behind one protocol, pair files, generated scenes.
+
+``source`` (Scan, ScanSource) and ``factory`` (open_scan_source); readers ``bag``
+(rosbag2 with rosbags) and ``kitti`` (SemanticKITTI folders); ``pose_files`` (KITTI/TUM);
+``pairs`` (the paper's ``.npz`` pair files); ``synthetic_scene`` (a generated street).
+"""

@@ -24,20 +24,25 @@ Layout of the bags this package writes (simulator, KITTI converter)::
 
 Storage is mcap (default) or sqlite3; message types come from the ROS 2 Jazzy
 typestore. Reading goes through ``rosbags.highlevel.AnyReader`` (mcap and sqlite3).
-PointCloud2 conversion is :mod:`mlsemreg_ros.ros.pointcloud2` (pure NumPy).
+PointCloud2 conversion is :mod:`mlsemreg_ros.codec.pointcloud2` (pure NumPy).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
-import shutil
 from typing import Any
 import warnings
 
-from mlsemreg_ros.datasets.poses import matrix_to_quaternion, pose_to_matrix
-from mlsemreg_ros.datasets.scans import Scan, SourceError
-from mlsemreg_ros.ros.pointcloud2 import arrays_to_pointcloud2, pointcloud2_to_arrays
+from mlsemreg_ros.codec.pointcloud2 import arrays_to_pointcloud2, pointcloud2_to_arrays
+from mlsemreg_ros.codec.poses import (
+    matrix_to_quaternion,
+    pose_message_to_matrix,
+    transform_message_to_matrix,
+)
+from mlsemreg_ros.codec.stamps import ns_to_sec_nanosec, stamp_to_ns
+from mlsemreg_ros.datasets.source import Scan, SourceError
 import numpy as np
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
@@ -60,27 +65,18 @@ def typestore() -> Any:
     return get_typestore(Stores.ROS2_JAZZY)
 
 
-def stamp_to_ns(stamp: Any) -> int:
-    """``builtin_interfaces/Time`` -> integer nanoseconds."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
 def _time(store: Any, stamp_ns: int) -> Any:
-    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    sec, nanosec = ns_to_sec_nanosec(stamp_ns)
     return store.types['builtin_interfaces/msg/Time'](sec=sec, nanosec=nanosec)
 
 
 def _message_pose(msg: Any, msgtype: str) -> np.ndarray:
     """(4, 4) pose of an Odometry, PoseStamped or TransformStamped message."""
     if msgtype == ODOMETRY:
-        pose = msg.pose.pose
-    elif msgtype == 'geometry_msgs/msg/PoseStamped':
-        pose = msg.pose
-    else:
-        t, q = msg.transform.translation, msg.transform.rotation
-        return pose_to_matrix((t.x, t.y, t.z), (q.x, q.y, q.z, q.w))
-    p, q = pose.position, pose.orientation
-    return pose_to_matrix((p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
+        return pose_message_to_matrix(msg.pose.pose)
+    if msgtype == 'geometry_msgs/msg/PoseStamped':
+        return pose_message_to_matrix(msg.pose)
+    return transform_message_to_matrix(msg.transform)
 
 
 class BagWriter:
@@ -200,7 +196,7 @@ def _read_poses(reader: AnyReader, topic: str) -> tuple[np.ndarray, np.ndarray]:
 
 class BagScanReader:
     """
-    :class:`~mlsemreg_ros.datasets.scans.ScanSource` over a rosbag2 (mcap or sqlite3).
+    :class:`~mlsemreg_ros.datasets.source.ScanSource` over a rosbag2 (mcap or sqlite3).
 
     Ground truth comes from ``gt_topic`` (Odometry, PoseStamped or
     TransformStamped), matched to each cloud by header stamp within
@@ -284,10 +280,63 @@ class BagScanReader:
             produced += 1
 
 
-def replace_output(path: Path, force: bool) -> str | None:
-    """Make room for a new output folder: an error message if it exists without ``force``."""
-    if path.exists():
-        if not force:
-            return f'{path} exists (use --force to replace it)'
-        shutil.rmtree(path)
-    return None
+@dataclass
+class BagLayout:
+    """Storage, topics and frames of a bag this package writes."""
+
+    storage: str = 'mcap'  # one of STORAGES
+    compress: bool = False  # zstd (mcap chunks / sqlite3 messages)
+    points_topic: str = POINTS_TOPIC
+    gt_topic: str = GT_TOPIC
+    frame_id: str = SENSOR_FRAME  # of the clouds
+    world_frame: str = WORLD_FRAME  # of the ground truth
+
+
+@dataclass
+class WrittenSequence:
+    """What :func:`write_sequence_bag` wrote."""
+
+    frames: int
+    points: int  # over all scans
+    labeled: bool  # every scan had labels
+    ground_truth: bool  # some scan had a pose
+
+    @property
+    def points_per_scan(self) -> float:
+        """Mean points per scan."""
+        return self.points / max(self.frames, 1)
+
+
+def write_sequence_bag(out: str | Path, scans: Iterable[Scan],
+                       layout: BagLayout) -> WrittenSequence:
+    """
+    Write labeled scans (and their ground truth) as a rosbag2, with KITTI side files.
+
+    Per scan: a PointCloud2 on ``layout.points_topic`` and, when ``scan.pose`` is known, an
+    Odometry on ``layout.gt_topic``. Next to the storage file: ``poses.txt`` (KITTI format,
+    the scans' poses) and ``times.txt`` (seconds since the first scan). The folder must
+    not exist yet.
+    """
+    from mlsemreg_ros.datasets.pose_files import write_kitti_poses
+
+    out = Path(out)
+    stamps: list[int] = []
+    poses: list[np.ndarray] = []
+    points, labeled = 0, True
+    with BagWriter(out, storage=layout.storage, compress=layout.compress) as bag:
+        for scan in scans:
+            labeled = labeled and scan.labels is not None
+            bag.write_cloud(scan.stamp_ns, scan.xyz, scan.labels, scan.intensity,
+                            frame_id=layout.frame_id, topic=layout.points_topic)
+            if scan.pose is not None:
+                bag.write_odometry(scan.stamp_ns, scan.pose, frame_id=layout.world_frame,
+                                   child_frame_id=layout.frame_id, topic=layout.gt_topic)
+                poses.append(scan.pose)
+            stamps.append(scan.stamp_ns)
+            points += len(scan)
+    if poses:
+        write_kitti_poses(out / 'poses.txt', np.asarray(poses))
+    if stamps:
+        seconds = (np.asarray(stamps) - stamps[0]) / 1e9
+        np.savetxt(out / 'times.txt', seconds, fmt='%.6e')
+    return WrittenSequence(len(stamps), points, labeled and bool(stamps), bool(poses))

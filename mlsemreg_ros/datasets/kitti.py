@@ -32,13 +32,13 @@ from collections.abc import Iterator
 from pathlib import Path
 import warnings
 
-from mlsemreg_ros.datasets.poses import (
+from mlsemreg_ros.datasets.pose_files import (
     camera_to_lidar_poses,
     read_kitti_calib,
     read_kitti_poses,
     read_kitti_times,
 )
-from mlsemreg_ros.datasets.scans import Scan, SourceError
+from mlsemreg_ros.datasets.source import Scan, SourceError
 import numpy as np
 
 #: Header stamp of a sequence's time 0 (same default as the simulator): ROS time 0
@@ -48,7 +48,7 @@ START_TIME_NS = 1_700_000_000 * 10**9
 
 class KittiSequence:
     """
-    :class:`~mlsemreg_ros.datasets.scans.ScanSource` over a SemanticKITTI sequence folder.
+    :class:`~mlsemreg_ros.datasets.source.ScanSource` over a SemanticKITTI sequence folder.
 
     ``poses``, ``calib`` and ``times`` default to the files inside the folder.
     """

@@ -16,9 +16,8 @@
 Message building for the node's outputs: transform, odometry, path, diagnostics.
 
 Poses are 4x4 homogeneous matrices ``T_parent_child`` (``p_parent = T @ p_child``).
-The only arithmetic here is what turning a registration result into messages
-needs (inversion, quaternions); the registration, covariances and twist live in
-the core.
+No arithmetic here: quaternions come from :mod:`mlsemreg_ros.codec.poses`, inversion from
+:mod:`mlsemreg_ros.core.rigid`; the registration, covariances and twist live in the core.
 """
 
 from __future__ import annotations
@@ -28,33 +27,17 @@ from typing import Any
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from geometry_msgs.msg import Pose, PoseStamped, Transform, TransformStamped
-from mlsemreg_ros.core.rigid import invert_transform
+from mlsemreg_ros.codec.poses import matrix_to_quaternion
 from nav_msgs.msg import Odometry
 import numpy as np
-from scipy.spatial.transform import Rotation
 from std_msgs.msg import Header
 
 #: Variance reported when a quantity is unknown (first frame's twist, zero stamp difference).
 UNKNOWN_VARIANCE = 1e6
 
 
-def seconds(stamp: Time) -> float:
-    """builtin_interfaces/Time -> seconds."""
-    return stamp.sec + 1e-9 * stamp.nanosec
-
-
-def nanoseconds(stamp: Time) -> int:
-    """builtin_interfaces/Time -> integer nanoseconds."""
-    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-
-
-def invert(transform: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid 4x4 transform."""
-    return invert_transform(transform)
-
-
 def _transform(transform: np.ndarray) -> Transform:
-    x, y, z, w = Rotation.from_matrix(transform[:3, :3]).as_quat()
+    x, y, z, w = matrix_to_quaternion(transform[:3, :3])
     out = Transform()
     out.translation.x, out.translation.y, out.translation.z = map(float, transform[:3, 3])
     out.rotation.x, out.rotation.y, out.rotation.z, out.rotation.w = (

@@ -50,6 +50,12 @@ from typing import Any
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import TransformStamped
+from mlsemreg_ros.codec.pointcloud2 import (
+    arrays_to_pointcloud2,
+    pointcloud2_to_arrays,
+    PointCloudError,
+)
+from mlsemreg_ros.codec.stamps import stamp_to_ns, stamp_to_seconds
 from mlsemreg_ros.core import kernels
 from mlsemreg_ros.core.config import ConfigError, NODE_NAME
 from mlsemreg_ros.core.labels import LabelError, LabelMap
@@ -57,15 +63,11 @@ from mlsemreg_ros.core.odometry import Odometry as ScanOdometry
 from mlsemreg_ros.core.odometry import OdometryStep
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
+from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.ros import messages
 from mlsemreg_ros.ros.markers import correspondence_markers
 from mlsemreg_ros.ros.node_config import NodeConfig
 from mlsemreg_ros.ros.parameters import ConfigSnapshot, LiveParameters
-from mlsemreg_ros.ros.pointcloud2 import (
-    arrays_to_pointcloud2,
-    pointcloud2_to_arrays,
-    PointCloudError,
-)
 from nav_msgs.msg import Odometry, Path
 import numpy as np
 import rclpy
@@ -241,9 +243,9 @@ class MlSemRegNode(Node):
         config = self._sync(self._params.snapshot())
         if not self._check_frame(scan, config.node):
             return
-        self._stream.observe(messages.nanoseconds(scan.stamp))
+        self._stream.observe(stamp_to_ns(scan.stamp))
         try:
-            step = self._odometry.process(scan.xyz, scan.labels, messages.nanoseconds(scan.stamp))
+            step = self._odometry.process(scan.xyz, scan.labels, stamp_to_ns(scan.stamp))
         except LabelError as error:
             self._skip(scan.stamp, f'skipped scan with unusable labels: {error}')
             return
@@ -342,7 +344,7 @@ class MlSemRegNode(Node):
             self._pub_path.publish(self._path)
         if node.publish_tf and self._tf is not None:
             self._tf.sendTransform(
-                messages.transform_msg(scan.stamp, child, node.odom_frame, messages.invert(pose))
+                messages.transform_msg(scan.stamp, child, node.odom_frame, invert_transform(pose))
                 if node.invert_tf else
                 messages.transform_msg(scan.stamp, node.odom_frame, child, pose))
 
@@ -405,7 +407,7 @@ class MlSemRegNode(Node):
                              values: dict[str, Any]) -> None:
         with self._lock:
             counts = dict(self._counts)
-        values = {'scan_stamp': f'{messages.seconds(stamp):.9f}',
+        values = {'scan_stamp': f'{stamp_to_seconds(stamp):.9f}',
                   'frames_dropped': self._slot.dropped,
                   'frames_lost_estimate': self._stream.lost, **counts, **values}
         self._pub_diagnostics.publish(messages.diagnostics_msg(

@@ -27,11 +27,9 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-import textwrap
 from typing import Any
 
-from mlsemreg_ros.core.config import iter_fields, NODE_NAME, param, Settings
-import yaml
+from mlsemreg_ros.core.config import param, RegistrationConfig, Settings
 
 
 @dataclass
@@ -105,70 +103,6 @@ class NodeConfig(Settings):
         return errors
 
 
-def node_field_of(key: str) -> dataclasses.Field:
-    """Return the dataclass field behind a node parameter such as ``qos.depth``."""
-    return NodeConfig.field_of(key)
-
-
-def iter_node_fields() -> list[tuple[str, dataclasses.Field, Any]]:
-    """``(flat_name, field, default)`` for every node parameter, in declaration order."""
-    return NodeConfig.parameter_fields()
-
-
 def all_parameter_fields() -> list[tuple[str, dataclasses.Field, Any]]:
     """``(flat_name, field, default)`` of every node parameter: node-level, then core."""
-    return iter_node_fields() + iter_fields()
-
-
-def _number(value: float) -> str:
-    return str(int(value)) if float(value).is_integer() else f'{value:g}'
-
-
-def _constraints(f: dataclasses.Field, bar: str = '|') -> list[str]:
-    meta = f.metadata
-    out = [meta['unit']] if meta['unit'] else []
-    if meta['low'] is not None or meta['high'] is not None:
-        low = _number(meta['low']) if meta['low'] is not None else ''
-        high = _number(meta['high']) if meta['high'] is not None else ''
-        out.append(f'{low}..{high}')
-    if meta['choices']:
-        out.append(bar.join(meta['choices']))
-    return out
-
-
-def params_yaml_text() -> str:
-    """
-    ``config/params.yaml``: every parameter with its default and description.
-
-    Regenerate the file with ``python -c "from mlsemreg_ros.ros.node_config import
-    params_yaml_text; print(params_yaml_text(), end='')" > config/params.yaml``.
-    """
-    lines = ['# Parameters of mlsemreg_node and their defaults, generated from the config',
-             '# metadata by mlsemreg_ros.ros.node_config.params_yaml_text();',
-             '# test/test_params_yaml.py checks that this file, the node and the core agree.',
-             '# [unit, range, choices] as enforced by the parameter descriptors.',
-             f'{NODE_NAME}:', '  ros__parameters:']
-    current = None
-    for name, f, default in all_parameter_fields():
-        section, dot, leaf = name.rpartition('.')
-        if section != current and section:
-            lines.append(f'    {section}:')
-        current = section
-        indent = '      ' if dot else '    '
-        extra = _constraints(f)
-        comment = f.metadata['description'] + (f' [{", ".join(extra)}]' if extra else '')
-        lines += [f'{indent}# {c}' for c in textwrap.wrap(comment, 97 - len(indent))]
-        value = yaml.safe_dump(default, default_flow_style=True, width=1000)
-        lines.append(f'{indent}{leaf}: {value.strip().removesuffix("...").strip()}')
-    return '\n'.join(lines) + '\n'
-
-
-def parameter_table_markdown() -> str:
-    """Render the README's parameter table (name, default, unit/range/choices, description)."""
-    rows = ['| parameter | default | unit, range | description |', '|---|---|---|---|']
-    for name, f, default in all_parameter_fields():
-        shown = yaml.safe_dump(default, default_flow_style=True, width=1000)
-        shown = shown.strip().removesuffix('...').strip()
-        extra = ', '.join(_constraints(f, ' / '))
-        rows.append(f'| `{name}` | `{shown}` | {extra} | {f.metadata["description"]} |')
-    return '\n'.join(rows) + '\n'
+    return NodeConfig.parameter_fields() + RegistrationConfig.parameter_fields()

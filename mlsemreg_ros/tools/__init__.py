@@ -12,4 +12,4 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Command-line tools: pair evaluation, benchmarks, simulation, bags."""
+"""Thin commands of the one ``mlsemreg`` CLI (``cli.py``); each is also its own alias."""

@@ -13,288 +13,70 @@
 # limitations under the License.
 
 """
-``mlsemreg-play``: publish a bag's topics with rclpy (a stand-in for ``ros2 bag play``).
+``mlsemreg play BAG``: publish a bag's topics with rclpy (a stand-in for ``ros2 bag play``).
 
-Messages are read with ``rosbags`` (mcap or sqlite3) and published as their
-stored CDR bytes (``Publisher.publish(bytes)``: no conversion) at the recorded
-rate times ``--rate``, in recording order; ``--clock`` also publishes
-``/clock`` (rosgraph_msgs/Clock) with the bag time. Publishers are reliable
-with a deep history so a subscriber that keeps up receives every message;
-``--wait-for-subscribers`` holds playback until every topic has a subscriber;
-``--pace-topic`` makes playback wait, after each cloud, for one answer of a
-slower consumer (e.g. the registration node's ``/diagnostics``), so none is
-dropped.
+The player is :class:`mlsemreg_ros.ros.player.Player`; this module is its command line.
 """
 
 from __future__ import annotations
 
-import argparse
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-import importlib
 from pathlib import Path
 import sys
-import time
-from typing import Any
+from typing import Annotated
 
-from mlsemreg_ros.tools.cli_help import HelpFormatter
+from mlsemreg_ros.tools.common import run, single_command_app
+import typer
 
-
-def message_class(msgtype: str) -> type:
-    """Import the rclpy message class of ``pkg/msg/Type`` (ImportError if not installed)."""
-    package, kind, name = msgtype.split('/')
-    return getattr(importlib.import_module(f'{package}.{kind}'), name)
+HELP = "Publish a bag's topics with rclpy at the recorded rate (stand-in for ros2 bag play)."
+PACING = 'Pacing'
 
 
-@dataclass
-class PlayOptions:
-    """Playback settings."""
-
-    rate: float = 1.0  # playback speed factor; <= 0 publishes as fast as possible
-    topics: Sequence[str] | None = None  # only these topics (default: all)
-    clock: bool = False  # publish /clock with the bag time
-    clock_rate: float = 100.0  # Hz of /clock between messages
-    loop: bool = False
-    delay: float = 0.0  # seconds to sleep before the first message
-    wait_for_subscribers: int = 0  # hold until every topic has this many subscribers
-    wait_timeout: float = 30.0  # seconds, for wait_for_subscribers
-    qos_depth: int = 1000
-    quiet: bool = False
-    # Pacing (for consumers slower than the recording, e.g. a registration node):
-    # after each PointCloud2 message, wait for one message on pace_topic.
-    pace_topic: str | None = None
-    pace_type: str = 'diagnostic_msgs/msg/DiagnosticArray'
-    pace_timeout: float = 60.0  # seconds to wait for the answer before going on
-
-
-class Player:
-    """Publishes the messages of one bag on a node (create, then :meth:`run`)."""
-
-    def __init__(self, node: Any, bag: str | Path, options: PlayOptions | None = None,
-                 answered: Callable[[int], bool] | None = None) -> None:
-        """
-        Open the bag and create one publisher per topic on ``node``.
-
-        ``answered(stamp_ns)`` (optional, for callers that spin their own
-        subscriptions) replaces ``pace_topic``: after each PointCloud2 message the
-        player waits until it returns True for the message's header stamp.
-        """
-        from mlsemreg_ros.datasets.bag import open_reader
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
-
-        self.node = node
-        self.options = options if options is not None else PlayOptions()
-        self.reader = open_reader(bag)
-        wanted = set(self.options.topics) if self.options.topics else None
-        self.connections = []
-        self.publishers: dict[str, Any] = {}
-        for connection in self.reader.connections:
-            if wanted is not None and connection.topic not in wanted:
-                continue
-            if connection.topic not in self.publishers:
-                try:
-                    cls = message_class(connection.msgtype)
-                except (ImportError, AttributeError, ValueError):
-                    node.get_logger().warning(f'skipping {connection.topic}: message type '
-                                              f'{connection.msgtype} is not installed')
-                    continue
-                durability = (DurabilityPolicy.TRANSIENT_LOCAL if connection.topic == '/tf_static'
-                              else DurabilityPolicy.VOLATILE)
-                qos = QoSProfile(history=HistoryPolicy.KEEP_LAST,
-                                 depth=self.options.qos_depth,
-                                 reliability=ReliabilityPolicy.RELIABLE, durability=durability)
-                self.publishers[connection.topic] = node.create_publisher(
-                    cls, connection.topic, qos)
-            self.connections.append(connection)
-        if wanted is not None:
-            missing = sorted(wanted - set(self.publishers))
-            if missing:
-                node.get_logger().warning(f'topics not in the bag: {missing}')
-        self.clock_publisher = None
-        if self.options.clock:
-            from rosgraph_msgs.msg import Clock
-
-            self.clock_publisher = node.create_publisher(Clock, '/clock', 10)
-        self.published = 0
-        self._last_clock = 0
-        self._answered = answered
-        self._pace_count = 0
-        self._pace_executor = None
-        if answered is None and self.options.pace_topic:
-            from rclpy.executors import SingleThreadedExecutor
-
-            node.create_subscription(message_class(self.options.pace_type),
-                                     self.options.pace_topic, self._on_pace, 100)
-            self._pace_executor = SingleThreadedExecutor(context=node.context)
-            self._pace_executor.add_node(node)
-        self._paced = {c.topic for c in self.connections
-                       if c.msgtype == 'sensor_msgs/msg/PointCloud2'}
-
-    def close(self) -> None:
-        """Close the bag."""
-        if self._pace_executor is not None:
-            self._pace_executor.shutdown()
-        self.reader.close()
-
-    def _on_pace(self, _msg: Any) -> None:
-        self._pace_count += 1
-
-    def _wait_answer(self, connection: Any, raw: Any, before: int) -> float:
-        """Block until the consumer answered this message; returns the seconds waited."""
-        start = time.monotonic()
-        deadline = start + self.options.pace_timeout
-        if self._answered is not None:
-            stamp = self.reader.deserialize(raw, connection.msgtype).header.stamp
-            stamp_ns = int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
-            while not self._answered(stamp_ns) and time.monotonic() < deadline:
-                time.sleep(0.005)
-        else:
-            while self._pace_count <= before and time.monotonic() < deadline:
-                self._pace_executor.spin_once(timeout_sec=0.05)
-        if time.monotonic() >= deadline:
-            self.node.get_logger().warning(
-                f'no answer within {self.options.pace_timeout:g} s; going on')
-        return time.monotonic() - start
-
-    def wait_for_subscribers(self) -> bool:
-        """Block until every publisher has enough subscribers; False on timeout."""
-        needed = self.options.wait_for_subscribers
-        if needed <= 0:
-            return True
-        deadline = time.monotonic() + self.options.wait_timeout
-        while time.monotonic() < deadline:
-            if all(p.get_subscription_count() >= needed for p in self.publishers.values()):
-                return True
-            time.sleep(0.05)
-        return False
-
-    def _publish_clock(self, bag_ns: int) -> None:
-        """Publish /clock = ``bag_ns``, never going back in time."""
-        from builtin_interfaces.msg import Time
-        from rosgraph_msgs.msg import Clock
-
-        bag_ns = max(int(bag_ns), self._last_clock)
-        self._last_clock = bag_ns
-        self.clock_publisher.publish(Clock(clock=Time(sec=bag_ns // 1_000_000_000,
-                                                      nanosec=bag_ns % 1_000_000_000)))
-
-    def _sleep_until(self, wall_target: float, bag_start: int, wall_start: float,
-                     bag_target: int) -> None:
-        """Sleep until ``wall_target`` (monotonic), ticking /clock up to ``bag_target``."""
-        rate = self.options.rate
-        while True:
-            now = time.monotonic()
-            if now >= wall_target:
-                return
-            if self.clock_publisher is None:
-                time.sleep(wall_target - now)
-                return
-            time.sleep(min(wall_target - now, 1.0 / self.options.clock_rate))
-            elapsed_ns = int((time.monotonic() - wall_start) * rate * 1e9)
-            self._publish_clock(min(bag_start + elapsed_ns, bag_target))
-
-    def play_once(self) -> int:
-        """Publish every message once, at the recorded rate x ``rate``; returns the count."""
-        rate = self.options.rate
-        count = 0
-        bag_start = None
-        self._last_clock = 0  # a new pass (loop) may restart the clock
-        wall_start = time.monotonic()
-        for connection, timestamp, raw in self.reader.messages(connections=self.connections):
-            if bag_start is None:
-                bag_start, wall_start = timestamp, time.monotonic()
-            if rate > 0:
-                target = wall_start + (timestamp - bag_start) / (rate * 1e9)
-                self._sleep_until(target, bag_start, wall_start, timestamp)
-            if self.clock_publisher is not None:
-                self._publish_clock(timestamp)
-            before = self._pace_count
-            self.publishers[connection.topic].publish(bytes(raw))
-            count += 1
-            pacing = self._answered is not None or self._pace_executor is not None
-            if pacing and connection.topic in self._paced:
-                wall_start += self._wait_answer(connection, raw, before)  # keep the rate after
-        self.published += count
-        return count
-
-    def run(self) -> int:
-        """Wait for subscribers, delay, play (loop if asked); returns the messages published."""
-        if not self.wait_for_subscribers():
-            self.node.get_logger().warning(
-                f'not every topic has {self.options.wait_for_subscribers} subscriber(s) after '
-                f'{self.options.wait_timeout:g} s; playing anyway')
-        if self.options.delay > 0:
-            time.sleep(self.options.delay)
-        while True:
-            count = self.play_once()
-            if not self.options.quiet:
-                self.node.get_logger().info(f'published {count} messages')
-            if not self.options.loop or count == 0:
-                break
-        for publisher in self.publishers.values():  # let reliable queues drain
-            try:
-                publisher.wait_for_all_acked(_duration(5.0))
-            except (AttributeError, RuntimeError):
-                pass
-        return self.published
-
-
-def _duration(seconds: float) -> Any:
-    from rclpy.duration import Duration
-
-    return Duration(seconds=seconds)
-
-
-def build_parser() -> argparse.ArgumentParser:
-    """Command-line interface."""
-    p = argparse.ArgumentParser(
-        prog='mlsemreg-play', description="Publish a bag's topics with rclpy at the recorded "
-        'rate (stand-in for ros2 bag play).',
-        formatter_class=HelpFormatter)
-    p.add_argument('bag', type=Path, help='rosbag2 directory (mcap or sqlite3)')
-    p.add_argument('-r', '--rate', type=float, default=1.0,
-                   help='speed factor of the recorded rate (<= 0: as fast as possible)')
-    p.add_argument('--topics', nargs='+', help='only these topics')
-    p.add_argument('--clock', action='store_true', help='publish /clock with the bag time')
-    p.add_argument('--clock-rate', type=float, default=100.0, help='/clock frequency, Hz')
-    p.add_argument('-l', '--loop', action='store_true', help='play again and again')
-    p.add_argument('-d', '--delay', type=float, default=0.0,
-                   help='seconds to wait before the first message')
-    p.add_argument('--wait-for-subscribers', type=int, default=0, metavar='N',
-                   help='hold playback until every topic has N subscribers')
-    p.add_argument('--wait-timeout', type=float, default=30.0,
-                   help='seconds to wait for subscribers')
-    p.add_argument('--qos-depth', type=int, default=1000,
-                   help='history depth of the (reliable) publishers')
-    p.add_argument('--pace-topic', help='after each PointCloud2 message, wait for one message '
-                   'on this topic (e.g. /diagnostics of a slow consumer) so none is dropped')
-    p.add_argument('--pace-type', default='diagnostic_msgs/msg/DiagnosticArray',
-                   help='message type of --pace-topic')
-    p.add_argument('--pace-timeout', type=float, default=60.0,
-                   help='seconds to wait for each answer on --pace-topic')
-    p.add_argument('--quiet', action='store_true', help='no log output')
-    return p
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``mlsemreg-play``."""
-    args = build_parser().parse_args(argv)
-    if not args.bag.exists():
-        print(f'error: {args.bag} does not exist', file=sys.stderr)
-        return 2
+def play(
+    bag: Annotated[Path, typer.Argument(exists=True, help='rosbag2 directory (mcap or '
+                                        'sqlite3)')],
+    rate: Annotated[float, typer.Option(
+        '-r', '--rate', help='speed factor of the recorded rate (<= 0: as fast as possible)')
+    ] = 1.0,
+    topics: Annotated[list[str] | None, typer.Option(
+        help='only these topics (repeatable; --topics A B also works)')] = None,
+    clock: Annotated[bool, typer.Option('--clock', help='publish /clock with the bag '
+                                        'time')] = False,
+    clock_rate: Annotated[float, typer.Option(min=0.1, help='/clock frequency, Hz')] = 100.0,
+    loop: Annotated[bool, typer.Option('-l', '--loop', help='play again and again')] = False,
+    delay: Annotated[float, typer.Option('-d', '--delay', min=0.0,
+                                         help='seconds to wait before the first message')
+                     ] = 0.0,
+    wait_for_subscribers: Annotated[int, typer.Option(
+        metavar='N', min=0, help='hold playback until every topic has N subscribers')] = 0,
+    wait_timeout: Annotated[float, typer.Option(min=0.0, help='seconds to wait for '
+                                                'subscribers')] = 30.0,
+    qos_depth: Annotated[int, typer.Option(min=1, help='history depth of the (reliable) '
+                                           'publishers')] = 1000,
+    pace_topic: Annotated[str | None, typer.Option(
+        help='after each PointCloud2 message, wait for one message on this topic (e.g. '
+        '/diagnostics of a slow consumer) so none is dropped', rich_help_panel=PACING)] = None,
+    pace_type: Annotated[str, typer.Option(help='message type of --pace-topic',
+                                           rich_help_panel=PACING)] =
+    'diagnostic_msgs/msg/DiagnosticArray',
+    pace_timeout: Annotated[float, typer.Option(
+        min=0.0, help='seconds to wait for each answer on --pace-topic',
+        rich_help_panel=PACING)] = 60.0,
+    quiet: Annotated[bool, typer.Option('--quiet', help='no log output')] = False,
+) -> int:
+    """Publish a bag's topics at the recorded rate (alias mlsemreg-play)."""
+    from mlsemreg_ros.ros.player import Player, PlayOptions
     import rclpy
 
-    options = PlayOptions(rate=args.rate, topics=args.topics, clock=args.clock,
-                          clock_rate=args.clock_rate, loop=args.loop, delay=args.delay,
-                          wait_for_subscribers=args.wait_for_subscribers,
-                          wait_timeout=args.wait_timeout, qos_depth=args.qos_depth,
-                          quiet=args.quiet, pace_topic=args.pace_topic,
-                          pace_type=args.pace_type, pace_timeout=args.pace_timeout)
+    options = PlayOptions(rate=rate, topics=topics, clock=clock, clock_rate=clock_rate,
+                          loop=loop, delay=delay, wait_for_subscribers=wait_for_subscribers,
+                          wait_timeout=wait_timeout, qos_depth=qos_depth, quiet=quiet,
+                          pace_topic=pace_topic, pace_type=pace_type,
+                          pace_timeout=pace_timeout)
     rclpy.init()
     player = None
     try:
         node = rclpy.create_node('mlsemreg_player')
-        player = Player(node, args.bag, options)
+        player = Player(node, bag, options)
         player.run()
     except KeyboardInterrupt:
         return 130
@@ -303,6 +85,27 @@ def main(argv: list[str] | None = None) -> int:
             player.close()
         rclpy.try_shutdown()
     return 0
+
+
+def expand_topics(argv: list[str]) -> list[str]:
+    """``--topics A B`` (one flag, several values, as before) -> ``--topics A --topics B``."""
+    out, in_topics = [], False
+    for item in argv:
+        if item == '--topics':
+            in_topics = True
+            continue
+        if in_topics and not item.startswith('-'):
+            out += ['--topics', item]
+            continue
+        in_topics = False
+        out.append(item)
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``mlsemreg-play`` alias (same flags as the subcommand)."""
+    return run(single_command_app(play, HELP), expand_topics(
+        list(argv) if argv is not None else sys.argv[1:]), 'mlsemreg-play')
 
 
 if __name__ == '__main__':

@@ -13,60 +13,19 @@
 # limitations under the License.
 
 """
-One interface for labeled scan sequences (rosbag2 bags, SemanticKITTI folders).
+Open a labeled scan sequence from a path: the one factory of the scan readers.
 
-:class:`ScanSource` is the protocol every reader implements;
 :func:`open_scan_source` picks the reader from the path (a rosbag2 directory or
-``.mcap``/``.db3`` file, or a folder with ``velodyne/``) and imports it lazily.
+``.mcap``/``.db3`` file, or a folder with ``velodyne/``) and imports it lazily, so the
+optional dependencies of a reader are needed only when it is used.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
-import numpy as np
-
-
-@dataclass
-class Scan:
-    """One labeled scan of a sequence."""
-
-    index: int  # position in the whole sequence (before any stride)
-    stamp_ns: int  # header stamp
-    xyz: np.ndarray  # (N, 3) float64, metres, sensor frame
-    labels: np.ndarray | None  # (N,) int64 label values as stored (raw: instance bits kept)
-    intensity: np.ndarray | None  # (N,) float32
-    frame_id: str
-    pose: np.ndarray | None = None  # (4, 4) ground truth T_world_sensor, if known
-
-    def __len__(self) -> int:
-        return int(self.xyz.shape[0])
-
-
-@runtime_checkable
-class ScanSource(Protocol):
-    """A sequence of labeled scans with optional ground-truth poses."""
-
-    name: str
-
-    def __len__(self) -> int:
-        """Return the number of scans in the whole sequence."""
-        ...
-
-    def scans(self, stride: int = 1, max_frames: int | None = None) -> Iterator[Scan]:
-        """Yield scans 0, stride, 2 * stride, ... (at most ``max_frames``), in order."""
-        ...
-
-    def close(self) -> None:
-        """Release files."""
-        ...
-
-
-class SourceError(ValueError):
-    """A sequence cannot be opened or read; the message says why and what exists."""
+from mlsemreg_ros.datasets.source import ScanSource, SourceError
 
 
 def is_kitti_sequence(path: Path) -> bool:

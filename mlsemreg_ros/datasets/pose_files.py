@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-Pose files and rotations: KITTI (3x4 rows), TUM (stamp t q), KITTI calib and times.
+Pose files: KITTI (3x4 rows), TUM (stamp t q), KITTI calib and times.
 
 KITTI ``poses.txt``: one pose per line, the 12 entries of the top 3x4 of
 ``T_world_frame`` row-major. TUM: ``stamp tx ty tz qx qy qz qw`` (stamp in
@@ -25,7 +25,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mlsemreg_ros.core.rigid import invert_transform
+from mlsemreg_ros.codec.poses import matrix_to_quaternion, quaternion_to_matrix
+from mlsemreg_ros.codec.stamps import format_seconds
 import numpy as np
 
 
@@ -52,7 +53,7 @@ def write_tum_poses(path: str | Path, stamps_ns: np.ndarray, poses: np.ndarray) 
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     with open(path, 'w') as f:
         for stamp, t, q in zip(stamps, poses[:, :3, 3], quats, strict=False):
-            f.write(f'{stamp // 10**9}.{stamp % 10**9:09d} {t[0]:.9f} {t[1]:.9f} {t[2]:.9f} '
+            f.write(f'{format_seconds(stamp)} {t[0]:.9f} {t[1]:.9f} {t[2]:.9f} '
                     f'{q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}\n')
 
 
@@ -95,35 +96,3 @@ def camera_to_lidar_poses(poses_cam: np.ndarray, T_cam_velo: np.ndarray) -> np.n
     the LiDAR trajectory in the first LiDAR frame is ``Tr^-1 P_k Tr``.
     """
     return np.linalg.inv(T_cam_velo) @ np.asarray(poses_cam, dtype=np.float64) @ T_cam_velo
-
-
-def matrix_to_quaternion(rotations: np.ndarray) -> np.ndarray:
-    """Quaternions (..., 4) as ``x, y, z, w`` (w >= 0) of rotation matrices (..., 3, 3)."""
-    from scipy.spatial.transform import Rotation
-
-    R = np.asarray(rotations, dtype=np.float64)
-    q = Rotation.from_matrix(R.reshape(-1, 3, 3)).as_quat()
-    q = np.where(q[:, 3:4] < 0.0, -q, q)
-    return q.reshape((*R.shape[:-2], 4))
-
-
-def quaternion_to_matrix(quaternions: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) of quaternions (..., 4) given as ``x, y, z, w``."""
-    from scipy.spatial.transform import Rotation
-
-    q = np.asarray(quaternions, dtype=np.float64)
-    return Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape((*q.shape[:-1], 3, 3))
-
-
-def pose_to_matrix(position: tuple[float, float, float],
-                   orientation: tuple[float, float, float, float]) -> np.ndarray:
-    """(4, 4) from a position and an ``x, y, z, w`` quaternion."""
-    T = np.eye(4)
-    T[:3, :3] = quaternion_to_matrix(np.asarray(orientation, dtype=np.float64))
-    T[:3, 3] = position
-    return T
-
-
-def inverse(T: np.ndarray) -> np.ndarray:
-    """Inverse of a rigid transform (4, 4) or a stack (..., 4, 4)."""
-    return invert_transform(T)

@@ -12,17 +12,4 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Shared argparse help formatting of the command-line tools."""
-
-from __future__ import annotations
-
-import argparse
-
-
-class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
-    """Show ``(default: ...)`` only for options that have a meaningful default."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        if action.default is None or action.default is False or action.default == []:
-            return action.help or ''
-        return super()._get_help_string(action)
+"""Evaluation shared by every tool: replay, scoring, reports (files, plots, tables)."""

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-Pair-registration baselines of ``mlsemreg-eval-pairs --baseline``, and the side-by-side table.
+Pair-registration baselines of ``mlsemreg eval-pairs --baseline``.
 
 - ``kiss-matcher``: KISS-Matcher (Lim et al., "KISS-Matcher: Fast and Robust Point Cloud
   Registration Revisited", ICRA 2025; PyPI ``kiss-matcher``, optional): its own voxel
@@ -25,11 +25,11 @@ Pair-registration baselines of ``mlsemreg-eval-pairs --baseline``, and the side-
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-import math
 import sys
 import time
 from typing import Any
 
+from mlsemreg_ros.evaluation.settings import EvaluationConfig
 import numpy as np
 
 BASELINES = ('kiss-matcher', 'fpfh-ransac')
@@ -89,21 +89,18 @@ def kiss_matcher_register(pts_src: np.ndarray, pts_dst: np.ndarray,
          'solver_ms': 1e3 * matcher.get_solver_time()})
 
 
-def evaluate_kiss_matcher(paths: list[Any], voxel_size: float = KISS_MATCHER_VOXEL_M,
+def evaluate_kiss_matcher(paths: list[Any], bounds: EvaluationConfig,
+                          voxel_size: float = KISS_MATCHER_VOXEL_M,
                           progress: bool = True) -> dict[str, Any]:
     """
     KISS-Matcher on every pair file; the same report layout as ``evaluate_directory``.
 
     IN / IR are measured on KISS-Matcher's initial correspondences (those its solver sees).
     """
-    from mlsemreg_ros.core.metrics import evaluate_pair, summarize
-    from mlsemreg_ros.core.pairs import load_pair
-    from mlsemreg_ros.tools.eval_pairs import (
-        INLIER_THRESHOLD_M,
-        MAX_ROTATION_DEG,
-        MAX_TRANSLATION_M,
-        pair_row,
-    )
+    from mlsemreg_ros.core.metrics import summarize
+    from mlsemreg_ros.datasets.pairs import load_pair
+    from mlsemreg_ros.evaluation.pairs import pair_row
+    from mlsemreg_ros.evaluation.scoring import score_pair
     from tqdm import tqdm
 
     rows, metrics = [], []
@@ -111,9 +108,8 @@ def evaluate_kiss_matcher(paths: list[Any], voxel_size: float = KISS_MATCHER_VOX
                      disable=not progress):
         pair = load_pair(path)
         result = kiss_matcher_register(pair.pts_src, pair.pts_dst, voxel_size)
-        pair_metrics = evaluate_pair(result.T_target_source, result.src_matched,
-                                     result.dst_matched, pair.trans_gt, INLIER_THRESHOLD_M,
-                                     MAX_ROTATION_DEG, MAX_TRANSLATION_M)
+        pair_metrics = score_pair(result.T_target_source, result.src_matched,
+                                  result.dst_matched, pair.trans_gt, bounds)
         metrics.append(pair_metrics)
         row = pair_row(pair.name, pair_metrics, {'total_ms': result.time_ms, **result.stage_ms})
         row.update(mode='kiss-matcher', kiss_matcher_valid=result.valid,
@@ -130,59 +126,3 @@ def fpfh_ransac_config(config: Any) -> Any:
     return config.replace({'features.descriptor': 'fpfh_open3d', 'semantic.enabled': False,
                            'estimator.kind': 'ransac', 'verification.enabled': False,
                            'fine.pair_method': 'off'})
-
-
-def _cell(value: float | None, digits: int) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return '-'
-    return f'{value:.{digits}f}'
-
-
-def comparison_table(reports: dict[str, dict[str, Any]]) -> str:
-    """
-    Side by side: one line per method (RR, RE, TE over successes, mean ms per pair).
-
-    ``reports`` maps a method label to a report with ``pairs`` and ``summary``.
-    """
-    header = ('method', 'RR %', 'RE deg', 'TE cm', 'ms/pair', 'pairs')
-    lines = []
-    for label, report in reports.items():
-        s = report['summary']
-        lines.append([label, _cell(s['registration_recall_pct'], 1),
-                      _cell(s['rotation_error_deg'], 2), _cell(s['translation_error_cm'], 1),
-                      _cell(s['time_ms'].get('total_ms'), 0), str(s['n_pairs'])])
-    return _render(header, lines)
-
-
-def per_pair_table(reports: dict[str, dict[str, Any]]) -> str:
-    """Per pair and method: ``RE/TE`` and ``ok`` or ``--`` (the success test)."""
-    labels = list(reports)
-    names = [row['name'] for row in reports[labels[0]]['pairs']]
-    by_name = {label: {row['name']: row for row in reports[label]['pairs']} for label in labels}
-    header = ('pair', *(f'[{i + 1}] RE deg / TE cm' for i in range(len(labels))))
-    lines = []
-    for name in names:
-        cells = [name]
-        for label in labels:
-            row = by_name[label].get(name)
-            if row is None:
-                cells.append('n/a')
-                continue
-            cells.append(f'{_cell(row["rotation_error_deg"], 2)} / '
-                         f'{_cell(row["translation_error_cm"], 1)} '
-                         f'{"ok" if row["success"] else "--"}')
-        lines.append(cells)
-    legend = '\n'.join(f'[{i + 1}] {label}' for i, label in enumerate(labels))
-    return _render(header, lines) + '\n' + legend
-
-
-def _render(header: tuple[str, ...], lines: list[list[str]]) -> str:
-    widths = [max(len(h), *(len(line[i]) for line in lines)) if lines else len(h)
-              for i, h in enumerate(header)]
-
-    def render(cells: list[str] | tuple[str, ...]) -> str:
-        padded = [c.rjust(w) for c, w in zip(cells, widths, strict=True)]
-        padded[0] = cells[0].ljust(widths[0])
-        return '  '.join(padded)
-
-    return '\n'.join([render(header), '-' * len(render(header)), *map(render, lines)])

@@ -23,11 +23,14 @@ points onto the target (``T_target_source``); keypoints are members of
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import os
 from pathlib import Path
 
 import numpy as np
 
 _REQUIRED = ('pts_src', 'label_src', 'pts_dst', 'label_dst', 'trans_gt')
+#: The real KITTI dev pairs: beside the repository, never inside it.
+DEV_PAIRS = Path(__file__).resolve().parents[3] / 'shared' / 'data' / 'kitti_pairs_dev'
 
 
 class PairFileError(ValueError):
@@ -136,3 +139,16 @@ def save_pair(path: str | Path, pair: Pair) -> Path:
     path = Path(path)
     np.savez(path, **arrays)
     return path
+
+
+def dev_pairs_dir() -> Path:
+    """Return the KITTI dev pairs folder (environment ``MLSEMREG_DEV_PAIRS`` overrides it)."""
+    env = os.environ.get('MLSEMREG_DEV_PAIRS')
+    return Path(env) if env else DEV_PAIRS
+
+
+def first_dev_pair() -> Path | None:
+    """Return the first KITTI dev pair file, or None when the dev pairs are absent."""
+    folder = dev_pairs_dir()
+    files = list_pairs(folder) if folder.is_dir() else []
+    return files[0] if files else None

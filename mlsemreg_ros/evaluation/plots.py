@@ -32,10 +32,6 @@ CLASS_COLORS = np.array([
     [175, 0, 75], [255, 200, 0], [255, 120, 50], [0, 175, 0], [135, 60, 0], [150, 240, 80],
     [255, 240, 150], [255, 0, 0]], dtype=float) / 255.0
 
-#: Success bounds drawn as threshold lines (paper, KITTI).
-MAX_RE_DEG = 5.0
-MAX_TE_CM = 60.0
-
 
 def _figure(width: float, height: float, rows: int = 1, cols: int = 1, **kwargs: object
             ) -> tuple[object, np.ndarray]:
@@ -78,13 +74,14 @@ def plot_trajectory(path: str | Path, estimate: np.ndarray, ground_truth: np.nda
 
 
 def plot_errors(path: str | Path, frames: np.ndarray, re_deg: np.ndarray, te_cm: np.ndarray,
-                success: np.ndarray, title: str = '') -> None:
+                success: np.ndarray, title: str = '', max_re_deg: float = 5.0,
+                max_te_cm: float = 60.0) -> None:
     """Plot per-frame rotation (deg) and translation (cm) errors on log axes with the bounds."""
     from matplotlib.ticker import FormatStrFormatter, NullFormatter
 
     fig, axes = _figure(10.0, 6.0, rows=2, sharex=True)
-    for ax, values, bound, label in ((axes[0], re_deg, MAX_RE_DEG, 'RE [deg]'),
-                                     (axes[1], te_cm, MAX_TE_CM, 'TE [cm]')):
+    for ax, values, bound, label in ((axes[0], re_deg, max_re_deg, 'RE [deg]'),
+                                     (axes[1], te_cm, max_te_cm, 'TE [cm]')):
         finite = np.isfinite(values)
         shown = np.where(finite, np.maximum(values, 1e-3), np.nan)
         ax.semilogy(frames, shown, '.-', color='tab:blue', lw=0.8, ms=4)

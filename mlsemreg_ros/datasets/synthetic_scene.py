@@ -15,7 +15,7 @@
 """
 A small deterministic labeled street scene and a registration pair taken in it.
 
-Used by the node tests and ``mlsemreg-bench-node`` when the KITTI dev pairs are
+Used by the node tests and ``mlsemreg bench-node`` when the KITTI dev pairs are
 absent. The street: road and sidewalks (ground), building facades (boxes),
 poles with traffic signs, tree trunks with crowns, parked cars; positions and
 sizes drawn from a seeded RNG so the scene is irregular (not repetitive for
@@ -26,7 +26,7 @@ learning ids.
 
 from __future__ import annotations
 
-from mlsemreg_ros.core.pairs import Pair
+from mlsemreg_ros.datasets.pairs import Pair
 import numpy as np
 from scipy.spatial.transform import Rotation
 

@@ -1,0 +1,140 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+What every command of the ``mlsemreg`` CLI shares: options, settings, errors, the runner.
+
+- ``--config`` / ``--set``: :data:`ConfigOption`, :data:`SetOption` and :func:`settings`
+  (defaults < parameter file < ``--set``, one validation for every tool);
+- one error style: raise :class:`CommandError`; :func:`run` prints
+  ``<prog>: error: <message>`` on stderr for it and for usage errors, and returns the
+  exit code (2: bad arguments or settings, 1: the work failed);
+- :func:`alias`: the ``main`` of the ``mlsemreg-<name>`` alias of a subcommand (setup.py).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+import shutil
+import sys
+from typing import Annotated, Any, Literal
+
+import typer
+
+#: Help panels of the options.
+DATA, PARAMETERS, OUTPUT = 'Data', 'Parameters', 'Output'
+
+ConfigOption = Annotated[Path | None, typer.Option(
+    '--config', metavar='PATH', dir_okay=False, exists=True, rich_help_panel=PARAMETERS,
+    help='parameter YAML: the node layout (config/params.yaml) or plain sections')]
+SetOption = Annotated[list[str] | None, typer.Option(
+    '--set', metavar='KEY=VALUE', rich_help_panel=PARAMETERS,
+    help='override one parameter, e.g. --set semantic.top_k=3 or --set '
+    'evaluation.max_rotation_deg=15 (repeatable; values are YAML)')]
+QuietOption = Annotated[bool, typer.Option('--quiet', help='no progress bar',
+                                           rich_help_panel=OUTPUT)]
+ForceOption = Annotated[bool, typer.Option('--force', help='replace OUT if it exists')]
+#: The bag layout of the bag writers (simulate, kitti-to-bag).
+TOPICS = 'Topics and frames'
+StorageOption = Annotated[Literal['mcap', 'sqlite3'], typer.Option(
+    help='rosbag2 storage plugin')]
+CompressOption = Annotated[bool, typer.Option(
+    '--compress', help='zstd compression (mcap chunks / sqlite3 messages)')]
+PointsTopicOption = Annotated[str, typer.Option(help='topic of the clouds',
+                                                rich_help_panel=TOPICS)]
+GtTopicOption = Annotated[str, typer.Option(help='topic of the ground truth',
+                                            rich_help_panel=TOPICS)]
+FrameIdOption = Annotated[str, typer.Option(help='frame of the clouds', rich_help_panel=TOPICS)]
+WorldFrameOption = Annotated[str, typer.Option(help='frame of the ground truth',
+                                               rich_help_panel=TOPICS)]
+
+
+class CommandError(Exception):
+    """A command cannot do what it was asked; the message says why (printed by :func:`run`)."""
+
+    def __init__(self, message: str, exit_code: int = 1) -> None:
+        """``exit_code`` 2: bad arguments or settings; 1: the work itself failed."""
+        super().__init__(message)
+        self.message = message
+        self.exit_code = exit_code
+
+
+def settings(kinds: tuple[type, ...], config: Path | None, overrides: Sequence[str] | None
+             ) -> tuple[Any, ...]:
+    """Load settings of ``kinds``: defaults < ``--config`` < ``--set`` (exit 2 when invalid)."""
+    from mlsemreg_ros.core.config import ConfigError, load_settings
+
+    try:
+        return load_settings(kinds, config, list(overrides or []))
+    except (ConfigError, OSError) as error:
+        raise CommandError(f'configuration error: {error}', 2) from None
+
+
+def replace_output(path: Path, force: bool) -> None:
+    """Make room for a new output folder; exit 2 if it exists without ``force``."""
+    if path.exists():
+        if not force:
+            raise CommandError(f'{path} exists (use --force to replace it)', 2)
+        shutil.rmtree(path)
+
+
+def _print_error(prog: str, message: str) -> None:
+    from mlsemreg_ros.evaluation.tables import console
+
+    console(stderr=True).print(f'{prog}: error: {message}', markup=False, style='red')
+
+
+def invocation_argv(context: typer.Context) -> list[str]:
+    """Return the arguments the command was called with (recorded in result files)."""
+    return list((context.find_root().obj or {}).get('argv', sys.argv[1:]))
+
+
+def run(command: Any, argv: Sequence[str] | None, prog: str) -> int:
+    """Run a typer (click) command on ``argv``; return its exit code (one error style)."""
+    args = list(argv) if argv is not None else sys.argv[1:]
+    try:
+        result = command.main(args=args, prog_name=prog, standalone_mode=False,
+                              obj={'argv': args})
+    except CommandError as error:
+        _print_error(prog, error.message)
+        return error.exit_code
+    except typer.Abort:
+        return 130
+    except typer.TyperException as error:  # usage errors: unknown option, bad value, ...
+        context = getattr(error, 'ctx', None)
+        where = context.command_path if context is not None else prog
+        message = error.format_message() if hasattr(error, 'format_message') else str(error)
+        if message:  # (none when the help was shown for a bare 'mlsemreg')
+            _print_error(where, f'{message} (see {where} --help)')
+        return int(getattr(error, 'exit_code', 2))
+    return result if isinstance(result, int) else 0
+
+
+def single_command_app(function: Callable[..., int], help_text: str | None = None) -> Any:
+    """Build the click command of one subcommand function (its ``mlsemreg-<name>`` alias)."""
+    app = typer.Typer(add_completion=False, rich_markup_mode='rich',
+                      context_settings={'help_option_names': ['-h', '--help']})
+    app.command(help=help_text)(function)
+    return typer.main.get_command(app)
+
+
+def alias(function: Callable[..., int], help_text: str, prog: str
+          ) -> Callable[[Sequence[str] | None], int]:
+    """Return the ``main(argv)`` of the ``mlsemreg-<name>`` alias of a subcommand function."""
+    def main(argv: Sequence[str] | None = None) -> int:
+        return run(single_command_app(function, help_text), argv, prog)
+
+    main.__doc__ = f'Entry point of ``{prog}`` (the flags of ``mlsemreg {prog[9:]}``).'
+    return main
