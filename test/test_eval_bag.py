@@ -75,7 +75,9 @@ def test_eval_bag_registers_the_simulated_bag_and_writes_every_output(
     assert summary['kitti_t_err_pct'] is None  # 4 m: shorter than the 100 m segments
     assert summary['latency_ms_p95'] >= summary['latency_ms_p50'] > 0
     details = json.loads((out / 'details.json').read_text())
-    assert details['n_pairs'] == 2 and details['modes'] == {'ml-semreg': 2}
+    # the first pair is registered globally; the second may be tracked by the prediction
+    assert details['n_pairs'] == 2 and details['modes'].get('ml-semreg', 0) >= 1
+    assert set(details['modes']) <= {'ml-semreg', 'tracking'}
     assert sum(details['pose_sources'].values()) == 2 and 'rejected' not in \
         details['pose_sources']
     with open(out / 'frames.csv') as f:

@@ -266,7 +266,8 @@ class FlippingRegistration(Registration):
 def test_a_flipped_global_estimate_is_never_published(drive: Any,
                                                       constant_velocity: bool) -> None:
     config = RegistrationConfig().replace({'keypoints.count': 1000,
-                                           'odometry.constant_velocity': constant_velocity})
+                                           'odometry.constant_velocity': constant_velocity,
+                                           'odometry.global_registration': 'always'})
     odometry = Odometry(FlippingRegistration(config))
     origin = drive[0][2]
     steps = [odometry.process(points, labels, stamp) for points, labels, _, stamp in drive]
@@ -284,3 +285,33 @@ def test_a_flipped_global_estimate_is_never_published(drive: Any,
             re, te = _pose_errors(step.pose, invert_transform(origin) @ pose)
             assert re < 0.1 and te < 0.05, (step.index, step.source, re, te)
     assert all(s.accepted for s in steps[FlippingRegistration.flip_call + 1:])
+
+
+def test_on_demand_tracks_by_the_prediction_and_registers_globally_when_due(drive: Any
+                                                                            ) -> None:
+    """Global registration: first frames, every global_interval-th scan, after a gap."""
+    config = RegistrationConfig().replace({'keypoints.count': 1000,
+                                           'odometry.global_interval': 3})
+    registration = FlippingRegistration(config)
+    registration.flip_call = -1  # no flip: count the global registrations
+    odometry = Odometry(registration)
+    origin = drive[0][2]
+    steps = []
+    for k, (points, labels, pose, stamp) in enumerate(drive):
+        if k == FRAMES - 1:
+            stamp += 300_000_000  # a gap of three frame intervals in the stamps
+        step = odometry.process(points, labels, stamp)
+        assert step.accepted, step.reason
+        re, te = _pose_errors(step.pose, invert_transform(origin) @ pose)
+        assert re < 0.05 and te < 0.02, (step.index, step.source, re, te)
+        steps.append(step)
+    tracked = [s.result is None and s.source == 'prediction' for s in steps]
+    # 0 first, 1 global (no velocity yet), then at most 2 tracked in a row, the gap: global
+    assert tracked[:2] == [False, False] and not tracked[-1]
+    assert tracked[2:4] == [True, True] and not tracked[4]
+    assert registration.calls == sum(not t for t in tracked[1:])
+    assert all('tracked' in s.reason for s, t in zip(steps, tracked, strict=True) if t)
+    always = Odometry(Registration(config.replace({'odometry.global_registration':
+                                                   'always'})))
+    always_steps = [always.process(p, lab, st) for p, lab, _, st in drive[:4]]
+    assert all(s.result is not None for s in always_steps[1:])  # every scan registered

@@ -435,14 +435,27 @@ class OdometryConfig:
     """
 
     constant_velocity: bool = param(
-        True, 'Refine the constant-velocity prediction too (beside the global estimate, on '
-        'the second thread); when both agree only one alignment is paid for, and when the '
-        'global estimate fails the prediction can still be accepted.')
+        True, 'Refine the constant-velocity prediction against the local map; when it agrees '
+        'with the global estimate only one alignment is paid for, and when the global '
+        'estimate fails the prediction can still be accepted.')
+    global_registration: str = param(
+        'on_demand', 'always: ML-SemReg + SC2-PCR onto the keyframe for every scan (the '
+        'previous default; about twice the time per scan); on_demand: only when the refined '
+        'prediction is not trusted (no prediction, refused, corrected by more than the '
+        'odometry.agreement_* bounds, a gap in the stamps) and at least every '
+        'odometry.global_interval scans as a check of the motion model.',
+        choices=('always', 'on_demand'))
+    global_interval: int = param(
+        10, 'on_demand: the longest run of scans tracked by the refined prediction alone; '
+        'the next one is registered globally (1: every scan).', low=1, high=100000)
     agreement_translation: float = param(
         0.3, 'The refined prediction agrees with the global estimate within this '
-        'translation (and odometry.agreement_rotation).', unit='m', low=0.0, high=100.0)
+        'translation (and odometry.agreement_rotation); on_demand: a prediction that the '
+        'fine alignment corrects by more is not trusted alone.', unit='m', low=0.0,
+        high=100.0)
     agreement_rotation: float = param(
-        1.0, 'The refined prediction agrees with the global estimate within this rotation.',
+        1.0, 'The refined prediction agrees with the global estimate within this rotation '
+        '(on_demand: the trust bound of the correction, as for the translation).',
         unit='deg', low=0.0, high=180.0)
     max_correction_translation: float = param(
         1.5, 'A fine alignment that moves its initial guess further than this is not '

@@ -18,13 +18,23 @@ LiDAR odometry: global ML-SemReg registration for robustness, fine alignment to 
 The code path shared by the ROS node, the offline bag evaluation and the demo. Per scan::
 
     prepare(scan)                                 once per scan; the keyframe's is cached
-    in parallel:
-      global   = register(current, keyframe)      ML-SemReg + SC2-PCR: T_keyframe_current
-      predicted = map.align(scan, T_cv)           the constant-velocity prediction, refined
-    if predicted agrees with pose_keyframe @ global:  accept it (one alignment paid for)
-    else: refined = map.align(scan, pose_keyframe @ global), accept the better candidate
+    predicted = map.align(scan, T_cv)             the constant-velocity prediction, refined
+    if tracking is trusted (on_demand):           accept it: no global registration
+    else:
+      global = register(current, keyframe)        ML-SemReg + SC2-PCR: T_keyframe_current
+      if predicted agrees with pose_keyframe @ global:  accept it (one alignment paid for)
+      else: refined = map.align(scan, pose_keyframe @ global), accept the better candidate
     map.insert(scan, pose)                        only an accepted, aligned scan
     keyframe <- current                           per the keyframe policy
+
+**Global registration on demand** (``odometry.global_registration: on_demand``, default).
+ML-SemReg + SC2-PCR is what makes the odometry robust (it registers scans 16 m apart and
+after a jump), and it is the expensive part. A scan is *tracked* by the refined
+prediction alone only when that can be trusted: the refinement is acceptable, it moved
+the prediction by at most ``odometry.agreement_*`` (the motion model held), the stamps
+show no gap (at most 1.5 nominal frame intervals since the last accepted scan) and fewer
+than ``odometry.global_interval`` scans were tracked in a row. Every other scan is
+registered globally as before; ``always`` registers every scan.
 
 The decision (:meth:`Odometry._decide`) is documented there; what it guarantees:
 
@@ -61,7 +71,6 @@ from mlsemreg_ros.core.config import KeyframeConfig, RegistrationConfig
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg, scale_motion
-from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -117,6 +126,7 @@ class OdometryStep:
     relative: np.ndarray | None  # (4, 4) T_keyframe_current (accepted, refined); else the
     #                              global estimate (for diagnostics); None for the first scan
     result: RegistrationResult | None  # the global registration; None for the first scan
+    #                                  and for a scan tracked by the prediction alone
     accepted: bool  # the frame moved the pose (True for the first scan)
     keyframe_index: int  # frame counter of the keyframe registered onto (own index if first)
     keyframe_stamp_ns: int
@@ -140,6 +150,7 @@ class Odometry:
 
     def __init__(self, registration: Registration | None = None,
                  config: RegistrationConfig | None = None) -> None:
+        """Use ``registration`` (default: a new one), optionally with ``config``."""
         self.registration = registration if registration is not None else Registration()
         if config is not None:
             self.registration.config = config
@@ -154,6 +165,8 @@ class Odometry:
         self._fractions: collections.deque[float] = collections.deque(maxlen=FRACTION_HISTORY)
         self._failures = 0  # rejected frames in a row
         self._last_stamp = 0  # stamp of the last scan (0: none or unstamped)
+        self._tracked = 0  # scans accepted by the refined prediction alone, in a row
+        self._prediction_factor = 1.0  # stamp gap of the last prediction, in frame intervals
 
     @property
     def config(self) -> RegistrationConfig:
@@ -191,6 +204,7 @@ class Odometry:
         self._fractions.clear()
         self._failures = 0
         self._last_stamp = 0
+        self._tracked = 0
 
     def keyframe_refusal(self, scan: PreparedScan) -> str:
         """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
@@ -243,21 +257,28 @@ class Odometry:
                                 covariance=self.covariance.copy(),
                                 map_voxels=len(self.local_map))
         keyframe = self.keyframe
+        result = None
         if self.config.fine.method == 'off':
             result = self.registration.register(current, keyframe.prepared, refine=False)
             step = self._chain(index, stamp_ns, current, keyframe, result)
         else:
-            result, predicted = self._register_and_predict(current, keyframe, stamp_ns)
-            step = self._decide(index, stamp_ns, current, keyframe, result, predicted)
+            predicted = self._refine_prediction(current, stamp_ns, timings)
+            if self._trusted(predicted):  # tracking: no global registration needed
+                step = self._track(index, stamp_ns, current, keyframe, predicted)
+            else:
+                result = self.registration.register(current, keyframe.prepared, refine=False)
+                self._tracked = 0
+                step = self._decide(index, stamp_ns, current, keyframe, result, predicted)
         self._count_failure(step, current)
-        step.timings_ms = {**timings, **{f'register.{k}': v
-                                         for k, v in result.timings_ms.items()},
-                           **step.timings_ms}
+        registered = {} if result is None else {f'register.{k}': v
+                                                for k, v in result.timings_ms.items()}
+        step.timings_ms = {**timings, **registered, **step.timings_ms}
         step.latency_ms = 1e3 * (time.perf_counter() - start)
         return step
 
     def _start(self, index: int, stamp_ns: int, scan: PreparedScan, pose: np.ndarray) -> None:
         """Make ``scan`` the keyframe at ``pose`` and the first scan of a new map."""
+        self._tracked = 0
         self.keyframe = Keyframe(index, stamp_ns, *self._raw, scan, pose.copy())
         self.local_map.clear()
         self._insert(scan, pose)
@@ -290,29 +311,45 @@ class Odometry:
                             1e3 * (time.perf_counter() - start), reason=reason,
                             covariance=self.covariance.copy(), map_voxels=len(self.local_map))
 
-    # -- the two candidates ----------------------------------------------------------
-    def _register_and_predict(self, current: PreparedScan, keyframe: Keyframe, stamp_ns: int
-                              ) -> tuple[RegistrationResult, Candidate | None]:
-        """Run the global registration and, on a second thread, refine the prediction."""
-        cloud = self.registration.alignment_cloud(current)
-        prediction = self.predict(stamp_ns) if self.config.odometry.constant_velocity else None
-        timings: dict[str, float] = {}
-
-        def register() -> RegistrationResult:
-            return self.registration.register(current, keyframe.prepared, refine=False)
-
-        def refine_prediction() -> Candidate:
-            tic = time.perf_counter()
-            candidate = self._candidate('prediction', prediction, cloud, num_threads=1)
-            timings['fine_prediction_ms'] = 1e3 * (time.perf_counter() - tic)
-            return candidate
-
+    # -- the prediction, and tracking by it -------------------------------------------
+    def _refine_prediction(self, current: PreparedScan, stamp_ns: int,
+                           timings: dict[str, float]) -> Candidate | None:
+        """Refine the constant-velocity prediction against the map (None without one)."""
+        if not self.config.odometry.constant_velocity:
+            return None
+        prediction = self.predict(stamp_ns)
         if prediction is None:
-            return register(), None
-        result, predicted = _ODOMETRY_POOL.run(lambda task: task(),
-                                               [register, refine_prediction])
-        result.timings_ms.update(timings)
-        return result, predicted
+            return None
+        tic = time.perf_counter()
+        cloud = self.registration.alignment_cloud(current)  # all cores: small_gicp has the GIL
+        timings['fine_cloud_ms'] = 1e3 * (time.perf_counter() - tic)
+        tic = time.perf_counter()
+        candidate = self._candidate('prediction', prediction, cloud)
+        timings['fine_prediction_ms'] = 1e3 * (time.perf_counter() - tic)
+        return candidate
+
+    def _trusted(self, predicted: Candidate | None) -> bool:
+        """Whether the refined prediction alone may be accepted (module docstring)."""
+        cfg = self.config.odometry
+        if (cfg.global_registration != 'on_demand' or predicted is None
+                or not predicted.acceptable or self._tracked + 1 >= cfg.global_interval
+                or self._prediction_factor > MAX_TRACKING_GAP):
+            return False
+        return _within(predicted.alignment.T_initial, predicted.alignment.T_target_source,
+                       cfg.agreement_translation, cfg.agreement_rotation)
+
+    def _track(self, index: int, stamp_ns: int, current: PreparedScan, keyframe: Keyframe,
+               predicted: Candidate) -> OdometryStep:
+        """Accept a scan by its refined prediction (no global registration)."""
+        self._tracked += 1
+        alignment = predicted.alignment
+        self._fractions.append(alignment.inlier_fraction)
+        frame_cov = alignment.covariance(self.config.odometry.covariance_scale, axes='source')
+        step = self._accept(index, stamp_ns, current, keyframe, None,
+                            alignment.T_target_source, frame_cov, 'prediction',
+                            f'tracked ({self._tracked} in a row)')
+        step.candidates = [predicted]
+        return step
 
     def predict(self, stamp_ns: int) -> np.ndarray | None:
         """
@@ -331,6 +368,7 @@ class Odometry:
         factor = 1.0
         if last_stamp > before_stamp and stamp_ns > last_stamp:
             factor = (stamp_ns - last_stamp) / (last_stamp - before_stamp)
+        self._prediction_factor = factor
         return last @ scale_motion(motion, min(factor, MAX_PREDICTION_FACTOR))
 
     def _candidate(self, name: str, T_initial: np.ndarray, cloud: object,
@@ -418,7 +456,7 @@ class Odometry:
                             keyframe.pose @ result.transform, frame_cov, 'global', '')
 
     def _accept(self, index: int, stamp_ns: int, current: PreparedScan, keyframe: Keyframe,
-                result: RegistrationResult, pose: np.ndarray, frame_cov: np.ndarray,
+                result: RegistrationResult | None, pose: np.ndarray, frame_cov: np.ndarray,
                 source: str, reason: str) -> OdometryStep:
         """Move the pose, feed the map, move the keyframe; the step of an accepted frame."""
         relative = invert_transform(keyframe.pose) @ pose
@@ -462,8 +500,8 @@ REINITIALIZATION_VARIANCE = 1e2
 FRACTION_HISTORY = 10
 #: The prediction bridges at most this many nominal frame intervals.
 MAX_PREDICTION_FACTOR = 5.0
-
-_ODOMETRY_POOL = LazyPool('mlsemreg-odometry')  # global registration | refined prediction
+#: A longer gap in the stamps (in nominal frame intervals) needs the global registration.
+MAX_TRACKING_GAP = 1.5
 
 
 def _within(T_a: np.ndarray, T_b: np.ndarray, translation: float, rotation_deg: float) -> bool:

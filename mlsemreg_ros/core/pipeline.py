@@ -16,8 +16,7 @@ The registration pipeline: two labeled scans in, a rigid transform out.
 
 Per pair the steps are (cf. Fig. 2 of the paper)::
 
-    prepare(scan)      voxelize, keypoints, descriptors, Local-SS, landmarks, alignment cloud
-                       (cached per scan)
+    prepare(scan)      voxelize, keypoints, descriptors, Local-SS, landmarks (cached per scan)
     register(src, dst) ML-SemReg correspondences -> robust estimator -> verification on the
                        dense labeled scans -> fine alignment (GICP)
 
@@ -153,25 +152,21 @@ class Registration:
                                                     cfg.semantic.cluster_min_points)
             return local_ss, marks
 
-        def semantics_and_alignment() -> tuple[np.ndarray, Landmarks, dict, Any]:
+        def semantics_and_tree() -> tuple[np.ndarray, Landmarks, Any]:
             local_ss, marks = semantics()
-            clouds = {}
-            if cfg.fine.method != 'off':  # the odometry's cloud (pairs build theirs later)
-                key = (cfg.fine.downsampling_resolution, cfg.fine.num_neighbors)
-                with _timed(timings, 'alignment_cloud_ms'):
-                    clouds[key] = AlignmentCloud.build(points, *key, num_threads=1)
             with _timed(timings, 'points_tree_ms'):  # for the dense scores, as a target
                 tree = PreparedScan.build_points_tree(points)
-            return local_ss, marks, clouds, tree
+            return local_ss, marks, tree
 
-        # Descriptors | semantic signatures, alignment cloud, KD-tree: two threads.
-        described, (local_ss, marks, clouds, tree) = _SCAN_POOL.run(
-            lambda task: task(), [describe, semantics_and_alignment])
+        # Descriptors | semantic signatures and the KD-tree: two threads. (small_gicp holds
+        # the GIL, so the fine-alignment clouds are built later, on all cores, alone.)
+        described, (local_ss, marks, tree) = _SCAN_POOL.run(
+            lambda task: task(), [describe, semantics_and_tree])
         valid = features.valid_descriptor_mask(described)
         keypoints, indices = keypoints[valid], indices[valid]
         descriptors, local_ss = described[valid], local_ss[valid]
         return PreparedScan(points, labels, keypoints, indices, descriptors, local_ss, marks,
-                            timings, clouds, input_stats, tree)
+                            timings, {}, input_stats, tree)
 
     # ------------------------------------------------------------------------------
     def register(self, source: PreparedScan, target: PreparedScan, *,

@@ -59,6 +59,12 @@ class OdometryEstimator:
         step = self.odometry.process(scan.xyz, labels, scan.stamp_ns)
         self._bag_index.append(scan.index)
         result = step.result
+        if result is None and step.relative is not None:  # tracked by the prediction alone
+            return FrameEstimate(
+                step.pose, self._bag_index[step.keyframe_index], step.relative,
+                bool(step.accepted), step.latency_ms, mode='tracking',
+                new_keyframe=bool(step.new_keyframe), message=step.reason, source=step.source,
+                frame_covariance=step.frame_covariance, timings_ms=step.timings_ms)
         if result is None:  # the first scan (or one the odometry started again on)
             return FrameEstimate(step.pose, None, accepted=bool(step.accepted),
                                  latency_ms=step.latency_ms, new_keyframe=step.new_keyframe,

@@ -259,7 +259,7 @@ class MlSemRegNode(Node):
                                       'while it was being registered', {})
             return
         result = step.result
-        if step.accepted and result is None:
+        if step.source == 'first':
             note = f' ({step.reason})' if step.reason else ''
             self._diagnose(scan, 'ok', f'first scan: keyframe set, odometry at identity{note}',
                            step)
@@ -269,8 +269,8 @@ class MlSemRegNode(Node):
         self._publish_local_map(scan, config.node)
         if step.accepted:
             self.get_logger().debug(f'latency {latency_ms:.1f} ms, stages {step.timings_ms}')
-            self._diagnose(scan, 'ok', f'registered ({result.mode}, {step.source})', step,
-                           latency_ms)
+            how = f'{result.mode}, {step.source}' if result is not None else 'tracked'
+            self._diagnose(scan, 'ok', f'registered ({how})', step, latency_ms)
         else:
             reason = step.reason or (result.message if result is not None else '') or 'rejected'
             self._count('failures')
@@ -393,6 +393,8 @@ class MlSemRegNode(Node):
                 candidate.alignment.inlier_fraction
             if candidate.refusal:
                 values[f'fine.{candidate.name}.refused'] = candidate.refusal
+        if step.result is None and step.source == 'prediction':
+            values['mode'] = 'tracking'  # the refined prediction alone, no global registration
         if step.result is not None:
             result = step.result
             values.update({'mode': result.mode, 'num_inliers': result.num_inliers,
