@@ -57,6 +57,7 @@ setup(
             'mlsemreg-demo = mlsemreg_ros.tools.demo:main',
             'mlsemreg-bench-node = mlsemreg_ros.tools.bench_node:main',
             'mlsemreg-confidence = mlsemreg_ros.tools.confidence:main',
+            'mlsemreg-soak = mlsemreg_ros.tools.soak:main',
             'mlsemreg-cut-pairs = mlsemreg_ros.tools.cut_pairs:main',
             'mlsemreg-params = mlsemreg_ros.tools.params:main',
         ],

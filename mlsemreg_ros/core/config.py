@@ -441,21 +441,30 @@ class OdometryConfig:
     global_registration: str = param(
         'on_demand', 'always: ML-SemReg + SC2-PCR onto the keyframe for every scan (the '
         'previous default; about twice the time per scan); on_demand: only when the refined '
-        'prediction is not trusted (no prediction, refused, corrected by more than the '
-        'odometry.agreement_* bounds, a gap in the stamps) and at least every '
-        'odometry.global_interval scans as a check of the motion model.',
-        choices=('always', 'on_demand'))
+        'prediction is not trusted (no prediction, refused, corrected by more than '
+        'odometry.tracking_translation/rotation, fewer inliers than usual, a gap in the '
+        'stamps) and at least every odometry.global_interval scans as a check of the motion '
+        'model.', choices=('always', 'on_demand'))
     global_interval: int = param(
-        10, 'on_demand: the longest run of scans tracked by the refined prediction alone; '
+        30, 'on_demand: the longest run of scans tracked by the refined prediction alone; '
         'the next one is registered globally (1: every scan).', low=1, high=100000)
+    tracking_translation: float = param(
+        0.5, 'on_demand: a refined prediction that the fine alignment moved further than this '
+        'is not trusted alone (the motion model did not hold).', unit='m', low=0.0,
+        high=100.0)
+    tracking_rotation: float = param(
+        4.0, 'on_demand: a refined prediction that the fine alignment turned further than this '
+        'is not trusted alone (simulated drives: up to 4 deg at the start and end of turns, '
+        'with 0.97 of the scan as inliers).', unit='deg', low=0.0, high=180.0)
+    tracking_inlier_share: float = param(
+        0.9, 'on_demand: a refined prediction is trusted alone only with at least this share '
+        'of the median inlier fraction of the last accepted scans (as good as usual).',
+        low=0.0, high=1.0)
     agreement_translation: float = param(
         0.3, 'The refined prediction agrees with the global estimate within this '
-        'translation (and odometry.agreement_rotation); on_demand: a prediction that the '
-        'fine alignment corrects by more is not trusted alone.', unit='m', low=0.0,
-        high=100.0)
+        'translation (and odometry.agreement_rotation).', unit='m', low=0.0, high=100.0)
     agreement_rotation: float = param(
-        1.0, 'The refined prediction agrees with the global estimate within this rotation '
-        '(on_demand: the trust bound of the correction, as for the translation).',
+        1.0, 'The refined prediction agrees with the global estimate within this rotation.',
         unit='deg', low=0.0, high=180.0)
     max_correction_translation: float = param(
         1.5, 'A fine alignment that moves its initial guess further than this is not '

@@ -31,9 +31,10 @@ The code path shared by the ROS node, the offline bag evaluation and the demo. P
 ML-SemReg + SC2-PCR is what makes the odometry robust (it registers scans 16 m apart and
 after a jump), and it is the expensive part. A scan is *tracked* by the refined
 prediction alone only when that can be trusted: the refinement is acceptable, it moved
-the prediction by at most ``odometry.agreement_*`` (the motion model held), the stamps
-show no gap (at most 1.5 nominal frame intervals since the last accepted scan) and fewer
-than ``odometry.global_interval`` scans were tracked in a row. Every other scan is
+the prediction by at most ``odometry.tracking_translation/rotation`` (the motion model
+held), it kept at least ``odometry.tracking_inlier_share`` of the usual inlier fraction,
+the stamps show no gap (at most 1.5 nominal frame intervals since the last accepted scan)
+and fewer than ``odometry.global_interval`` scans were tracked in a row. Every other scan is
 registered globally as before; ``always`` registers every scan.
 
 The decision (:meth:`Odometry._decide`) is documented there; what it guarantees:
@@ -263,12 +264,15 @@ class Odometry:
             step = self._chain(index, stamp_ns, current, keyframe, result)
         else:
             predicted = self._refine_prediction(current, stamp_ns, timings)
-            if self._trusted(predicted):  # tracking: no global registration needed
+            why_global = self._trusted(predicted)
+            if not why_global:  # tracking: no global registration needed
                 step = self._track(index, stamp_ns, current, keyframe, predicted)
             else:
                 result = self.registration.register(current, keyframe.prepared, refine=False)
                 self._tracked = 0
                 step = self._decide(index, stamp_ns, current, keyframe, result, predicted)
+                step.reason = '; '.join(r for r in (f'registered globally: {why_global}',
+                                                    step.reason) if r)
         self._count_failure(step, current)
         registered = {} if result is None else {f'register.{k}': v
                                                 for k, v in result.timings_ms.items()}
@@ -328,15 +332,30 @@ class Odometry:
         timings['fine_prediction_ms'] = 1e3 * (time.perf_counter() - tic)
         return candidate
 
-    def _trusted(self, predicted: Candidate | None) -> bool:
-        """Whether the refined prediction alone may be accepted (module docstring)."""
+    def _trusted(self, predicted: Candidate | None) -> str:
+        """Why the refined prediction may not be accepted alone ('' if it may; docstring)."""
         cfg = self.config.odometry
-        if (cfg.global_registration != 'on_demand' or predicted is None
-                or not predicted.acceptable or self._tracked + 1 >= cfg.global_interval
-                or self._prediction_factor > MAX_TRACKING_GAP):
-            return False
-        return _within(predicted.alignment.T_initial, predicted.alignment.T_target_source,
-                       cfg.agreement_translation, cfg.agreement_rotation)
+        if cfg.global_registration != 'on_demand':
+            return 'global registration: always'
+        if predicted is None:
+            return 'no prediction yet'
+        if not predicted.acceptable:
+            return f'prediction refused ({predicted.refusal})'
+        if self._tracked + 1 >= cfg.global_interval:
+            return f'{self._tracked} scans tracked in a row (odometry.global_interval)'
+        if self._prediction_factor > MAX_TRACKING_GAP:
+            return f'a gap of {self._prediction_factor:.1f} frame intervals in the stamps'
+        alignment = predicted.alignment
+        if not _within(alignment.T_initial, alignment.T_target_source,
+                       cfg.tracking_translation, cfg.tracking_rotation):
+            moved = alignment.correction
+            return (f'prediction corrected by {np.linalg.norm(moved[:3, 3]):.2f} m / '
+                    f'{rotation_angle_deg(moved):.2f} deg (odometry.tracking_*)')
+        typical = float(np.median(self._fractions)) if self._fractions else 0.0
+        if alignment.inlier_fraction < cfg.tracking_inlier_share * typical:
+            return (f'prediction kept {alignment.inlier_fraction:.2f} of the scan, usual '
+                    f'{typical:.2f} (odometry.tracking_inlier_share)')
+        return ''
 
     def _track(self, index: int, stamp_ns: int, current: PreparedScan, keyframe: Keyframe,
                predicted: Candidate) -> OdometryStep:

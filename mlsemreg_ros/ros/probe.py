@@ -231,3 +231,27 @@ def node_and_probe(domain_id: int | None = None, args: list[str] | None = None
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown(context=context)
+
+
+@contextlib.contextmanager
+def probe_only(domain_id: int | None = None) -> Iterator[NodeProbe]:
+    """Run a NodeProbe alone in a private rclpy context (the node runs elsewhere)."""
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    executor = SingleThreadedExecutor(context=context)
+    probe = None
+    try:
+        probe = NodeProbe(context)
+        executor.add_node(probe.node)
+        threading.Thread(target=executor.spin, daemon=True).start()
+        if not probe.wait_connected(timeout=60.0):
+            raise RuntimeError('the probe did not discover mlsemreg_node within 60 s')
+        yield probe
+    finally:
+        executor.shutdown(timeout_sec=5.0)
+        if probe is not None:
+            probe.node.destroy_node()
+        rclpy.try_shutdown(context=context)

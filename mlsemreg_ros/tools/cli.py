@@ -38,6 +38,7 @@ from mlsemreg_ros.tools import (
     params,
     play,
     simulate,
+    soak,
 )
 from mlsemreg_ros.tools.common import run
 import typer
@@ -111,6 +112,7 @@ for module, function, name, panel in (
         (bench_node, bench_node.bench_node, 'bench-node', EVALUATION),
         (confidence, confidence.confidence, 'confidence', EVALUATION),
         (demo, demo.demo, 'demo', EVALUATION),
+        (soak, soak.soak, 'soak', EVALUATION),
         (simulate, simulate.simulate, 'simulate', DATA),
         (kitti_to_bag, kitti_to_bag.kitti_to_bag, 'kitti-to-bag', DATA),
         (cut_pairs, cut_pairs.cut_pairs, 'cut-pairs', DATA),
