@@ -39,7 +39,7 @@ def test_rss_of_this_process_and_growth_after_the_warm_up() -> None:
 
 
 def test_soak_loops_a_bag_through_the_node(tmp_path: Path,
-                                          capsys: pytest.CaptureFixture[str]) -> None:
+                                           capsys: pytest.CaptureFixture[str]) -> None:
     bag = tmp_path / 'sim'
     assert simulate.main([str(bag), '--frames', '4', '--seed', '2', '--azimuth-steps', '512',
                           '--quiet']) == 0
