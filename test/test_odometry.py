@@ -315,3 +315,18 @@ def test_on_demand_tracks_by_the_prediction_and_registers_globally_when_due(driv
                                                    'always'})))
     always_steps = [always.process(p, lab, st) for p, lab, _, st in drive[:4]]
     assert all(s.result is not None for s in always_steps[1:])  # every scan registered
+
+
+def test_a_scan_stream_that_jumps_back_and_forth_is_never_tracked_wrongly(drive: Any) -> None:
+    """dst, src, dst, src, ...: the motion model is wrong every time; what is published is right."""
+    odometry = Odometry(Registration(RegistrationConfig().replace({'keypoints.count': 1000})))
+    origin = drive[0][2]
+    order = [0, 3, 0, 3, 0, 3, 0]  # 4.5 m back and forth
+    for k, which in enumerate(order):
+        points, labels, pose, _ = drive[which]
+        step = odometry.process(points, labels, 100_000_000 * (k + 1))
+        if step.accepted:
+            re, te = _pose_errors(step.pose, invert_transform(origin) @ pose)
+            assert re < 0.1 and te < 0.05, (k, step.source, re, te)
+        if k > 1:
+            assert step.result is not None, (k, step.reason)  # never tracked: registered

@@ -32,7 +32,8 @@ ML-SemReg + SC2-PCR is what makes the odometry robust (it registers scans 16 m a
 after a jump), and it is the expensive part. A scan is *tracked* by the refined
 prediction alone only when that can be trusted: the refinement is acceptable, it moved
 the prediction by at most ``odometry.tracking_translation/rotation`` (the motion model
-held), it kept at least ``odometry.tracking_inlier_share`` of the usual inlier fraction,
+held), it kept at least ``odometry.tracking_min_inlier_fraction`` of the scan as map
+inliers and at least ``odometry.tracking_inlier_share`` of the usual inlier fraction,
 the stamps show no gap (at most 1.5 nominal frame intervals since the last accepted scan)
 and fewer than ``odometry.global_interval`` scans were tracked in a row. Every other scan is
 registered globally as before; ``always`` registers every scan.
@@ -351,6 +352,9 @@ class Odometry:
             moved = alignment.correction
             return (f'prediction corrected by {np.linalg.norm(moved[:3, 3]):.2f} m / '
                     f'{rotation_angle_deg(moved):.2f} deg (odometry.tracking_*)')
+        if alignment.inlier_fraction < cfg.tracking_min_inlier_fraction:
+            return (f'prediction kept {alignment.inlier_fraction:.2f} of the scan < '
+                    f'odometry.tracking_min_inlier_fraction={cfg.tracking_min_inlier_fraction:g}')
         typical = float(np.median(self._fractions)) if self._fractions else 0.0
         if alignment.inlier_fraction < cfg.tracking_inlier_share * typical:
             return (f'prediction kept {alignment.inlier_fraction:.2f} of the scan, usual '
