@@ -318,7 +318,7 @@ def test_on_demand_tracks_by_the_prediction_and_registers_globally_when_due(driv
 
 
 def test_a_scan_stream_that_jumps_back_and_forth_is_never_tracked_wrongly(drive: Any) -> None:
-    """dst, src, dst, src, ...: the motion model is wrong every time; what is published is right."""
+    """Scans back and forth: the motion model is wrong every time; what is published is right."""
     odometry = Odometry(Registration(RegistrationConfig().replace({'keypoints.count': 1000})))
     origin = drive[0][2]
     order = [0, 3, 0, 3, 0, 3, 0]  # 4.5 m back and forth
