@@ -21,8 +21,10 @@ import json
 from pathlib import Path
 
 from mlsemreg_ros.codec.stamps import parse_seconds
+from mlsemreg_ros.datasets.pose_files import read_kitti_poses
 from mlsemreg_ros.evaluation.scoring import SUMMARY_KEYS
-from mlsemreg_ros.tools import demo
+from mlsemreg_ros.tools import demo, eval_bag
+import numpy as np
 import pytest
 from ros_domains import domain_id
 
@@ -49,8 +51,16 @@ def test_demo_runs_the_node_on_a_short_drive_and_scores_it(tmp_path: Path) -> No
         assert (out / name).exists()
     assert (out / 'recorded_odometry' / 'metadata.yaml').exists()
     # The second run reuses the cached sequence.
-    assert demo.ensure_sequence(tmp_path / 'cache', 4, 0, True) == \
-        tmp_path / 'cache' / 'sim_seed0_4f'
+    bag = demo.ensure_sequence(tmp_path / 'cache', 4, 0, True)
+    assert bag == tmp_path / 'cache' / 'sim_seed0_4f'
+    # The node and the offline replay give the same poses on the same bag (one code path).
+    offline = tmp_path / 'offline'
+    assert eval_bag.main([str(bag), '-o', str(offline), '--quiet', '--no-plots',
+                          '--set', 'keypoints.count=1200']) == 0
+    node_poses = read_kitti_poses(out / 'trajectory_kitti.txt')
+    np.testing.assert_allclose(node_poses, read_kitti_poses(offline / 'trajectory_kitti.txt'),
+                               atol=1e-6)
+    assert np.abs(node_poses[-1, :3, 3]).max() > 1.0  # it moved
 
 
 def test_parse_stamp_is_exact() -> None:

@@ -35,6 +35,9 @@ def test_rss_of_this_process_and_growth_after_the_warm_up() -> None:
     assert rss_mb(2**22 + 12345) != rss_mb(2**22 + 12345)  # no such process: NaN
     samples = [SoakSample(0, 100.0, 0), SoakSample(10, 140.0, 1), SoakSample(20, 141.5, 2)]
     assert growth_mb(samples, 10) == pytest.approx(1.5)
+    noisy = [SoakSample(k, 200.0 + (5.0 if k % 20 else -5.0), 0) for k in range(0, 420, 10)]
+    assert abs(growth_mb(noisy, 20)) < 1.0  # 10 MiB ups and downs, no trend
+    assert abs(noisy[-1].rss_mb - noisy[2].rss_mb) == 10.0  # end minus start would say 10
     assert growth_mb(samples, 30) != growth_mb(samples, 30)  # nothing after the warm-up
 
 

@@ -75,6 +75,15 @@ def soak(scans: list[tuple[np.ndarray, np.ndarray]], frames: int, every: int, pr
 
 
 def growth_mb(samples: list[SoakSample], warm_up: int) -> float:
-    """RSS at the end minus the first sample at or after ``warm_up`` scans, MiB."""
+    """
+    RSS growth after ``warm_up`` scans, MiB: the least-squares trend over the samples.
+
+    The slope of the RSS against the scan count, times the scans after the warm-up; the
+    allocator's ups and downs between two samples (several MiB) do not decide it.
+    """
     after = [s for s in samples if s.frames >= warm_up]
-    return after[-1].rss_mb - after[0].rss_mb if len(after) >= 2 else float('nan')
+    if len(after) < 2:
+        return float('nan')
+    frames = np.array([s.frames for s in after], dtype=float)
+    slope = np.polyfit(frames, np.array([s.rss_mb for s in after]), 1)[0]
+    return float(slope * (frames[-1] - frames[0]))

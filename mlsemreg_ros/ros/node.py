@@ -191,6 +191,8 @@ class MlSemRegNode(Node):
         if self._tf is None:
             self.get_logger().info('tf2_ros is not importable: no TF output '
                                    '(mlsemreg/odometry carries the same pose)')
+        if config.node.keep_freed_memory:
+            kernels.keep_freed_memory()
         warm = kernels.warm_up()  # compile or load the numba kernels before the first scan
         self._startup_ms = {'kernels_ms': warm.get('total_ms', 0.0),
                             'node_ms': 1e3 * (time.perf_counter() - started)}

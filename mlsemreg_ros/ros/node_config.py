@@ -56,7 +56,7 @@ class PathConfig:
 
 
 #: Parameters that only take effect at startup (declared read-only).
-READ_ONLY: tuple[str, ...] = ('qos.reliability', 'qos.depth')
+READ_ONLY: tuple[str, ...] = ('qos.reliability', 'qos.depth', 'keep_freed_memory')
 
 
 @dataclass
@@ -81,6 +81,10 @@ class NodeConfig(Settings):
         'reset', "What a change of the clouds' frame_id does: reset (the odometry restarts "
         'in the new frame) or skip (scans in another frame are skipped).',
         choices=('reset', 'skip'))
+    keep_freed_memory: bool = param(
+        True, 'At startup, let glibc keep freed memory for reuse (mallopt): the per-scan '
+        'temporaries stop costing page faults and the resident size stays at its working '
+        'set instead of swinging by several MB (read-only).')
     local_map_period: float = param(
         1.0, 'Minimum time between two mlsemreg/local_map clouds (published only while '
         'someone subscribes; 0: never).', unit='s', low=0.0, high=3600.0)

@@ -32,7 +32,8 @@ def soak(
     frames: Annotated[int, typer.Option(min=1, help='scans to publish')] = 2000,
     every: Annotated[int, typer.Option(min=1, help='scans between two samples')] = 100,
     warm_up: Annotated[int, typer.Option(min=0, help='scans before the growth is '
-                                         'counted')] = 200,
+                                         'counted (the heap first grows to its working '
+                                         'set)')] = 500,
     domain_id: Annotated[int, typer.Option(min=0, max=232, help='ROS domain id')] = 77,
 ) -> int:
     """Soak the node with a looping bag (alias mlsemreg-soak)."""
@@ -65,8 +66,11 @@ def soak(
             stop_node(node)
     rows = [[str(s.frames), f'{s.rss_mb:.1f}', f'{s.seconds:.0f}'] for s in samples]
     print_table(ResultTable(('scans', 'RSS MiB', 's'), rows))
-    print_text(f'RSS growth after {warm_up} scans: {growth_mb(samples, warm_up):+.1f} MiB '
-               f'({frames} scans of {bag.name}, {len(scans)} per loop)')
+    after = [s.rss_mb for s in samples if s.frames >= warm_up]
+    print_text(f'RSS growth after {warm_up} scans (least-squares trend): '
+               f'{growth_mb(samples, warm_up):+.1f} MiB; range after the warm-up '
+               f'{min(after):.1f}-{max(after):.1f} MiB ({frames} scans of {bag.name}, '
+               f'{len(scans)} per loop)')
     return 0
 
 
