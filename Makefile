@@ -23,7 +23,7 @@ lint: setup
 	$(PY) -m pytest -q test/test_flake8.py test/test_pep257.py test/test_copyright.py
 
 format: setup
-	$(VENV)/bin/ruff format mlsemreg_ros test setup.py
+	$(VENV)/bin/ruff format mlsemreg_ros test setup.py launch
 
 demo: setup
 	$(VENV)/bin/mlsemreg demo

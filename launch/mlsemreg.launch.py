@@ -30,27 +30,39 @@ from launch_ros.substitutions import FindPackageShare
 def generate_launch_description() -> LaunchDescription:
     """Node with the package's params.yaml (or another file) and the input topic remapped."""
     default_params = PathJoinSubstitution(
-        [FindPackageShare('mlsemreg_ros'), 'config', 'params.yaml'])
-    return LaunchDescription([
-        DeclareLaunchArgument(
-            'points_topic', default_value='points',
-            description='Labeled sensor_msgs/PointCloud2 input (x, y, z and a label field).'),
-        DeclareLaunchArgument(
-            'params_file', default_value=default_params,
-            description='Parameter file (layout of config/params.yaml).'),
-        DeclareLaunchArgument(
-            'use_sim_time', default_value='false',
-            description='Use /clock (bag playback with --clock).'),
-        Node(
-            package='mlsemreg_ros',
-            executable='mlsemreg_node',
-            name='mlsemreg_node',
-            output='screen',
-            parameters=[
-                LaunchConfiguration('params_file'),
-                {'use_sim_time': ParameterValue(LaunchConfiguration('use_sim_time'),
-                                                value_type=bool)},
-            ],
-            remappings=[('points', LaunchConfiguration('points_topic'))],
-        ),
-    ])
+        [FindPackageShare('mlsemreg_ros'), 'config', 'params.yaml']
+    )
+    return LaunchDescription(
+        [
+            DeclareLaunchArgument(
+                'points_topic',
+                default_value='points',
+                description='Labeled sensor_msgs/PointCloud2 input (x, y, z and a label field).',
+            ),
+            DeclareLaunchArgument(
+                'params_file',
+                default_value=default_params,
+                description='Parameter file (layout of config/params.yaml).',
+            ),
+            DeclareLaunchArgument(
+                'use_sim_time',
+                default_value='false',
+                description='Use /clock (bag playback with --clock).',
+            ),
+            Node(
+                package='mlsemreg_ros',
+                executable='mlsemreg_node',
+                name='mlsemreg_node',
+                output='screen',
+                parameters=[
+                    LaunchConfiguration('params_file'),
+                    {
+                        'use_sim_time': ParameterValue(
+                            LaunchConfiguration('use_sim_time'), value_type=bool
+                        )
+                    },
+                ],
+                remappings=[('points', LaunchConfiguration('points_topic'))],
+            ),
+        ]
+    )

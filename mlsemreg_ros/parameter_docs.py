@@ -62,11 +62,14 @@ def _yaml_value(value: object) -> str:
 
 def params_yaml_text() -> str:
     """``config/params.yaml``: every node parameter with its default and description."""
-    lines = ['# Parameters of mlsemreg_node and their defaults, generated from the config',
-             '# metadata by `mlsemreg params` (mlsemreg_ros.parameter_docs);',
-             '# test/test_params_yaml.py checks that this file, the node and the core agree.',
-             '# [unit, range, choices] as enforced by the parameter descriptors.',
-             f'{NODE_NAME}:', '  ros__parameters:']
+    lines = [
+        '# Parameters of mlsemreg_node and their defaults, generated from the config',
+        '# metadata by `mlsemreg params` (mlsemreg_ros.parameter_docs);',
+        '# test/test_params_yaml.py checks that this file, the node and the core agree.',
+        '# [unit, range, choices] as enforced by the parameter descriptors.',
+        f'{NODE_NAME}:',
+        '  ros__parameters:',
+    ]
     current = None
     for name, f, default in all_parameter_fields():
         section, dot, leaf = name.rpartition('.')
@@ -102,22 +105,30 @@ def evaluation_table_markdown() -> str:
 
 def readme_block() -> str:
     """Render the generated README block, markers included."""
-    return '\n'.join([
-        README_BEGIN, '',
-        'Node parameters (`config/params.yaml`, live-tunable with `ros2 param set`; the tools '
-        'take the same names with `--config` and `--set`):', '',
-        parameter_table_markdown(),
-        'Evaluation settings of the tools (`--set evaluation.<name>=<value>`; not node '
-        'parameters):', '',
-        evaluation_table_markdown(),
-        README_END])
+    return '\n'.join(
+        [
+            README_BEGIN,
+            '',
+            'Node parameters (`config/params.yaml`, live-tunable with `ros2 param set`; the tools '
+            'take the same names with `--config` and `--set`):',
+            '',
+            parameter_table_markdown(),
+            'Evaluation settings of the tools (`--set evaluation.<name>=<value>`; not node '
+            'parameters):',
+            '',
+            evaluation_table_markdown(),
+            README_END,
+        ]
+    )
 
 
 def update_readme(text: str) -> str:
     """Return the README text with its generated block replaced by :func:`readme_block`."""
     if text.count(README_BEGIN) != 1 or text.count(README_END) != 1:
-        raise MarkerError(f'the README needs exactly one {README_BEGIN!r} and one '
-                          f'{README_END!r} line around the parameter tables')
+        raise MarkerError(
+            f'the README needs exactly one {README_BEGIN!r} and one '
+            f'{README_END!r} line around the parameter tables'
+        )
     head, rest = text.split(README_BEGIN)
     _, tail = rest.split(README_END)
     return head + readme_block() + tail

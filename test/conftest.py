@@ -46,6 +46,7 @@ def ros_context(rclpy_module: Any) -> Callable[..., contextlib.AbstractContextMa
     Each use gets its own ``rclpy.Context`` on ``domain_id`` (see ros_domains.py), shut down
     on exit (``try_shutdown``, as Jazzy wants instead of ``with rclpy.init()``).
     """
+
     @contextlib.contextmanager
     def context(domain_id: int, args: list[str] | None = None) -> Iterator[Any]:
         ctx = rclpy_module.Context()

@@ -19,14 +19,17 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-DEV_PAIRS = Path(os.environ.get('MLSEMREG_DEV_PAIRS',
-                                ROOT.parent / 'shared' / 'data' / 'kitti_pairs_dev'))
+DEV_PAIRS = Path(
+    os.environ.get('MLSEMREG_DEV_PAIRS', ROOT.parent / 'shared' / 'data' / 'kitti_pairs_dev')
+)
 
 
 def dev_pair_files() -> list[Path]:
     """Return the dev pair files, or skip the calling test with the reason."""
     files = sorted(DEV_PAIRS.glob('*.npz')) if DEV_PAIRS.is_dir() else []
     if not files:
-        pytest.skip(f'real KITTI dev pairs not found in {DEV_PAIRS} (set MLSEMREG_DEV_PAIRS '
-                    'to their folder); the generated-scene tests cover this code without them')
+        pytest.skip(
+            f'real KITTI dev pairs not found in {DEV_PAIRS} (set MLSEMREG_DEV_PAIRS '
+            'to their folder); the generated-scene tests cover this code without them'
+        )
     return files

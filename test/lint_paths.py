@@ -16,5 +16,6 @@
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PATHS = [str(ROOT / p) for p in ('mlsemreg_ros', 'test', 'launch', 'setup.py')
-         if (ROOT / p).exists()]
+PATHS = [
+    str(ROOT / p) for p in ('mlsemreg_ros', 'test', 'launch', 'setup.py') if (ROOT / p).exists()
+]

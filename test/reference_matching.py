@@ -23,9 +23,16 @@ import numpy as np
 from scipy.spatial.distance import cdist
 
 
-def reference_match(src_desc: np.ndarray, dst_desc: np.ndarray, src_ss: np.ndarray,
-                    dst_ss: np.ndarray, src_bmr: np.ndarray | None,
-                    dst_bmr: np.ndarray | None, top_k: int, mutual: bool) -> set[tuple[int, int]]:
+def reference_match(
+    src_desc: np.ndarray,
+    dst_desc: np.ndarray,
+    src_ss: np.ndarray,
+    dst_ss: np.ndarray,
+    src_bmr: np.ndarray | None,
+    dst_bmr: np.ndarray | None,
+    top_k: int,
+    mutual: bool,
+) -> set[tuple[int, int]]:
     """Union over groups (eq. 3 / eq. 10) of NN or MNN on the masked distance matrix."""
     distance = cdist(src_desc, dst_desc, 'sqeuclidean')
     if src_bmr is None:

@@ -31,12 +31,13 @@ from scipy.spatial.transform import Rotation
 
 def _errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """Rotation error (deg) and translation error (m) of an estimate."""
-    return (rotation_error_deg(estimate[:3, :3], truth[:3, :3]),
-            float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3])))
+    return (
+        rotation_error_deg(estimate[:3, :3], truth[:3, :3]),
+        float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3])),
+    )
 
 
-def _perturbed(truth: np.ndarray, yaw_deg: float, shift: tuple[float, float, float]
-               ) -> np.ndarray:
+def _perturbed(truth: np.ndarray, yaw_deg: float, shift: tuple[float, float, float]) -> np.ndarray:
     out = truth.copy()
     out[:3, :3] = Rotation.from_euler('z', yaw_deg, degrees=True).as_matrix() @ truth[:3, :3]
     out[:3, 3] += shift
@@ -54,8 +55,13 @@ def test_a_perturbed_scene_is_recovered_to_a_centimetre(method: str) -> None:
     source = apply_transform(invert_transform(truth), world[rng.permutation(len(world))[:30000]])
     cfg = FineAlignmentConfig()
     guess = _perturbed(truth, 1.5, (0.3, -0.25, 0.05))
-    alignment = align_pair(AlignmentCloud.build(source, 0.3, 20),
-                           AlignmentCloud.build(target, 0.3, 20), guess, cfg, method)
+    alignment = align_pair(
+        AlignmentCloud.build(source, 0.3, 20),
+        AlignmentCloud.build(target, 0.3, 20),
+        guess,
+        cfg,
+        method,
+    )
     re, te = _errors(alignment.T_target_source, truth)
     assert re < 0.05 and te < 0.01, (method, re, te)
     assert alignment.converged and alignment.inlier_fraction > 0.9
@@ -76,8 +82,9 @@ def test_covariance_is_largest_along_a_corridor_in_the_target_axes() -> None:
     truth = motion(90.0, (0.0, 0.0, 0.0))
     source = apply_transform(invert_transform(truth), corridor)
     cfg = FineAlignmentConfig(pair_method='gicp')
-    alignment = align_pair(AlignmentCloud.build(source, 0.3, 20),
-                           AlignmentCloud.build(target, 0.3, 20), truth, cfg)
+    alignment = align_pair(
+        AlignmentCloud.build(source, 0.3, 20), AlignmentCloud.build(target, 0.3, 20), truth, cfg
+    )
     target_axes, source_axes = alignment.covariance(), alignment.covariance(axes='source')
     # [x, y, z, roll, pitch, yaw]: translation along the corridor is the weak direction
     assert np.argmax(np.diag(target_axes)) == 0  # the target's x axis
@@ -134,12 +141,15 @@ def test_local_map_is_bounded_by_its_horizon_and_cleared_by_reset(method: str) -
 def test_pair_registration_refines_the_estimate_and_reports_it() -> None:
     pair = synthetic_pair(seed=0)
     registration = Registration(RegistrationConfig().replace({'keypoints.count': 1500}))
-    result = registration.register_scans(pair.pts_src, pair.label_src, pair.pts_dst,
-                                         pair.label_dst)
+    result = registration.register_scans(
+        pair.pts_src, pair.label_src, pair.pts_dst, pair.label_dst
+    )
     assert result.success and result.alignment is not None
     assert result.estimate is not None and 'fine_ms' in result.timings_ms
-    refined, estimated = _errors(result.transform, pair.trans_gt), _errors(result.estimate,
-                                                                           pair.trans_gt)
+    refined, estimated = (
+        _errors(result.transform, pair.trans_gt),
+        _errors(result.estimate, pair.trans_gt),
+    )
     assert refined[0] < 0.1 and refined[1] < 0.03, refined
     assert refined[1] <= estimated[1] + 1e-3
     off = Registration(registration.config.replace({'fine.pair_method': 'off'}))
@@ -149,8 +159,9 @@ def test_pair_registration_refines_the_estimate_and_reports_it() -> None:
 
 
 def test_a_refinement_that_moves_too_far_or_keeps_too_little_is_refused() -> None:
-    registration = Registration(RegistrationConfig().replace(
-        {'odometry.max_correction_translation': 0.5}))
+    registration = Registration(
+        RegistrationConfig().replace({'odometry.max_correction_translation': 0.5})
+    )
     cfg = registration.config.fine
     world, labels = street_scene(seed=2)
     points, _ = scan_at(world, labels, np.eye(4), seed=1)

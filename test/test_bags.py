@@ -74,15 +74,15 @@ def test_bag_round_trip_of_clouds_and_odometry(tmp_path: Path, storage: str) -> 
     scans = list(source.scans())
     source.close()
     assert [s.index for s in scans] == [0, 1, 2, 3]
-    for scan, stamp, (xyz, raw, intensity), pose in zip(scans, stamps, clouds, poses,
-                                                        strict=True):
+    for scan, stamp, (xyz, raw, intensity), pose in zip(scans, stamps, clouds, poses, strict=True):
         assert scan.stamp_ns == stamp and scan.frame_id == 'velodyne'
         np.testing.assert_array_equal(scan.xyz, xyz)
         np.testing.assert_array_equal(scan.labels, raw.astype(np.int64))
         np.testing.assert_array_equal(scan.intensity, intensity)
         np.testing.assert_allclose(scan.pose, pose, atol=1e-12)
-    assert np.array_equal(LABELS.to_learning(scans[2].labels, 'raw'),
-                          LABELS.to_learning(clouds[2][1], 'raw'))
+    assert np.array_equal(
+        LABELS.to_learning(scans[2].labels, 'raw'), LABELS.to_learning(clouds[2][1], 'raw')
+    )
     gt_stamps, gt_poses = read_poses(bag, '/ground_truth/odometry')
     np.testing.assert_array_equal(gt_stamps, stamps)
     np.testing.assert_allclose(gt_poses, poses, atol=1e-12)
@@ -118,8 +118,9 @@ def test_pose_files_round_trip(tmp_path: Path) -> None:
     assert abs(seconds[2] - stamps[2] / 1e9) < 1e-6
 
 
-def write_fake_kitti(root: Path, rng: np.random.Generator, frames: int = 3,
-                     labels: bool = True) -> dict:
+def write_fake_kitti(
+    root: Path, rng: np.random.Generator, frames: int = 3, labels: bool = True
+) -> dict:
     """Write a tiny SemanticKITTI-shaped sequence folder; return what was written."""
     (root / 'velodyne').mkdir(parents=True)
     if labels:
@@ -139,8 +140,10 @@ def write_fake_kitti(root: Path, rng: np.random.Generator, frames: int = 3,
     camera = relative_transform(camera[0], camera)
     write_kitti_poses(root / 'poses.txt', camera)
     tr = random_poses(rng, 1)[0]
-    calib = '\n'.join([f'P{i}: ' + ' '.join(['0.0'] * 12) for i in range(4)] +
-                      ['Tr: ' + ' '.join(f'{v:.12e}' for v in tr[:3, :4].ravel())])
+    calib = '\n'.join(
+        [f'P{i}: ' + ' '.join(['0.0'] * 12) for i in range(4)]
+        + ['Tr: ' + ' '.join(f'{v:.12e}' for v in tr[:3, :4].ravel())]
+    )
     (root / 'calib.txt').write_text(calib + '\n')
     times = np.array([0.0, 0.103, 0.2051][:frames])
     np.savetxt(root / 'times.txt', times, fmt='%.6e')
@@ -176,8 +179,10 @@ def test_kitti_converter_without_labels_warns_and_writes_unlabeled(tmp_path: Pat
     fake = write_fake_kitti(tmp_path / 'seq', np.random.default_rng(3), frames=2, labels=False)
     out = tmp_path / 'bag'
     with pytest.warns(UserWarning, match='no labels/ folder'):
-        assert kitti_to_bag.main([str(tmp_path / 'seq'), str(out), '--quiet',
-                                  '--storage', 'sqlite3']) == 0
+        assert (
+            kitti_to_bag.main([str(tmp_path / 'seq'), str(out), '--quiet', '--storage', 'sqlite3'])
+            == 0
+        )
     scans = list(open_scan_source(out).scans())
     assert len(scans) == 2 and np.all(scans[1].labels == 0)
     np.testing.assert_array_equal(scans[1].xyz, fake['clouds'][1][:, :3].astype(np.float64))
@@ -185,8 +190,25 @@ def test_kitti_converter_without_labels_warns_and_writes_unlabeled(tmp_path: Pat
 
 def test_simulate_cli_writes_a_labeled_bag_with_ground_truth(tmp_path: Path) -> None:
     out = tmp_path / 'sim'
-    assert simulate.main([str(out), '--frames', '3', '--seed', '4', '--beams', '16',
-                          '--azimuth-steps', '256', '--storage', 'sqlite3', '--quiet']) == 0
+    assert (
+        simulate.main(
+            [
+                str(out),
+                '--frames',
+                '3',
+                '--seed',
+                '4',
+                '--beams',
+                '16',
+                '--azimuth-steps',
+                '256',
+                '--storage',
+                'sqlite3',
+                '--quiet',
+            ]
+        )
+        == 0
+    )
     assert (out / 'poses.txt').exists() and (out / 'simulation.yaml').exists()
     source = open_scan_source(out)
     scans = list(source.scans())

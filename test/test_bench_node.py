@@ -29,9 +29,12 @@ import yaml
 def _message(transform: np.ndarray) -> SimpleNamespace:
     x, y, z, w = Rotation.from_matrix(transform[:3, :3]).as_quat()
     tx, ty, tz = transform[:3, 3]
-    return SimpleNamespace(transform=SimpleNamespace(
-        rotation=SimpleNamespace(x=x, y=y, z=z, w=w),
-        translation=SimpleNamespace(x=tx, y=ty, z=tz)))
+    return SimpleNamespace(
+        transform=SimpleNamespace(
+            rotation=SimpleNamespace(x=x, y=y, z=z, w=w),
+            translation=SimpleNamespace(x=tx, y=ty, z=tz),
+        )
+    )
 
 
 def test_the_truth_follows_the_keyframe_the_node_reports():
@@ -57,14 +60,20 @@ def test_the_success_bounds_are_inclusive_and_settable():
     at_bound[0, 3] = 0.6  # TE exactly 0.6 m: a success (RE <= 5 deg and TE <= 0.6 m)
     assert _errors(_message(at_bound), truth, current=1, keyframe=0)['correct']
     strict = EvaluationConfig(max_translation_m=0.5)
-    assert not _errors(_message(at_bound), truth, current=1, keyframe=0,
-                       bounds=strict)['correct']
+    assert not _errors(_message(at_bound), truth, current=1, keyframe=0, bounds=strict)['correct']
 
 
 def test_set_overrides_reach_the_node_as_a_validated_parameter_file(tmp_path):
-    core, node = load_settings((RegistrationConfig, NodeConfig), None, [
-        'keypoints.count=1500', 'semantic.landmark_classes=[pole]', 'fine.method=off',
-        'qos.depth=7'])
+    core, node = load_settings(
+        (RegistrationConfig, NodeConfig),
+        None,
+        [
+            'keypoints.count=1500',
+            'semantic.landmark_classes=[pole]',
+            'fine.method=off',
+            'qos.depth=7',
+        ],
+    )
     path = write_params_file(tmp_path / 'params.yaml', core, node)
     params = yaml.safe_load(path.read_text())['mlsemreg_node']['ros__parameters']  # YAML 1.1
     assert params['keypoints']['count'] == 1500 and params['qos']['depth'] == 7

@@ -23,8 +23,18 @@ from mlsemreg_ros.tools import cli, eval_bag, play
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SUBCOMMANDS = ('eval-pairs', 'eval-bag', 'bench', 'bench-node', 'simulate', 'kitti-to-bag',
-               'play', 'demo', 'params', 'cut-pairs')
+SUBCOMMANDS = (
+    'eval-pairs',
+    'eval-bag',
+    'bench',
+    'bench-node',
+    'simulate',
+    'kitti-to-bag',
+    'play',
+    'demo',
+    'params',
+    'cut-pairs',
+)
 
 
 def test_every_subcommand_has_help_and_an_installed_alias(capsys):
@@ -74,22 +84,52 @@ def test_declared_validation_and_one_error_style(tmp_path, capsys):
 
 
 def test_the_subcommand_and_its_alias_are_the_same_command(tmp_path):
-    for argv in (['simulate', str(tmp_path / 'a'), '--frames', '1', '--beams', '8',
-                  '--azimuth-steps', '64', '--quiet'],):
+    for argv in (
+        [
+            'simulate',
+            str(tmp_path / 'a'),
+            '--frames',
+            '1',
+            '--beams',
+            '8',
+            '--azimuth-steps',
+            '64',
+            '--quiet',
+        ],
+    ):
         assert cli.main(argv) == 0
         assert cli.main(argv) == 2  # exists, no --force
     from mlsemreg_ros.tools import simulate
 
-    assert simulate.main([str(tmp_path / 'b'), '--frames', '1', '--beams', '8',
-                          '--azimuth-steps', '64', '--quiet']) == 0
+    assert (
+        simulate.main(
+            [
+                str(tmp_path / 'b'),
+                '--frames',
+                '1',
+                '--beams',
+                '8',
+                '--azimuth-steps',
+                '64',
+                '--quiet',
+            ]
+        )
+        == 0
+    )
     same = [(tmp_path / x / 'poses.txt').read_text() for x in ('a', 'b')]
     assert same[0] == same[1]
 
 
-@pytest.mark.parametrize(('argv', 'expanded'), [
-    (['bag', '--topics', '/a', '/b', '--loop'], ['bag', '--topics', '/a', '--topics', '/b',
-                                                 '--loop']),
-    (['bag', '--topics', '/a'], ['bag', '--topics', '/a']),
-    (['bag', '-r', '2'], ['bag', '-r', '2'])])
+@pytest.mark.parametrize(
+    ('argv', 'expanded'),
+    [
+        (
+            ['bag', '--topics', '/a', '/b', '--loop'],
+            ['bag', '--topics', '/a', '--topics', '/b', '--loop'],
+        ),
+        (['bag', '--topics', '/a'], ['bag', '--topics', '/a']),
+        (['bag', '-r', '2'], ['bag', '-r', '2']),
+    ],
+)
 def test_play_keeps_its_several_topics_after_one_flag(argv, expanded):
     assert play.expand_topics(argv) == expanded

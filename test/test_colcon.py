@@ -63,17 +63,25 @@ def install(tmp_path_factory: pytest.TempPathFactory) -> Path:
     if colcon is None:
         pytest.skip(f'colcon is not installed in {VENV_BIN}')
     base = tmp_path_factory.mktemp('colcon')
-    cmd = [colcon, '--log-base', str(base / 'log'), 'build', '--base-paths', str(REPO),
-           '--build-base', str(base / 'build'), '--install-base', str(base / 'install')]
-    done = subprocess.run(cmd, cwd=base, env=_env(), capture_output=True, text=True,
-                          timeout=300)
+    cmd = [
+        colcon,
+        '--log-base',
+        str(base / 'log'),
+        'build',
+        '--base-paths',
+        str(REPO),
+        '--build-base',
+        str(base / 'build'),
+        '--install-base',
+        str(base / 'install'),
+    ]
+    done = subprocess.run(cmd, cwd=base, env=_env(), capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, f'colcon build failed:\n{done.stdout}\n{done.stderr}'
     assert 'Finished <<< mlsemreg_ros' in done.stdout
     return base / 'install'
 
 
-def test_executable_is_found_like_ros2_run(install: Path,
-                                           monkeypatch: pytest.MonkeyPatch) -> None:
+def test_executable_is_found_like_ros2_run(install: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     from ament_index_python.packages import get_package_prefix, get_package_share_directory
 
     monkeypatch.setenv('AMENT_PREFIX_PATH', str(install / PACKAGE))
@@ -82,8 +90,12 @@ def test_executable_is_found_like_ros2_run(install: Path,
     executable = prefix / 'lib' / PACKAGE / 'mlsemreg_node'
     assert executable.is_file() and os.access(executable, os.X_OK)
     share = Path(get_package_share_directory(PACKAGE))
-    for data in ('package.xml', 'config/params.yaml', 'config/labels/semantic_kitti.yaml',
-                 'launch/mlsemreg.launch.py'):
+    for data in (
+        'package.xml',
+        'config/params.yaml',
+        'config/labels/semantic_kitti.yaml',
+        'launch/mlsemreg.launch.py',
+    ):
         assert (share / data).is_file(), data
 
 
@@ -108,18 +120,29 @@ def probe(ros_context: Any) -> Any:
 
 
 def test_installed_node_registers_a_pair_and_exits_cleanly_on_sigint(
-        install: Path, probe: NodeProbe, tmp_path: Path) -> None:
+    install: Path, probe: NodeProbe, tmp_path: Path
+) -> None:
     prefix = install / PACKAGE
-    env = _env(AMENT_PREFIX_PATH=str(prefix), ROS_DOMAIN_ID=str(DOMAIN_ID),
-               PYTHONPATH=str(_site_packages(prefix)))
+    env = _env(
+        AMENT_PREFIX_PATH=str(prefix),
+        ROS_DOMAIN_ID=str(DOMAIN_ID),
+        PYTHONPATH=str(_site_packages(prefix)),
+    )
     log_path = tmp_path / 'node.log'
     with log_path.open('w') as log:
         # 1500 keypoints keep SC2-PCR fast; also tests -p overrides. Reliable QoS: a
         # best-effort Fast DDS connection between processes loses large clouds at times.
-        cmd = [str(prefix / 'lib' / PACKAGE / 'mlsemreg_node'),
-               '--ros-args', '-p', 'keypoints.count:=1500', '-p', 'qos.reliability:=reliable']
-        process = subprocess.Popen(cmd, cwd=tmp_path, env=env, stdout=log,
-                                   stderr=subprocess.STDOUT)
+        cmd = [
+            str(prefix / 'lib' / PACKAGE / 'mlsemreg_node'),
+            '--ros-args',
+            '-p',
+            'keypoints.count:=1500',
+            '-p',
+            'qos.reliability:=reliable',
+        ]
+        process = subprocess.Popen(
+            cmd, cwd=tmp_path, env=env, stdout=log, stderr=subprocess.STDOUT
+        )
     try:
         _register_pair(probe, process)
     except AssertionError as error:
@@ -138,14 +161,20 @@ def test_installed_node_registers_a_pair_and_exits_cleanly_on_sigint(
     # The executable ran the installed package, not the source tree.
     where = subprocess.run(
         [sys.executable, '-c', 'import mlsemreg_ros; print(mlsemreg_ros.__file__)'],
-        cwd=tmp_path, env=env, capture_output=True, text=True, check=True)
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     assert Path(where.stdout.strip()).is_relative_to(prefix), where.stdout
 
 
 def _register_pair(probe: NodeProbe, process: subprocess.Popen) -> None:
     """Publish the synthetic pair to the running node and check the transform."""
-    assert probe.wait_connected(timeout=60.0), \
+    assert probe.wait_connected(timeout=60.0), (
         f'the installed node did not come up (exit code {process.poll()})'
+    )
     pair = synthetic_pair(seed=0)
     stamps = []
     scans = [(pair.pts_dst, pair.label_dst), (pair.pts_src, pair.label_src)]
@@ -166,12 +195,15 @@ def test_launch_file_compiles_and_declares_its_arguments(tmp_path: Path) -> None
     launch_file = REPO / 'launch' / 'mlsemreg.launch.py'  # launch is not installable here
     py_compile.compile(str(launch_file), doraise=True, cfile=str(tmp_path / 'launch.pyc'))
     tree = ast.parse(launch_file.read_text())
-    declared = {node.args[0].value for node in ast.walk(tree)
-                if isinstance(node, ast.Call) and getattr(node.func, 'id', '')
-                == 'DeclareLaunchArgument'}
+    declared = {
+        node.args[0].value
+        for node in ast.walk(tree)
+        if isinstance(node, ast.Call) and getattr(node.func, 'id', '') == 'DeclareLaunchArgument'
+    }
     assert declared == {'points_topic', 'params_file', 'use_sim_time'}
-    assert 'generate_launch_description' in {n.name for n in tree.body
-                                             if isinstance(n, ast.FunctionDef)}
+    assert 'generate_launch_description' in {
+        n.name for n in tree.body if isinstance(n, ast.FunctionDef)
+    }
 
 
 def _start_node(tmp_path: Path, name: str) -> tuple[subprocess.Popen, Path]:
@@ -179,9 +211,19 @@ def _start_node(tmp_path: Path, name: str) -> tuple[subprocess.Popen, Path]:
     log_path = tmp_path / f'{name}.log'
     with log_path.open('w') as log:
         process = subprocess.Popen(
-            [str(VENV_BIN / 'mlsemreg_node'), '--ros-args', '-p', 'keypoints.count:=1500',
-             '-p', 'qos.reliability:=reliable'], cwd=tmp_path,
-            env=_env(ROS_DOMAIN_ID=str(DOMAIN_ID)), stdout=log, stderr=subprocess.STDOUT)
+            [
+                str(VENV_BIN / 'mlsemreg_node'),
+                '--ros-args',
+                '-p',
+                'keypoints.count:=1500',
+                '-p',
+                'qos.reliability:=reliable',
+            ],
+            cwd=tmp_path,
+            env=_env(ROS_DOMAIN_ID=str(DOMAIN_ID)),
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
     for _ in range(600):
         if 'registering scans on' in log_path.read_text() or process.poll() is not None:
             break
@@ -190,8 +232,9 @@ def _start_node(tmp_path: Path, name: str) -> tuple[subprocess.Popen, Path]:
 
 
 @pytest.mark.parametrize('sig', [signal.SIGTERM, signal.SIGINT])
-def test_the_node_stops_within_2_s_idle_and_mid_frame(probe: NodeProbe, tmp_path: Path,
-                                                      sig: signal.Signals) -> None:
+def test_the_node_stops_within_2_s_idle_and_mid_frame(
+    probe: NodeProbe, tmp_path: Path, sig: signal.Signals
+) -> None:
     import time
 
     pair = synthetic_pair(seed=0)
@@ -204,8 +247,9 @@ def test_the_node_stops_within_2_s_idle_and_mid_frame(probe: NodeProbe, tmp_path
                 stamp = to_stamp(70.0)
                 probe.publish(probe.cloud(pair.pts_dst, pair.label_dst.astype(np.uint32), stamp))
                 assert probe.status_for(stamp, 60.0) is not None  # the keyframe is set
-                probe.publish(probe.cloud(pair.pts_src, pair.label_src.astype(np.uint32),
-                                          to_stamp(70.1)))
+                probe.publish(
+                    probe.cloud(pair.pts_src, pair.label_src.astype(np.uint32), to_stamp(70.1))
+                )
                 threading.Event().wait(0.02)  # the worker is registering now
             start = time.monotonic()
             process.send_signal(sig)

@@ -33,17 +33,19 @@ from scipy.spatial.transform import Rotation
 
 
 def test_each_kind_of_evidence_can_refuse_on_its_own() -> None:
-    config = ConfidenceConfig(min_inlier_ratio=0.01, min_overlap=0.2, min_label_agreement=0.6,
-                              max_tilt=30.0)
+    config = ConfidenceConfig(
+        min_inlier_ratio=0.01, min_overlap=0.2, min_label_agreement=0.6, max_tilt=30.0
+    )
     good = Evidence(100, 2000, 0.4, 0.9, 2.0)
     assert refusal(good, config, 40) == ''
-    cases = {'inliers < estimator.min_inliers=40': Evidence(30, 1000, 0.4, 0.9, 2.0),
-             'inlier ratio 0.0050 < confidence.min_inlier_ratio': Evidence(50, 10000, 0.4,
-                                                                           0.9, 2.0),
-             'overlap 0.100 < confidence.min_overlap': Evidence(100, 2000, 0.1, 0.9, 2.0),
-             'label agreement 0.500 <': Evidence(100, 2000, 0.4, 0.5, 2.0),
-             'tilt 175.0 deg > confidence.max_tilt': Evidence(100, 2000, 0.4, 0.9, 175.0),
-             'tilt nan': Evidence(100, 2000, 0.4, 0.9, float('nan'))}
+    cases = {
+        'inliers < estimator.min_inliers=40': Evidence(30, 1000, 0.4, 0.9, 2.0),
+        'inlier ratio 0.0050 < confidence.min_inlier_ratio': Evidence(50, 10000, 0.4, 0.9, 2.0),
+        'overlap 0.100 < confidence.min_overlap': Evidence(100, 2000, 0.1, 0.9, 2.0),
+        'label agreement 0.500 <': Evidence(100, 2000, 0.4, 0.5, 2.0),
+        'tilt 175.0 deg > confidence.max_tilt': Evidence(100, 2000, 0.4, 0.9, 175.0),
+        'tilt nan': Evidence(100, 2000, 0.4, 0.9, float('nan')),
+    }
     for reason, evidence in cases.items():
         assert reason in refusal(evidence, config, 40), reason
     assert Evidence(0, 0, 0.0, 0.0, 0.0).inlier_ratio == 0.0
@@ -63,8 +65,9 @@ def test_tilt_is_the_turn_of_the_up_axis() -> None:
 
 def test_the_synthetic_pair_is_accepted_with_its_evidence() -> None:
     pair = synthetic_pair(seed=0)
-    result = Registration().register_scans(pair.pts_src, pair.label_src, pair.pts_dst,
-                                           pair.label_dst)
+    result = Registration().register_scans(
+        pair.pts_src, pair.label_src, pair.pts_dst, pair.label_dst
+    )
     assert result.success, result.message
     d = result.diagnostics
     assert d['confidence_overlap'] > 0.3 and d['confidence_label_agreement'] > 0.9
@@ -87,21 +90,25 @@ def test_scans_of_two_different_streets_are_refused() -> None:
 def test_a_cloud_mirrored_in_y_is_refused() -> None:
     pair = synthetic_pair(seed=2)
     mirrored = pair.pts_dst * np.array([1.0, -1.0, 1.0])
-    result = Registration().register_scans(mirrored, pair.label_dst, pair.pts_dst,
-                                           pair.label_dst)
+    result = Registration().register_scans(mirrored, pair.label_dst, pair.pts_dst, pair.label_dst)
     assert not result.success, (result.diagnostics['confidence_tilt_deg'], result.message)
 
 
 @pytest.fixture(scope='module')
 def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp('confidence') / 'sim'
-    assert simulate.main([str(out), '--frames', '6', '--seed', '3', '--azimuth-steps', '1024',
-                          '--quiet']) == 0
+    assert (
+        simulate.main(
+            [str(out), '--frames', '6', '--seed', '3', '--azimuth-steps', '1024', '--quiet']
+        )
+        == 0
+    )
     return out
 
 
-def test_the_study_measures_simulated_pairs_and_writes_its_outputs(bag: Path,
-                                                                   tmp_path: Path) -> None:
+def test_the_study_measures_simulated_pairs_and_writes_its_outputs(
+    bag: Path, tmp_path: Path
+) -> None:
     cases = study.sim_cases(bag, strides=(1, 4), per_stride=2)
     assert [c.kind for c in cases] == ['sim'] * 4
     rows = study.measure(cases, RegistrationConfig())
@@ -110,8 +117,12 @@ def test_the_study_measures_simulated_pairs_and_writes_its_outputs(bag: Path,
     lines = study.summary_lines(rows)
     assert lines[0].startswith('evidence') and any(line.startswith('sim ') for line in lines)
     out = tmp_path / 'out'
-    assert confidence_tool.main(['--dev', str(tmp_path / 'none'), '--bags', str(bag),
-                                 '--out', str(out)]) == 0
+    assert (
+        confidence_tool.main(
+            ['--dev', str(tmp_path / 'none'), '--bags', str(bag), '--out', str(out)]
+        )
+        == 0
+    )
     assert (out / 'evidence.png').stat().st_size > 10_000
     assert (out / 'evidence.csv').read_text().count('\n') == 1 + 8  # stride 1 only
 

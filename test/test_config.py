@@ -66,8 +66,11 @@ def test_ints_are_accepted_for_floats_and_yaml_loading(tmp_path):
     config = RegistrationConfig().replace({'semantic.ring_width': 2})
     assert config.semantic.ring_width == 2.0 and isinstance(config.semantic.ring_width, float)
     path = tmp_path / 'params.yaml'
-    path.write_text(yaml.safe_dump({'mlsemreg_node': {'ros__parameters': {
-        'semantic': {'top_k': 3}, 'odom_frame': 'map'}}}))
+    path.write_text(
+        yaml.safe_dump(
+            {'mlsemreg_node': {'ros__parameters': {'semantic': {'top_k': 3}, 'odom_frame': 'map'}}}
+        )
+    )
     assert RegistrationConfig.from_yaml(path).semantic.top_k == 3
     path.write_text(yaml.safe_dump({'semantic': {'top_kk': 3}}))
     with pytest.raises(ConfigError):
@@ -91,19 +94,37 @@ def test_top_level_fields_sections_and_one_loader(tmp_path):
         RegistrationConfig.from_dict({'fine': 3})
     with pytest.raises(ConfigError, match='unknown config section'):
         RegistrationConfig.from_dict({'threads': {'count': 2}})
-    assert parse_overrides(['semantic.enabled=false', 'semantic.landmark_classes=[pole, car]',
-                            'odom_frame=']) == {
-        'semantic.enabled': False, 'semantic.landmark_classes': ['pole', 'car'],
-        'odom_frame': ''}
+    assert parse_overrides(
+        ['semantic.enabled=false', 'semantic.landmark_classes=[pole, car]', 'odom_frame=']
+    ) == {
+        'semantic.enabled': False,
+        'semantic.landmark_classes': ['pole', 'car'],
+        'odom_frame': '',
+    }
     for bad in ('semantic.enabled', '=3', 'a=[1,'):
         with pytest.raises(ConfigError):
             parse_overrides([bad])
     path = tmp_path / 'params.yaml'
-    path.write_text(yaml.safe_dump({'mlsemreg_node': {'ros__parameters': {
-        'threads': 2, 'keyframe': {'policy': 'distance'}, 'odom_frame': 'map'}}}))
+    path.write_text(
+        yaml.safe_dump(
+            {
+                'mlsemreg_node': {
+                    'ros__parameters': {
+                        'threads': 2,
+                        'keyframe': {'policy': 'distance'},
+                        'odom_frame': 'map',
+                    }
+                }
+            }
+        )
+    )
     loaded = load_config(path, ['keyframe.min_distance=3', 'fine.method=off'])
-    assert (loaded.threads, loaded.keyframe.policy, loaded.keyframe.min_distance,
-            loaded.fine.method) == (2, 'distance', 3.0, 'off')
+    assert (
+        loaded.threads,
+        loaded.keyframe.policy,
+        loaded.keyframe.min_distance,
+        loaded.fine.method,
+    ) == (2, 'distance', 3.0, 'off')
     with pytest.raises(ConfigError, match='unknown parameter'):
         load_config(path, ['odom_frame=map'])  # a node setting is not a core one
     with pytest.raises(ConfigError, match='must be finite'):
@@ -115,7 +136,11 @@ def test_yaml_words_that_yaml_1_1_reads_as_booleans_stay_strings():
 
     assert parse_overrides(['fine.method=off'])['fine.method'] == 'off'
     assert load_yaml('a: off\nb: yes\nc: true\nd: False\n') == {
-        'a': 'off', 'b': 'yes', 'c': True, 'd': False}
+        'a': 'off',
+        'b': 'yes',
+        'c': True,
+        'd': False,
+    }
 
 
 def test_one_apply_overrides_routes_every_key_to_the_settings_that_declare_it(tmp_path):
@@ -125,25 +150,42 @@ def test_one_apply_overrides_routes_every_key_to_the_settings_that_declare_it(tm
 
     core, node, evaluation = apply_overrides(
         (RegistrationConfig(), NodeConfig(), EvaluationSettings()),
-        ['semantic.top_k=3', 'qos.depth=7', 'evaluation.max_rotation_deg=15', 'threads=1'])
+        ['semantic.top_k=3', 'qos.depth=7', 'evaluation.max_rotation_deg=15', 'threads=1'],
+    )
     assert (core.semantic.top_k, core.threads, node.qos.depth) == (3, 1, 7)
     assert evaluation.evaluation.max_rotation_deg == 15.0
     assert apply_overrides(RegistrationConfig(), []) == RegistrationConfig()
-    for bad, reason in ((['evaluation.nope=1'], 'unknown parameter'),
-                        (['refine.icp=true'], 'was removed'),
-                        (['evaluation.max_translation_m=-1'], 'below its minimum'),
-                        (['qos.depth'], 'KEY=VALUE')):
+    for bad, reason in (
+        (['evaluation.nope=1'], 'unknown parameter'),
+        (['refine.icp=true'], 'was removed'),
+        (['evaluation.max_translation_m=-1'], 'below its minimum'),
+        (['qos.depth'], 'KEY=VALUE'),
+    ):
         with pytest.raises(ConfigError, match=reason):
             apply_overrides((RegistrationConfig(), NodeConfig(), EvaluationSettings()), bad)
     path = tmp_path / 'params.yaml'
-    path.write_text(yaml.safe_dump({'mlsemreg_node': {'ros__parameters': {
-        'semantic': {'top_k': 4}, 'odom_frame': 'map', 'use_sim_time': True,
-        'evaluation': {'max_translation_m': 0.3}}}}))
-    core, evaluation = load_settings((RegistrationConfig, EvaluationSettings), path,
-                                     ['evaluation.max_rotation_deg=15'])
+    path.write_text(
+        yaml.safe_dump(
+            {
+                'mlsemreg_node': {
+                    'ros__parameters': {
+                        'semantic': {'top_k': 4},
+                        'odom_frame': 'map',
+                        'use_sim_time': True,
+                        'evaluation': {'max_translation_m': 0.3},
+                    }
+                }
+            }
+        )
+    )
+    core, evaluation = load_settings(
+        (RegistrationConfig, EvaluationSettings), path, ['evaluation.max_rotation_deg=15']
+    )
     assert core.semantic.top_k == 4
-    assert (evaluation.evaluation.max_rotation_deg,
-            evaluation.evaluation.max_translation_m) == (15.0, 0.3)
+    assert (evaluation.evaluation.max_rotation_deg, evaluation.evaluation.max_translation_m) == (
+        15.0,
+        0.3,
+    )
 
 
 def test_the_success_test_is_inclusive_and_nan_fails():

@@ -32,10 +32,12 @@ def test_copyright():
         from ament_copyright.main import main
     except ImportError:
         header = (ROOT / 'scripts' / 'license_header.txt').read_text().strip()
-        files = [p for path in map(Path, PATHS)
-                 for p in ([path] if path.is_file() else sorted(path.rglob('*.py')))]
-        missing = [str(f.relative_to(ROOT)) for f in files
-                   if not f.read_text().startswith(header)]
+        files = [
+            p
+            for path in map(Path, PATHS)
+            for p in ([path] if path.is_file() else sorted(path.rglob('*.py')))
+        ]
+        missing = [str(f.relative_to(ROOT)) for f in files if not f.read_text().startswith(header)]
         assert files and not missing, f'files without the license header: {missing}'
     else:
         assert main(argv=[*PATHS, 'test']) == 0, 'Found errors'

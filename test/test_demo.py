@@ -35,8 +35,19 @@ DOMAIN_ID = domain_id('demo')
 
 def test_demo_runs_the_node_on_a_short_drive_and_scores_it(tmp_path: Path) -> None:
     out = tmp_path / 'demo'
-    args = ['--frames', '4', '--cache-dir', str(tmp_path / 'cache'), '-o', str(out),
-            '--domain-id', str(DOMAIN_ID), '--set', 'keypoints.count=1200', '--quiet']
+    args = [
+        '--frames',
+        '4',
+        '--cache-dir',
+        str(tmp_path / 'cache'),
+        '-o',
+        str(out),
+        '--domain-id',
+        str(DOMAIN_ID),
+        '--set',
+        'keypoints.count=1200',
+        '--quiet',
+    ]
     assert demo.main(args) == 0, (out / 'node.log').read_text()
     summary = json.loads((out / 'summary.json').read_text())
     assert tuple(summary) == SUMMARY_KEYS
@@ -55,11 +66,24 @@ def test_demo_runs_the_node_on_a_short_drive_and_scores_it(tmp_path: Path) -> No
     assert bag == tmp_path / 'cache' / 'sim_seed0_4f'
     # The node and the offline replay give the same poses on the same bag (one code path).
     offline = tmp_path / 'offline'
-    assert eval_bag.main([str(bag), '-o', str(offline), '--quiet', '--no-plots',
-                          '--set', 'keypoints.count=1200']) == 0
+    assert (
+        eval_bag.main(
+            [
+                str(bag),
+                '-o',
+                str(offline),
+                '--quiet',
+                '--no-plots',
+                '--set',
+                'keypoints.count=1200',
+            ]
+        )
+        == 0
+    )
     node_poses = read_kitti_poses(out / 'trajectory_kitti.txt')
-    np.testing.assert_allclose(node_poses, read_kitti_poses(offline / 'trajectory_kitti.txt'),
-                               atol=1e-6)
+    np.testing.assert_allclose(
+        node_poses, read_kitti_poses(offline / 'trajectory_kitti.txt'), atol=1e-6
+    )
     assert np.abs(node_poses[-1, :3, 3]).max() > 1.0  # it moved
 
 

@@ -36,15 +36,29 @@ def _run(descriptor: str, semantic: bool = True) -> dict:
     for path in dev_pair_files():
         pair = load_pair(path)
         no_descriptors = (None, None)  # fpfh: computed by the pipeline at the keypoints
-        src_desc, dst_desc = (pair.descriptors(descriptor) if descriptor != 'fpfh'
-                              else no_descriptors)
-        source = registration.prepare(pair.pts_src, pair.label_src, keypoints=pair.kpts_src,
-                                      descriptors=src_desc, voxelize=False)
-        target = registration.prepare(pair.pts_dst, pair.label_dst, keypoints=pair.kpts_dst,
-                                      descriptors=dst_desc, voxelize=False)
+        src_desc, dst_desc = (
+            pair.descriptors(descriptor) if descriptor != 'fpfh' else no_descriptors
+        )
+        source = registration.prepare(
+            pair.pts_src,
+            pair.label_src,
+            keypoints=pair.kpts_src,
+            descriptors=src_desc,
+            voxelize=False,
+        )
+        target = registration.prepare(
+            pair.pts_dst,
+            pair.label_dst,
+            keypoints=pair.kpts_dst,
+            descriptors=dst_desc,
+            voxelize=False,
+        )
         result = registration.register(source, target)
-        metrics.append(evaluate_pair(result.transform, result.source_points,
-                                     result.target_points, pair.trans_gt))
+        metrics.append(
+            evaluate_pair(
+                result.transform, result.source_points, result.target_points, pair.trans_gt
+            )
+        )
     return summarize(metrics)
 
 

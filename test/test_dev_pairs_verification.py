@@ -33,16 +33,27 @@ def _register(path, verification: bool, descriptor: str = 'fpfh', **flat):
     config = RegistrationConfig().replace({'verification.enabled': verification, **flat})
     registration = Registration(config)
     pair = load_pair(path)
-    src_desc, dst_desc = (pair.descriptors(descriptor) if descriptor != 'fpfh'
-                          else (None, None))
+    src_desc, dst_desc = pair.descriptors(descriptor) if descriptor != 'fpfh' else (None, None)
     source, target = registration.prepare_scans(
-        {'points': pair.pts_src, 'labels': pair.label_src, 'keypoints': pair.kpts_src,
-         'descriptors': src_desc, 'voxelize': False},
-        {'points': pair.pts_dst, 'labels': pair.label_dst, 'keypoints': pair.kpts_dst,
-         'descriptors': dst_desc, 'voxelize': False})
+        {
+            'points': pair.pts_src,
+            'labels': pair.label_src,
+            'keypoints': pair.kpts_src,
+            'descriptors': src_desc,
+            'voxelize': False,
+        },
+        {
+            'points': pair.pts_dst,
+            'labels': pair.label_dst,
+            'keypoints': pair.kpts_dst,
+            'descriptors': dst_desc,
+            'voxelize': False,
+        },
+    )
     result = registration.register(source, target)
-    metrics = evaluate_pair(result.transform, result.source_points, result.target_points,
-                            pair.trans_gt)
+    metrics = evaluate_pair(
+        result.transform, result.source_points, result.target_points, pair.trans_gt
+    )
     return result, metrics
 
 
@@ -61,16 +72,22 @@ def test_verification_rejects_the_mirror_pose_of_000008(pair_000008):
     assert metrics.success and metrics.rotation_error_deg < 1.0
     d = verified.diagnostics
     assert d['verification_switched'] and d['verification_chosen_rank'] > 0
-    chosen = next(i for i in range(d['verification_hypotheses'])
-                  if d[f'verification_h{i}_rank'] == d['verification_chosen_rank'])
+    chosen = next(
+        i
+        for i in range(d['verification_hypotheses'])
+        if d[f'verification_h{i}_rank'] == d['verification_chosen_rank']
+    )
     # SC2-PCR ranked the mirror first (most inliers before refinement); on the dense scans
     # the true pose has far more overlap with agreeing labels
     assert d[f'verification_h{chosen}_score'] > 3.0 * d['verification_h0_score']
-    assert (d[f'verification_h{chosen}_label_agreement']
-            > d['verification_h0_label_agreement'] + 0.05)
+    assert (
+        d[f'verification_h{chosen}_label_agreement'] > d['verification_h0_label_agreement'] + 0.05
+    )
     # correspondence metrics do not depend on the chosen pose
     assert (metrics.inlier_number, metrics.n_correspondences) == (
-        plain_metrics.inlier_number, plain_metrics.n_correspondences)
+        plain_metrics.inlier_number,
+        plain_metrics.n_correspondences,
+    )
 
 
 def test_verification_keeps_every_default_success():

@@ -42,8 +42,12 @@ FAST = ['--set', 'keypoints.count=1500']
 @pytest.fixture(scope='module')
 def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp('eval') / 'sim'
-    assert simulate.main([str(out), '--frames', '5', '--seed', '5', '--azimuth-steps', '1024',
-                          '--quiet']) == 0
+    assert (
+        simulate.main(
+            [str(out), '--frames', '5', '--seed', '5', '--azimuth-steps', '1024', '--quiet']
+        )
+        == 0
+    )
     return out
 
 
@@ -56,13 +60,11 @@ def default_run(bag: Path) -> Path:
 
 
 def run(bag: Path, out: Path, *args: str) -> dict[str, Any]:
-    assert eval_bag.main([str(bag), '-o', str(out), '--stride', '2', '--quiet', *FAST,
-                          *args]) == 0
+    assert eval_bag.main([str(bag), '-o', str(out), '--stride', '2', '--quiet', *FAST, *args]) == 0
     return json.loads((out / 'summary.json').read_text())
 
 
-def test_eval_bag_registers_the_simulated_bag_and_writes_every_output(
-        default_run: Path) -> None:
+def test_eval_bag_registers_the_simulated_bag_and_writes_every_output(default_run: Path) -> None:
     out = default_run
     summary = json.loads((out / 'summary.json').read_text())
     assert tuple(summary) == SUMMARY_KEYS
@@ -78,8 +80,7 @@ def test_eval_bag_registers_the_simulated_bag_and_writes_every_output(
     # the first pair is registered globally; the second may be tracked by the prediction
     assert details['n_pairs'] == 2 and details['modes'].get('ml-semreg', 0) >= 1
     assert set(details['modes']) <= {'ml-semreg', 'tracking'}
-    assert sum(details['pose_sources'].values()) == 2 and 'rejected' not in \
-        details['pose_sources']
+    assert sum(details['pose_sources'].values()) == 2 and 'rejected' not in details['pose_sources']
     with open(out / 'frames.csv') as f:
         rows = list(csv.DictReader(f))
     assert [int(r['bag_index']) for r in rows] == [0, 2, 4]
@@ -88,8 +89,9 @@ def test_eval_bag_registers_the_simulated_bag_and_writes_every_output(
     assert read_kitti_poses(out / 'trajectory_kitti.txt').shape == (3, 4, 4)
     stamps, tum = read_tum_poses(out / 'trajectory_tum.txt')
     assert tum.shape == (3, 4, 4) and np.all(np.diff(stamps) > 0.19)
-    np.testing.assert_allclose(tum[2, :3, 3], read_kitti_poses(
-        out / 'ground_truth_kitti.txt')[2, :3, 3], atol=0.2)
+    np.testing.assert_allclose(
+        tum[2, :3, 3], read_kitti_poses(out / 'ground_truth_kitti.txt')[2, :3, 3], atol=0.2
+    )
     for png in ('trajectory.png', 'errors.png', 'correspondences.png'):
         assert (out / png).stat().st_size > 10_000
     # The effective config loads back and equals what ran.
@@ -100,16 +102,38 @@ def test_eval_bag_registers_the_simulated_bag_and_writes_every_output(
 
 def test_broken_registration_drops_the_recall(bag: Path, tmp_path: Path) -> None:
     # without the constant-velocity candidate the global estimate is the only one
-    broken = ['--set', 'keypoints.count=40', '--set', 'semantic.enabled=false',
-              '--set', 'odometry.constant_velocity=false']
+    broken = [
+        '--set',
+        'keypoints.count=40',
+        '--set',
+        'semantic.enabled=false',
+        '--set',
+        'odometry.constant_velocity=false',
+    ]
     summary = run(bag, tmp_path / 'broken', *broken)
     assert summary['registration_recall_pct'] < 50.0
-    assert eval_bag.main([str(bag), '-o', str(tmp_path / 'gate'), '--stride', '2',
-                          '--quiet', '--no-plots', '--fail-below', '90', *broken]) == 1
+    assert (
+        eval_bag.main(
+            [
+                str(bag),
+                '-o',
+                str(tmp_path / 'gate'),
+                '--stride',
+                '2',
+                '--quiet',
+                '--no-plots',
+                '--fail-below',
+                '90',
+                *broken,
+            ]
+        )
+        == 1
+    )
 
 
 def test_ml_semreg_has_a_higher_inlier_ratio_than_plain_matching(
-        bag: Path, default_run: Path, tmp_path: Path) -> None:
+    bag: Path, default_run: Path, tmp_path: Path
+) -> None:
     plain = tmp_path / 'plain'
     run(bag, plain, '--no-plots', '--set', 'semantic.enabled=false')
     details = json.loads((default_run / 'details.json').read_text())
@@ -118,8 +142,9 @@ def test_ml_semreg_has_a_higher_inlier_ratio_than_plain_matching(
     assert ir_semantic > 2.0 * ir_plain, (ir_semantic, ir_plain)
 
 
-def test_bad_parameters_are_reported(bag: Path, tmp_path: Path,
-                                     capsys: pytest.CaptureFixture[str]) -> None:
+def test_bad_parameters_are_reported(
+    bag: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     assert eval_bag.main([str(bag), '-o', str(tmp_path / 'x'), '--set', 'semantic.nope=1']) == 2
     assert 'unknown parameter' in capsys.readouterr().err
     assert eval_bag.main([str(bag), '--set', 'keyframe.policy=sometimes']) == 2
@@ -130,8 +155,12 @@ def test_bad_parameters_are_reported(bag: Path, tmp_path: Path,
 def drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Twenty simulated scans of seed 1 (a coarser sensor keeps it fast)."""
     out = tmp_path_factory.mktemp('drive') / 'sim'
-    assert simulate.main([str(out), '--frames', '20', '--seed', '1', '--azimuth-steps', '1024',
-                          '--quiet']) == 0
+    assert (
+        simulate.main(
+            [str(out), '--frames', '20', '--seed', '1', '--azimuth-steps', '1024', '--quiet']
+        )
+        == 0
+    )
     return out
 
 
@@ -139,8 +168,12 @@ def test_covariance_is_consistent_on_a_simulated_drive(drive: Path, tmp_path: Pa
     """Mean NEES of the frames' covariances within [1.5, 15] (6 = consistent), two strides."""
     for stride in (1, 4):
         out = tmp_path / f'stride{stride}'
-        assert eval_bag.main([str(drive), '-o', str(out), '--stride', str(stride), '--quiet',
-                              '--no-plots']) == 0
+        assert (
+            eval_bag.main(
+                [str(drive), '-o', str(out), '--stride', str(stride), '--quiet', '--no-plots']
+            )
+            == 0
+        )
         summary = json.loads((out / 'summary.json').read_text())
         assert summary['registration_recall_pct'] == 100.0
         assert 1.5 <= summary['nees_mean'] <= 15.0, (stride, summary['nees_mean'])

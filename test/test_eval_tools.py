@@ -24,10 +24,25 @@ from mlsemreg_ros.tools import bench, eval_pairs
 import numpy as np
 import pytest
 
-PAIR_KEYS = {'name', 'n_correspondences', 'inlier_number', 'inlier_ratio_pct',
-             'rotation_error_deg', 'translation_error_cm', 'success', 'time_ms'}
-SUMMARY_KEYS = {'n_pairs', 'inlier_number', 'inlier_ratio_pct', 'registration_recall_pct',
-                'rotation_error_deg', 'translation_error_cm', 'time_ms'}
+PAIR_KEYS = {
+    'name',
+    'n_correspondences',
+    'inlier_number',
+    'inlier_ratio_pct',
+    'rotation_error_deg',
+    'translation_error_cm',
+    'success',
+    'time_ms',
+}
+SUMMARY_KEYS = {
+    'n_pairs',
+    'inlier_number',
+    'inlier_ratio_pct',
+    'registration_recall_pct',
+    'rotation_error_deg',
+    'translation_error_cm',
+    'time_ms',
+}
 
 
 @pytest.fixture(scope='module')
@@ -58,10 +73,21 @@ def test_pair_files_round_trip(pair_dir):
         pair.descriptors('fcgf')
 
 
-@pytest.mark.parametrize('extra', [['--descriptor', 'gedi'],
-                                   ['--descriptor', 'fpfh', '--no-semantic', '--matcher', 'mnn'],
-                                   ['--descriptor', 'fpfh', '--set', 'semantic.top_k=3',
-                                    '--set', 'estimator.max_correspondences=500']])
+@pytest.mark.parametrize(
+    'extra',
+    [
+        ['--descriptor', 'gedi'],
+        ['--descriptor', 'fpfh', '--no-semantic', '--matcher', 'mnn'],
+        [
+            '--descriptor',
+            'fpfh',
+            '--set',
+            'semantic.top_k=3',
+            '--set',
+            'estimator.max_correspondences=500',
+        ],
+    ],
+)
 def test_eval_pairs_writes_the_report(pair_dir, tmp_path, capsys, extra):
     out = tmp_path / 'sub' / 'report.json'
     assert eval_pairs.main([str(pair_dir), '--json', str(out), '--no-progress', *extra]) == 0
@@ -87,8 +113,12 @@ def test_eval_pairs_writes_the_report(pair_dir, tmp_path, capsys, extra):
 
 def test_eval_pairs_registers_the_generated_pairs(pair_dir, tmp_path):
     out = tmp_path / 'report.json'
-    assert eval_pairs.main([str(pair_dir), '--descriptor', 'fpfh', '--json', str(out),
-                            '--no-progress']) == 0
+    assert (
+        eval_pairs.main(
+            [str(pair_dir), '--descriptor', 'fpfh', '--json', str(out), '--no-progress']
+        )
+        == 0
+    )
     report = json.loads(out.read_text())
     assert report['summary']['registration_recall_pct'] == 100.0
     assert report['summary']['translation_error_cm'] < 30.0
@@ -108,8 +138,22 @@ def test_eval_pairs_errors_are_clear(tmp_path, capsys):
 def test_bench_writes_per_stage_medians(pair_dir, tmp_path, capsys):
     out = tmp_path / 'bench.json'
     path = pair_dir / '000000.npz'
-    assert bench.main(['--pair', str(path), '--repeats', '2', '--keypoints', '100,300',
-                       '--json', str(out), '--no-progress']) == 0
+    assert (
+        bench.main(
+            [
+                '--pair',
+                str(path),
+                '--repeats',
+                '2',
+                '--keypoints',
+                '100,300',
+                '--json',
+                str(out),
+                '--no-progress',
+            ]
+        )
+        == 0
+    )
     report = json.loads(out.read_text())
     assert set(report['keypoints']) == {'100', '300'}
     for row in report['keypoints'].values():
@@ -125,8 +169,21 @@ def test_bench_writes_per_stage_medians(pair_dir, tmp_path, capsys):
 
 def test_bench_runs_on_the_generated_scene(tmp_path):
     out = tmp_path / 'bench.json'
-    assert bench.main(['--synthetic', '--repeats', '1', '--keypoints', '150',
-                       '--json', str(out), '--no-progress']) == 0
+    assert (
+        bench.main(
+            [
+                '--synthetic',
+                '--repeats',
+                '1',
+                '--keypoints',
+                '150',
+                '--json',
+                str(out),
+                '--no-progress',
+            ]
+        )
+        == 0
+    )
     report = json.loads(out.read_text())
     assert report['pair'] == 'generated street scene'
     assert report['keypoints']['150']['keypoints_used'] == 150
@@ -135,8 +192,9 @@ def test_bench_runs_on_the_generated_scene(tmp_path):
 def test_config_precedence_yaml_then_flags_then_set(tmp_path):
     path = tmp_path / 'cfg.yaml'
     path.write_text('matcher:\n  kind: mnn\nsemantic:\n  top_k: 3\n  ring_width: 2.0\n')
-    config = eval_pairs.build_config(path, {'matcher.kind': 'nn'},
-                                     ['semantic.top_k=4', 'estimator.kind=ransac'])
+    config = eval_pairs.build_config(
+        path, {'matcher.kind': 'nn'}, ['semantic.top_k=4', 'estimator.kind=ransac']
+    )
     assert config.matcher.kind == 'nn' and config.semantic.top_k == 4
     assert config.semantic.ring_width == 2.0 and config.estimator.kind == 'ransac'
     with pytest.raises(ValueError, match='KEY=VALUE'):

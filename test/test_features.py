@@ -35,18 +35,24 @@ def kernel_mode(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch)
 
 
 def test_voxel_downsample_gives_centroids_and_majority_labels():
-    points = np.array([
-        [0.1, 0.1, 0.1], [0.2, 0.2, 0.2], [0.3, 0.3, 0.3],  # voxel (0, 0, 0): labels 5, 7, 7
-        [1.2, 0.1, 0.1], [1.4, 0.3, 0.1],  # voxel (1, 0, 0): a 3-vs-9 tie -> 3
-        [-0.5, 0.5, 0.5],  # voxel (-1, 0, 0), alone
-    ])
+    points = np.array(
+        [
+            [0.1, 0.1, 0.1],
+            [0.2, 0.2, 0.2],
+            [0.3, 0.3, 0.3],  # voxel (0, 0, 0): labels 5, 7, 7
+            [1.2, 0.1, 0.1],
+            [1.4, 0.3, 0.1],  # voxel (1, 0, 0): a 3-vs-9 tie -> 3
+            [-0.5, 0.5, 0.5],  # voxel (-1, 0, 0), alone
+        ]
+    )
     labels = np.array([5, 7, 7, 9, 3, 2], dtype=np.int32)
     out_pts, out_labels = voxel_downsample(points, labels, 1.0)
     assert out_labels.dtype == np.int32
     assert out_pts.shape == (3, 3)
     order = np.argsort(out_pts[:, 0])
-    np.testing.assert_allclose(out_pts[order], [[-0.5, 0.5, 0.5], [0.2, 0.2, 0.2],
-                                                [1.3, 0.2, 0.1]])
+    np.testing.assert_allclose(
+        out_pts[order], [[-0.5, 0.5, 0.5], [0.2, 0.2, 0.2], [1.3, 0.2, 0.1]]
+    )
     np.testing.assert_array_equal(out_labels[order], [2, 7, 3])
 
 
@@ -91,8 +97,16 @@ def test_random_sampling_returns_all_points_in_order_when_few():
 
 
 def test_voxel_sampling_takes_the_point_nearest_each_voxel_centroid():
-    points = np.array([[0.1, 0.1, 0.1], [0.5, 0.5, 0.5], [0.8, 0.8, 0.8],  # centroid ~ 0.47
-                       [2.1, 0.0, 0.0], [2.9, 0.0, 0.0], [2.4, 0.0, 0.0]])  # centroid 2.47
+    points = np.array(
+        [
+            [0.1, 0.1, 0.1],
+            [0.5, 0.5, 0.5],
+            [0.8, 0.8, 0.8],  # centroid ~ 0.47
+            [2.1, 0.0, 0.0],
+            [2.9, 0.0, 0.0],
+            [2.4, 0.0, 0.0],
+        ]
+    )  # centroid 2.47
     chosen = sample_keypoints(points, 10, 'voxel', 1.0, 0)
     np.testing.assert_array_equal(chosen, [1, 5])
     assert len(sample_keypoints(points, 1, 'voxel', 1.0, 0)) == 1
@@ -109,7 +123,8 @@ def test_fpfh_at_equals_the_full_computation_at_those_points():
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=0.9, max_nn=30))
     full = o3d.pipelines.registration.compute_fpfh_feature(
-        cloud, o3d.geometry.KDTreeSearchParamHybrid(radius=1.5, max_nn=100))
+        cloud, o3d.geometry.KDTreeSearchParamHybrid(radius=1.5, max_nn=100)
+    )
     full = np.asarray(full.data).T
     assert ours.shape == (203, 33) and ours.dtype == np.float32
     np.testing.assert_allclose(ours, full[indices], rtol=1e-5, atol=1e-4)
@@ -140,6 +155,8 @@ def test_voxel_majority_label_matches_a_brute_force_count(distinct_labels: int):
         votes.setdefault(key, {}).setdefault(int(label), 0)
         votes[key][int(label)] += 1
     expected = {key: min(c, key=lambda lab: (-c[lab], lab)) for key, c in votes.items()}
-    found = {tuple(np.floor(c / 0.5).astype(int)): int(lab)
-             for c, lab in zip(centroids, voxel_labels, strict=True)}
+    found = {
+        tuple(np.floor(c / 0.5).astype(int)): int(lab)
+        for c, lab in zip(centroids, voxel_labels, strict=True)
+    }
     assert found == expected

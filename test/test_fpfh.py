@@ -40,8 +40,9 @@ def _soa(rows: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.asarray(rows, dtype=np.float32).T)
 
 
-def _darboux_reference(p1: np.ndarray, n1: np.ndarray, p2: np.ndarray,
-                       n2: np.ndarray) -> tuple[float, float, float]:
+def _darboux_reference(
+    p1: np.ndarray, n1: np.ndarray, p2: np.ndarray, n2: np.ndarray
+) -> tuple[float, float, float]:
     """Pair features with the explicit Darboux frame (Rusu et al. 2009, as in Open3D)."""
     d = p2 - p1
     u = d / np.linalg.norm(d)
@@ -62,22 +63,25 @@ def _ground_and_box(seed: int) -> np.ndarray:
 
 def test_coplanar_pair_has_the_middle_bins():
     # Two points on a plane with the plane's normal: alpha = phi = theta = 0 -> bin 5 each.
-    bins = pair_feature_bins(_soa([[1.0, 0.0, 0.0]]), _soa([[0.0, 0.0, 1.0]]),
-                             _soa([[0.0, 0.0, 1.0]]))
+    bins = pair_feature_bins(
+        _soa([[1.0, 0.0, 0.0]]), _soa([[0.0, 0.0, 1.0]]), _soa([[0.0, 0.0, 1.0]])
+    )
     np.testing.assert_array_equal(bins[:, 0], [5, 5, 5])
 
 
 def test_perpendicular_normal_pair_known_answer():
     # p1 = 0 with n1 = +z, p2 = (1, 0, 0). With n2 = +x the line is along p2's normal, so
     # p2 is the source and its Darboux frame is degenerate: the all-zero feature (Open3D).
-    bins = pair_feature_bins(_soa([[1.0, 0.0, 0.0]]), _soa([[0.0, 0.0, 1.0]]),
-                             _soa([[1.0, 0.0, 0.0]]))
+    bins = pair_feature_bins(
+        _soa([[1.0, 0.0, 0.0]]), _soa([[0.0, 0.0, 1.0]]), _soa([[1.0, 0.0, 0.0]])
+    )
     np.testing.assert_array_equal(bins[:, 0], [5, 5, 5])
     # n2 = (0.8, 0, 0.6): p2 is still the source (|0.8| > |0|), u_s = -x, so
     # theta = u_s.n_s = -0.8 -> bin floor(11 * 0.2 / 2) = 1; v = +y, phi = v.n_t = 0 -> 5;
     # w = (-0.6, 0, 0.8), alpha = atan2(w.n_t, n_s.n_t) = atan2(0.8, 0.6) = 0.927 -> 7.
-    bins = pair_feature_bins(_soa([[1.0, 0.0, 0.0]]), _soa([[0.0, 0.0, 1.0]]),
-                             _soa([[0.8, 0.0, 0.6]]))
+    bins = pair_feature_bins(
+        _soa([[1.0, 0.0, 0.0]]), _soa([[0.0, 0.0, 1.0]]), _soa([[0.8, 0.0, 0.6]])
+    )
     np.testing.assert_array_equal(bins[:, 0], [7, 5, 1])
 
 
@@ -87,8 +91,7 @@ def test_pair_features_equal_the_explicit_darboux_frame_and_are_symmetric():
     n1, n2 = rng.normal(size=(2, 500, 3))
     n1 /= np.linalg.norm(n1, axis=1, keepdims=True)
     n2 /= np.linalg.norm(n2, axis=1, keepdims=True)
-    reference = np.array([_darboux_reference(*args)
-                          for args in zip(p1, n1, p2, n2, strict=True)])
+    reference = np.array([_darboux_reference(*args) for args in zip(p1, n1, p2, n2, strict=True)])
     scaled = (reference - [-np.pi, -1.0, -1.0]) / [2 * np.pi, 2.0, 2.0] * 11
     expected = np.clip(np.floor(scaled), 0, 10).astype(int)
     clear = np.all(np.abs(scaled - np.round(scaled)) > 1e-3, axis=1)  # away from bin edges
@@ -131,7 +134,8 @@ def test_fpfh_equals_open3d_given_the_same_normals():
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     cloud.normals = o3d.utility.Vector3dVector(normals.T.astype(np.float64))
     full = o3d.pipelines.registration.compute_fpfh_feature(
-        cloud, o3d.geometry.KDTreeSearchParamRadius(1.5))
+        cloud, o3d.geometry.KDTreeSearchParamRadius(1.5)
+    )
     reference = np.asarray(full.data).T[indices]
     assert ours.shape == (300, 33) and ours.dtype == np.float32
     # Float32 pair features and radius-boundary points move at most a pair or two

@@ -34,28 +34,33 @@ def _scene(seed: int) -> np.ndarray:
 
 
 def _both(*args: object, **kwargs: object) -> tuple[np.ndarray, np.ndarray]:
-    return (fpfh_at_keypoints(*args, **kwargs, compiled=True),
-            fpfh_at_keypoints(*args, **kwargs, compiled=False))
+    return (
+        fpfh_at_keypoints(*args, **kwargs, compiled=True),
+        fpfh_at_keypoints(*args, **kwargs, compiled=False),
+    )
 
 
 @pytest.mark.parametrize('seed', [0, 1, 2])
 @pytest.mark.parametrize(('support_voxel', 'snap'), [(0.5, True), (0.5, False), (0.0, False)])
-def test_compiled_fpfh_equals_numpy_on_random_scenes(seed: int, support_voxel: float,
-                                                     snap: bool) -> None:
+def test_compiled_fpfh_equals_numpy_on_random_scenes(
+    seed: int, support_voxel: float, snap: bool
+) -> None:
     points = _scene(seed)
     rng = np.random.default_rng(100 + seed)
     indices = rng.integers(0, len(points), 300)  # unsorted, with repeats
     viewpoint = rng.normal(0, 0.5, 3)
-    ours, reference = _both(points, indices, 0.9, 1.5, support_voxel, viewpoint=viewpoint,
-                            snap=snap)
+    ours, reference = _both(
+        points, indices, 0.9, 1.5, support_voxel, viewpoint=viewpoint, snap=snap
+    )
     assert ours.dtype == reference.dtype == np.float32 and ours.shape == (300, 33)
     assert np.count_nonzero(reference.any(axis=1)) > 250  # not a trivially empty case
     np.testing.assert_array_equal(ours, reference)
 
 
 @pytest.mark.parametrize(('normal_radius', 'feature_radius'), [(1.2, 0.7), (0.5, 0.5)])
-def test_compiled_fpfh_equals_numpy_for_other_radii(normal_radius: float,
-                                                    feature_radius: float) -> None:
+def test_compiled_fpfh_equals_numpy_for_other_radii(
+    normal_radius: float, feature_radius: float
+) -> None:
     points = _scene(7)
     indices = np.arange(0, len(points), 5)
     for snap in (True, False):
@@ -78,8 +83,7 @@ def test_flat_grid_known_answer(compiled: bool) -> None:
 @pytest.mark.parametrize('compiled', [True, False])
 def test_isolated_points_and_tiny_clouds(compiled: bool) -> None:
     points = np.array([[0.0, 0.0, -1.7], [0.5, 0.0, -1.7], [40.0, 0.0, 0.0]])
-    descriptors = fpfh_at_keypoints(points, np.array([2, 0, 1, 2]), 0.9, 1.5,
-                                    compiled=compiled)
+    descriptors = fpfh_at_keypoints(points, np.array([2, 0, 1, 2]), 0.9, 1.5, compiled=compiled)
     assert not descriptors[0].any() and not descriptors[3].any()
     # Two points: fewer than two neighbours -> normal +z (towards the origin), one pair.
     np.testing.assert_allclose(descriptors[1].reshape(3, 11).sum(axis=1), 200.0, rtol=1e-6)
@@ -89,7 +93,8 @@ def test_isolated_points_and_tiny_clouds(compiled: bool) -> None:
 
 
 def test_prepared_scans_are_identical_with_and_without_kernels(
-        monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     pair = synthetic_pair(3)
     registration = Registration()
     prepared = []
@@ -97,8 +102,7 @@ def test_prepared_scans_are_identical_with_and_without_kernels(
         monkeypatch.setenv(kernels.ENV_SWITCH, mode)
         prepared.append(registration.prepare(pair.pts_src, pair.label_src))
     ours, reference = prepared
-    for field in ('points', 'labels', 'keypoints', 'keypoint_indices', 'descriptors',
-                  'local_ss'):
+    for field in ('points', 'labels', 'keypoints', 'keypoint_indices', 'descriptors', 'local_ss'):
         np.testing.assert_array_equal(getattr(ours, field), getattr(reference, field))
     assert len(ours.keypoints) > 100
 

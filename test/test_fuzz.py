@@ -60,17 +60,29 @@ SCALE = max(1, int(os.environ.get('MLSEMREG_FUZZ_SCALE', '1')))
 
 def fuzz_settings(max_examples: int, deadline_ms: int, **kwargs: Any) -> settings:
     """Derandomized, database-free settings (the same examples on every machine)."""
-    return settings(max_examples=max_examples * SCALE, deadline=deadline_ms,
-                    derandomize=True, database=None, print_blob=True,
-                    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
-                    **kwargs)
+    return settings(
+        max_examples=max_examples * SCALE,
+        deadline=deadline_ms,
+        derandomize=True,
+        database=None,
+        print_blob=True,
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+        **kwargs,
+    )
 
 
 def _containers(data: bytes) -> st.SearchStrategy:
     """Wrap ``data`` as rclpy (bytes, array), rosbags (uint8 array) or other containers."""
-    return st.sampled_from([
-        data, bytearray(data), np.frombuffer(data, np.uint8).copy(), list(data),
-        array.array('B', data), memoryview(data)])
+    return st.sampled_from(
+        [
+            data,
+            bytearray(data),
+            np.frombuffer(data, np.uint8).copy(),
+            list(data),
+            array.array('B', data),
+            memoryview(data),
+        ]
+    )
 
 
 def _check_cloud(out: CloudArrays, msg: Cloud) -> None:
@@ -81,8 +93,9 @@ def _check_cloud(out: CloudArrays, msg: Cloud) -> None:
     assert out.dropped_nonfinite >= 0
     assert n + out.dropped_nonfinite == int(msg.height) * int(msg.width)
     assert out.labels is None or (out.labels.shape == (n,) and out.labels.dtype == np.int64)
-    assert out.intensity is None or (out.intensity.shape == (n,)
-                                     and out.intensity.dtype == np.float32)
+    assert out.intensity is None or (
+        out.intensity.shape == (n,) and out.intensity.dtype == np.float32
+    )
     assert isinstance(out.ignored_fields, tuple)
     assert all(isinstance(name, str) for name in out.ignored_fields)
 
@@ -117,11 +130,11 @@ def _coordinate_values(dtype: np.dtype, n: int) -> st.SearchStrategy:
 def _label_values(dtype: np.dtype, n: int) -> st.SearchStrategy:
     if dtype.kind != 'f':
         ids = [v for v in (0, 1, 9, 13, 19, 20, 40, 70, 252, 300, -1) if _fits(v, dtype)]
-        return hnp.arrays(dtype, n, elements=st.one_of(st.sampled_from(ids),
-                                                       hnp.from_dtype(dtype)))
+        return hnp.arrays(
+            dtype, n, elements=st.one_of(st.sampled_from(ids), hnp.from_dtype(dtype))
+        )
     # Mostly integral floats (valid labels), sometimes anything (NaN, 0.5, 1e30, ...).
-    integral = st.integers(-2**31, 2**32).map(float).filter(
-        lambda v: float(dtype.type(v)) == v)
+    integral = st.integers(-(2**31), 2**32).map(float).filter(lambda v: float(dtype.type(v)) == v)
     anything = hnp.from_dtype(dtype)
     return hnp.arrays(dtype, n, elements=st.one_of(integral, integral, integral, anything))
 
@@ -138,18 +151,27 @@ def well_formed_clouds(draw: st.DrawFn) -> tuple[Cloud, list[Spec], str, bool]:
     if has_label:
         specs.append(Spec(label_field, draw(types), 1))
     if draw(st.booleans()):  # intensity: readable, count 0, or unreadable (count 2 / type 9)
-        specs.append(Spec('intensity', draw(st.sampled_from([*sorted(DATATYPES), 9])),
-                          draw(st.sampled_from([1, 1, 0, 2]))))
-    for name in draw(st.lists(st.sampled_from(['ring', 'time', 'rgb', 'x', 'label']),
-                              max_size=2, unique=True)):
+        specs.append(
+            Spec(
+                'intensity',
+                draw(st.sampled_from([*sorted(DATATYPES), 9])),
+                draw(st.sampled_from([1, 1, 0, 2])),
+            )
+        )
+    for name in draw(
+        st.lists(st.sampled_from(['ring', 'time', 'rgb', 'x', 'label']), max_size=2, unique=True)
+    ):
         # Unused extras, count 0 for the names of required fields.
         count = 0 if name in ('x', 'label') else draw(st.integers(0, 3))
         specs.append(Spec(name, draw(st.integers(0, 10)), count))
     specs = draw(st.permutations(specs))
     offset = 0
     for spec in specs:  # pack with random gaps; count-0 fields may point anywhere
-        size = DATATYPES[spec.datatype].itemsize * spec.count if spec.datatype in DATATYPES \
+        size = (
+            DATATYPES[spec.datatype].itemsize * spec.count
+            if spec.datatype in DATATYPES
             else 4 * spec.count
+        )
         if spec.count == 0:
             spec.offset = draw(st.integers(0, 64))
             continue
@@ -171,10 +193,15 @@ def well_formed_clouds(draw: st.DrawFn) -> tuple[Cloud, list[Spec], str, bool]:
         size = DATATYPES[spec.datatype].itemsize
         for i in range(n):  # the reference writer: one point at a time
             start = (i // width) * row_step + (i % width) * point_step + spec.offset
-            buffer[start:start + size] = raw[i * size:(i + 1) * size]
-    msg = Cloud(height=height, width=width, point_step=point_step, row_step=row_step,
-                fields=[Field(s.name, s.offset, s.datatype, s.count) for s in specs],
-                data=draw(_containers(bytes(buffer))))
+            buffer[slice(start, start + size)] = raw[slice(i * size, (i + 1) * size)]
+    msg = Cloud(
+        height=height,
+        width=width,
+        point_step=point_step,
+        row_step=row_step,
+        fields=[Field(s.name, s.offset, s.datatype, s.count) for s in specs],
+        data=draw(_containers(bytes(buffer))),
+    )
     return msg, specs, label_field, require_labels
 
 
@@ -256,14 +283,16 @@ def _mutations(msg: Cloud) -> st.SearchStrategy:
         st.builds(lambda d: replace(msg, row_step=msg.row_step + d), small),
         st.builds(lambda h: replace(msg, height=h), st.integers(-2, 5)),
         st.builds(lambda w: replace(msg, width=w), st.integers(-2, 8)),
-        st.builds(lambda k: replace(msg, data=data[:max(0, len(data) - k)]), st.integers(1, 9)),
+        st.builds(lambda k: replace(msg, data=data[: max(0, len(data) - k)]), st.integers(1, 9)),
         st.builds(lambda b: replace(msg, data=data + b), st.binary(min_size=1, max_size=9)),
         st.just(replace(msg, is_bigendian=True)),
         st.builds(lambda i, t: change_field(i, datatype=t), field_index, st.integers(-1, 12)),
         st.builds(lambda i, c: change_field(i, count=c), field_index, st.integers(-1, 4)),
         st.builds(lambda i, o: change_field(i, offset=o), field_index, st.integers(-4, 80)),
-        st.builds(lambda i: replace(msg, fields=[f for j, f in enumerate(msg.fields) if j != i]),
-                  field_index),
+        st.builds(
+            lambda i: replace(msg, fields=[f for j, f in enumerate(msg.fields) if j != i]),
+            field_index,
+        ),
         st.builds(lambda i: replace(msg, fields=[*msg.fields, msg.fields[i]]), field_index),
         st.builds(lambda n: change_field(0, name=n), st.text(max_size=3)),
     )
@@ -282,29 +311,71 @@ def test_decoder_rejects_broken_clouds_cleanly(data: st.DataObject) -> None:
     _check_cloud(out, msg)
 
 
-_FIELD_NAMES = st.one_of(st.sampled_from(['x', 'y', 'z', 'label', 'intensity', 'ring']),
-                         st.text(max_size=4))
+_FIELD_NAMES = st.one_of(
+    st.sampled_from(['x', 'y', 'z', 'label', 'intensity', 'ring']), st.text(max_size=4)
+)
 
 
 @fuzz_settings(300, 1000)
-@given(fields=st.lists(st.builds(Field, _FIELD_NAMES, st.integers(-4, 64), st.integers(-1, 12),
-                                 st.integers(-1, 4)), max_size=7),
-       height=st.integers(-2, 4), width=st.integers(-2, 6), point_step=st.integers(-4, 48),
-       row_step=st.integers(-4, 300), payload=st.binary(max_size=1200),
-       exact=st.booleans(), bigendian=st.booleans(), require_labels=st.booleans())
-@example(fields=[Field('x', 0, 7), Field('y', 4, 7), Field('z', 8, 7), Field('label', 12, 6),
-                 Field('intensity', 16, 7, 0)],
-         height=1, width=2, point_step=16, row_step=32, payload=b'\0' * 32, exact=True,
-         bigendian=False, require_labels=True)
-def test_decoder_survives_random_messages(fields: list[Field], height: int, width: int,
-                                          point_step: int, row_step: int, payload: bytes,
-                                          exact: bool, bigendian: bool,
-                                          require_labels: bool) -> None:
+@given(
+    fields=st.lists(
+        st.builds(
+            Field, _FIELD_NAMES, st.integers(-4, 64), st.integers(-1, 12), st.integers(-1, 4)
+        ),
+        max_size=7,
+    ),
+    height=st.integers(-2, 4),
+    width=st.integers(-2, 6),
+    point_step=st.integers(-4, 48),
+    row_step=st.integers(-4, 300),
+    payload=st.binary(max_size=1200),
+    exact=st.booleans(),
+    bigendian=st.booleans(),
+    require_labels=st.booleans(),
+)
+@example(
+    fields=[
+        Field('x', 0, 7),
+        Field('y', 4, 7),
+        Field('z', 8, 7),
+        Field('label', 12, 6),
+        Field('intensity', 16, 7, 0),
+    ],
+    height=1,
+    width=2,
+    point_step=16,
+    row_step=32,
+    payload=b'\0' * 32,
+    exact=True,
+    bigendian=False,
+    require_labels=True,
+)
+def test_decoder_survives_random_messages(
+    fields: list[Field],
+    height: int,
+    width: int,
+    point_step: int,
+    row_step: int,
+    payload: bytes,
+    exact: bool,
+    bigendian: bool,
+    require_labels: bool,
+) -> None:
     if exact and height > 0 and row_step > 0:  # the size check passes: reach the layout
-        payload = (payload * (height * row_step // max(len(payload), 1) + 1)
-                   if payload else bytes(height * row_step))[:height * row_step]
-    msg = Cloud(height=height, width=width, fields=fields, is_bigendian=bigendian,
-                point_step=point_step, row_step=row_step, data=payload)
+        payload = (
+            payload * (height * row_step // max(len(payload), 1) + 1)
+            if payload
+            else bytes(height * row_step)
+        )[: height * row_step]
+    msg = Cloud(
+        height=height,
+        width=width,
+        fields=fields,
+        is_bigendian=bigendian,
+        point_step=point_step,
+        row_step=row_step,
+        data=payload,
+    )
     try:
         out = pointcloud2_to_arrays(msg, 'label', require_labels)
     except PointCloudError:
@@ -313,12 +384,49 @@ def test_decoder_survives_random_messages(fields: list[Field], height: int, widt
 
 
 # -- labels: every dtype against a per-value reference of the documented rules ----------
-_LABEL_DTYPES = [np.dtype(t) for t in (np.bool_, np.int8, np.int16, np.int32, np.int64,
-                                       np.uint8, np.uint16, np.uint32, np.uint64,
-                                       np.float16, np.float32, np.float64)]
-_INTERESTING = (0, 1, 9, 13, 19, 20, 40, 50, 70, 81, 252, 259, 260, 1234, 65535,
-                40 | (7 << 16), 252 | (0xFFFF << 16), 2**31, 2**32 - 1, 2**32, 2**32 + 40,
-                -1, -2**31, -2**31 - 1)
+_LABEL_DTYPES = [
+    np.dtype(t)
+    for t in (
+        np.bool_,
+        np.int8,
+        np.int16,
+        np.int32,
+        np.int64,
+        np.uint8,
+        np.uint16,
+        np.uint32,
+        np.uint64,
+        np.float16,
+        np.float32,
+        np.float64,
+    )
+]
+_INTERESTING = (
+    0,
+    1,
+    9,
+    13,
+    19,
+    20,
+    40,
+    50,
+    70,
+    81,
+    252,
+    259,
+    260,
+    1234,
+    65535,
+    40 | (7 << 16),
+    252 | (0xFFFF << 16),
+    2**31,
+    2**32 - 1,
+    2**32,
+    2**32 + 40,
+    -1,
+    -(2**31),
+    -(2**31) - 1,
+)
 _KNOWN_RAW = set(np.flatnonzero(LABELS.raw_known).tolist())
 
 
@@ -330,8 +438,7 @@ def label_arrays(draw: st.DrawFn) -> np.ndarray:
         elements = st.booleans()
     else:
         fitting = [v for v in _INTERESTING if _fits(v, dtype)]
-        elements = st.one_of(st.sampled_from(fitting), st.integers(0, 19),
-                             hnp.from_dtype(dtype))
+        elements = st.one_of(st.sampled_from(fitting), st.integers(0, 19), hnp.from_dtype(dtype))
     shape = draw(st.one_of(st.integers(0, 40), st.tuples(st.integers(0, 8), st.just(1))))
     return draw(hnp.arrays(dtype, shape, elements=elements))
 
@@ -355,7 +462,7 @@ def _reference(labels: np.ndarray, scheme: str, limit: float) -> tuple[list[int]
         if any(v != round(v) for v in values):
             raise LabelError('float labels must hold integral values')
     ints = [int(v) for v in values]
-    fits = [-2**31 <= v < 2**32 for v in ints]
+    fits = [-(2**31) <= v < 2**32 for v in ints]
     patterns = [v % 2**32 if ok else 0 for v, ok in zip(ints, fits, strict=True)]
     learning = [ok and p < LABELS.num_classes for p, ok in zip(patterns, fits, strict=True)]
     raw = [ok and (p & 0xFFFF) in _KNOWN_RAW for p, ok in zip(patterns, fits, strict=True)]
@@ -363,13 +470,16 @@ def _reference(labels: np.ndarray, scheme: str, limit: float) -> tuple[list[int]
     count = sum(informative)
     raw_share = sum(r and i for r, i in zip(raw, informative, strict=True)) / max(count, 1)
     learning_share = sum(a and i for a, i in zip(learning, informative, strict=True)) / max(
-        count, 1)
+        count, 1
+    )
     used = scheme
     if scheme == 'auto':
         used = 'raw' if raw_share - learning_share >= 0.25 else 'learning'
     valid = raw if used == 'raw' else learning
-    ids = [(int(LABELS.raw_lut[p & 0xFFFF]) if used == 'raw' else p) if ok else 0
-           for p, ok in zip(patterns, valid, strict=True)]
+    ids = [
+        (int(LABELS.raw_lut[p & 0xFFFF]) if used == 'raw' else p) if ok else 0
+        for p, ok in zip(patterns, valid, strict=True)
+    ]
     out = valid.count(False)
     if out > limit * len(values):
         raise LabelError('are not, more than')
@@ -377,10 +487,14 @@ def _reference(labels: np.ndarray, scheme: str, limit: float) -> tuple[list[int]
 
 
 @fuzz_settings(400, 1000)
-@given(labels=label_arrays(), scheme=st.sampled_from([*SCHEMES, 'kitti']),
-       limit=st.sampled_from([0.5, 0.5, 0.0, 1.0]))
-def test_label_conversion_matches_the_reference(labels: np.ndarray, scheme: str,
-                                                limit: float) -> None:
+@given(
+    labels=label_arrays(),
+    scheme=st.sampled_from([*SCHEMES, 'kitti']),
+    limit=st.sampled_from([0.5, 0.5, 0.0, 1.0]),
+)
+def test_label_conversion_matches_the_reference(
+    labels: np.ndarray, scheme: str, limit: float
+) -> None:
     try:
         expected = _reference(labels, scheme, limit)
     except LabelError as error:
@@ -396,16 +510,23 @@ def test_label_conversion_matches_the_reference(labels: np.ndarray, scheme: str,
 
 
 @fuzz_settings(200, 1000)
-@given(learning=hnp.arrays(np.int64, st.integers(1, 200), elements=st.integers(0, 19)),
-       instance=st.integers(0, 0xFFFF), stray=st.integers(20, 2**32 - 1))
-def test_raw_and_learning_readings_agree(learning: np.ndarray, instance: int,
-                                         stray: int) -> None:
+@given(
+    learning=hnp.arrays(np.int64, st.integers(1, 200), elements=st.integers(0, 19)),
+    instance=st.integers(0, 0xFFFF),
+    stray=st.integers(20, 2**32 - 1),
+)
+def test_raw_and_learning_readings_agree(learning: np.ndarray, instance: int, stray: int) -> None:
     raw = LABELS.to_raw(learning, np.full(learning.shape, instance))
     for dtype in (np.uint32, np.int32, np.int64, np.float64):
         np.testing.assert_array_equal(
-            LABELS.to_learning(raw.astype(np.uint32).view(np.int32).astype(dtype)
-                               if dtype in (np.int32, np.int64) else raw.astype(dtype), 'raw'),
-            learning)
+            LABELS.to_learning(
+                raw.astype(np.uint32).view(np.int32).astype(dtype)
+                if dtype in (np.int32, np.int64)
+                else raw.astype(dtype),
+                'raw',
+            ),
+            learning,
+        )
     # One stray value never changes the reading of the rest of a learning scan.
     corrupted = np.append(learning, stray)
     out = LABELS.convert(corrupted, 'learning', max_out_of_scheme=1.0)
@@ -430,14 +551,17 @@ def scans(draw: st.DrawFn, hostile: bool) -> tuple[np.ndarray, np.ndarray]:
     dtypes; optionally poisoned with NaN/inf/huge coordinates.
     """
     rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
-    shape = draw(st.sampled_from(['street', 'uniform', 'identical', 'line', 'plane',
-                                  'cluster', 'street']))
+    shape = draw(
+        st.sampled_from(['street', 'uniform', 'identical', 'line', 'plane', 'cluster', 'street'])
+    )
     n = draw(st.one_of(st.sampled_from([0, 1, 2, 3, 4]), st.sampled_from([12, 60, 400, 2000])))
     scale = draw(st.sampled_from([1e-3, 1.0, 30.0, 1e4]))
     learning = rng.integers(0, 20, n)
     if shape == 'street':
-        pose = motion(draw(st.floats(-10.0, 10.0)),
-                      (draw(st.floats(-3.0, 3.0)), draw(st.floats(-3.0, 3.0)), 0.0))
+        pose = motion(
+            draw(st.floats(-10.0, 10.0)),
+            (draw(st.floats(-3.0, 3.0)), draw(st.floats(-3.0, 3.0)), 0.0),
+        )
         points, learning = scan_at(*_WORLD, pose, int(rng.integers(2**31)), max_points=n)
         n = len(points)
     elif shape == 'identical':
@@ -453,14 +577,18 @@ def scans(draw: st.DrawFn, hostile: bool) -> tuple[np.ndarray, np.ndarray]:
     if hostile and n:
         for _ in range(draw(st.integers(1, 3))):
             points[rng.integers(n), rng.integers(3)] = draw(st.sampled_from(_HOSTILE))
-    kind = draw(st.sampled_from(['learning', 'raw', 'corrupted', 'constant', 'landmarks',
-                                 'garbage']))
+    kind = draw(
+        st.sampled_from(['learning', 'raw', 'corrupted', 'constant', 'landmarks', 'garbage'])
+    )
     event(f'{shape} scan, {kind} labels')
     if kind == 'raw':
         labels = LABELS.to_raw(learning, rng.integers(0, 99, n)).astype(np.int64)
     elif kind == 'corrupted':  # a share of values outside 0-19 (raw ids and junk)
-        labels = np.where(rng.random(n) < draw(st.sampled_from([0.001, 0.1, 0.4, 0.6])),
-                          rng.choice([20, 40, 300, 2**31], n), learning)
+        labels = np.where(
+            rng.random(n) < draw(st.sampled_from([0.001, 0.1, 0.4, 0.6])),
+            rng.choice([20, 40, 300, 2**31], n),
+            learning,
+        )
     elif kind == 'constant':
         labels = np.full(n, draw(st.sampled_from([0, 9, 16, 40])))
     elif kind == 'landmarks':
@@ -476,8 +604,11 @@ def scans(draw: st.DrawFn, hostile: bool) -> tuple[np.ndarray, np.ndarray]:
 
 
 _REGISTRATION = Registration()
-_SMALL = Registration(RegistrationConfig().replace(
-    {'features.voxel_size': 0.0, 'keypoints.count': 10, 'keypoints.sampling': 'voxel'}))
+_SMALL = Registration(
+    RegistrationConfig().replace(
+        {'features.voxel_size': 0.0, 'keypoints.count': 10, 'keypoints.sampling': 'voxel'}
+    )
+)
 
 
 def _check_prepared(scan: PreparedScan) -> None:
@@ -527,33 +658,50 @@ def _odometry_run(stream: list[tuple], sanitize: bool) -> None:
         except LabelError:
             event('LabelError')
             continue
-        event('first scan' if step.result is None else
-              f'registered: {step.result.mode}, accepted {step.accepted}')
+        event(
+            'first scan'
+            if step.result is None
+            else f'registered: {step.result.mode}, accepted {step.accepted}'
+        )
         _check_step(step)
 
 
 @fuzz_settings(50, 10000)
 @given(stream=st.lists(scans(hostile=False), min_size=2, max_size=4))
-@example(stream=[(np.zeros((0, 3)), np.zeros(0, np.int64)),
-                 (np.ones((3, 3)), np.array([9, 9, 9]))])
-@example(stream=[(np.ones((1, 3)), np.array([16])), (np.zeros((0, 3)), np.zeros(0)),
-                 (np.ones((50, 3)), np.full(50, 16))])
+@example(
+    stream=[(np.zeros((0, 3)), np.zeros(0, np.int64)), (np.ones((3, 3)), np.array([9, 9, 9]))]
+)
+@example(
+    stream=[
+        (np.ones((1, 3)), np.array([16])),
+        (np.zeros((0, 3)), np.zeros(0)),
+        (np.ones((50, 3)), np.full(50, 16)),
+    ]
+)
 def test_odometry_survives_degenerate_finite_scans(stream: list[tuple]) -> None:
     _odometry_run(stream, sanitize=False)
 
 
 @fuzz_settings(50, 10000)
 @given(stream=st.lists(scans(hostile=True), min_size=2, max_size=4))
-@example(stream=[(np.array([[1e30, 1e30, 1e30], [1.0, 2.0, 3.0]]), np.array([9, 13])),
-                 (np.array([[np.nan, 0.0, 0.0]] * 3), np.array([9, 9, 9]))])
+@example(
+    stream=[
+        (np.array([[1e30, 1e30, 1e30], [1.0, 2.0, 3.0]]), np.array([9, 13])),
+        (np.array([[np.nan, 0.0, 0.0]] * 3), np.array([9, 9, 9])),
+    ]
+)
 def test_odometry_survives_hostile_scans_after_sanitize_scan(stream: list[tuple]) -> None:
     _odometry_run(stream, sanitize=True)
 
 
 @fuzz_settings(40, 5000, phases=[Phase.explicit, Phase.generate])
 @given(scan=scans(hostile=True))
-@example(scan=(np.vstack([np.random.default_rng(0).uniform(-20, 20, (500, 3)),
-                          [[np.nan, 0.0, 0.0]]]), np.arange(501) % 20))
+@example(
+    scan=(
+        np.vstack([np.random.default_rng(0).uniform(-20, 20, (500, 3)), [[np.nan, 0.0, 0.0]]]),
+        np.arange(501) % 20,
+    )
+)
 def test_prepare_survives_unsanitized_hostile_scans(scan: tuple) -> None:
     points, labels = scan
     try:

@@ -47,13 +47,50 @@ def cut_dir(tmp_path_factory) -> Path:
     """Pairs cut out of a short simulated bag (30 scans, 2 m apart, turning at the end)."""
     root = tmp_path_factory.mktemp('cut')
     bag = root / 'drive'
-    assert simulate.main([str(bag), '--frames', '30', '--step', '2', '--seed', '0',
-                          '--beams', '32', '--azimuth-steps', '720', '--quiet']) == 0
+    assert (
+        simulate.main(
+            [
+                str(bag),
+                '--frames',
+                '30',
+                '--step',
+                '2',
+                '--seed',
+                '0',
+                '--beams',
+                '32',
+                '--azimuth-steps',
+                '720',
+                '--quiet',
+            ]
+        )
+        == 0
+    )
     out = root / 'pairs'
-    assert cut_pairs.main([str(bag), str(out), '--stride-pairs', '3', '--turn-pairs', '2',
-                           '--min-distance', '15', '--turn-angle', '35',
-                           '--turn-min-distance', '10', '--turn-max-overlap', '1.0',
-                           '--keypoints', '300', '--quiet']) == 0
+    assert (
+        cut_pairs.main(
+            [
+                str(bag),
+                str(out),
+                '--stride-pairs',
+                '3',
+                '--turn-pairs',
+                '2',
+                '--min-distance',
+                '15',
+                '--turn-angle',
+                '35',
+                '--turn-min-distance',
+                '10',
+                '--turn-max-overlap',
+                '1.0',
+                '--keypoints',
+                '300',
+                '--quiet',
+            ]
+        )
+        == 0
+    )
     return out
 
 
@@ -95,8 +132,9 @@ def test_kiss_matcher_registers_a_generated_pair():
 
     pair = synthetic_pair(0, max_points=25000)
     result = kiss_matcher_register(pair.pts_src, pair.pts_dst)
-    metrics = evaluate_pair(result.T_target_source, result.src_matched, result.dst_matched,
-                            pair.trans_gt)
+    metrics = evaluate_pair(
+        result.T_target_source, result.src_matched, result.dst_matched, pair.trans_gt
+    )
     assert result.valid and result.num_final_inliers > 100
     assert metrics.success and metrics.rotation_error_deg < 1.0
     assert metrics.inlier_number > 100 and result.time_ms > 0.0
@@ -116,10 +154,25 @@ def generated_dir(tmp_path_factory) -> Path:
 @needs_kiss_matcher
 def test_eval_pairs_compares_with_the_baselines_side_by_side(generated_dir, tmp_path, capsys):
     out = tmp_path / 'report.json'
-    assert eval_pairs.main([str(generated_dir), '--descriptor', 'fpfh', '--baseline',
-                            'kiss-matcher', '--baseline', 'fpfh-ransac', '--set',
-                            'estimator.ransac_iterations=20000', '--no-progress', '--json',
-                            str(out)]) == 0
+    assert (
+        eval_pairs.main(
+            [
+                str(generated_dir),
+                '--descriptor',
+                'fpfh',
+                '--baseline',
+                'kiss-matcher',
+                '--baseline',
+                'fpfh-ransac',
+                '--set',
+                'estimator.ransac_iterations=20000',
+                '--no-progress',
+                '--json',
+                str(out),
+            ]
+        )
+        == 0
+    )
     text = capsys.readouterr().out
     assert 'comparison on the same pairs' in text and 'KISS-Matcher (voxel 0.3 m' in text
     assert 'Open3D FPFH + NN (plain) + ransac' in text
@@ -146,19 +199,59 @@ def test_kiss_matcher_baseline_says_how_to_install_it(generated_dir, capsys, mon
         return real_import(name, *args, **kwargs)
 
     monkeypatch.setattr(builtins, '__import__', no_kiss_matcher)
-    assert eval_pairs.main([str(generated_dir), '--descriptor', 'fpfh', '--baseline',
-                            'kiss-matcher', '--no-progress']) == 1
+    assert (
+        eval_pairs.main(
+            [
+                str(generated_dir),
+                '--descriptor',
+                'fpfh',
+                '--baseline',
+                'kiss-matcher',
+                '--no-progress',
+            ]
+        )
+        == 1
+    )
     assert 'pip install kiss-matcher==1.0.2' in capsys.readouterr().err
 
 
 def test_bench_reports_the_verification_stage(generated_dir, tmp_path):
     out = tmp_path / 'bench.json'
     path = generated_dir / '000000.npz'
-    assert bench.main(['--pair', str(path), '--repeats', '1', '--keypoints', '500',
-                       '--json', str(out), '--no-progress']) == 0
+    assert (
+        bench.main(
+            [
+                '--pair',
+                str(path),
+                '--repeats',
+                '1',
+                '--keypoints',
+                '500',
+                '--json',
+                str(out),
+                '--no-progress',
+            ]
+        )
+        == 0
+    )
     row = json.loads(out.read_text())['keypoints']['500']
     assert row['verification_ms'] > 0.0
-    assert bench.main(['--pair', str(path), '--repeats', '1', '--keypoints', '500',
-                       '--set', 'verification.enabled=false', '--json', str(out),
-                       '--no-progress']) == 0
+    assert (
+        bench.main(
+            [
+                '--pair',
+                str(path),
+                '--repeats',
+                '1',
+                '--keypoints',
+                '500',
+                '--set',
+                'verification.enabled=false',
+                '--json',
+                str(out),
+                '--no-progress',
+            ]
+        )
+        == 0
+    )
     assert json.loads(out.read_text())['keypoints']['500']['verification_ms'] == 0.0

@@ -72,8 +72,7 @@ def _assert_registered(result, trans_gt: np.ndarray) -> None:
 
 
 def test_issue11_one_label_of_20_keeps_the_learning_scheme(pair, registration) -> None:
-    clean = registration.register_scans(pair.pts_src, pair.label_src, pair.pts_dst,
-                                        pair.label_dst)
+    clean = registration.register_scans(pair.pts_src, pair.label_src, pair.pts_dst, pair.label_dst)
     src, dst = pair.label_src.copy(), pair.label_dst.copy()
     src[0] = dst[0] = 20  # before: both scans read as raw ids (road 9 -> 0, pole 18 -> truck)
     conversion = LABELS.convert(src)
@@ -91,15 +90,16 @@ def test_issue11_int32_raw_label_minus_2_31_is_accepted(pair, registration) -> N
     raw = LABELS.to_raw(pair.label_src, np.arange(len(pair.label_src)) % 50)
     raw[::100] = 0x80000000  # -2**31 as int32: instance 0x8000, class 0 (unlabeled)
     xyz, labels = _decode(pair.pts_src, raw.view(np.int32), label_datatype='int32')
-    assert labels.min() == -2**31
+    assert labels.min() == -(2**31)
     conversion = LABELS.convert(labels)
     assert conversion.scheme == 'raw' and conversion.out_of_scheme == 0
     expected = pair.label_src.copy()
     expected[::100] = 0
     np.testing.assert_array_equal(conversion.ids, expected)
     raw_dst = LABELS.to_raw(pair.label_dst).view(np.int32)
-    result = registration.register_scans(xyz, labels, *_decode(pair.pts_dst, raw_dst,
-                                                               label_datatype='int32'))
+    result = registration.register_scans(
+        xyz, labels, *_decode(pair.pts_dst, raw_dst, label_datatype='int32')
+    )
     _assert_registered(result, pair.trans_gt)
 
 
@@ -122,13 +122,12 @@ def test_issue11_point_at_1e30_keeps_the_voxel_grid(pair, registration) -> None:
     assert np.abs(xyz).max() == pytest.approx(1e30, rel=1e-6)
     scan = sanitize_scan_for(xyz, labels, config.features)
     assert (scan.dropped_far, scan.dropped_nonfinite, len(scan)) == (1, 0, len(pair.pts_src))
-    clean_voxels, _ = features.voxel_downsample(pair.pts_src, pair.label_src,
-                                                config.features.voxel_size)
+    clean_voxels, _ = features.voxel_downsample(
+        pair.pts_src, pair.label_src, config.features.voxel_size
+    )
     with warnings.catch_warnings():
         warnings.simplefilter('error')  # before: "invalid value encountered in cast"
-        voxels, _ = features.voxel_downsample(scan.points, scan.labels,
-                                              config.features.voxel_size)
+        voxels, _ = features.voxel_downsample(scan.points, scan.labels, config.features.voxel_size)
     assert voxels.shape == clean_voxels.shape and voxels.shape[0] > 5000
-    result = registration.register_scans(scan.points, scan.labels, pair.pts_dst,
-                                         pair.label_dst)
+    result = registration.register_scans(scan.points, scan.labels, pair.pts_dst, pair.label_dst)
     _assert_registered(result, pair.trans_gt)

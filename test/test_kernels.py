@@ -36,7 +36,8 @@ def test_environment_switch_disables_the_kernels(monkeypatch: pytest.MonkeyPatch
 
 
 def test_cache_directory_falls_back_when_the_package_is_read_only(
-        monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
     monkeypatch.delenv('NUMBA_CACHE_DIR', raising=False)
     package = Path(kernels.__file__).resolve().parent
     real_access = kernels.os.access
@@ -64,8 +65,16 @@ def test_warm_up_compiles_into_the_on_disk_cache() -> None:
     assert set(timings) == {'voxel_ms', 'fpfh_ms', 'total_ms'}
     folder = Path(kernels.cache_directory() or Path(kernels.__file__).parent / '__pycache__')
     names = ' '.join(p.name for p in folder.rglob('*.nbi'))
-    for kernel in ('_voxel_slots', '_voxel_sums', '_majority', 'pair_angles', 'histograms',
-                   'covariances', 'support_neighbour_sums', 'keypoint_neighbour_sums'):
+    for kernel in (
+        '_voxel_slots',
+        '_voxel_sums',
+        '_majority',
+        'pair_angles',
+        'histograms',
+        'covariances',
+        'support_neighbour_sums',
+        'keypoint_neighbour_sums',
+    ):
         assert kernel in names
 
 
@@ -93,8 +102,9 @@ def test_compiled_voxels_equal_numpy_bit_for_bit(seed: int) -> None:
         reference = function(points, size, compiled=False)
         for got, want in zip(ours, reference, strict=True):
             np.testing.assert_array_equal(got, want)
-    (c_pts, c_lab), (n_pts, n_lab) = (voxel_downsample(points, labels, size, compiled=flag)
-                                      for flag in (True, False))
+    (c_pts, c_lab), (n_pts, n_lab) = (
+        voxel_downsample(points, labels, size, compiled=flag) for flag in (True, False)
+    )
     np.testing.assert_array_equal(c_pts, n_pts)  # same voxels, same order, same rounding
     np.testing.assert_array_equal(c_lab, n_lab)
     assert c_lab.dtype == n_lab.dtype == np.int32
@@ -122,8 +132,16 @@ def test_overflowing_key_extent_falls_back_to_numpy() -> None:
 @needs_numba
 def test_compiled_majority_known_answers() -> None:
     # Voxel (0,0,0): 5, 7, 7 -> 7; voxel (1,0,0): a 3-vs-9 tie -> 3; (-1,0,0) alone -> 2.
-    points = np.array([[0.1, 0.1, 0.1], [0.2, 0.2, 0.2], [0.3, 0.3, 0.3], [1.2, 0.1, 0.1],
-                       [1.4, 0.3, 0.1], [-0.5, 0.5, 0.5]])
+    points = np.array(
+        [
+            [0.1, 0.1, 0.1],
+            [0.2, 0.2, 0.2],
+            [0.3, 0.3, 0.3],
+            [1.2, 0.1, 0.1],
+            [1.4, 0.3, 0.1],
+            [-0.5, 0.5, 0.5],
+        ]
+    )
     labels = np.array([5, 7, 7, 9, 3, 2], dtype=np.int32)
     centroids, voxel_labels = voxel_downsample(points, labels, 1.0, compiled=True)
     np.testing.assert_allclose(centroids, [[-0.5, 0.5, 0.5], [0.2, 0.2, 0.2], [1.3, 0.2, 0.1]])
@@ -136,8 +154,9 @@ def test_compiled_majority_known_answers() -> None:
 def test_empty_and_single_point_clouds() -> None:
     inverse, sums, sizes = kernels.voxel_grid(np.zeros((0, 3)), 0.5)
     assert inverse.shape == (0,) and sums.shape == (0, 3) and sizes.shape == (0,)
-    centroids, labels = voxel_downsample(np.array([[1.0, 2.0, 3.0]]), np.array([4]), 0.5,
-                                         compiled=True)
+    centroids, labels = voxel_downsample(
+        np.array([[1.0, 2.0, 3.0]]), np.array([4]), 0.5, compiled=True
+    )
     np.testing.assert_array_equal(centroids, [[1.0, 2.0, 3.0]])
     np.testing.assert_array_equal(labels, [4])
 
@@ -152,9 +171,15 @@ def test_keep_freed_memory_removes_the_page_faults_of_repeated_allocations() -> 
         'for _ in range(3): np.ones(5 << 20).sum()\n'
         'start = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n'
         'for _ in range(10): np.ones(5 << 20).sum()\n'
-        'print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - start)\n')
-    faults = [int(subprocess.run([sys.executable, '-c', script, flag], check=True,
-                                 capture_output=True, text=True).stdout)
-              for flag in ('0', '1')]
+        'print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - start)\n'
+    )
+    faults = [
+        int(
+            subprocess.run(
+                [sys.executable, '-c', script, flag], check=True, capture_output=True, text=True
+            ).stdout
+        )
+        for flag in ('0', '1')
+    ]
     assert faults[0] > 1000, faults  # at least some fresh pages per array (huge pages: fewer)
     assert faults[1] < faults[0] / 10, faults

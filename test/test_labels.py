@@ -50,8 +50,9 @@ def test_learning_ids_pass_through_and_auto_detects_them():
     np.testing.assert_array_equal(LABELS.to_learning(learning.astype(np.float32)), learning)
 
 
-@pytest.mark.parametrize('dtype', [np.uint8, np.int16, np.uint16, np.int32, np.uint32,
-                                   np.int64, np.float32, np.float64])
+@pytest.mark.parametrize(
+    'dtype', [np.uint8, np.int16, np.uint16, np.int32, np.uint32, np.int64, np.float32, np.float64]
+)
 def test_any_numeric_dtype_is_accepted(dtype):
     np.testing.assert_array_equal(LABELS.to_learning(np.array([9, 13], dtype=dtype)), [9, 13])
 
@@ -159,11 +160,11 @@ def test_all_zero_and_empty_scans_read_as_learning():
 
 def test_int32_minimum_is_a_raw_label_with_instance_bits():
     # Issue 11: int32 -2**31 = 0x80000000 (instance 0x8000, class 0) was rejected.
-    low = np.array([-2**31], np.int32)
+    low = np.array([-(2**31)], np.int32)
     np.testing.assert_array_equal(LABELS.to_learning(low), [0])
     raw = LABELS.to_raw(np.array([9, 13, 15, 1]), np.array([0x8000, 3, 0xFFFF, 0x7FFF]))
     signed = np.concatenate([raw, [0x80000000]]).astype(np.uint32).view(np.int32)
-    assert signed.min() == -2**31
+    assert signed.min() == -(2**31)
     out = LABELS.convert(signed)
     assert out.scheme == 'raw' and out.out_of_scheme == 0
     np.testing.assert_array_equal(out.ids, [9, 13, 15, 1, 0])
@@ -180,17 +181,18 @@ def test_narrow_signed_labels_are_sign_extended_to_32_bits():
         assert out.scheme == 'learning' and out.out_of_scheme == 1
         assert out.ids.tolist() == [9, 13, 0, 17]
         assert LABELS.convert(labels, 'raw', max_out_of_scheme=1.0).out_of_scheme == 3
-    np.testing.assert_array_equal(LABELS.to_learning(np.array([40, 70, 81], np.int8)),
-                                  [9, 15, 19])
+    np.testing.assert_array_equal(LABELS.to_learning(np.array([40, 70, 81], np.int8)), [9, 15, 19])
     np.testing.assert_array_equal(LABELS.to_learning(np.array([252, 40], np.uint16)), [1, 9])
 
 
 def test_values_beyond_32_bits_are_in_no_scheme():
     # 2**32 + 40 is not road: the value does not fit 32 bits.
-    for labels in (np.array([2**32 + 40, 40, 50, 70], np.int64),
-                   np.array([2**63 + 40, 40, 50, 70], np.uint64),
-                   np.array([1e30, 40.0, 50.0, 70.0]),
-                   np.array([-2.0**31 - 1, 40.0, 50.0, 70.0])):
+    for labels in (
+        np.array([2**32 + 40, 40, 50, 70], np.int64),
+        np.array([2**63 + 40, 40, 50, 70], np.uint64),
+        np.array([1e30, 40.0, 50.0, 70.0]),
+        np.array([-(2.0**31) - 1, 40.0, 50.0, 70.0]),
+    ):
         with warnings.catch_warnings():
             warnings.simplefilter('error')
             out = LABELS.convert(labels)

@@ -42,8 +42,14 @@ def test_top_k_levels_keep_ties_and_select_by_descriptor_distance():
     for j, level in enumerate([5, 5, 4, 3, 1]):
         dst_bmr[j, :level] = True
     groups_src, groups_dst = np.ones(1, np.uint64), np.ones(5, np.uint64)
-    args = (src_desc, dst_desc, groups_src, groups_dst, sp.csr_matrix(src_bmr),
-            sp.csr_matrix(dst_bmr))
+    args = (
+        src_desc,
+        dst_desc,
+        groups_src,
+        groups_dst,
+        sp.csr_matrix(src_bmr),
+        sp.csr_matrix(dst_bmr),
+    )
     assert _pairs(semantic_match(*args, top_k=2, mutual=False)) == {(0, 2)}
     assert _pairs(semantic_match(*args, top_k=1, mutual=False)) == {(0, 1)}  # tie 5, 5
     assert _pairs(semantic_match(*args, top_k=5, mutual=False)) == {(0, 4)}  # all levels
@@ -82,15 +88,22 @@ def test_engine_agrees_with_dense_reference(seed, mutual, top_k):
     dst_ss = rng.random((n, classes)) < 0.3
     src_bmr = rng.random((m, bins)) < rng.uniform(0.02, 0.3)
     dst_bmr = rng.random((n, bins)) < rng.uniform(0.02, 0.3)
-    fast = semantic_match(src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss),
-                          sp.csr_matrix(src_bmr), sp.csr_matrix(dst_bmr), top_k, mutual)
-    expected = reference_match(src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr, top_k,
-                               mutual)
+    fast = semantic_match(
+        src_desc,
+        dst_desc,
+        group_bitmask(src_ss),
+        group_bitmask(dst_ss),
+        sp.csr_matrix(src_bmr),
+        sp.csr_matrix(dst_bmr),
+        top_k,
+        mutual,
+    )
+    expected = reference_match(src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr, top_k, mutual)
     assert _pairs(fast) == expected
-    gm = semantic_match(src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss),
-                        None, None, top_k, mutual)
-    assert _pairs(gm) == reference_match(src_desc, dst_desc, src_ss, dst_ss, None, None, 1,
-                                         mutual)
+    gm = semantic_match(
+        src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss), None, None, top_k, mutual
+    )
+    assert _pairs(gm) == reference_match(src_desc, dst_desc, src_ss, dst_ss, None, None, 1, mutual)
 
 
 def test_duplicates_across_groups_are_removed_and_distances_reported():
@@ -104,8 +117,9 @@ def test_duplicates_across_groups_are_removed_and_distances_reported():
 def test_empty_inputs_give_no_correspondence():
     empty = match_descriptors(np.zeros((0, 4)), np.ones((3, 4)))
     assert len(empty) == 0
-    no_group = group_matching(np.ones((2, 3)), np.ones((2, 3)), np.zeros((2, 4), bool),
-                              np.ones((2, 4), bool))
+    no_group = group_matching(
+        np.ones((2, 3)), np.ones((2, 3)), np.zeros((2, 4), bool), np.ones((2, 4), bool)
+    )
     assert len(no_group) == 0
 
 
@@ -118,13 +132,22 @@ def test_rows_without_any_mask_candidate_do_not_break_matching():
     corr = semantic_match(src_desc, dst_desc, ones_src, ones_dst, src_bmr, dst_bmr, 1, False)
     assert _pairs(corr) == {(0, 1), (1, 0)}
     # restrictive rows whose candidates all fall outside the row's groups
-    corr = semantic_match(src_desc, dst_desc, np.array([1, 1], np.uint64),
-                          np.array([2, 2], np.uint64), src_bmr, src_bmr.copy(), 1, True)
+    corr = semantic_match(
+        src_desc,
+        dst_desc,
+        np.array([1, 1], np.uint64),
+        np.array([2, 2], np.uint64),
+        src_bmr,
+        src_bmr.copy(),
+        1,
+        True,
+    )
     assert len(corr) == 0
 
 
-def _clustered_case(seed: int, m: int = 300, n: int = 320, classes: int = 5, bins: int = 60,
-                    patterns: int = 12):
+def _clustered_case(
+    seed: int, m: int = 300, n: int = 320, classes: int = 5, bins: int = 60, patterns: int = 12
+):
     """Build inputs where many keypoints share a BMR-SS pattern (as neighbours do)."""
     rng = np.random.default_rng(seed)
     src_desc, dst_desc = rng.normal(size=(m, 6)), rng.normal(size=(n, 6))
@@ -139,7 +162,8 @@ def _clustered_case(seed: int, m: int = 300, n: int = 320, classes: int = 5, bin
 @pytest.mark.parametrize('seed', range(4))
 @pytest.mark.parametrize('mutual', [False, True])
 def test_engine_agrees_with_reference_on_repeated_patterns_and_small_chunks(
-        seed, mutual, monkeypatch):
+    seed, mutual, monkeypatch
+):
     src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(seed)
     expected = reference_match(src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr, 2, mutual)
     args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss))
@@ -164,9 +188,14 @@ def test_dense_and_sparse_bmr_inputs_agree_and_explicit_zeros_are_not_bits():
     sparse_dst = sp.csr_matrix(dst_bmr.astype(np.uint8))
     assert _pairs(semantic_match(*args, sparse_src, sparse_dst, 2, False)) == dense
     padded = sp.csr_matrix(np.where(dst_bmr, 1, 0).astype(np.uint8))
-    padded = sp.csr_matrix((np.r_[padded.data, 0], np.r_[padded.indices, 0],
-                            np.r_[padded.indptr[:-1], padded.indptr[-1] + 1]),
-                           shape=padded.shape)  # explicit zero at (last row, bin 0)
+    padded = sp.csr_matrix(
+        (
+            np.r_[padded.data, 0],
+            np.r_[padded.indices, 0],
+            np.r_[padded.indptr[:-1], padded.indptr[-1] + 1],
+        ),
+        shape=padded.shape,
+    )  # explicit zero at (last row, bin 0)
     if not dst_bmr[-1, 0]:
         assert padded.nnz == dst_bmr.sum() + 1
     assert _pairs(semantic_match(*args, sparse_src, padded, 2, False)) == dense
@@ -201,15 +230,25 @@ def test_bmr_without_bins_falls_back_to_group_matching():
     src_desc, dst_desc, src_ss, dst_ss, _, _ = _clustered_case(2)
     args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss))
     empty_src, empty_dst = np.zeros((len(src_desc), 0), bool), np.zeros((len(dst_desc), 0), bool)
-    assert (_pairs(semantic_match(*args, empty_src, empty_dst, 2, False))
-            == _pairs(semantic_match(*args, None, None, 2, False)))
+    assert _pairs(semantic_match(*args, empty_src, empty_dst, 2, False)) == _pairs(
+        semantic_match(*args, None, None, 2, False)
+    )
 
 
 def test_matcher_reports_sub_stage_timings():
     src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(3)
     timings: dict[str, float] = {}
-    semantic_match(src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss), src_bmr,
-                   dst_bmr, 2, False, timings=timings)
+    semantic_match(
+        src_desc,
+        dst_desc,
+        group_bitmask(src_ss),
+        group_bitmask(dst_ss),
+        src_bmr,
+        dst_bmr,
+        2,
+        False,
+        timings=timings,
+    )
     assert set(timings) == {'gm_mm_mask_ms', 'gm_mm_dense_ms'}
     assert all(v >= 0 for v in timings.values())
 
@@ -218,11 +257,20 @@ def test_matcher_reports_sub_stage_timings():
 @pytest.mark.parametrize('mutual', [False, True])
 def test_dense_and_sparse_candidate_paths_agree_with_reference(seed, mutual, monkeypatch):
     # few landmarks -> low S maxima -> many candidates: the case the dense path is for
-    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(seed, bins=30,
-                                                                           patterns=4)
+    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(
+        seed, bins=30, patterns=4
+    )
     expected = reference_match(src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr, 2, mutual)
-    args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss), src_bmr,
-            dst_bmr, 2, mutual)
+    args = (
+        src_desc,
+        dst_desc,
+        group_bitmask(src_ss),
+        group_bitmask(dst_ss),
+        src_bmr,
+        dst_bmr,
+        2,
+        mutual,
+    )
     outputs = []
     for fraction in (0.0, np.inf):  # every chunk dense / every chunk sparse
         monkeypatch.setattr(matching, '_DENSE_FRACTION', fraction)
@@ -236,13 +284,20 @@ def test_dense_and_sparse_candidate_paths_agree_with_reference(seed, mutual, mon
 
 @pytest.mark.filterwarnings('ignore:invalid value:RuntimeWarning')  # NaN on purpose
 @pytest.mark.parametrize('mutual', [False, True])
-def test_non_finite_descriptors_give_the_same_winners_on_both_candidate_paths(
-        mutual, monkeypatch):
+def test_non_finite_descriptors_give_the_same_winners_on_both_candidate_paths(mutual, monkeypatch):
     src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(5, patterns=4)
     dst_desc[[3, 40]] = np.nan  # NaN and inf must sort the same way on both paths
     src_desc[7] = np.inf
-    args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss), src_bmr,
-            dst_bmr, 2, mutual)
+    args = (
+        src_desc,
+        dst_desc,
+        group_bitmask(src_ss),
+        group_bitmask(dst_ss),
+        src_bmr,
+        dst_bmr,
+        2,
+        mutual,
+    )
     results = []
     for fraction in (0.0, np.inf):
         monkeypatch.setattr(matching, '_DENSE_FRACTION', fraction)
@@ -252,8 +307,18 @@ def test_non_finite_descriptors_give_the_same_winners_on_both_candidate_paths(
 
 def _match_in_child(seed: int) -> set[tuple[int, int]]:
     src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(seed)
-    return _pairs(semantic_match(src_desc, dst_desc, group_bitmask(src_ss),
-                                 group_bitmask(dst_ss), src_bmr, dst_bmr, 2, False))
+    return _pairs(
+        semantic_match(
+            src_desc,
+            dst_desc,
+            group_bitmask(src_ss),
+            group_bitmask(dst_ss),
+            src_bmr,
+            dst_bmr,
+            2,
+            False,
+        )
+    )
 
 
 @pytest.mark.filterwarnings('ignore:This process:DeprecationWarning')  # Python >= 3.12

@@ -73,9 +73,16 @@ def test_evaluate_pair_known_answer():
     assert not m.success
 
 
-@pytest.mark.parametrize(('yaw', 'dx', 'success'), [
-    (5.0, 0.0, True), (5.01, 0.0, False), (0.0, 0.6, True), (0.0, 0.6001, False),
-    (4.9, 0.59, True)])
+@pytest.mark.parametrize(
+    ('yaw', 'dx', 'success'),
+    [
+        (5.0, 0.0, True),
+        (5.01, 0.0, False),
+        (0.0, 0.6, True),
+        (0.0, 0.6001, False),
+        (4.9, 0.59, True),
+    ],
+)
 def test_success_boundaries_are_inclusive(yaw, dx, success):
     T_gt = rigid(0, (0.0, 2.0, 3.0))  # x = 0 so that 0 + 0.6 is exactly 0.6
     estimate = T_gt @ rigid(yaw)
@@ -90,10 +97,12 @@ def test_non_finite_estimate_fails_and_empty_correspondences_give_zero_ratio():
 
 
 def test_summary_averages_errors_over_successful_pairs_only():
-    metrics = [PairMetrics(100, 10.0, 1000, 1.0, 20.0, True),
-               PairMetrics(50, 5.0, 1000, 3.0, 40.0, True),
-               PairMetrics(0, 0.0, 1000, 90.0, 900.0, False),
-               PairMetrics(10, 1.0, 1000, 7.0, 50.0, False)]
+    metrics = [
+        PairMetrics(100, 10.0, 1000, 1.0, 20.0, True),
+        PairMetrics(50, 5.0, 1000, 3.0, 40.0, True),
+        PairMetrics(0, 0.0, 1000, 90.0, 900.0, False),
+        PairMetrics(10, 1.0, 1000, 7.0, 50.0, False),
+    ]
     s = summarize(metrics)
     assert s['n_pairs'] == 4
     assert s['inlier_number'] == pytest.approx(40.0)
@@ -147,8 +156,12 @@ def test_kitti_translation_error_of_a_constant_scale_drift():
     # Segment L ends at the first frame with distance > L, i.e. L + 1 m later (devkit).
     lengths = np.arange(100, 900, 100, dtype=float)
     starts = np.arange(0, frames, 10)
-    errors = [(scale - 1) * (length + 1) / length for s in starts for length in lengths
-              if s + length + 1 < frames]
+    errors = [
+        (scale - 1) * (length + 1) / length
+        for s in starts
+        for length in lengths
+        if s + length + 1 < frames
+    ]
     t_err, r_err = kitti_odometry_errors(est, gt)
     assert t_err == pytest.approx(100 * np.mean(errors))
     assert t_err == pytest.approx(2.0, rel=0.01)
@@ -161,11 +174,16 @@ def test_kitti_rotation_error_of_a_constant_yaw_drift():
     gt = np.tile(np.eye(4), (frames, 1, 1))
     gt[:, 0, 3] = np.arange(frames, dtype=float)
     est = gt.copy()
-    est[:, :3, :3] = Rotation.from_euler('z', drift_deg * np.arange(frames)[:, None],
-                                         degrees=True).as_matrix()
+    est[:, :3, :3] = Rotation.from_euler(
+        'z', drift_deg * np.arange(frames)[:, None], degrees=True
+    ).as_matrix()
     _, r_err = kitti_odometry_errors(est, gt)
     # Each segment L spans L + 1 frames: (L + 1) * 0.01 deg over L m, in deg per 100 m.
     lengths = np.arange(100, 900, 100, dtype=float)
-    expected = [drift_deg * (length + 1) / length * 100 for s in range(0, frames, 10)
-                for length in lengths if s + length + 1 < frames]
+    expected = [
+        drift_deg * (length + 1) / length * 100
+        for s in range(0, frames, 10)
+        for length in lengths
+        if s + length + 1 < frames
+    ]
     assert r_err == pytest.approx(np.mean(expected))

@@ -54,8 +54,13 @@ def _next_stamp() -> Any:
 
 @pytest.fixture(scope='module')
 def ros() -> Any:
-    args = ['--ros-args', '-p', f'keypoints.count:={KEYPOINTS}',
-            '-p', 'path.publish_period:=0.0']  # every path, for the checks
+    args = [
+        '--ros-args',
+        '-p',
+        f'keypoints.count:={KEYPOINTS}',
+        '-p',
+        'path.publish_period:=0.0',
+    ]  # every path, for the checks
     with node_and_probe(DOMAIN_ID, args) as (node, probe):
         yield node, probe
 
@@ -74,8 +79,7 @@ def probe(ros: Any) -> NodeProbe:
     return probe
 
 
-def send(probe: NodeProbe, points: np.ndarray, labels: np.ndarray, **kw: Any
-         ) -> tuple[Any, dict]:
+def send(probe: NodeProbe, points: np.ndarray, labels: np.ndarray, **kw: Any) -> tuple[Any, dict]:
     """Publish one scan; return its stamp and the node's diagnostics for it."""
     stamp = _next_stamp()
     probe.publish(probe.cloud(points, np.asarray(labels).astype(np.uint32), stamp, **kw))
@@ -147,8 +151,9 @@ def test_registers_a_pair_with_the_right_frames_and_stamps(defaults: NodeProbe) 
     np.testing.assert_allclose(cov, cov.T)  # the fine alignment's full covariance
     assert np.all(np.linalg.eigvalsh(cov) > 0)
     twist = odom.twist.twist.linear  # 0.1 s between the stamps
-    np.testing.assert_allclose([twist.x, twist.y, twist.z],
-                               matrix(msg.transform)[:3, 3] / 0.1, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(
+        [twist.x, twist.y, twist.z], matrix(msg.transform)[:3, 3] / 0.1, rtol=1e-6, atol=1e-6
+    )
     path = probe.wait_for('path', src_stamp, 5.0)
     assert path.header.frame_id == 'odom' and len(path.poses) == 2
     assert [p.header.frame_id for p in path.poses] == ['odom', 'odom']
@@ -167,8 +172,9 @@ def test_registers_a_pair_with_the_right_frames_and_stamps(defaults: NodeProbe) 
 def test_parameter_change_applies_from_the_next_frame(probe: NodeProbe, scene: Any) -> None:
     send_pair(probe, scene)
     # 300 keypoints give fewer inliers: the sparse threshold goes down with them
-    results = probe.set_parameters({'keypoints.count': 300, 'publish_outliers': True,
-                                    'estimator.min_inliers': 10})
+    results = probe.set_parameters(
+        {'keypoints.count': 300, 'publish_outliers': True, 'estimator.min_inliers': 10}
+    )
     assert all(r.successful for r in results), [r.reason for r in results]
     try:
         assert probe.get_parameters(['keypoints.count']) == [300]
@@ -180,28 +186,35 @@ def test_parameter_change_applies_from_the_next_frame(probe: NodeProbe, scene: A
         assert 'outliers' in {m.ns for m in markers.markers}
     finally:
         probe.reset()
-        results = probe.set_parameters({'keypoints.count': KEYPOINTS,
-                                        'publish_outliers': False,
-                                        'estimator.min_inliers':
-                                            RegistrationConfig().estimator.min_inliers})
+        results = probe.set_parameters(
+            {
+                'keypoints.count': KEYPOINTS,
+                'publish_outliers': False,
+                'estimator.min_inliers': RegistrationConfig().estimator.min_inliers,
+            }
+        )
         assert all(r.successful for r in results)
 
 
-@pytest.mark.parametrize(('name', 'value', 'reason'), [
-    ('semantic.local_radius', 50.0, 'out of range'),
-    ('keypoints.count', 5, 'out of range'),
-    ('estimator.k2', 40, 'estimator.k2=40 must not exceed estimator.k1=30'),
-    ('semantic.ring_count', 256, 'receptive-field limit'),
-    ('semantic.landmark_classes', ['pole', 'lamppost'], "unknown class 'lamppost'"),
-    ('semantic.ignored_classes', ['pole'], 'both landmark and ignored'),
-    ('keyframe.policy', 'sometimes', "is not one of ['every_frame', 'distance']"),
-    ('semantic.label_scheme', 'binary', 'is not one of'),
-    ('odom_frame', '/odom', 'must not start with'),
-    ('qos.depth', 3, 'read-only'),
-    ('keypoints.count', 'many', 'Wrong parameter type'),
-])
-def test_invalid_parameter_changes_are_rejected(ros: Any, name: str, value: Any,
-                                                reason: str) -> None:
+@pytest.mark.parametrize(
+    ('name', 'value', 'reason'),
+    [
+        ('semantic.local_radius', 50.0, 'out of range'),
+        ('keypoints.count', 5, 'out of range'),
+        ('estimator.k2', 40, 'estimator.k2=40 must not exceed estimator.k1=30'),
+        ('semantic.ring_count', 256, 'receptive-field limit'),
+        ('semantic.landmark_classes', ['pole', 'lamppost'], "unknown class 'lamppost'"),
+        ('semantic.ignored_classes', ['pole'], 'both landmark and ignored'),
+        ('keyframe.policy', 'sometimes', "is not one of ['every_frame', 'distance']"),
+        ('semantic.label_scheme', 'binary', 'is not one of'),
+        ('odom_frame', '/odom', 'must not start with'),
+        ('qos.depth', 3, 'read-only'),
+        ('keypoints.count', 'many', 'Wrong parameter type'),
+    ],
+)
+def test_invalid_parameter_changes_are_rejected(
+    ros: Any, name: str, value: Any, reason: str
+) -> None:
     node, probe = ros
     before = probe.get_parameters([name])
     core_before = node._params.snapshot()
@@ -212,15 +225,23 @@ def test_invalid_parameter_changes_are_rejected(ros: Any, name: str, value: Any,
     assert node._params.snapshot() == core_before
 
 
-def test_malformed_input_is_skipped_and_the_node_keeps_working(probe: NodeProbe,
-                                                               scene: Any) -> None:
+def test_malformed_input_is_skipped_and_the_node_keeps_working(
+    probe: NodeProbe, scene: Any
+) -> None:
     good = probe.cloud(scene.pts_dst, scene.label_dst.astype(np.uint32), _next_stamp())
 
     def variant(**changes: Any) -> Any:
-        msg = type(good)(header=good.header, height=good.height, width=good.width,
-                         fields=list(good.fields), is_bigendian=good.is_bigendian,
-                         point_step=good.point_step, row_step=good.row_step, data=good.data,
-                         is_dense=good.is_dense)
+        msg = type(good)(
+            header=good.header,
+            height=good.height,
+            width=good.width,
+            fields=list(good.fields),
+            is_bigendian=good.is_bigendian,
+            point_step=good.point_step,
+            row_step=good.row_step,
+            data=good.data,
+            is_dense=good.is_dense,
+        )
         for key, value in changes.items():
             setattr(msg, key, value)
         return msg
@@ -245,14 +266,15 @@ def test_malformed_input_is_skipped_and_the_node_keeps_working(probe: NodeProbe,
         'big-endian': variant(is_bigendian=True),
         'NaN/inf coordinates': probe.cloud(nan_points, np.ones(100, np.uint32), _next_stamp()),
         'zero points': variant(width=0, row_step=0, data=b''),
-        'non-integral float': probe.cloud(scene.pts_dst[:100], np.full(100, 1.5),
-                                          _next_stamp(), label_datatype='float32'),
-        'unusable labels': probe.cloud(scene.pts_dst[:100], np.full(100, 70), _next_stamp(),
-                                       label_datatype='uint32'),
+        'non-integral float': probe.cloud(
+            scene.pts_dst[:100], np.full(100, 1.5), _next_stamp(), label_datatype='float32'
+        ),
+        'unusable labels': probe.cloud(
+            scene.pts_dst[:100], np.full(100, 70), _next_stamp(), label_datatype='uint32'
+        ),
     }
     # 'unusable labels': raw ids are fine in auto mode, so force the learning scheme.
-    assert all(r.successful for r in probe.set_parameters({'semantic.label_scheme':
-                                                           'learning'}))
+    assert all(r.successful for r in probe.set_parameters({'semantic.label_scheme': 'learning'}))
     try:
         for reason, msg in cases.items():
             msg.header.stamp = _next_stamp()
@@ -263,28 +285,29 @@ def test_malformed_input_is_skipped_and_the_node_keeps_working(probe: NodeProbe,
             expected = 'learning ids must lie' if reason == 'unusable labels' else reason
             assert expected in status['message'], status['message']
     finally:
-        assert all(r.successful for r in probe.set_parameters({'semantic.label_scheme':
-                                                               'auto'}))
+        assert all(r.successful for r in probe.set_parameters({'semantic.label_scheme': 'auto'}))
     assert int(status['frames_malformed']) >= len(cases)
     # The node still answers the next good pair; scans with some NaN points are fine.
-    with_nan = dataclasses.replace(scene, pts_src=np.concatenate([scene.pts_src, nan_points]),
-                                   label_src=np.concatenate([scene.label_src, np.ones(100)]))
+    with_nan = dataclasses.replace(
+        scene,
+        pts_src=np.concatenate([scene.pts_src, nan_points]),
+        label_src=np.concatenate([scene.label_src, np.ones(100)]),
+    )
     _, src_stamp, status = send_pair(probe, with_nan)
     assert status['level'] == 0, status['message']
     assert int(status['dropped_nonfinite_points']) == 100
-    assert_close_to(matrix(probe.wait_for('transform', src_stamp, 5.0).transform),
-                    scene.trans_gt)
+    assert_close_to(matrix(probe.wait_for('transform', src_stamp, 5.0).transform), scene.trans_gt)
 
 
-def test_organized_cloud_with_row_padding_and_float_labels(probe: NodeProbe,
-                                                           scene: Any) -> None:
+def test_organized_cloud_with_row_padding_and_float_labels(probe: NodeProbe, scene: Any) -> None:
     send(probe, scene.pts_dst, scene.label_dst)
     # The current scan as a 2-row organized cloud, 8 bytes of padding per row, float64 labels.
-    msg = probe.cloud(scene.pts_src, scene.label_src.astype(np.float64), _next_stamp(),
-                      label_datatype='float64')
+    msg = probe.cloud(
+        scene.pts_src, scene.label_src.astype(np.float64), _next_stamp(), label_datatype='float64'
+    )
     assert msg.fields[-1].datatype == FLOAT64
     width = msg.width // 2
-    rows = np.frombuffer(bytes(msg.data), np.uint8)[:2 * width * msg.point_step]
+    rows = np.frombuffer(bytes(msg.data), np.uint8)[: 2 * width * msg.point_step]
     rows = rows.reshape(2, width * msg.point_step)
     padded = np.concatenate([rows, np.full((2, 8), 0xEE, np.uint8)], axis=1)
     msg.height, msg.width, msg.row_step = 2, width, width * msg.point_step + 8
@@ -292,12 +315,14 @@ def test_organized_cloud_with_row_padding_and_float_labels(probe: NodeProbe,
     probe.publish(msg)
     status = probe.status_for(msg.header.stamp, TIMEOUT_S)
     assert status['level'] == 0, status['message']
-    assert_close_to(matrix(probe.wait_for('transform', msg.header.stamp, 5.0).transform),
-                    scene.trans_gt)
+    assert_close_to(
+        matrix(probe.wait_for('transform', msg.header.stamp, 5.0).transform), scene.trans_gt
+    )
 
 
 def test_failure_keeps_the_keyframe_and_does_not_move_the_odometry(
-        probe: NodeProbe, scene: Any) -> None:
+    probe: NodeProbe, scene: Any
+) -> None:
     dst_stamp, _ = send(probe, scene.pts_dst, scene.label_dst)
     assert all(r.successful for r in probe.set_parameters({'estimator.min_inliers': 100000}))
     try:
@@ -317,17 +342,24 @@ def test_failure_keeps_the_keyframe_and_does_not_move_the_odometry(
 
 
 def test_distance_keyframe_policy_and_reset(probe: NodeProbe, scene: Any) -> None:
-    assert all(r.successful for r in probe.set_parameters(
-        {'keyframe.policy': 'distance', 'keyframe.min_distance': 50.0}))
+    assert all(
+        r.successful
+        for r in probe.set_parameters(
+            {'keyframe.policy': 'distance', 'keyframe.min_distance': 50.0}
+        )
+    )
     try:
         dst_stamp, _, _ = send_pair(probe, scene)
         again, status = send(probe, scene.pts_src, scene.label_src)  # 2.5 m < 50 m: same keyframe
         assert status['keyframe_stamp'] == f'{dst_stamp.sec + 1e-9 * dst_stamp.nanosec:.9f}'
-        assert_close_to(matrix(probe.wait_for('transform', again, 5.0).transform),
-                        scene.trans_gt)
+        assert_close_to(matrix(probe.wait_for('transform', again, 5.0).transform), scene.trans_gt)
     finally:
-        assert all(r.successful for r in probe.set_parameters(
-            {'keyframe.policy': 'every_frame', 'keyframe.min_distance': 1.0}))
+        assert all(
+            r.successful
+            for r in probe.set_parameters(
+                {'keyframe.policy': 'every_frame', 'keyframe.min_distance': 1.0}
+            )
+        )
     assert probe.reset()
     stamp, status = send(probe, scene.pts_src, scene.label_src)
     assert 'first scan' in status['message']
@@ -337,7 +369,8 @@ def test_distance_keyframe_policy_and_reset(probe: NodeProbe, scene: Any) -> Non
 
 
 def test_label_scheme_change_that_invalidates_the_keyframe_restarts(
-        probe: NodeProbe, scene: Any) -> None:
+    probe: NodeProbe, scene: Any
+) -> None:
     from mlsemreg_ros.core.labels import LabelMap
 
     raw = LabelMap.load().to_raw(scene.label_dst)  # raw ids (car 10, road 40, ...)
@@ -352,20 +385,24 @@ def test_label_scheme_change_that_invalidates_the_keyframe_restarts(
 
 
 # -- issue 11: named regressions through the real node ---------------------------------
-def test_a_degenerate_first_scan_does_not_become_the_keyframe(probe: NodeProbe,
-                                                              scene: Any) -> None:
+def test_a_degenerate_first_scan_does_not_become_the_keyframe(
+    probe: NodeProbe, scene: Any
+) -> None:
     for points in (scene.pts_dst[:1], scene.pts_dst[:12], np.repeat(scene.pts_dst[:1], 500, 0)):
-        _, status = send(probe, points, scene.label_dst[:len(points)]
-                         if len(points) <= 12 else np.full(len(points), 9))
+        _, status = send(
+            probe,
+            points,
+            scene.label_dst[: len(points)] if len(points) <= 12 else np.full(len(points), 9),
+        )
         assert status['level'] == 1 and 'no keyframe yet' in status['message']
     _, src_stamp, status = send_pair(probe, scene)  # not stuck: the next good pair
     assert status['level'] == 0, status['message']
-    assert_close_to(matrix(probe.wait_for('transform', src_stamp, 5.0).transform),
-                    scene.trans_gt)
+    assert_close_to(matrix(probe.wait_for('transform', src_stamp, 5.0).transform), scene.trans_gt)
 
 
-def test_duplicate_stamps_are_skipped_and_backward_stamps_restart(probe: NodeProbe,
-                                                                  scene: Any) -> None:
+def test_duplicate_stamps_are_skipped_and_backward_stamps_restart(
+    probe: NodeProbe, scene: Any
+) -> None:
     dst_stamp, status = send(probe, scene.pts_dst, scene.label_dst)
     probe.publish(probe.cloud(scene.pts_src, scene.label_src.astype(np.uint32), dst_stamp))
     status = probe.status_for(dst_stamp, TIMEOUT_S, skip=1)
@@ -382,8 +419,9 @@ def test_duplicate_stamps_are_skipped_and_backward_stamps_restart(probe: NodePro
 def test_a_frame_id_change_restarts_the_odometry(probe: NodeProbe, scene: Any) -> None:
     send_pair(probe, scene)
     stamp = _next_stamp()
-    probe.publish(probe.cloud(scene.pts_src, scene.label_src.astype(np.uint32), stamp,
-                              frame_id='os_sensor'))
+    probe.publish(
+        probe.cloud(scene.pts_src, scene.label_src.astype(np.uint32), stamp, frame_id='os_sensor')
+    )
     status = probe.status_for(stamp, TIMEOUT_S)
     assert 'first scan' in status['message'] and int(status['frame_changes']) >= 1
     assert probe.wait_for('odometry', stamp, 5.0).child_frame_id == 'os_sensor'
@@ -402,9 +440,10 @@ def test_input_the_old_node_got_wrong_now_registers(probe: NodeProbe, scene: Any
     from mlsemreg_ros.core.labels import LabelMap
 
     raw_dst = LabelMap.load().to_raw(scene.label_dst).astype(np.int64)
-    raw_dst[0] = -2**31  # instance bits only, class 0: valid
-    dst = probe.cloud(scene.pts_dst, raw_dst.astype(np.int32), _next_stamp(),
-                      label_datatype='int32')
+    raw_dst[0] = -(2**31)  # instance bits only, class 0: valid
+    dst = probe.cloud(
+        scene.pts_dst, raw_dst.astype(np.int32), _next_stamp(), label_datatype='int32'
+    )
     labels_src = scene.label_src.astype(np.uint32)
     labels_src[0] = 20  # one value outside the learning ids
     points_src = scene.pts_src.copy()
@@ -420,5 +459,6 @@ def test_input_the_old_node_got_wrong_now_registers(probe: NodeProbe, scene: Any
     assert status['mode'] == 'ml-semreg' and status['input.label_scheme'] == 'learning'
     assert int(status['input.labels_out_of_scheme']) == 1
     assert int(status['input.dropped_far']) == 1
-    assert_close_to(matrix(probe.wait_for('transform', src.header.stamp, 5.0).transform),
-                    scene.trans_gt)
+    assert_close_to(
+        matrix(probe.wait_for('transform', src.header.stamp, 5.0).transform), scene.trans_gt
+    )

@@ -59,8 +59,9 @@ class Tagged:
 class ScriptedRegistration:
     """prepare() tags each scan; register() returns scripted (transform, success)."""
 
-    def __init__(self, script: list[tuple[np.ndarray, bool]],
-                 config: RegistrationConfig = CHAIN) -> None:
+    def __init__(
+        self, script: list[tuple[np.ndarray, bool]], config: RegistrationConfig = CHAIN
+    ) -> None:
         self.script = list(script)
         self.config = config
         self.calls: list[tuple[int, int]] = []
@@ -76,9 +77,16 @@ class ScriptedRegistration:
         self.calls.append((source.scan_id, target.scan_id))
         T, success = self.script.pop(0)
         empty = np.zeros(0, dtype=np.int64)
-        return RegistrationResult(T, Correspondences(empty, empty, np.zeros(0, np.float32)),
-                                  np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0, bool),
-                                  success, 'ml-semreg', '' if success else 'too few inliers')
+        return RegistrationResult(
+            T,
+            Correspondences(empty, empty, np.zeros(0, np.float32)),
+            np.zeros((0, 3)),
+            np.zeros((0, 3)),
+            np.zeros(0, bool),
+            success,
+            'ml-semreg',
+            '' if success else 'too few inliers',
+        )
 
 
 def scan(scan_id: int) -> tuple[np.ndarray, np.ndarray]:
@@ -109,10 +117,20 @@ def test_every_frame_accumulates_and_refuses_to_advance_on_failure() -> None:
 
 
 def test_distance_policy_keeps_the_keyframe_until_it_moved_or_turned() -> None:
-    script = [(transform(0.4), True), (transform(0.8), True), (transform(1.2), True),
-              (transform(0.1, yaw_deg=12.0), True), (transform(0.1), True)]
-    config = CHAIN.replace({'keyframe.policy': 'distance', 'keyframe.min_distance': 1.0,
-                            'keyframe.min_rotation': 10.0})
+    script = [
+        (transform(0.4), True),
+        (transform(0.8), True),
+        (transform(1.2), True),
+        (transform(0.1, yaw_deg=12.0), True),
+        (transform(0.1), True),
+    ]
+    config = CHAIN.replace(
+        {
+            'keyframe.policy': 'distance',
+            'keyframe.min_distance': 1.0,
+            'keyframe.min_rotation': 10.0,
+        }
+    )
     odometry = Odometry(ScriptedRegistration(script, config))
     steps = [odometry.process(*scan(k)) for k in range(6)]
     assert [s.new_keyframe for s in steps] == [True, False, False, True, True, False]
@@ -164,8 +182,11 @@ def test_a_run_of_failures_reinitialises_at_the_last_pose() -> None:
     steps = [odometry.process(*scan(k), stamp_ns=10 * (k + 1)) for k in range(6)]
     assert [s.accepted for s in steps] == [True, True, False, False, False, True]
     third = steps[4]
-    assert third.source == 'reinitialized' and third.new_keyframe and 'the last accepted pose' \
-        in third.reason
+    assert (
+        third.source == 'reinitialized'
+        and third.new_keyframe
+        and 'the last accepted pose' in third.reason
+    )
     np.testing.assert_allclose(third.pose, transform(1.0))  # held, not moved
     assert steps[5].keyframe_index == 4  # registered onto the re-initialised keyframe
     np.testing.assert_allclose(steps[5].pose, transform(3.0))
@@ -233,10 +254,14 @@ def test_map_odometry_follows_the_drive_to_centimetres(drive: Any) -> None:
         sources.append(step.source)
         re, te = _pose_errors(step.pose, invert_transform(origin) @ pose)
         assert re < 0.05 and te < 0.02, (step.index, re, te)
-        assert step.covariance.shape == (6, 6) and np.all(np.linalg.eigvalsh(step.covariance)
-                                                          >= -1e-12)
-    assert sources[0] == 'first' and set(sources[2:]) <= {'prediction+global', 'global',
-                                                          'prediction'}
+        assert step.covariance.shape == (6, 6) and np.all(
+            np.linalg.eigvalsh(step.covariance) >= -1e-12
+        )
+    assert sources[0] == 'first' and set(sources[2:]) <= {
+        'prediction+global',
+        'global',
+        'prediction',
+    }
     assert step.twist is not None  # ~15 m/s along x at 10 Hz stamps
     assert abs(step.twist[0] - STEP_M / 0.1) < 0.5
     assert odometry.local_map.insertions == FRAMES and len(odometry.local_map) > 0
@@ -263,11 +288,14 @@ class FlippingRegistration(Registration):
 
 
 @pytest.mark.parametrize('constant_velocity', [True, False])
-def test_a_flipped_global_estimate_is_never_published(drive: Any,
-                                                      constant_velocity: bool) -> None:
-    config = RegistrationConfig().replace({'keypoints.count': 1000,
-                                           'odometry.constant_velocity': constant_velocity,
-                                           'odometry.global_registration': 'always'})
+def test_a_flipped_global_estimate_is_never_published(drive: Any, constant_velocity: bool) -> None:
+    config = RegistrationConfig().replace(
+        {
+            'keypoints.count': 1000,
+            'odometry.constant_velocity': constant_velocity,
+            'odometry.global_registration': 'always',
+        }
+    )
     odometry = Odometry(FlippingRegistration(config))
     origin = drive[0][2]
     steps = [odometry.process(points, labels, stamp) for points, labels, _, stamp in drive]
@@ -278,20 +306,18 @@ def test_a_flipped_global_estimate_is_never_published(drive: Any,
         assert [c.name for c in flipped.candidates] == ['prediction', 'global']
     else:  # no other candidate: the frame is rejected, the pose stays
         assert not flipped.accepted and 'global' in flipped.reason
-        np.testing.assert_array_equal(flipped.pose, steps[FlippingRegistration.flip_call - 1]
-                                      .pose)
+        np.testing.assert_array_equal(flipped.pose, steps[FlippingRegistration.flip_call - 1].pose)
     for step, (_, _, pose, _) in zip(steps, drive, strict=True):
         if step.accepted:  # whatever was accepted is right
             re, te = _pose_errors(step.pose, invert_transform(origin) @ pose)
             assert re < 0.1 and te < 0.05, (step.index, step.source, re, te)
-    assert all(s.accepted for s in steps[FlippingRegistration.flip_call + 1:])
+    after = FlippingRegistration.flip_call + 1
+    assert all(s.accepted for s in steps[after:])
 
 
-def test_on_demand_tracks_by_the_prediction_and_registers_globally_when_due(drive: Any
-                                                                            ) -> None:
+def test_on_demand_tracks_by_the_prediction_and_registers_globally_when_due(drive: Any) -> None:
     """Global registration: first frames, every global_interval-th scan, after a gap."""
-    config = RegistrationConfig().replace({'keypoints.count': 1000,
-                                           'odometry.global_interval': 3})
+    config = RegistrationConfig().replace({'keypoints.count': 1000, 'odometry.global_interval': 3})
     registration = FlippingRegistration(config)
     registration.flip_call = -1  # no flip: count the global registrations
     odometry = Odometry(registration)
@@ -311,8 +337,7 @@ def test_on_demand_tracks_by_the_prediction_and_registers_globally_when_due(driv
     assert tracked[2:4] == [True, True] and not tracked[4]
     assert registration.calls == sum(not t for t in tracked[1:])
     assert all('tracked' in s.reason for s, t in zip(steps, tracked, strict=True) if t)
-    always = Odometry(Registration(config.replace({'odometry.global_registration':
-                                                   'always'})))
+    always = Odometry(Registration(config.replace({'odometry.global_registration': 'always'})))
     always_steps = [always.process(p, lab, st) for p, lab, _, st in drive[:4]]
     assert all(s.result is not None for s in always_steps[1:])  # every scan registered
 

@@ -57,10 +57,12 @@ def _assert_same(actual: dict[str, Any], where: str) -> None:
     expected = _expected()
     assert sorted(actual) == sorted(expected), (
         f'{where}: missing {sorted(set(expected) - set(actual))}, '
-        f'extra {sorted(set(actual) - set(expected))}; {REGENERATE}')
+        f'extra {sorted(set(actual) - set(expected))}; {REGENERATE}'
+    )
     for key, default in expected.items():
         assert actual[key] == default and type(actual[key]) is type(default), (
-            f'{where}: {key} = {actual[key]!r}, default {default!r}; {REGENERATE}')
+            f'{where}: {key} = {actual[key]!r}, default {default!r}; {REGENERATE}'
+        )
 
 
 def test_params_yaml_holds_every_default_key_for_key() -> None:
@@ -87,8 +89,11 @@ def test_readme_parameter_tables_are_the_generated_block() -> None:
 
 
 def test_readme_block_replaces_only_what_lies_between_the_markers() -> None:
-    stale = 'intro\n' + readme_block().replace('| `qos.depth` | `5` |', '| `qos.depth` | `6` |') \
+    stale = (
+        'intro\n'
+        + readme_block().replace('| `qos.depth` | `5` |', '| `qos.depth` | `6` |')
         + '\noutro\n'
+    )
     assert update_readme(stale) == 'intro\n' + readme_block() + '\noutro\n'
     with pytest.raises(MarkerError):
         update_readme('no markers here')
@@ -103,14 +108,16 @@ def test_core_loader_reads_params_yaml() -> None:
 def test_node_config_validation() -> None:
     cfg = NodeConfig().replace({'qos.reliability': 'reliable', 'local_map_period': 2})
     assert cfg.qos.reliability == 'reliable' and cfg.local_map_period == 2.0
-    for change, reason in [({'qos.reliability': 'never'}, 'is not one of'),
-                           ({'local_map_period': -1.0}, 'below its minimum 0'),
-                           ({'qos.depth': 0}, 'below its minimum 1'),
-                           ({'odom_frame': ''}, 'odom_frame must not be empty'),
-                           ({'base_frame': 'odom'}, 'both'),
-                           ({'publish_tf': 'yes'}, 'expects bool'),
-                           ({'qos.bogus': 1}, 'unknown parameter'),
-                           ({'keyframe.policy': 'distance'}, 'unknown parameter')]:
+    for change, reason in [
+        ({'qos.reliability': 'never'}, 'is not one of'),
+        ({'local_map_period': -1.0}, 'below its minimum 0'),
+        ({'qos.depth': 0}, 'below its minimum 1'),
+        ({'odom_frame': ''}, 'odom_frame must not be empty'),
+        ({'base_frame': 'odom'}, 'both'),
+        ({'publish_tf': 'yes'}, 'expects bool'),
+        ({'qos.bogus': 1}, 'unknown parameter'),
+        ({'keyframe.policy': 'distance'}, 'unknown parameter'),
+    ]:
         with pytest.raises(ConfigError, match=reason):
             NodeConfig().replace(change)
 
@@ -132,8 +139,10 @@ def declared(ros_context: Any) -> Any:
         with ros_context(DOMAIN_ID, args) as context:
             node = MlSemRegNode(context=context)
             names = [name for name, _, _ in all_parameter_fields()]
-            out[label] = ({p.name: p.value for p in node.get_parameters(names)},
-                          dict(zip(names, node.describe_parameters(names), strict=True)))
+            out[label] = (
+                {p.name: p.value for p in node.get_parameters(names)},
+                dict(zip(names, node.describe_parameters(names), strict=True)),
+            )
             node.destroy_node()
     return out
 
@@ -158,5 +167,7 @@ def test_descriptors_carry_description_unit_range_and_choices(declared: Any) -> 
             assert len(ranges) == 1, name
             assert (ranges[0].from_value, ranges[0].to_value) == (meta['low'], meta['high'])
     assert descriptors['qos.depth'].read_only and not descriptors['keypoints.count'].read_only
-    assert 'class names: unlabeled, car' in \
-        descriptors['semantic.landmark_classes'].additional_constraints
+    assert (
+        'class names: unlabeled, car'
+        in descriptors['semantic.landmark_classes'].additional_constraints
+    )

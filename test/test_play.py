@@ -44,8 +44,9 @@ def bag(tmp_path: Path) -> tuple[Path, list[np.ndarray]]:
         for k in range(N_CLOUDS):
             xyz = rng.uniform(-10, 10, size=(200 + k, 3)).astype(np.float32).astype(np.float64)
             stamp = START_NS + k * 20_000_000  # 50 Hz
-            writer.write_cloud(stamp, xyz, np.full(len(xyz), 40 + k, np.uint32),
-                               topic='/test_play/points')
+            writer.write_cloud(
+                stamp, xyz, np.full(len(xyz), 40 + k, np.uint32), topic='/test_play/points'
+            )
             pose = np.eye(4)
             pose[0, 3] = k
             writer.write_odometry(stamp, pose, topic='/test_play/odom')
@@ -53,9 +54,9 @@ def bag(tmp_path: Path) -> tuple[Path, list[np.ndarray]]:
     return path, clouds
 
 
-def test_player_delivers_every_message_to_a_subscriber(bag: tuple[Path, list[np.ndarray]],
-                                                       rclpy_module: Any, ros_context: Any
-                                                       ) -> None:
+def test_player_delivers_every_message_to_a_subscriber(
+    bag: tuple[Path, list[np.ndarray]], rclpy_module: Any, ros_context: Any
+) -> None:
     from nav_msgs.msg import Odometry
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -67,8 +68,7 @@ def test_player_delivers_every_message_to_a_subscriber(bag: tuple[Path, list[np.
     with ros_context(DOMAIN_ID) as context:
         node = rclpy_module.create_node('test_play_subscriber', context=context)
         qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
-        node.create_subscription(PointCloud2, '/test_play/points',
-                                 received['points'].append, qos)
+        node.create_subscription(PointCloud2, '/test_play/points', received['points'].append, qos)
         node.create_subscription(Odometry, '/test_play/odom', received['odom'].append, qos)
         node.create_subscription(Clock, '/clock', received['clock'].append, 10)
         executor = SingleThreadedExecutor(context=context)
@@ -76,14 +76,30 @@ def test_player_delivers_every_message_to_a_subscriber(bag: tuple[Path, list[np.
         env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID))
         start = time.monotonic()
         player = subprocess.Popen(
-            [sys.executable, '-m', 'mlsemreg_ros.tools.play', str(path), '--rate', '1',
-             '--clock', '--wait-for-subscribers', '1', '--quiet'], env=env,
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+            [
+                sys.executable,
+                '-m',
+                'mlsemreg_ros.tools.play',
+                str(path),
+                '--rate',
+                '1',
+                '--clock',
+                '--wait-for-subscribers',
+                '1',
+                '--quiet',
+            ],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
         deadline = start + 45.0
         while time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)
-            if (len(received['points']) == N_CLOUDS and len(received['odom']) == N_CLOUDS
-                    and player.poll() is not None):
+            if (
+                len(received['points']) == N_CLOUDS
+                and len(received['odom']) == N_CLOUDS
+                and player.poll() is not None
+            ):
                 break
         for _ in range(10):
             executor.spin_once(timeout_sec=0.02)
@@ -103,7 +119,8 @@ def test_player_delivers_every_message_to_a_subscriber(bag: tuple[Path, list[np.
 
 
 def test_pace_topic_holds_playback_until_a_slow_consumer_answered(
-        bag: tuple[Path, list[np.ndarray]], rclpy_module: Any, ros_context: Any) -> None:
+    bag: tuple[Path, list[np.ndarray]], rclpy_module: Any, ros_context: Any
+) -> None:
     """A consumer keeping only the latest cloud and answering after 0.2 s gets every cloud."""
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.executors import SingleThreadedExecutor
@@ -127,10 +144,25 @@ def test_pace_topic_holds_playback_until_a_slow_consumer_answered(
         executor.add_node(node)
         env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID))
         player = subprocess.Popen(
-            [sys.executable, '-m', 'mlsemreg_ros.tools.play', str(path), '--rate', '0',
-             '--topics', '/test_play/points', '--pace-topic', '/test_play/answer',
-             '--wait-for-subscribers', '1', '--quiet'], env=env,
-            stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+            [
+                sys.executable,
+                '-m',
+                'mlsemreg_ros.tools.play',
+                str(path),
+                '--rate',
+                '0',
+                '--topics',
+                '/test_play/points',
+                '--pace-topic',
+                '/test_play/answer',
+                '--wait-for-subscribers',
+                '1',
+                '--quiet',
+            ],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
         deadline = time.monotonic() + 45.0
         while time.monotonic() < deadline:
             if len(received) == N_CLOUDS and player.poll() is not None:

@@ -83,21 +83,37 @@ def test_intensity_and_custom_label_field() -> None:
 def test_organized_cloud_with_row_padding() -> None:
     # 2 x 3 points, point_step 24 with an unused 'ring' field and padding, row_step 80.
     height, width, point_step, row_step = 2, 3, 24, 80
-    dtype = np.dtype({'names': ['ring', 'x', 'y', 'z', 'label'],
-                      'formats': ['<u2', '<f4', '<f4', '<f4', '<u4'],
-                      'offsets': [0, 4, 8, 12, 18], 'itemsize': point_step})
+    dtype = np.dtype(
+        {
+            'names': ['ring', 'x', 'y', 'z', 'label'],
+            'formats': ['<u2', '<f4', '<f4', '<f4', '<u4'],
+            'offsets': [0, 4, 8, 12, 18],
+            'itemsize': point_step,
+        }
+    )
     buf = np.full(height * row_step, 0xAB, dtype=np.uint8)  # garbage in all padding
     xyz = np.arange(18, dtype=np.float32).reshape(6, 3)
     labels = np.array([1, 2, 3, 4, 5, 70 | (9 << 16)], dtype=np.uint32)
     for r in range(height):
         row = np.ndarray((width,), dtype=dtype, buffer=buf, offset=r * row_step)
-        for name, col in zip('xyz', xyz[r * width:(r + 1) * width].T, strict=True):
+        span = slice(r * width, (r + 1) * width)
+        for name, col in zip('xyz', xyz[span].T, strict=True):
             row[name] = col
-        row['label'] = labels[r * width:(r + 1) * width]
-    msg = Cloud(height=height, width=width, point_step=point_step, row_step=row_step,
-                data=buf.tobytes(),
-                fields=[Field('ring', 0, UINT16), Field('x', 4, FLOAT32), Field('y', 8, FLOAT32),
-                        Field('z', 12, FLOAT32), Field('label', 18, UINT32)])
+        row['label'] = labels[span]
+    msg = Cloud(
+        height=height,
+        width=width,
+        point_step=point_step,
+        row_step=row_step,
+        data=buf.tobytes(),
+        fields=[
+            Field('ring', 0, UINT16),
+            Field('x', 4, FLOAT32),
+            Field('y', 8, FLOAT32),
+            Field('z', 12, FLOAT32),
+            Field('label', 18, UINT32),
+        ],
+    )
     out = pointcloud2_to_arrays(msg)
     np.testing.assert_array_equal(out.xyz, xyz)
     np.testing.assert_array_equal(out.labels, labels)
@@ -135,36 +151,59 @@ def _with_field(msg: Cloud, name: str, **changes: Any) -> Cloud:
 
 
 MALFORMED = {
-    'missing x': (lambda m: dataclasses.replace(m, fields=m.fields[1:]),
-                  r"missing coordinate field\(s\) \['x'\]"),
-    'missing label': (lambda m: dataclasses.replace(m, fields=m.fields[:3]),
-                      "missing label field 'label'"),
-    'unsupported datatype': (lambda m: _with_field(m, 'label', datatype=9),
-                             "'label' has unsupported datatype 9"),
+    'missing x': (
+        lambda m: dataclasses.replace(m, fields=m.fields[1:]),
+        r"missing coordinate field\(s\) \['x'\]",
+    ),
+    'missing label': (
+        lambda m: dataclasses.replace(m, fields=m.fields[:3]),
+        "missing label field 'label'",
+    ),
+    'unsupported datatype': (
+        lambda m: _with_field(m, 'label', datatype=9),
+        "'label' has unsupported datatype 9",
+    ),
     'count 3': (lambda m: _with_field(m, 'x', count=3), "'x' has count 3"),
-    'field beyond point_step': (lambda m: _with_field(m, 'label', offset=14),
-                                "'label' .* does not fit in point_step 16"),
-    'row_step too small': (lambda m: dataclasses.replace(m, row_step=m.row_step - 1),
-                           'row_step 127 < width 8 x point_step 16'),
-    'data too short': (lambda m: dataclasses.replace(m, data=m.data[:-3]),
-                       'data has 125 bytes, expected .* = 128'),
-    'data too long': (lambda m: dataclasses.replace(m, data=m.data + b'\0'),
-                      'data has 129 bytes'),
-    'point_step vs data': (lambda m: dataclasses.replace(m, point_step=20),
-                           'row_step 128 < width 8 x point_step 20'),
+    'field beyond point_step': (
+        lambda m: _with_field(m, 'label', offset=14),
+        "'label' .* does not fit in point_step 16",
+    ),
+    'row_step too small': (
+        lambda m: dataclasses.replace(m, row_step=m.row_step - 1),
+        'row_step 127 < width 8 x point_step 16',
+    ),
+    'data too short': (
+        lambda m: dataclasses.replace(m, data=m.data[:-3]),
+        'data has 125 bytes, expected .* = 128',
+    ),
+    'data too long': (lambda m: dataclasses.replace(m, data=m.data + b'\0'), 'data has 129 bytes'),
+    'point_step vs data': (
+        lambda m: dataclasses.replace(m, point_step=20),
+        'row_step 128 < width 8 x point_step 20',
+    ),
     'big-endian': (lambda m: dataclasses.replace(m, is_bigendian=True), 'big-endian'),
-    'zero points': (lambda m: dataclasses.replace(m, width=0, row_step=0, data=b''),
-                    'zero points'),
+    'zero points': (
+        lambda m: dataclasses.replace(m, width=0, row_step=0, data=b''),
+        'zero points',
+    ),
     'zero height': (lambda m: dataclasses.replace(m, height=0), 'zero points'),
-    'duplicate field': (lambda m: dataclasses.replace(m, fields=m.fields + m.fields[:1]),
-                        "'x' appears twice"),
-    'count-0 x': (lambda m: _with_field(m, 'x', count=0),
-                  r"missing coordinate field\(s\) \['x'\].*ignored count-0 field\(s\): \['x'\]"),
-    'count-0 label': (lambda m: _with_field(m, 'label', count=0),
-                      "missing label field 'label'.*count-0 field"),
+    'duplicate field': (
+        lambda m: dataclasses.replace(m, fields=m.fields + m.fields[:1]),
+        "'x' appears twice",
+    ),
+    'count-0 x': (
+        lambda m: _with_field(m, 'x', count=0),
+        r"missing coordinate field\(s\) \['x'\].*ignored count-0 field\(s\): \['x'\]",
+    ),
+    'count-0 label': (
+        lambda m: _with_field(m, 'label', count=0),
+        "missing label field 'label'.*count-0 field",
+    ),
     'negative count': (lambda m: _with_field(m, 'label', count=-1), "'label' has count -1"),
-    'negative sizes': (lambda m: dataclasses.replace(m, height=-1, width=-8),
-                       'negative height -1 or width -8'),
+    'negative sizes': (
+        lambda m: dataclasses.replace(m, height=-1, width=-8),
+        'negative height -1 or width -8',
+    ),
 }
 
 
@@ -200,8 +239,14 @@ def test_rclpy_message_round_trip() -> None:
     header_mod = pytest.importorskip('std_msgs.msg')
     xyz, labels = _scene(100)
     header = header_mod.Header(frame_id='velodyne')
-    msg = arrays_to_pointcloud2(msg_mod.PointCloud2, msg_mod.PointField, header, xyz,
-                                labels.astype(np.uint32), intensity=np.ones(100))
+    msg = arrays_to_pointcloud2(
+        msg_mod.PointCloud2,
+        msg_mod.PointField,
+        header,
+        xyz,
+        labels.astype(np.uint32),
+        intensity=np.ones(100),
+    )
     assert isinstance(msg, msg_mod.PointCloud2) and msg.header.frame_id == 'velodyne'
     assert [f.name for f in msg.fields] == ['x', 'y', 'z', 'intensity', 'label']
     assert msg.fields[-1].datatype == msg_mod.PointField.UINT32
@@ -215,11 +260,13 @@ def test_rosbags_typestore_round_trip_through_cdr() -> None:
     store = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
     types = store.types
     header = types['std_msgs/msg/Header'](
-        stamp=types['builtin_interfaces/msg/Time'](sec=3, nanosec=5), frame_id='velodyne')
+        stamp=types['builtin_interfaces/msg/Time'](sec=3, nanosec=5), frame_id='velodyne'
+    )
     xyz, labels = _scene(100)
     raw = labels.astype(np.uint32) | (np.uint32(4) << np.uint32(16))
-    msg = arrays_to_pointcloud2(types['sensor_msgs/msg/PointCloud2'],
-                                types['sensor_msgs/msg/PointField'], header, xyz, raw)
+    msg = arrays_to_pointcloud2(
+        types['sensor_msgs/msg/PointCloud2'], types['sensor_msgs/msg/PointField'], header, xyz, raw
+    )
     assert msg.fields[0].datatype == types['sensor_msgs/msg/PointField'].FLOAT32
     blob = store.serialize_cdr(msg, msg.__msgtype__)
     back = store.deserialize_cdr(blob, msg.__msgtype__)
@@ -236,8 +283,11 @@ def test_count_0_fields_are_ignored() -> None:
     # Issue 11: an unused intensity declared with count 0 made a usable cloud rejected.
     xyz, labels = _scene(8)
     msg = _cloud(xyz, labels)
-    for extra in (Field('intensity', 0, FLOAT32, count=0), Field('ring', 40, 99, count=0),
-                  Field('x', 999, 0, count=0)):  # even a second, count-0 'x'
+    for extra in (
+        Field('intensity', 0, FLOAT32, count=0),
+        Field('ring', 40, 99, count=0),
+        Field('x', 999, 0, count=0),
+    ):  # even a second, count-0 'x'
         out = pointcloud2_to_arrays(_with_extra_field(msg, extra))
         assert out.ignored_fields == (extra.name,) and out.intensity is None
         np.testing.assert_array_equal(out.labels, labels)
@@ -263,7 +313,7 @@ def test_int32_raw_label_of_minus_2_31_decodes_and_converts() -> None:
     xyz, _ = _scene(4)
     raw = np.array([0x80000000, 40 | (3 << 16), 70, 81 | (0xFFFF << 16)], dtype=np.uint32)
     out = pointcloud2_to_arrays(_cloud(xyz, raw.view(np.int32), label_datatype='int32'))
-    assert out.labels.dtype == np.int64 and out.labels[0] == -2**31
+    assert out.labels.dtype == np.int64 and out.labels[0] == -(2**31)
     converted = LabelMap.load().convert(out.labels)
     assert converted.scheme == 'raw' and converted.out_of_scheme == 0
     np.testing.assert_array_equal(converted.ids, [0, 9, 15, 19])

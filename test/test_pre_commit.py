@@ -33,7 +33,13 @@ def test_pre_commit_hooks_pass_on_every_file(tmp_path: Path) -> None:
     if not (ROOT / '.git').exists() or not pre_commit.exists() or not shutil.which('git'):
         pytest.skip('needs a git checkout and the venv with pre-commit (make setup)')
     env = dict(os.environ, PRE_COMMIT_HOME=str(tmp_path / 'pre-commit'))
-    result = subprocess.run([str(pre_commit), 'run', '--all-files', '--show-diff-on-failure',
-                             '--color', 'never'], cwd=ROOT, env=env, capture_output=True,
-                            text=True, timeout=300, check=False)
+    result = subprocess.run(
+        [str(pre_commit), 'run', '--all-files', '--show-diff-on-failure', '--color', 'never'],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+        check=False,
+    )
     assert result.returncode == 0, result.stdout + result.stderr

@@ -59,8 +59,11 @@ def test_weights_are_scale_free() -> None:
     src = rng.normal(size=(30, 3))
     dst = src @ Rotation.random(random_state=rng).as_matrix().T + rng.normal(0.0, 0.1, (30, 3))
     weights = rng.uniform(0.1, 1.0, 30)
-    np.testing.assert_allclose(weighted_rigid_transform(src, dst, weights),
-                               weighted_rigid_transform(src, dst, 1e3 * weights), atol=1e-9)
+    np.testing.assert_allclose(
+        weighted_rigid_transform(src, dst, weights),
+        weighted_rigid_transform(src, dst, 1e3 * weights),
+        atol=1e-9,
+    )
 
 
 def test_reflection_is_fixed() -> None:

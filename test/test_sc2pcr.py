@@ -27,19 +27,25 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 
-def _problem(seed: int, count: int = 1000, outlier_ratio: float = 0.9, noise: float = 0.05,
-             box: float = 80.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _problem(
+    seed: int,
+    count: int = 1000,
+    outlier_ratio: float = 0.9,
+    noise: float = 0.05,
+    box: float = 80.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Correspondences under a random rigid motion; outliers uniform in the box."""
     rng = np.random.default_rng(seed)
     axis = rng.normal(size=3)
     truth = np.eye(4)
     truth[:3, :3] = Rotation.from_rotvec(
-        rng.uniform(0.0, np.pi) * axis / np.linalg.norm(axis)).as_matrix()
+        rng.uniform(0.0, np.pi) * axis / np.linalg.norm(axis)
+    ).as_matrix()
     direction = rng.normal(size=3)
     truth[:3, 3] = rng.uniform(0.0, 30.0) * direction / np.linalg.norm(direction)
     src = rng.uniform(-box / 2, box / 2, (count, 3))
     dst = apply_transform(truth, src) + rng.normal(0.0, noise, (count, 3))
-    outliers = rng.permutation(count)[:round(count * outlier_ratio)]
+    outliers = rng.permutation(count)[: round(count * outlier_ratio)]
     dst[outliers] = rng.uniform(-box / 2, box / 2, (outliers.size, 3)) + truth[:3, 3]
     inliers = np.ones(count, dtype=bool)
     inliers[outliers] = False
@@ -49,22 +55,26 @@ def _problem(seed: int, count: int = 1000, outlier_ratio: float = 0.9, noise: fl
 def _errors(estimate_: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     """Rotation error (deg) and translation error (m)."""
     cos = (np.trace(truth[:3, :3].T @ estimate_[:3, :3]) - 1.0) / 2.0
-    return (float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))),
-            float(np.linalg.norm(estimate_[:3, 3] - truth[:3, 3])))
+    return (
+        float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))),
+        float(np.linalg.norm(estimate_[:3, 3] - truth[:3, 3])),
+    )
 
 
 def _dense_cross(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    return np.abs(np.linalg.norm(src[:, None] - src[None], axis=-1)
-                  - np.linalg.norm(dst[:, None] - dst[None], axis=-1))
+    return np.abs(
+        np.linalg.norm(src[:, None] - src[None], axis=-1)
+        - np.linalg.norm(dst[:, None] - dst[None], axis=-1)
+    )
 
 
 # -- stages against dense formulas ---------------------------------------------------------
 
+
 @pytest.mark.parametrize(('scale', 'threshold'), [(40.0, 0.6), (3.0, 0.05), (500.0, 0.02)])
 def test_compatibility_matches_dense_formula(scale: float, threshold: float) -> None:
     # the last case has a large extent for its threshold and takes the float64 path
-    src, dst, _, _ = _problem(7, count=600, outlier_ratio=0.5, noise=threshold / 10,
-                              box=2 * scale)
+    src, dst, _, _ = _problem(7, count=600, outlier_ratio=0.5, noise=threshold / 10, box=2 * scale)
     src[:20] = src[20:40] + 1e-3  # near-duplicates: short distances are computed exactly
     cross = _dense_cross(src, dst)
     expected = np.where(cross < threshold, 1.0 - (cross / threshold) ** 2, 0.0)
@@ -79,8 +89,9 @@ def test_compatibility_matches_dense_formula(scale: float, threshold: float) -> 
 
 
 @pytest.mark.parametrize('enumeration_cost', [1e-9, 4.0, 1e9])
-def test_second_order_matches_dense_formula(monkeypatch: pytest.MonkeyPatch,
-                                            enumeration_cost: float) -> None:
+def test_second_order_matches_dense_formula(
+    monkeypatch: pytest.MonkeyPatch, enumeration_cost: float
+) -> None:
     # all-enumerated, the default split, all bit sets: the same SC2 (eq. 4)
     monkeypatch.setattr(sc2, '_ENUMERATION_COST', enumeration_cost)
     monkeypatch.setattr(sc2, '_BIT_CHUNK_WORDS', 64)  # many chunks
@@ -93,7 +104,8 @@ def test_second_order_matches_dense_formula(monkeypatch: pytest.MonkeyPatch,
     seeds = np.random.default_rng(0).choice(700, 90, replace=False)
     expected = hard[seeds] * (tight[seeds] @ tight)
     row, col, value = sc2.second_order_compatibility(
-        sc2.compatibility_matrix(src, dst, threshold), seeds)
+        sc2.compatibility_matrix(src, dst, threshold), seeds
+    )
     result = np.zeros_like(expected)
     result[row, col] = value
     np.testing.assert_array_equal(result, expected)
@@ -145,19 +157,29 @@ def test_seed_budget_keeps_the_best_seeds_of_dense_input() -> None:
     np.testing.assert_array_equal(sc2.budget_seeds(matrix, tight, seeds, np.inf), seeds)
     kept = sc2.budget_seeds(matrix, tight, seeds, cost[99])
     np.testing.assert_array_equal(kept, seeds[:100])  # a prefix: the best scores
-    np.testing.assert_array_equal(sc2.budget_seeds(matrix, tight, seeds, 0.0),
-                                  seeds[:sc2._MIN_SEEDS])
+    np.testing.assert_array_equal(
+        sc2.budget_seeds(matrix, tight, seeds, 0.0), seeds[: sc2._MIN_SEEDS]
+    )
     # end to end with a small budget (estimator.second_order_budget): fewer seeds, same result
-    result = sc2.sc2pcr(src, dst, EstimatorConfig(second_order_budget=float(cost[99]) / 1e6,
-                                                  seed_ratio=0.2, graph_size=0))
+    result = sc2.sc2pcr(
+        src,
+        dst,
+        EstimatorConfig(second_order_budget=float(cost[99]) / 1e6, seed_ratio=0.2, graph_size=0),
+    )
     assert result.diagnostics['n_seeds'] < result.diagnostics['n_seeds_nms']
     assert _errors(result.transform, truth)[0] < 0.5
     unbudgeted = sc2.sc2pcr(src, dst, EstimatorConfig(second_order_budget=0.0, graph_size=0))
     assert unbudgeted.diagnostics['n_seeds'] == unbudgeted.diagnostics['n_seeds_nms']
 
 
-def _plain_seed_hypothesis(src: np.ndarray, dst: np.ndarray, consensus: np.ndarray,
-                           valid: np.ndarray, k2: int, threshold: float) -> np.ndarray:
+def _plain_seed_hypothesis(
+    src: np.ndarray,
+    dst: np.ndarray,
+    consensus: np.ndarray,
+    valid: np.ndarray,
+    k2: int,
+    threshold: float,
+) -> np.ndarray:
     """
     Follow SC2-PCR's per-seed steps one seed at a time, with dense NumPy.
 
@@ -211,8 +233,9 @@ def test_cross_lengths_match_the_dense_formula_per_set(sets: int, size: int) -> 
     dst = rng.uniform(-40.0, 40.0, (sets, size, 3)).astype(np.float32)
     cross = sc2._cross_lengths(src, dst)
     assert cross.shape == (sets, size, size) and cross.flags.c_contiguous
-    expected = np.stack([_dense_cross(src[s].astype(float), dst[s].astype(float))
-                         for s in range(sets)])
+    expected = np.stack(
+        [_dense_cross(src[s].astype(float), dst[s].astype(float)) for s in range(sets)]
+    )
     np.testing.assert_allclose(cross, expected, atol=1e-4)
     np.testing.assert_array_equal(cross, cross.transpose(0, 2, 1))  # exactly symmetric
     assert np.all(np.diagonal(cross, axis1=1, axis2=2) == 0.0)
@@ -224,6 +247,7 @@ def test_leading_eigenvector_of_a_known_matrix() -> None:
     matrix[:5, :5] = block
     matrix[5:, 5:] = np.eye(3)
     from scipy import sparse
+
     vector, eigenvalue = sc2.leading_eigenvector(sparse.csr_matrix(matrix, dtype=np.float32), 50)
     assert eigenvalue == pytest.approx(5.0, rel=1e-5)
     np.testing.assert_allclose(vector[:5], 1 / np.sqrt(5), atol=1e-5)
@@ -231,6 +255,7 @@ def test_leading_eigenvector_of_a_known_matrix() -> None:
 
 
 # -- end to end -----------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize('seed', [0, 1, 2])
 def test_sc2pcr_recovers_transform_with_90_percent_outliers(seed: int) -> None:
@@ -258,10 +283,12 @@ def test_every_hypothesis_is_returned_most_inliers_first() -> None:
     assert hypotheses.num_inliers[0] == result.diagnostics['best_hypothesis_inliers']
     np.testing.assert_array_equal(
         hypotheses.num_inliers,
-        sc2.count_inliers(hypotheses.T_target_source, src, dst, config.inlier_threshold))
+        sc2.count_inliers(hypotheses.T_target_source, src, dst, config.inlier_threshold),
+    )
     # the winner is the first hypothesis after post-refinement
-    refined, _ = sc2.post_refinement(hypotheses.T_target_source[0], src, dst,
-                                     config.refine_threshold, config.refine_iterations)
+    refined, _ = sc2.post_refinement(
+        hypotheses.T_target_source[0], src, dst, config.refine_threshold, config.refine_iterations
+    )
     np.testing.assert_allclose(refined, result.transform, atol=1e-9)
     # the best distinct hypothesis is the truth
     kept = sc2.distinct_hypotheses(hypotheses.T_target_source, 5, 5.0, 0.6)
@@ -318,8 +345,10 @@ def test_small_inputs_clamp_k1_k2() -> None:
 
 # -- baselines ------------------------------------------------------------------------------
 
+
 def test_ransac_recovers_transform_with_50_percent_outliers() -> None:
     import open3d as o3d
+
     o3d.utility.random.seed(0)
     src, dst, truth, inliers = _problem(11, count=400, outlier_ratio=0.5)
     result = estimate(src, dst, EstimatorConfig(kind='ransac', ransac_iterations=100000))
@@ -335,6 +364,7 @@ def test_unknown_estimator_kind() -> None:
 
 
 # -- real data ------------------------------------------------------------------------------
+
 
 def test_dev_pair_with_nearest_neighbour_gedi_matches() -> None:
     files = [f for f in dev_pair_files() if f.name == '000003.npz']
@@ -355,6 +385,7 @@ def test_dev_pair_with_nearest_neighbour_gedi_matches() -> None:
 
 
 # -- the graph cap ---------------------------------------------------------------------------
+
 
 def test_graph_rows_are_a_seeded_subset_or_everything() -> None:
     np.testing.assert_array_equal(sc2.graph_rows(5, 0), np.arange(5))

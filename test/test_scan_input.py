@@ -78,14 +78,17 @@ def test_labels_optional_shapes_and_dtypes() -> None:
         sanitize_scan(np.zeros((4, 2)))
 
 
-@pytest.mark.parametrize('max_range, min_range, reason', [
-    (0.0, 0.0, 'max_range=0.0 must lie in'),
-    (np.inf, 0.0, 'max_range=inf must lie in'),
-    (np.nan, 0.0, 'max_range=nan must lie in'),
-    (2 * MAX_RANGE_LIMIT_M, 0.0, 'must lie in \\(0, 1e\\+06\\] m'),
-    (10.0, 10.0, 'min_range=10.0 must lie in \\[0, features.max_range=10.0\\)'),
-    (10.0, -1.0, 'min_range=-1.0'),
-])
+@pytest.mark.parametrize(
+    'max_range, min_range, reason',
+    [
+        (0.0, 0.0, 'max_range=0.0 must lie in'),
+        (np.inf, 0.0, 'max_range=inf must lie in'),
+        (np.nan, 0.0, 'max_range=nan must lie in'),
+        (2 * MAX_RANGE_LIMIT_M, 0.0, 'must lie in \\(0, 1e\\+06\\] m'),
+        (10.0, 10.0, 'min_range=10.0 must lie in \\[0, features.max_range=10.0\\)'),
+        (10.0, -1.0, 'min_range=-1.0'),
+    ],
+)
 def test_invalid_ranges_raise(max_range: float, min_range: float, reason: str) -> None:
     with pytest.raises(ConfigError, match=reason):
         sanitize_scan(np.zeros((1, 3)), max_range=max_range, min_range=min_range)
@@ -111,8 +114,14 @@ def test_a_point_at_1e30_no_longer_collapses_the_voxel_grid() -> None:
     # Issue 11: one point at 1e30 turned 17,600 voxels into 32 ("invalid value in cast").
     points, labels = _scan(20000, seed=4)
     clean_points, clean_labels = features.voxel_downsample(points, labels, 0.3)
-    for bad in ([1e30] * 3, [1e30, 2.0, 3.0], [-1e30] * 3, [1e300] * 3, [np.inf, 0.0, 0.0],
-                [np.nan] * 3):
+    for bad in (
+        [1e30] * 3,
+        [1e30, 2.0, 3.0],
+        [-1e30] * 3,
+        [1e300] * 3,
+        [np.inf, 0.0, 0.0],
+        [np.nan] * 3,
+    ):
         dirty = np.vstack([points, [bad]])
         out = sanitize_scan(dirty, np.append(labels, 9))
         assert out.dropped == 1

@@ -53,9 +53,15 @@ def test_ignored_and_undefined_classes():
     points = np.array([[0, 0, 0], [0.1, 0, 0], [10, 0, 0], [10.1, 0, 0]], float)
     labels = np.array([ROAD, CAR, ROAD, UNLABELED])
     keypoints = points[[0, 2]]
-    signature = local_semantic_signature(points, labels, keypoints, 0.5, LABELS.num_classes,
-                                         ignored=np.array([CAR]),
-                                         undefined=np.array([UNLABELED]))
+    signature = local_semantic_signature(
+        points,
+        labels,
+        keypoints,
+        0.5,
+        LABELS.num_classes,
+        ignored=np.array([CAR]),
+        undefined=np.array([UNLABELED]),
+    )
     assert set(np.flatnonzero(signature[0])) == {ROAD}  # car ignored
     expected = set(range(LABELS.num_classes)) - {CAR, UNLABELED}  # member of every group
     assert set(np.flatnonzero(signature[1])) == expected
@@ -67,26 +73,29 @@ def test_undefined_membership_does_not_depend_on_keypoint_order():
     labels = rng.choice([ROAD, CAR, POLE, UNLABELED], 400)
     keypoints = points[:60]
     order = rng.permutation(60)
-    a = local_semantic_signature(points, labels, keypoints, 1.0, LABELS.num_classes,
-                                 undefined=np.array([UNLABELED]))
-    b = local_semantic_signature(points, labels, keypoints[order], 1.0, LABELS.num_classes,
-                                 undefined=np.array([UNLABELED]))
+    a = local_semantic_signature(
+        points, labels, keypoints, 1.0, LABELS.num_classes, undefined=np.array([UNLABELED])
+    )
+    b = local_semantic_signature(
+        points, labels, keypoints[order], 1.0, LABELS.num_classes, undefined=np.array([UNLABELED])
+    )
     np.testing.assert_array_equal(a[order], b)
 
 
 def test_bmr_landmark_at_4_6_m_sets_ring_4():
     landmarks = Landmarks(np.array([[4.6, 0.0, 0.0]]), np.array([POLE]))
-    signature = binary_multi_ring_signature(np.zeros((1, 3)), landmarks,
-                                            np.array([CAR, POLE]), 33, 1.5)
+    signature = binary_multi_ring_signature(
+        np.zeros((1, 3)), landmarks, np.array([CAR, POLE]), 33, 1.5
+    )
     assert signature.shape == (1, 66)
     assert np.flatnonzero(signature[0]).tolist() == [33 + 3]  # class row 1, ring 4 (index 3)
 
 
 def test_bmr_ignores_landmarks_beyond_the_last_ring_and_unlisted_classes():
-    landmarks = Landmarks(np.array([[49.6, 0, 0], [1.0, 0, 0], [2.0, 0, 0]]),
-                          np.array([POLE, CAR, POLE]))
-    signature = binary_multi_ring_signature(np.zeros((1, 3)), landmarks, np.array([POLE]),
-                                            33, 1.5)
+    landmarks = Landmarks(
+        np.array([[49.6, 0, 0], [1.0, 0, 0], [2.0, 0, 0]]), np.array([POLE, CAR, POLE])
+    )
+    signature = binary_multi_ring_signature(np.zeros((1, 3)), landmarks, np.array([POLE]), 33, 1.5)
     assert np.flatnonzero(signature[0]).tolist() == [1]  # 49.6 m >= 33 * 1.5; car unlisted
 
 
@@ -106,8 +115,9 @@ def test_bmr_is_rotation_and_translation_invariant():
 
 
 def test_sparse_bmr_equals_dense_and_is_binary_with_duplicate_landmarks():
-    landmarks = Landmarks(np.array([[3.0, 0, 0], [0, 3.1, 0], [10, 0, 0]]),
-                          np.array([POLE, POLE, CAR]))
+    landmarks = Landmarks(
+        np.array([[3.0, 0, 0], [0, 3.1, 0], [10, 0, 0]]), np.array([POLE, POLE, CAR])
+    )
     keypoints = np.array([[0, 0, 0], [1, 1, 0]], float)
     classes = np.array([POLE, CAR])
     dense = binary_multi_ring_signature(keypoints, landmarks, classes, 10, 1.5)
@@ -126,8 +136,7 @@ def test_scene_similarity_counts_shared_class_ring_bins():
 
 
 @pytest.mark.parametrize('threads', [1, 2])
-def test_local_ss_equals_brute_force_in_parallel_parts_and_with_a_given_tree(
-        threads, monkeypatch):
+def test_local_ss_equals_brute_force_in_parallel_parts_and_with_a_given_tree(threads, monkeypatch):
     monkeypatch.setattr(thread_settings, '_requested', threads)
     rng = np.random.default_rng(12)
     points = rng.uniform(-6, 6, (3000, 3))
@@ -139,6 +148,7 @@ def test_local_ss_equals_brute_force_in_parallel_parts_and_with_a_given_tree(
         expected[i, labels[near[i]]] = True
     got = local_semantic_signature(points, labels, keypoints, 0.8, LABELS.num_classes)
     np.testing.assert_array_equal(got, expected)
-    shared = local_semantic_signature(points, labels, keypoints, 0.8, LABELS.num_classes,
-                                      points_tree=cKDTree(points))
+    shared = local_semantic_signature(
+        points, labels, keypoints, 0.8, LABELS.num_classes, points_tree=cKDTree(points)
+    )
     np.testing.assert_array_equal(shared, expected)

@@ -33,8 +33,9 @@ SMALL_LIDAR = LidarConfig(beams=32, azimuth_steps=512)
 
 
 def small_sim(seed: int = 0, frames: int = 4, **lidar: float) -> Simulation:
-    return Simulation(SimulationConfig(seed=seed, frames=frames,
-                                       lidar=dataclasses.replace(SMALL_LIDAR, **lidar)))
+    return Simulation(
+        SimulationConfig(seed=seed, frames=frames, lidar=dataclasses.replace(SMALL_LIDAR, **lidar))
+    )
 
 
 @pytest.fixture(scope='module')
@@ -54,8 +55,9 @@ def test_same_seed_same_sequence_and_frames_do_not_depend_on_length() -> None:
         np.testing.assert_array_equal(fa.pose, fb.pose)
         assert fa.stamp_ns == fb.stamp_ns
     other = small_sim(seed=8, frames=4).frame(3)
-    assert (other.scan.points.shape != a.frame(3).scan.points.shape or
-            not np.array_equal(other.scan.points, a.frame(3).scan.points))
+    assert other.scan.points.shape != a.frame(3).scan.points.shape or not np.array_equal(
+        other.scan.points, a.frame(3).scan.points
+    )
 
 
 def test_every_point_is_the_first_hit_of_a_mesh_of_its_class(sim: Simulation) -> None:
@@ -88,8 +90,16 @@ def test_every_point_is_the_first_hit_of_a_mesh_of_its_class(sim: Simulation) ->
         t_hit = scene.cast_rays(o3d.core.Tensor(ray.astype(np.float32)))['t_hit'].numpy()
         error = np.abs(t_hit - distance)
         assert error.max() < 2e-3, (LABELS.names[learning_id], error.max())
-    for required in ('road', 'sidewalk', 'building', 'vegetation', 'trunk', 'pole', 'car',
-                     'terrain'):
+    for required in (
+        'road',
+        'sidewalk',
+        'building',
+        'vegetation',
+        'trunk',
+        'pole',
+        'car',
+        'terrain',
+    ):
         assert required in names, f'no {required} point in the test frames: {sorted(names)}'
 
 
@@ -110,11 +120,21 @@ def test_trunk_points_are_on_trunk_cylinders_not_on_canopies(sim: Simulation) ->
 
 def test_world_has_the_street_classes_and_the_route_turns() -> None:
     for seed in range(3):
-        s = Simulation(SimulationConfig(seed=seed, frames=200,
-                                        lidar=SMALL_LIDAR))
+        s = Simulation(SimulationConfig(seed=seed, frames=200, lidar=SMALL_LIDAR))
         present = {LABELS.names[i] for i in np.unique(s.world.triangle_labels)}
-        for name in ('road', 'sidewalk', 'building', 'fence', 'vegetation', 'terrain',
-                     'trunk', 'pole', 'traffic-sign', 'car', 'truck'):
+        for name in (
+            'road',
+            'sidewalk',
+            'building',
+            'fence',
+            'vegetation',
+            'terrain',
+            'trunk',
+            'pole',
+            'traffic-sign',
+            'car',
+            'truck',
+        ):
             assert name in present, (seed, name)
         counts = s.world.object_counts
         assert counts['tree'] > 50 and counts['pole'] > 30 and counts['car'] > 30
@@ -149,9 +169,12 @@ def test_dropout_and_noise() -> None:
 
 
 def test_path_is_continuous_and_follows_headings() -> None:
-    path = Path2D(np.array([[0.0, 0.0], [10.0, 0.0], [17.0, 7.0]]),
-                  np.array([0.0, 0.0, np.pi / 2]), np.array([10.0, 7.0 * np.pi / 2, 5.0]),
-                  np.array([0.0, 1 / 7.0, 0.0]))
+    path = Path2D(
+        np.array([[0.0, 0.0], [10.0, 0.0], [17.0, 7.0]]),
+        np.array([0.0, 0.0, np.pi / 2]),
+        np.array([10.0, 7.0 * np.pi / 2, 5.0]),
+        np.array([0.0, 1 / 7.0, 0.0]),
+    )
     s = np.linspace(0.0, path.length, 400)
     xy, heading = path.sample(s)
     assert np.allclose(xy[-1], [17.0, 12.0], atol=1e-9)
@@ -200,11 +223,15 @@ def test_lidar_sees_a_wall_at_the_right_distance() -> None:
     from mlsemreg_ros.simulation.world import World
 
     vertices, triangles = primitives.box(10.5, 0.0, 1.0, 40.0, -5.0, 20.0)
-    world = World(vertices.astype(np.float32), triangles.astype(np.uint32),
-                  np.full(12, LABELS.id_of('building'), np.int32), np.zeros(12, np.uint32),
-                  None, {})
-    lidar = Lidar(world, LidarConfig(beams=8, azimuth_steps=360, range_noise=0.0,
-                                     dropout=0.0))
+    world = World(
+        vertices.astype(np.float32),
+        triangles.astype(np.uint32),
+        np.full(12, LABELS.id_of('building'), np.int32),
+        np.zeros(12, np.uint32),
+        None,
+        {},
+    )
+    lidar = Lidar(world, LidarConfig(beams=8, azimuth_steps=360, range_noise=0.0, dropout=0.0))
     pose = np.eye(4)
     pose[2, 3] = 1.73
     scan = lidar.scan(pose, np.random.default_rng(0))

@@ -41,12 +41,31 @@ def test_rss_of_this_process_and_growth_after_the_warm_up() -> None:
     assert growth_mb(samples, 30) != growth_mb(samples, 30)  # nothing after the warm-up
 
 
-def test_soak_loops_a_bag_through_the_node(tmp_path: Path,
-                                           capsys: pytest.CaptureFixture[str]) -> None:
+def test_soak_loops_a_bag_through_the_node(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     bag = tmp_path / 'sim'
-    assert simulate.main([str(bag), '--frames', '4', '--seed', '2', '--azimuth-steps', '512',
-                          '--quiet']) == 0
-    assert soak.main([str(bag), '--frames', '10', '--every', '5', '--warm-up', '5',
-                      '--domain-id', str(domain_id('soak'))]) == 0
+    assert (
+        simulate.main(
+            [str(bag), '--frames', '4', '--seed', '2', '--azimuth-steps', '512', '--quiet']
+        )
+        == 0
+    )
+    assert (
+        soak.main(
+            [
+                str(bag),
+                '--frames',
+                '10',
+                '--every',
+                '5',
+                '--warm-up',
+                '5',
+                '--domain-id',
+                str(domain_id('soak')),
+            ]
+        )
+        == 0
+    )
     out = capsys.readouterr().out
     assert 'RSS growth after 5 scans' in out and '(10 scans of sim, 4 per loop)' in out

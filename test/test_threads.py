@@ -63,8 +63,10 @@ def test_every_pool_honours_the_thread_setting(monkeypatch):
 def test_prepare_scans_equals_sequential_prepare():
     pair = synthetic_pair(3)
     registration = Registration()
-    scans = [{'points': pair.pts_src, 'labels': pair.label_src},
-             {'points': pair.pts_dst, 'labels': pair.label_dst}]
+    scans = [
+        {'points': pair.pts_src, 'labels': pair.label_src},
+        {'points': pair.pts_dst, 'labels': pair.label_dst},
+    ]
     together = registration.prepare_scans(*scans)
     for scan, prepared in zip(scans, together, strict=True):
         alone = registration.prepare(**scan)
@@ -78,8 +80,14 @@ def test_descriptor_choice_reaches_the_pipeline():
     config = RegistrationConfig().replace({'features.descriptor': 'fpfh_open3d'})
     prepared = Registration(config).prepare(pair.pts_src, pair.label_src)
     f = config.features
-    expected = fpfh_open3d_at(prepared.points, prepared.keypoint_indices, f.normal_radius,
-                              f.normal_max_nn, f.feature_radius, f.feature_max_nn)
+    expected = fpfh_open3d_at(
+        prepared.points,
+        prepared.keypoint_indices,
+        f.normal_radius,
+        f.normal_max_nn,
+        f.feature_radius,
+        f.feature_max_nn,
+    )
     np.testing.assert_array_equal(prepared.descriptors, expected[valid_descriptor_mask(expected)])
     ours = Registration().prepare(pair.pts_src, pair.label_src)
     assert not np.array_equal(ours.descriptors[:10], prepared.descriptors[:10])

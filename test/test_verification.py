@@ -44,24 +44,38 @@ def _pose(yaw_deg: float, translation: tuple[float, float, float]) -> np.ndarray
     return out
 
 
-def _scan(points: np.ndarray, labels: np.ndarray, keypoints: np.ndarray | None = None,
-          descriptors: np.ndarray | None = None) -> PreparedScan:
+def _scan(
+    points: np.ndarray,
+    labels: np.ndarray,
+    keypoints: np.ndarray | None = None,
+    descriptors: np.ndarray | None = None,
+) -> PreparedScan:
     """Build a prepared scan by hand (plain matching only needs keypoints and descriptors)."""
     keypoints = np.zeros((0, 3)) if keypoints is None else keypoints
-    descriptors = (np.zeros((len(keypoints), 1), dtype=np.float32) if descriptors is None
-                   else descriptors)
-    return PreparedScan(np.asarray(points, dtype=np.float64), np.asarray(labels, dtype=np.int32),
-                        keypoints, np.full(len(keypoints), -1), descriptors,
-                        np.zeros((len(keypoints), 20), dtype=bool), Landmarks.empty())
+    descriptors = (
+        np.zeros((len(keypoints), 1), dtype=np.float32) if descriptors is None else descriptors
+    )
+    return PreparedScan(
+        np.asarray(points, dtype=np.float64),
+        np.asarray(labels, dtype=np.int32),
+        keypoints,
+        np.full(len(keypoints), -1),
+        descriptors,
+        np.zeros((len(keypoints), 20), dtype=bool),
+        Landmarks.empty(),
+    )
 
 
 def _errors(T: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     cos = (np.trace(truth[:3, :3].T @ T[:3, :3]) - 1.0) / 2.0
-    return (float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))),
-            float(np.linalg.norm(T[:3, 3] - truth[:3, 3])))
+    return (
+        float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))),
+        float(np.linalg.norm(T[:3, 3] - truth[:3, 3])),
+    )
 
 
 # -- scores: known answers on tiny clouds ------------------------------------------------
+
 
 @pytest.fixture(scope='module')
 def label_map() -> LabelMap:
@@ -69,10 +83,13 @@ def label_map() -> LabelMap:
 
 
 def _tiny() -> tuple[PreparedScan, PreparedScan]:
-    target = _scan([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]],
-                   [ROAD, SIDEWALK, VEGETATION, UNLABELED])
-    source = _scan([[0, 0, 0.1], [1, 0, 0.1], [2, 0, 0.1], [3, 0, 0.1], [10, 0, 0]],
-                   [ROAD, ROAD, TERRAIN, CAR, ROAD])
+    target = _scan(
+        [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], [ROAD, SIDEWALK, VEGETATION, UNLABELED]
+    )
+    source = _scan(
+        [[0, 0, 0.1], [1, 0, 0.1], [2, 0, 0.1], [3, 0, 0.1], [10, 0, 0]],
+        [ROAD, ROAD, TERRAIN, CAR, ROAD],
+    )
     return source, target
 
 
@@ -81,8 +98,9 @@ def test_scores_have_the_known_answers_on_tiny_clouds(label_map):
     config = VerificationConfig(compatible_classes=['vegetation~terrain'], range_exponent=0.0)
     labels = label_compatibility(label_map, config)
     hypotheses = np.stack([np.eye(4), _pose(0.0, (1.0, 0.0, 0.0)), _pose(0.0, (50.0, 0, 0))])
-    overlap, agreement = dense_scores(hypotheses, source, target.points_tree(), target.labels,
-                                      labels, config)
+    overlap, agreement = dense_scores(
+        hypotheses, source, target.points_tree(), target.labels, labels, config
+    )
     # identity: 4 of 5 points overlap; of the 3 counted (the car lands on an unlabeled
     # point), road-road and terrain~vegetation agree, road-sidewalk does not
     # +1 m in x: 3 overlap (road->sidewalk, road->vegetation, terrain->unlabeled): 0 of 2
@@ -103,8 +121,14 @@ def test_points_count_with_their_range_squared(label_map):
         np.testing.assert_allclose(area_weights(source.points, exponent), [near, far])
         # +2 m: only the near point lands on a target point (the far one)
         shifted = np.stack([np.eye(4), _pose(0.0, (2.0, 0.0, 0.0))])
-        overlap, agreement = dense_scores(shifted, source, target.points_tree(), target.labels,
-                                          label_compatibility(label_map, config), config)
+        overlap, agreement = dense_scores(
+            shifted,
+            source,
+            target.points_tree(),
+            target.labels,
+            label_compatibility(label_map, config),
+            config,
+        )
         np.testing.assert_allclose(overlap, [1.0, near])
         np.testing.assert_allclose(agreement, [near, 1.0])  # the far point is sidewalk
 
@@ -113,13 +137,28 @@ def test_compatibility_and_ignored_classes_change_the_agreement(label_map):
     source, target = _tiny()
     tree = target.points_tree()
     strict = VerificationConfig(compatible_classes=[], range_exponent=0.0)  # no terrain~veg
-    _, agreement = dense_scores(np.eye(4)[None], source, tree, target.labels,
-                                label_compatibility(label_map, strict), strict)
+    _, agreement = dense_scores(
+        np.eye(4)[None],
+        source,
+        tree,
+        target.labels,
+        label_compatibility(label_map, strict),
+        strict,
+    )
     assert agreement[0] == pytest.approx(1 / 3)
-    road_ignored = VerificationConfig(compatible_classes=['vegetation~terrain'],
-                                      ignored_classes=['unlabeled', 'road'], range_exponent=0.0)
-    _, agreement = dense_scores(np.eye(4)[None], source, tree, target.labels,
-                                label_compatibility(label_map, road_ignored), road_ignored)
+    road_ignored = VerificationConfig(
+        compatible_classes=['vegetation~terrain'],
+        ignored_classes=['unlabeled', 'road'],
+        range_exponent=0.0,
+    )
+    _, agreement = dense_scores(
+        np.eye(4)[None],
+        source,
+        tree,
+        target.labels,
+        label_compatibility(label_map, road_ignored),
+        road_ignored,
+    )
     assert agreement[0] == pytest.approx(1.0)  # only terrain~vegetation is left
 
 
@@ -135,8 +174,9 @@ def test_label_groups_and_bad_rules(label_map):
     with pytest.raises(ConfigError, match="form 'class~class'"):
         RegistrationConfig().replace({'verification.compatible_classes': ['vegetation']})
     with pytest.raises(ConfigError, match='grass'):
-        Registration(RegistrationConfig().replace(
-            {'verification.compatible_classes': ['road~grass']}))
+        Registration(
+            RegistrationConfig().replace({'verification.compatible_classes': ['road~grass']})
+        )
 
 
 def test_choice_keeps_the_estimator_unless_clearly_beaten():
@@ -147,25 +187,28 @@ def test_choice_keeps_the_estimator_unless_clearly_beaten():
 
 
 def test_distinct_hypotheses_drop_poses_within_the_success_bounds():
-    transforms = np.stack([
-        np.eye(4),
-        _pose(3.0, (0.0, 0.0, 0.0)),  # within 5 deg and 0.6 m of 0: dropped
-        _pose(10.0, (0.0, 0.0, 0.0)),  # kept
-        _pose(0.0, (0.5, 0.0, 0.0)),  # within bounds of 0: dropped
-        _pose(0.0, (1.0, 0.0, 0.0)),  # kept
-        _pose(12.0, (0.2, 0.0, 0.0)),  # within bounds of 2: dropped
-        _pose(180.0, (0.0, 0.0, 0.0)),  # kept
-    ])
+    transforms = np.stack(
+        [
+            np.eye(4),
+            _pose(3.0, (0.0, 0.0, 0.0)),  # within 5 deg and 0.6 m of 0: dropped
+            _pose(10.0, (0.0, 0.0, 0.0)),  # kept
+            _pose(0.0, (0.5, 0.0, 0.0)),  # within bounds of 0: dropped
+            _pose(0.0, (1.0, 0.0, 0.0)),  # kept
+            _pose(12.0, (0.2, 0.0, 0.0)),  # within bounds of 2: dropped
+            _pose(180.0, (0.0, 0.0, 0.0)),  # kept
+        ]
+    )
     np.testing.assert_array_equal(sc2.distinct_hypotheses(transforms, 10, 5.0, 0.6), [0, 2, 4, 6])
     np.testing.assert_array_equal(sc2.distinct_hypotheses(transforms, 2, 5.0, 0.6), [0, 2])
-    np.testing.assert_array_equal(sc2.distinct_hypotheses(transforms, 10, 0.0, 0.0),
-                                  np.arange(7))
+    np.testing.assert_array_equal(sc2.distinct_hypotheses(transforms, 10, 0.0, 0.0), np.arange(7))
 
 
 # -- a symmetric street: the mirror pose wins the sparse count, loses on labels -----------
 
-def _symmetric_street(rng: np.random.Generator, density: float = 4.0
-                      ) -> tuple[np.ndarray, np.ndarray]:
+
+def _symmetric_street(
+    rng: np.random.Generator, density: float = 4.0
+) -> tuple[np.ndarray, np.ndarray]:
     """
     Sample a street along x, its geometry symmetric under a 180 deg turn about z, not its labels.
 
@@ -173,9 +216,13 @@ def _symmetric_street(rng: np.random.Generator, density: float = 4.0
     (building) and hedges at y = -10 (vegetation) with irregular heights h(x) and h(-x), so
     ``(x, y, z) -> (-x, -y, z)`` maps the surfaces onto themselves (and nothing else does).
     """
-    ground = np.column_stack([rng.uniform(-30, 30, int(density * 60 * 20)),
-                              rng.uniform(-10, 10, int(density * 60 * 20)),
-                              np.zeros(int(density * 60 * 20))])
+    ground = np.column_stack(
+        [
+            rng.uniform(-30, 30, int(density * 60 * 20)),
+            rng.uniform(-10, 10, int(density * 60 * 20)),
+            np.zeros(int(density * 60 * 20)),
+        ]
+    )
     y = ground[:, 1]
     ground_labels = np.where(np.abs(y) < 4, ROAD, np.where(y > 0, SIDEWALK, TERRAIN))
     edges = np.linspace(-30, 30, 9)
@@ -189,8 +236,9 @@ def _symmetric_street(rng: np.random.Generator, density: float = 4.0
 
     plus, minus = wall(1.0), wall(-1.0)
     points = np.concatenate([ground, plus, minus])
-    labels = np.concatenate([ground_labels, np.full(len(plus), BUILDING),
-                             np.full(len(minus), VEGETATION)]).astype(np.int32)
+    labels = np.concatenate(
+        [ground_labels, np.full(len(plus), BUILDING), np.full(len(minus), VEGETATION)]
+    ).astype(np.int32)
     return points, labels
 
 
@@ -222,8 +270,9 @@ def street_pair() -> dict:
 
 def _register(pair: dict, **overrides: object):
     flat = {'semantic.enabled': False, **{f'verification.{k}': v for k, v in overrides.items()}}
-    return Registration(RegistrationConfig().replace(flat)).register(pair['source'],
-                                                                     pair['target'])
+    return Registration(RegistrationConfig().replace(flat)).register(
+        pair['source'], pair['target']
+    )
 
 
 def test_without_verification_the_mirror_pose_wins_on_sparse_inliers(street_pair):
@@ -239,8 +288,11 @@ def test_verification_picks_the_true_pose_by_label_agreement(street_pair):
     assert re < 1.0 and te < 0.3
     d = result.diagnostics
     assert d['verification_switched'] and d['verification_hypotheses'] >= 2
-    chosen = next(i for i in range(d['verification_hypotheses'])
-                  if d[f'verification_h{i}_rank'] == d['verification_chosen_rank'])
+    chosen = next(
+        i
+        for i in range(d['verification_hypotheses'])
+        if d[f'verification_h{i}_rank'] == d['verification_chosen_rank']
+    )
     assert chosen != 0
     # the estimator's choice (the mirror) has more sparse inliers and as much overlap ...
     assert d['verification_h0_inliers'] > d[f'verification_h{chosen}_inliers'] >= 35

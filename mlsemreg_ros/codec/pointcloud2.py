@@ -52,16 +52,26 @@ FLOAT64 = 8
 
 #: PointField datatype -> little-endian NumPy dtype.
 DATATYPES: dict[int, np.dtype] = {
-    INT8: np.dtype('<i1'), UINT8: np.dtype('<u1'),
-    INT16: np.dtype('<i2'), UINT16: np.dtype('<u2'),
-    INT32: np.dtype('<i4'), UINT32: np.dtype('<u4'),
-    FLOAT32: np.dtype('<f4'), FLOAT64: np.dtype('<f8'),
+    INT8: np.dtype('<i1'),
+    UINT8: np.dtype('<u1'),
+    INT16: np.dtype('<i2'),
+    UINT16: np.dtype('<u2'),
+    INT32: np.dtype('<i4'),
+    UINT32: np.dtype('<u4'),
+    FLOAT32: np.dtype('<f4'),
+    FLOAT64: np.dtype('<f8'),
 }
 
 #: Datatype names accepted by :func:`arrays_to_pointcloud2` for the label field.
 DATATYPE_BY_NAME: dict[str, int] = {
-    'int8': INT8, 'uint8': UINT8, 'int16': INT16, 'uint16': UINT16,
-    'int32': INT32, 'uint32': UINT32, 'float32': FLOAT32, 'float64': FLOAT64,
+    'int8': INT8,
+    'uint8': UINT8,
+    'int16': INT16,
+    'uint16': UINT16,
+    'int32': INT32,
+    'uint32': UINT32,
+    'float32': FLOAT32,
+    'float64': FLOAT64,
 }
 
 
@@ -87,13 +97,15 @@ def _field_dtype(field: Any) -> np.dtype:
     """Return the NumPy dtype of one count-1 PointField, or raise PointCloudError."""
     if int(field.count) != 1:
         raise PointCloudError(
-            f'field {field.name!r} has count {field.count}; only count 1 is supported')
+            f'field {field.name!r} has count {field.count}; only count 1 is supported'
+        )
     try:
         return DATATYPES[int(field.datatype)]
     except KeyError:
         raise PointCloudError(
             f'field {field.name!r} has unsupported datatype {field.datatype} '
-            f'(known: 1-8, INT8..FLOAT64)') from None
+            f'(known: 1-8, INT8..FLOAT64)'
+        ) from None
 
 
 def _buffer(data: Any) -> np.ndarray:
@@ -106,8 +118,9 @@ def _buffer(data: Any) -> np.ndarray:
         return np.asarray(data, dtype=np.uint8).reshape(-1)
 
 
-def pointcloud2_to_arrays(msg: Any, label_field: str = 'label',
-                          require_labels: bool = True) -> CloudArrays:
+def pointcloud2_to_arrays(
+    msg: Any, label_field: str = 'label', require_labels: bool = True
+) -> CloudArrays:
     """
     Convert a PointCloud2 to xyz (N, 3) float64, raw labels (N,) int64 and intensity.
 
@@ -137,15 +150,18 @@ def pointcloud2_to_arrays(msg: Any, label_field: str = 'label',
         fields[f.name] = f
     missing = [name for name in ('x', 'y', 'z') if name not in fields]
     if missing:
-        raise PointCloudError(f'missing coordinate field(s) {missing}; fields: {list(fields)}'
-                              + _count0_note(ignored))
+        raise PointCloudError(
+            f'missing coordinate field(s) {missing}; fields: {list(fields)}'
+            + _count0_note(ignored)
+        )
     wanted = ['x', 'y', 'z']
     if label_field in fields:
         wanted.append(label_field)
     elif require_labels:
         raise PointCloudError(
             f'missing label field {label_field!r}; fields: {list(fields)} '
-            f'(set the label_field parameter)' + _count0_note(ignored))
+            f'(set the label_field parameter)' + _count0_note(ignored)
+        )
     if 'intensity' in fields and 'intensity' not in wanted:
         if _readable(fields['intensity']):
             wanted.append('intensity')
@@ -157,22 +173,25 @@ def pointcloud2_to_arrays(msg: Any, label_field: str = 'label',
         if offset < 0 or offset + dtype.itemsize > point_step:
             raise PointCloudError(
                 f'field {name!r} (offset {offset}, {dtype.itemsize} bytes) does not fit in '
-                f'point_step {point_step}')
+                f'point_step {point_step}'
+            )
         names.append(name)
         formats.append(dtype)
         offsets.append(offset)
     if row_step < width * point_step:
-        raise PointCloudError(
-            f'row_step {row_step} < width {width} x point_step {point_step}')
+        raise PointCloudError(f'row_step {row_step} < width {width} x point_step {point_step}')
     buffer = _buffer(msg.data)
     if buffer.size != height * row_step:
         raise PointCloudError(
             f'data has {buffer.size} bytes, expected height {height} x row_step {row_step} '
-            f'= {height * row_step}')
-    dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets,
-                      'itemsize': point_step})
-    points = np.ndarray((height, width), dtype=dtype, buffer=buffer,
-                        strides=(row_step, point_step)).reshape(-1)
+            f'= {height * row_step}'
+        )
+    dtype = np.dtype(
+        {'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': point_step}
+    )
+    points = np.ndarray(
+        (height, width), dtype=dtype, buffer=buffer, strides=(row_step, point_step)
+    ).reshape(-1)
     xyz = np.stack([points['x'], points['y'], points['z']], axis=1).astype(np.float64)
     finite = np.isfinite(xyz).all(axis=1)
     dropped = int(finite.size - np.count_nonzero(finite))
@@ -181,15 +200,17 @@ def pointcloud2_to_arrays(msg: Any, label_field: str = 'label',
     keep = None if dropped == 0 else finite
     labels = None
     if label_field in names:
-        labels = _labels_to_int64(points[label_field] if keep is None
-                                  else points[label_field][keep], label_field)
+        labels = _labels_to_int64(
+            points[label_field] if keep is None else points[label_field][keep], label_field
+        )
     intensity = None
     if 'intensity' in names:
         values = points['intensity'] if keep is None else points['intensity'][keep]
         with np.errstate(over='ignore'):  # float64 beyond float32 range: inf, no warning
             intensity = values.astype(np.float32)
-    return CloudArrays(xyz if keep is None else xyz[keep], labels, intensity, dropped,
-                       tuple(ignored))
+    return CloudArrays(
+        xyz if keep is None else xyz[keep], labels, intensity, dropped, tuple(ignored)
+    )
 
 
 def _readable(field: Any) -> bool:
@@ -214,11 +235,16 @@ def _labels_to_int64(values: np.ndarray, name: str) -> np.ndarray:
     return values.astype(np.int64)
 
 
-def arrays_to_pointcloud2(msg_cls: type, field_cls: type, header: Any, xyz: np.ndarray,
-                          labels: np.ndarray | None = None,
-                          intensity: np.ndarray | None = None,
-                          label_datatype: str = 'uint32',
-                          label_field: str = 'label') -> Any:
+def arrays_to_pointcloud2(
+    msg_cls: type,
+    field_cls: type,
+    header: Any,
+    xyz: np.ndarray,
+    labels: np.ndarray | None = None,
+    intensity: np.ndarray | None = None,
+    label_datatype: str = 'uint32',
+    label_field: str = 'label',
+) -> Any:
     """
     Build an unorganized (height 1) PointCloud2 from arrays.
 
@@ -237,13 +263,15 @@ def arrays_to_pointcloud2(msg_cls: type, field_cls: type, header: Any, xyz: np.n
         columns['intensity'] = np.asarray(intensity).reshape(-1)
     if labels is not None:
         if label_datatype not in DATATYPE_BY_NAME:
-            raise PointCloudError(f'unknown label datatype {label_datatype!r}; '
-                                  f'use one of {list(DATATYPE_BY_NAME)}')
+            raise PointCloudError(
+                f'unknown label datatype {label_datatype!r}; use one of {list(DATATYPE_BY_NAME)}'
+            )
         datatype = DATATYPE_BY_NAME[label_datatype]
         values = np.asarray(labels).reshape(-1)
         cast = values.astype(DATATYPES[datatype])
-        if not np.array_equal(cast.astype(values.dtype), values,
-                              equal_nan=values.dtype.kind == 'f'):
+        if not np.array_equal(
+            cast.astype(values.dtype), values, equal_nan=values.dtype.kind == 'f'
+        ):
             raise PointCloudError(f'labels do not fit {label_datatype} exactly')
         spec.append((label_field, datatype))
         columns[label_field] = cast
@@ -254,17 +282,31 @@ def arrays_to_pointcloud2(msg_cls: type, field_cls: type, header: Any, xyz: np.n
     for _, datatype in spec:
         offsets.append(offset)
         offset += DATATYPES[datatype].itemsize
-    dtype = np.dtype({'names': [s[0] for s in spec],
-                      'formats': [DATATYPES[s[1]] for s in spec],
-                      'offsets': offsets, 'itemsize': offset})
+    dtype = np.dtype(
+        {
+            'names': [s[0] for s in spec],
+            'formats': [DATATYPES[s[1]] for s in spec],
+            'offsets': offsets,
+            'itemsize': offset,
+        }
+    )
     packed = np.empty(n, dtype=dtype)
     for name, column in columns.items():
         packed[name] = column
     data = packed.view(np.uint8).reshape(-1)
-    fields = [field_cls(name=name, offset=off, datatype=datatype, count=1)
-              for (name, datatype), off in zip(spec, offsets, strict=True)]
+    fields = [
+        field_cls(name=name, offset=off, datatype=datatype, count=1)
+        for (name, datatype), off in zip(spec, offsets, strict=True)
+    ]
     rosbags_style = hasattr(msg_cls, '__msgtype__')
-    return msg_cls(header=header, height=1, width=n, fields=fields, is_bigendian=False,
-                   point_step=offset, row_step=offset * n,
-                   data=data.copy() if rosbags_style else data.tobytes(),
-                   is_dense=bool(np.isfinite(xyz).all()))
+    return msg_cls(
+        header=header,
+        height=1,
+        width=n,
+        fields=fields,
+        is_bigendian=False,
+        point_step=offset,
+        row_step=offset * n,
+        data=data.copy() if rosbags_style else data.tobytes(),
+        is_dense=bool(np.isfinite(xyz).all()),
+    )

@@ -46,8 +46,9 @@ def quaternion_to_matrix(quaternions: np.ndarray) -> np.ndarray:
     return Rotation.from_quat(q.reshape(-1, 4)).as_matrix().reshape((*q.shape[:-1], 3, 3))
 
 
-def pose_to_matrix(position: tuple[float, float, float],
-                   orientation: tuple[float, float, float, float]) -> np.ndarray:
+def pose_to_matrix(
+    position: tuple[float, float, float], orientation: tuple[float, float, float, float]
+) -> np.ndarray:
     """(4, 4) from a position and an ``x, y, z, w`` quaternion."""
     T = np.eye(4)
     T[:3, :3] = quaternion_to_matrix(np.asarray(orientation, dtype=np.float64))

@@ -54,8 +54,13 @@ class AlignmentCloud:
     tree: small_gicp.KdTree
 
     @classmethod
-    def build(cls, points: np.ndarray, resolution: float = 0.0, num_neighbors: int = 10,
-              num_threads: int | None = None) -> AlignmentCloud:
+    def build(
+        cls,
+        points: np.ndarray,
+        resolution: float = 0.0,
+        num_neighbors: int = 10,
+        num_threads: int | None = None,
+    ) -> AlignmentCloud:
         """
         Downsample ``points`` (N, 3) to ``resolution`` metres, estimate local features.
 
@@ -140,18 +145,28 @@ UNKNOWN_VARIANCE = 1e6
 
 def _solver_settings(cfg: FineAlignmentConfig, num_threads: int) -> dict[str, float]:
     """Keyword arguments of ``small_gicp.align`` shared by every method."""
-    return {'max_correspondence_distance': cfg.max_correspondence_distance,
-            'num_threads': num_threads, 'max_iterations': cfg.max_iterations,
-            'rotation_epsilon': float(np.radians(cfg.rotation_epsilon)),
-            'translation_epsilon': cfg.translation_epsilon}
+    return {
+        'max_correspondence_distance': cfg.max_correspondence_distance,
+        'num_threads': num_threads,
+        'max_iterations': cfg.max_iterations,
+        'rotation_epsilon': float(np.radians(cfg.rotation_epsilon)),
+        'translation_epsilon': cfg.translation_epsilon,
+    }
 
 
-def _alignment(result: small_gicp.RegistrationResult, T_initial: np.ndarray,
-               num_points: int) -> Alignment:
-    return Alignment(np.asarray(result.T_target_source, dtype=np.float64).copy(),
-                     np.asarray(T_initial, dtype=np.float64).copy(), bool(result.converged),
-                     int(result.iterations), int(result.num_inliers), int(num_points),
-                     float(result.error), np.asarray(result.H, dtype=np.float64).copy())
+def _alignment(
+    result: small_gicp.RegistrationResult, T_initial: np.ndarray, num_points: int
+) -> Alignment:
+    return Alignment(
+        np.asarray(result.T_target_source, dtype=np.float64).copy(),
+        np.asarray(T_initial, dtype=np.float64).copy(),
+        bool(result.converged),
+        int(result.iterations),
+        int(result.num_inliers),
+        int(num_points),
+        float(result.error),
+        np.asarray(result.H, dtype=np.float64).copy(),
+    )
 
 
 def _failed(T_initial: np.ndarray, num_points: int) -> Alignment:
@@ -160,8 +175,13 @@ def _failed(T_initial: np.ndarray, num_points: int) -> Alignment:
     return Alignment(T.copy(), T.copy(), False, 0, 0, num_points, 0.0, np.zeros((6, 6)))
 
 
-def align_pair(source: AlignmentCloud, target: AlignmentCloud, T_initial: np.ndarray,
-               cfg: FineAlignmentConfig, method: str | None = None) -> Alignment:
+def align_pair(
+    source: AlignmentCloud,
+    target: AlignmentCloud,
+    T_initial: np.ndarray,
+    cfg: FineAlignmentConfig,
+    method: str | None = None,
+) -> Alignment:
     """
     Refine ``T_target_source`` of two scans from ``T_initial``.
 
@@ -180,8 +200,14 @@ def align_pair(source: AlignmentCloud, target: AlignmentCloud, T_initial: np.nda
         voxels.insert(target.cloud)
         result = small_gicp.align(voxels, source.cloud, init, **common)
     else:
-        result = small_gicp.align(target.cloud, source.cloud, target.tree, init,
-                                  registration_type=_REGISTRATION_TYPES[method], **common)
+        result = small_gicp.align(
+            target.cloud,
+            source.cloud,
+            target.tree,
+            init,
+            registration_type=_REGISTRATION_TYPES[method],
+            **common,
+        )
     return _alignment(result, init, len(source))
 
 
@@ -216,8 +242,10 @@ class LocalMap:
     def reconfigure(self, fine: FineAlignmentConfig, local_map: LocalMapConfig) -> bool:
         """Take new settings; the map is cleared when its structure changed (returns True)."""
         rebuild = (fine.method, fine.voxel_size) != (self.fine.method, self.fine.voxel_size)
-        lru = (local_map.horizon, local_map.clear_cycle) != (self.config.horizon,
-                                                             self.config.clear_cycle)
+        lru = (local_map.horizon, local_map.clear_cycle) != (
+            self.config.horizon,
+            self.config.clear_cycle,
+        )
         self.fine, self.config = fine, local_map
         if rebuild:
             self.clear()
@@ -248,8 +276,9 @@ class LocalMap:
         self._indexed = None
         self.insertions += 1
 
-    def align(self, scan: AlignmentCloud, T_initial: np.ndarray,
-              num_threads: int | None = None) -> Alignment:
+    def align(
+        self, scan: AlignmentCloud, T_initial: np.ndarray, num_threads: int | None = None
+    ) -> Alignment:
         """Refine ``T_map_scan`` from ``T_initial`` against the map."""
         if len(scan) < 6 or len(self) == 0:
             return _failed(T_initial, len(scan))
@@ -259,9 +288,13 @@ class LocalMap:
             result = small_gicp.align(self._map, scan.cloud, init, **common)
         else:
             if self._indexed is None:
-                self._indexed = AlignmentCloud.build(self.points(), 0.0,
-                                                     self.fine.num_neighbors)
+                self._indexed = AlignmentCloud.build(self.points(), 0.0, self.fine.num_neighbors)
             result = small_gicp.align(
-                self._indexed.cloud, scan.cloud, self._indexed.tree, init,
-                registration_type=_REGISTRATION_TYPES[self.fine.method], **common)
+                self._indexed.cloud,
+                scan.cloud,
+                self._indexed.tree,
+                init,
+                registration_type=_REGISTRATION_TYPES[self.fine.method],
+                **common,
+            )
         return _alignment(result, init, len(scan))

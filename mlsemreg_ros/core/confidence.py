@@ -60,8 +60,10 @@ class Evidence:
 
     def as_diagnostics(self) -> dict[str, float]:
         """Flat values for the result's diagnostics (``confidence_*``)."""
-        return {f'confidence_{k}': v for k, v in
-                {**asdict(self), 'inlier_ratio': self.inlier_ratio}.items()}
+        return {
+            f'confidence_{k}': v
+            for k, v in {**asdict(self), 'inlier_ratio': self.inlier_ratio}.items()
+        }
 
 
 def tilt_deg(transform: np.ndarray) -> float:
@@ -76,15 +78,21 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
     if evidence.num_inliers < min_inliers:
         reasons.append(f'{evidence.num_inliers} inliers < estimator.min_inliers={min_inliers}')
     if evidence.inlier_ratio < config.min_inlier_ratio:
-        reasons.append(f'inlier ratio {evidence.inlier_ratio:.4f} < '
-                       f'confidence.min_inlier_ratio={config.min_inlier_ratio:g}')
+        reasons.append(
+            f'inlier ratio {evidence.inlier_ratio:.4f} < '
+            f'confidence.min_inlier_ratio={config.min_inlier_ratio:g}'
+        )
     if evidence.overlap < config.min_overlap:
-        reasons.append(f'overlap {evidence.overlap:.3f} < confidence.min_overlap='
-                       f'{config.min_overlap:g}')
+        reasons.append(
+            f'overlap {evidence.overlap:.3f} < confidence.min_overlap={config.min_overlap:g}'
+        )
     if evidence.label_agreement < config.min_label_agreement:
-        reasons.append(f'label agreement {evidence.label_agreement:.3f} < '
-                       f'confidence.min_label_agreement={config.min_label_agreement:g}')
+        reasons.append(
+            f'label agreement {evidence.label_agreement:.3f} < '
+            f'confidence.min_label_agreement={config.min_label_agreement:g}'
+        )
     if not evidence.tilt_deg <= config.max_tilt:  # NaN fails too
-        reasons.append(f'tilt {evidence.tilt_deg:.1f} deg > confidence.max_tilt='
-                       f'{config.max_tilt:g} deg')
+        reasons.append(
+            f'tilt {evidence.tilt_deg:.1f} deg > confidence.max_tilt={config.max_tilt:g} deg'
+        )
     return '; '.join(reasons)

@@ -55,10 +55,11 @@ class _Loader(yaml.SafeLoader):
 
 _Loader.yaml_implicit_resolvers = {
     key: [(tag, regexp) for tag, regexp in resolvers if tag != 'tag:yaml.org,2002:bool']
-    for key, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+    for key, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
 _Loader.add_implicit_resolver(
-    'tag:yaml.org,2002:bool', re.compile(r'^(?:true|True|TRUE|false|False|FALSE)$'),
-    list('tTfF'))
+    'tag:yaml.org,2002:bool', re.compile(r'^(?:true|True|TRUE|false|False|FALSE)$'), list('tTfF')
+)
 
 
 def load_yaml(text: str) -> Any:
@@ -87,39 +88,58 @@ class SemanticConfig:
     """ML-SemReg: Group Matching (Local-SS) and Mask Matching (BMR-SS)."""
 
     enabled: bool = param(
-        True, 'Use ML-SemReg (GM + MM); false gives the plain matcher (the paper baseline).')
+        True, 'Use ML-SemReg (GM + MM); false gives the plain matcher (the paper baseline).'
+    )
     label_scheme: str = param(
-        'auto', 'Label ids of the input: SemanticKITTI learning ids (0-19), raw ids '
+        'auto',
+        'Label ids of the input: SemanticKITTI learning ids (0-19), raw ids '
         '(instance id in the upper 16 bits) or auto-detect per scan.',
-        choices=('auto', 'learning', 'raw'))
+        choices=('auto', 'learning', 'raw'),
+    )
     local_radius: float = param(
-        0.8, 'Local-SS search radius r_local around each keypoint (eq. 1).',
-        unit='m', low=0.01, high=10.0)
-    ring_count: int = param(
-        33, 'Number N of BMR-SS rings (eq. 4).', low=1, high=256)
+        0.8,
+        'Local-SS search radius r_local around each keypoint (eq. 1).',
+        unit='m',
+        low=0.01,
+        high=10.0,
+    )
+    ring_count: int = param(33, 'Number N of BMR-SS rings (eq. 4).', low=1, high=256)
     ring_width: float = param(
-        1.5, 'Width L of each BMR-SS ring (eq. 4).', unit='m', low=0.01, high=50.0)
+        1.5, 'Width L of each BMR-SS ring (eq. 4).', unit='m', low=0.01, high=50.0
+    )
     top_k: int = param(
-        2, 'Mask Matching keeps, per row, every target whose scene similarity is within '
-        'top_k - 1 of the row maximum (top-K levels, ties included).', low=1, high=64)
+        2,
+        'Mask Matching keeps, per row, every target whose scene similarity is within '
+        'top_k - 1 of the row maximum (top-K levels, ties included).',
+        low=1,
+        high=64,
+    )
     landmark_classes: list[str] = param(
         ['trunk', 'truck', 'pole', 'traffic-sign', 'car'],
-        'Classes clustered into BMR-SS landmarks (class names of the label map).')
-    ignored_classes: list[str] = param(
-        [], 'Classes dropped from Local-SS (e.g. dynamic classes).')
+        'Classes clustered into BMR-SS landmarks (class names of the label map).',
+    )
+    ignored_classes: list[str] = param([], 'Classes dropped from Local-SS (e.g. dynamic classes).')
     undefined_classes: list[str] = param(
-        ['unlabeled'], 'Classes that make a keypoint a member of every matching group.')
+        ['unlabeled'], 'Classes that make a keypoint a member of every matching group.'
+    )
     cluster_radius: float = param(
-        1.5, 'Euclidean clustering radius of landmark points (xy-plane).',
-        unit='m', low=0.05, high=20.0)
+        1.5,
+        'Euclidean clustering radius of landmark points (xy-plane).',
+        unit='m',
+        low=0.05,
+        high=20.0,
+    )
     cluster_min_points: int = param(
-        3, 'Minimum points of a landmark cluster; smaller clusters are noise.',
-        low=1, high=100000)
+        3, 'Minimum points of a landmark cluster; smaller clusters are noise.', low=1, high=100000
+    )
     min_landmarks: int = param(
-        1, 'Mask Matching needs at least this many landmarks (of classes both scans share) '
+        1,
+        'Mask Matching needs at least this many landmarks (of classes both scans share) '
         'in each scan; below it Group Matching runs alone. Rows whose own scene evidence is '
         'thin (row maximum <= top_k - 1) are unmasked anyway by the top-K-levels rule.',
-        low=1, high=100000)
+        low=1,
+        high=100000,
+    )
 
 
 @dataclass
@@ -127,41 +147,72 @@ class FeatureConfig:
     """Preprocessing and local geometric descriptors."""
 
     voxel_size: float = param(
-        0.3, 'Voxel size of the downsampled scan (0 disables downsampling).',
-        unit='m', low=0.0, high=5.0)
+        0.3,
+        'Voxel size of the downsampled scan (0 disables downsampling).',
+        unit='m',
+        low=0.0,
+        high=5.0,
+    )
     descriptor: str = param(
-        'fpfh', 'Local geometric descriptor computed at the keypoints: fpfh (vectorized, '
+        'fpfh',
+        'Local geometric descriptor computed at the keypoints: fpfh (vectorized, '
         'radius neighbourhoods, normals facing the sensor, histograms on a support voxel '
         'grid) or fpfh_open3d (Open3D compute_fpfh_feature at the keypoints, as the '
-        'reference implementation; slower).', choices=('fpfh', 'fpfh_open3d'))
+        'reference implementation; slower).',
+        choices=('fpfh', 'fpfh_open3d'),
+    )
     normal_radius: float = param(
-        0.9, 'Normal estimation radius for FPFH.', unit='m', low=0.01, high=20.0)
+        0.9, 'Normal estimation radius for FPFH.', unit='m', low=0.01, high=20.0
+    )
     normal_max_nn: int = param(
-        30, 'Maximum neighbours for normal estimation (fpfh_open3d only; fpfh uses every '
-        'neighbour within the radius).', low=3, high=1000)
-    feature_radius: float = param(
-        1.5, 'FPFH feature radius.', unit='m', low=0.01, high=50.0)
+        30,
+        'Maximum neighbours for normal estimation (fpfh_open3d only; fpfh uses every '
+        'neighbour within the radius).',
+        low=3,
+        high=1000,
+    )
+    feature_radius: float = param(1.5, 'FPFH feature radius.', unit='m', low=0.01, high=50.0)
     feature_max_nn: int = param(
-        100, 'Maximum neighbours for FPFH (fpfh_open3d only; fpfh uses every neighbour '
-        'within the radius).', low=3, high=5000)
+        100,
+        'Maximum neighbours for FPFH (fpfh_open3d only; fpfh uses every neighbour '
+        'within the radius).',
+        low=3,
+        high=5000,
+    )
     support_voxel_size: float = param(
-        0.5, 'fpfh: the point-pair histograms of the neighbours are computed on the '
+        0.5,
+        'fpfh: the point-pair histograms of the neighbours are computed on the '
         'centroids of a voxel grid of this edge (0: on the scan points themselves; the cost '
-        'grows about with 1/edge^2).', unit='m', low=0.0, high=5.0)
+        'grows about with 1/edge^2).',
+        unit='m',
+        low=0.0,
+        high=5.0,
+    )
     snap_keypoints: bool = param(
-        True, 'fpfh with a support grid: each keypoint takes the FPFH of its nearest support '
+        True,
+        'fpfh with a support grid: each keypoint takes the FPFH of its nearest support '
         'centroid (no neighbourhood search per keypoint; about 3x faster at 5000 keypoints). '
         'false computes its own normal and SPFH at its position (dev pairs: FPFH RR 90 % '
-        'instead of 80 %).')
+        'instead of 80 %).',
+    )
     max_range: float = param(
-        200.0, 'Points farther than this from the sensor (the origin of the cloud frame) are '
+        200.0,
+        'Points farther than this from the sensor (the origin of the cloud frame) are '
         'dropped before voxelization, as are points with a NaN/inf coordinate, and counted; '
         'this also bounds the voxel grid (one point at 1e30 collapses it).',
-        unit='m', low=1.0, high=1e6)
+        unit='m',
+        low=1.0,
+        high=1e6,
+    )
     min_range: float = param(
-        0.0, 'Points closer than this to the sensor are dropped before voxelization and '
+        0.0,
+        'Points closer than this to the sensor are dropped before voxelization and '
         'counted (0 keeps them all; e.g. returns from the vehicle itself). Must be below '
-        'features.max_range.', unit='m', low=0.0, high=100.0)
+        'features.max_range.',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
 
 
 @dataclass
@@ -169,14 +220,22 @@ class KeypointConfig:
     """Keypoint selection from the downsampled scan."""
 
     count: int = param(
-        2000, 'Keypoints per scan (all points when the scan has fewer). 2000 keeps the node '
+        2000,
+        'Keypoints per scan (all points when the scan has fewer). 2000 keeps the node '
         'under 150 ms per frame on 2 cores; the paper uses 5000 (eval-pairs uses the '
-        'keypoints stored in the pair files).', low=10, high=100000)
+        'keypoints stored in the pair files).',
+        low=10,
+        high=100000,
+    )
     sampling: str = param(
-        'random', 'Keypoint sampling: random (seeded, as in the paper) or voxel '
-        '(one point per keypoint voxel, spatially uniform).', choices=('random', 'voxel'))
+        'random',
+        'Keypoint sampling: random (seeded, as in the paper) or voxel '
+        '(one point per keypoint voxel, spatially uniform).',
+        choices=('random', 'voxel'),
+    )
     voxel_size: float = param(
-        1.0, 'Voxel size for voxel keypoint sampling.', unit='m', low=0.05, high=20.0)
+        1.0, 'Voxel size for voxel keypoint sampling.', unit='m', low=0.05, high=20.0
+    )
     seed: int = param(0, 'Seed of the keypoint sampler.', low=0, high=2**31 - 1)
 
 
@@ -185,8 +244,11 @@ class MatcherConfig:
     """Descriptor matcher run inside every matching group."""
 
     kind: str = param(
-        'nn', 'nn: each source keypoint to its nearest target descriptor; mnn: mutual '
-        'nearest neighbours.', choices=('nn', 'mnn'))
+        'nn',
+        'nn: each source keypoint to its nearest target descriptor; mnn: mutual '
+        'nearest neighbours.',
+        choices=('nn', 'mnn'),
+    )
 
 
 @dataclass
@@ -194,54 +256,96 @@ class EstimatorConfig:
     """Robust rigid transform estimation from correspondences."""
 
     kind: str = param(
-        'sc2pcr', 'sc2pcr: second-order spatial compatibility (Chen et al. 2022); ransac: '
-        "Open3D's correspondence RANSAC (baseline).", choices=('sc2pcr', 'ransac'))
+        'sc2pcr',
+        'sc2pcr: second-order spatial compatibility (Chen et al. 2022); ransac: '
+        "Open3D's correspondence RANSAC (baseline).",
+        choices=('sc2pcr', 'ransac'),
+    )
     inlier_threshold: float = param(
-        0.6, 'Residual below which a correspondence is an inlier (hypothesis selection, '
-        'diagnostics).', unit='m', low=0.01, high=10.0)
+        0.6,
+        'Residual below which a correspondence is an inlier (hypothesis selection, diagnostics).',
+        unit='m',
+        low=0.01,
+        high=10.0,
+    )
     compatibility_threshold: float = param(
-        0.6, 'SC2-PCR d_thr: length-consistency threshold of the compatibility measures.',
-        unit='m', low=0.01, high=10.0)
+        0.6,
+        'SC2-PCR d_thr: length-consistency threshold of the compatibility measures.',
+        unit='m',
+        low=0.01,
+        high=10.0,
+    )
     seed_ratio: float = param(
-        0.5, 'Maximum number of SC2-PCR seeds as a share of the graph correspondences.',
-        low=0.001, high=1.0)
+        0.5,
+        'Maximum number of SC2-PCR seeds as a share of the graph correspondences.',
+        low=0.001,
+        high=1.0,
+    )
     nms_radius: float = param(
-        0.1, 'Non-maximum suppression radius for seed selection.', unit='m',
-        low=0.0, high=10.0)
+        0.1, 'Non-maximum suppression radius for seed selection.', unit='m', low=0.0, high=10.0
+    )
     k1: int = param(30, 'First-stage consensus set size per seed.', low=3, high=1000)
     k2: int = param(20, 'Second-stage consensus set size per seed.', low=3, high=1000)
     power_iterations: int = param(
-        10, 'Power iterations for the leading eigenvector.', low=1, high=1000)
+        10, 'Power iterations for the leading eigenvector.', low=1, high=1000
+    )
     second_order_budget: float = param(
-        50.0, 'Work budget of the SC2 stage (cost-model ms, about CPU ms on 2 cores): when '
+        50.0,
+        'Work budget of the SC2 stage (cost-model ms, about CPU ms on 2 cores): when '
         'seed_ratio x K seeds would exceed it, only the best-scored seeds that fit are kept '
-        '(at least 64); 0 disables the budget.', unit='ms', low=0.0, high=1e6)
+        '(at least 64); 0 disables the budget.',
+        unit='ms',
+        low=0.0,
+        high=1e6,
+    )
     graph_size: int = param(
-        500, 'SC2-PCR builds its compatibility graph (seeds, consensus sets, hypotheses) on '
+        500,
+        'SC2-PCR builds its compatibility graph (seeds, consensus sets, hypotheses) on '
         'a seeded random subset of at most this many correspondences; every hypothesis is '
         'still scored, and the best refined, on all of them. Cost grows with its square '
-        '(0: no limit).', low=0, high=100000)
+        '(0: no limit).',
+        low=0,
+        high=100000,
+    )
     graph_retry_inliers: int = param(
-        50, 'When the graph was sampled (estimator.graph_size) and its best hypothesis has '
+        50,
+        'When the graph was sampled (estimator.graph_size) and its best hypothesis has '
         'fewer inliers than this on all correspondences, SC2-PCR runs again on the full '
         'graph: inlier ratios near 1 % leave too few inliers in the sample (0: never).',
-        low=0, high=100000)
+        low=0,
+        high=100000,
+    )
     max_correspondences: int = param(
-        10000, 'Cap on correspondences fed to the estimator; the best ranked '
-        '(smallest descriptor distance) are kept.', low=10, high=100000)
+        10000,
+        'Cap on correspondences fed to the estimator; the best ranked '
+        '(smallest descriptor distance) are kept.',
+        low=10,
+        high=100000,
+    )
     refine_threshold: float = param(
-        1.2, 'Inlier threshold of the reweighted least-squares refinement.', unit='m',
-        low=0.01, high=20.0)
+        1.2,
+        'Inlier threshold of the reweighted least-squares refinement.',
+        unit='m',
+        low=0.01,
+        high=20.0,
+    )
     refine_iterations: int = param(
-        20, 'Maximum reweighted least-squares refinement iterations.', low=0, high=1000)
+        20, 'Maximum reweighted least-squares refinement iterations.', low=0, high=1000
+    )
     ransac_iterations: int = param(
-        1000000, 'RANSAC maximum iterations (ransac estimator only).', low=1, high=100000000)
+        1000000, 'RANSAC maximum iterations (ransac estimator only).', low=1, high=100000000
+    )
     ransac_confidence: float = param(
-        0.999, 'RANSAC confidence (ransac estimator only).', low=0.0, high=1.0)
+        0.999, 'RANSAC confidence (ransac estimator only).', low=0.0, high=1.0
+    )
     min_inliers: int = param(
-        40, 'A registration with fewer inliers is reported as failed. Scans that do not '
+        40,
+        'A registration with fewer inliers is reported as failed. Scans that do not '
         'overlap at all still give 12-49 by chance (2000 keypoints, dev-pair chain); see '
-        'also confidence.*.', low=3, high=100000)
+        'also confidence.*.',
+        low=3,
+        high=100000,
+    )
 
 
 @dataclass
@@ -255,46 +359,86 @@ class VerificationConfig:
     """
 
     enabled: bool = param(
-        True, 'Verify the best distinct hypotheses of the estimator on the dense labeled scans '
-        '(overlap and label agreement); false keeps the choice of the estimator (most inliers).')
+        True,
+        'Verify the best distinct hypotheses of the estimator on the dense labeled scans '
+        '(overlap and label agreement); false keeps the choice of the estimator (most inliers).',
+    )
     hypotheses: int = param(
-        5, 'Hypotheses verified: the choice of the estimator and up to this many minus one other '
-        'distinct ones, by descending inlier count (SC2-PCR: one per seed).', low=1, high=256)
+        5,
+        'Hypotheses verified: the choice of the estimator and up to this many minus one other '
+        'distinct ones, by descending inlier count (SC2-PCR: one per seed).',
+        low=1,
+        high=256,
+    )
     distinct_rotation: float = param(
-        5.0, 'Two hypotheses are the same pose when they differ by at most this rotation and '
-        'at most verification.distinct_translation (the success bounds).', unit='deg',
-        low=0.0, high=180.0)
+        5.0,
+        'Two hypotheses are the same pose when they differ by at most this rotation and '
+        'at most verification.distinct_translation (the success bounds).',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
     distinct_translation: float = param(
-        0.6, 'Translation bound of the same-pose test (see verification.distinct_rotation).',
-        unit='m', low=0.0, high=100.0)
+        0.6,
+        'Translation bound of the same-pose test (see verification.distinct_rotation).',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
     sample_points: int = param(
-        2000, 'Source scan points (seeded random subset) scored per hypothesis.',
-        low=10, high=1000000)
+        2000,
+        'Source scan points (seeded random subset) scored per hypothesis.',
+        low=10,
+        high=1000000,
+    )
     overlap_distance: float = param(
-        0.6, 'A sampled source point overlaps when a target scan point lies within this '
-        'distance of it under the hypothesis.', unit='m', low=0.01, high=10.0)
+        0.6,
+        'A sampled source point overlaps when a target scan point lies within this '
+        'distance of it under the hypothesis.',
+        unit='m',
+        low=0.01,
+        high=10.0,
+    )
     range_exponent: float = param(
-        2.0, 'Each sampled source point counts with the weight range^this (distance from the '
+        2.0,
+        'Each sampled source point counts with the weight range^this (distance from the '
         'source sensor) in the overlap and the label agreement. A LiDAR samples a surface at '
         'range r with a density ~1/r^2: 2 makes both shares of the seen surface, not of the '
         'points, so the dense ground around the sensor cannot decide; 0: equal weights.',
-        low=0.0, high=4.0)
+        low=0.0,
+        high=4.0,
+    )
     overlap_weight: float = param(
-        1.0, 'Exponent of the overlap fraction in the combined score.', low=0.0, high=10.0)
+        1.0, 'Exponent of the overlap fraction in the combined score.', low=0.0, high=10.0
+    )
     label_weight: float = param(
-        1.0, 'Exponent of the label agreement in the combined score (0: geometry only).',
-        low=0.0, high=10.0)
+        1.0,
+        'Exponent of the label agreement in the combined score (0: geometry only).',
+        low=0.0,
+        high=10.0,
+    )
     min_gain: float = param(
-        0.05, 'Another hypothesis replaces the choice of the estimator only when its score is '
-        'higher by more than this share (0.05 = 5 %).', low=0.0, high=10.0)
+        0.05,
+        'Another hypothesis replaces the choice of the estimator only when its score is '
+        'higher by more than this share (0.05 = 5 %).',
+        low=0.0,
+        high=10.0,
+    )
     compatible_classes: list[str] = param(
-        ['vegetation~terrain', 'vegetation~trunk', 'road~parking', 'building~fence',
-         'pole~traffic-sign'],
+        [
+            'vegetation~terrain',
+            'vegetation~trunk',
+            'road~parking',
+            'building~fence',
+            'pole~traffic-sign',
+        ],
         'Label pairs (or groups, a~b~c) that count as agreeing besides equal labels '
-        '(class names of the label map).')
+        '(class names of the label map).',
+    )
     ignored_classes: list[str] = param(
-        ['unlabeled'], 'Classes left out of the label agreement (their points still count '
-        'for the overlap).')
+        ['unlabeled'],
+        'Classes left out of the label agreement (their points still count for the overlap).',
+    )
     seed: int = param(0, 'Seed of the source point sample.', low=0, high=2**31 - 1)
 
     def __post_init__(self) -> None:
@@ -302,8 +446,10 @@ class VerificationConfig:
         for rule in self.compatible_classes:
             names = rule.split('~')
             if len(names) < 2 or not all(n.strip() for n in names):
-                raise ConfigError(f'verification.compatible_classes: {rule!r} is not of the '
-                                  "form 'class~class' (e.g. 'vegetation~terrain')")
+                raise ConfigError(
+                    f'verification.compatible_classes: {rule!r} is not of the '
+                    "form 'class~class' (e.g. 'vegetation~terrain')"
+                )
 
 
 @dataclass
@@ -316,22 +462,37 @@ class ConfidenceConfig:
     """
 
     min_inlier_ratio: float = param(
-        0.005, 'Smallest share of the correspondences that are inliers of the chosen pose '
+        0.005,
+        'Smallest share of the correspondences that are inliers of the chosen pose '
         '(measured: right registrations >= 0.0074, with 20 % of the labels randomized).',
-        low=0.0, high=1.0)
+        low=0.0,
+        high=1.0,
+    )
     min_overlap: float = param(
-        0.15, "Smallest share of the source scan's seen surface that lies on the target scan "
-        'under the chosen pose (measured: right registrations >= 0.196).', low=0.0,
-        high=1.0)
+        0.15,
+        "Smallest share of the source scan's seen surface that lies on the target scan "
+        'under the chosen pose (measured: right registrations >= 0.196).',
+        low=0.0,
+        high=1.0,
+    )
     min_label_agreement: float = param(
-        0.6, 'Smallest share of the overlapping labeled points whose labels agree (or are '
+        0.6,
+        'Smallest share of the overlapping labeled points whose labels agree (or are '
         'compatible, verification.compatible_classes). Measured: right registrations >= '
         '0.60 (0.71 with the network labels as they are), wrong ones with >= 40 inliers '
-        '<= 0.55.', low=0.0, high=1.0)
+        '<= 0.55.',
+        low=0.0,
+        high=1.0,
+    )
     max_tilt: float = param(
-        30.0, 'Largest turn of the up (z) axis between the two scans: a ground vehicle does '
+        30.0,
+        'Largest turn of the up (z) axis between the two scans: a ground vehicle does '
         'not roll over between two scans, but a mirrored or degenerate scene fits best '
-        'upside down (180 disables the check).', unit='deg', low=0.0, high=180.0)
+        'upside down (180 disables the check).',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
 
 
 @dataclass
@@ -345,44 +506,74 @@ class FineAlignmentConfig:
     """
 
     method: str = param(
-        'vgicp', 'Odometry: alignment of each scan to the local map. vgicp (voxelized GICP; '
+        'vgicp',
+        'Odometry: alignment of each scan to the local map. vgicp (voxelized GICP; '
         'the map is a Gaussian voxel map), gicp, plane_icp (point-to-plane), icp '
         '(point-to-point; with gicp/plane_icp/icp the map points are indexed again every '
         'frame, slower) or off (the estimate as it is, chained scan to keyframe).',
-        choices=('vgicp', 'gicp', 'plane_icp', 'icp', 'off'))
+        choices=('vgicp', 'gicp', 'plane_icp', 'icp', 'off'),
+    )
     pair_method: str = param(
-        'gicp', 'Pairs (Registration.register, mlsemreg eval-pairs): alignment of the source '
+        'gicp',
+        'Pairs (Registration.register, mlsemreg eval-pairs): alignment of the source '
         'scan onto the target scan, both as voxelized at features.voxel_size. gicp, vgicp, '
         'plane_icp, icp or off (the estimate as it is).',
-        choices=('gicp', 'vgicp', 'plane_icp', 'icp', 'off'))
+        choices=('gicp', 'vgicp', 'plane_icp', 'icp', 'off'),
+    )
     downsampling_resolution: float = param(
-        0.5, 'Odometry: voxel edge to which the scan (already voxelized at '
+        0.5,
+        'Odometry: voxel edge to which the scan (already voxelized at '
         'features.voxel_size) is downsampled for the map alignment (0: as it is).',
-        unit='m', low=0.0, high=5.0)
+        unit='m',
+        low=0.0,
+        high=5.0,
+    )
     voxel_size: float = param(
-        1.0, 'VGICP voxel edge: of the local map and of the target scan of a pair; with '
+        1.0,
+        'VGICP voxel edge: of the local map and of the target scan of a pair; with '
         "gicp/plane_icp/icp, the edge of the local map's point cells.",
-        unit='m', low=0.05, high=10.0)
+        unit='m',
+        low=0.05,
+        high=10.0,
+    )
     num_neighbors: int = param(
-        10, 'Odometry: neighbours of each alignment point for its covariance and normal '
+        10,
+        'Odometry: neighbours of each alignment point for its covariance and normal '
         '(simulated drives: 10 drifted less than 20 at strides 10 and 20, and costs less).',
-        low=5, high=200)
+        low=5,
+        high=200,
+    )
     pair_num_neighbors: int = param(
-        20, 'Pairs: neighbours of each point for its covariance and normal (KITTI dev pairs: '
-        'rotation error 0.24 deg with 20, 0.28 deg with 10).', low=5, high=200)
+        20,
+        'Pairs: neighbours of each point for its covariance and normal (KITTI dev pairs: '
+        'rotation error 0.24 deg with 20, 0.28 deg with 10).',
+        low=5,
+        high=200,
+    )
     max_correspondence_distance: float = param(
-        1.0, 'Maximum distance of a point to its correspondence (its inlier bound).',
-        unit='m', low=0.05, high=20.0)
-    max_iterations: int = param(
-        20, 'Maximum Gauss-Newton iterations.', low=1, high=1000)
+        1.0,
+        'Maximum distance of a point to its correspondence (its inlier bound).',
+        unit='m',
+        low=0.05,
+        high=20.0,
+    )
+    max_iterations: int = param(20, 'Maximum Gauss-Newton iterations.', low=1, high=1000)
     rotation_epsilon: float = param(
-        0.01, 'Convergence: the iterations stop once an update turns less than this (and '
+        0.01,
+        'Convergence: the iterations stop once an update turns less than this (and '
         'moves less than fine.translation_epsilon); the small_gicp default of 0.1 deg leaves '
-        'up to ~0.1 deg of error, which drifts at large strides.', unit='deg', low=1e-6,
-        high=10.0)
+        'up to ~0.1 deg of error, which drifts at large strides.',
+        unit='deg',
+        low=1e-6,
+        high=10.0,
+    )
     translation_epsilon: float = param(
-        1e-4, 'Convergence: the iterations stop once an update moves less than this.',
-        unit='m', low=1e-8, high=1.0)
+        1e-4,
+        'Convergence: the iterations stop once an update moves less than this.',
+        unit='m',
+        low=1e-8,
+        high=1.0,
+    )
 
 
 @dataclass
@@ -390,10 +581,15 @@ class LocalMapConfig:
     """The odometry's local map: recent aligned scans in the odom frame, LRU-bounded."""
 
     horizon: int = param(
-        100, 'Voxels that no inserted scan touched during this many insertions are dropped '
-        '(small_gicp LRU horizon).', low=1, high=100000)
+        100,
+        'Voxels that no inserted scan touched during this many insertions are dropped '
+        '(small_gicp LRU horizon).',
+        low=1,
+        high=100000,
+    )
     clear_cycle: int = param(
-        10, 'Insertions between two LRU clean-ups of the local map.', low=1, high=100000)
+        10, 'Insertions between two LRU clean-ups of the local map.', low=1, high=100000
+    )
 
 
 @dataclass
@@ -401,26 +597,48 @@ class KeyframeConfig:
     """When the current scan replaces the keyframe (after an accepted frame)."""
 
     policy: str = param(
-        'every_frame', 'every_frame: each registered scan becomes the keyframe (frame-to-frame '
+        'every_frame',
+        'every_frame: each registered scan becomes the keyframe (frame-to-frame '
         'odometry); distance: only once it moved keyframe.min_distance or turned '
-        'keyframe.min_rotation away from the keyframe.', choices=('every_frame', 'distance'))
+        'keyframe.min_rotation away from the keyframe.',
+        choices=('every_frame', 'distance'),
+    )
     min_distance: float = param(
-        1.0, 'distance policy: translation from the keyframe that makes a new keyframe.',
-        unit='m', low=0.0, high=1000.0)
+        1.0,
+        'distance policy: translation from the keyframe that makes a new keyframe.',
+        unit='m',
+        low=0.0,
+        high=1000.0,
+    )
     min_rotation: float = param(
-        10.0, 'distance policy: rotation from the keyframe that makes a new keyframe.',
-        unit='deg', low=0.0, high=180.0)
+        10.0,
+        'distance policy: rotation from the keyframe that makes a new keyframe.',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
     min_points: int = param(
-        1000, 'A scan becomes a keyframe only with at least this many points after '
+        1000,
+        'A scan becomes a keyframe only with at least this many points after '
         'voxelization (a degenerate scan would make every later one fail).',
-        low=1, high=10000000)
+        low=1,
+        high=10000000,
+    )
     min_keypoints: int = param(
-        100, 'A scan becomes a keyframe only with at least this many keypoints (with a '
-        'valid descriptor; at most keypoints.count are asked for).', low=3, high=100000)
+        100,
+        'A scan becomes a keyframe only with at least this many keypoints (with a '
+        'valid descriptor; at most keypoints.count are asked for).',
+        low=3,
+        high=100000,
+    )
     max_failures: int = param(
-        10, 'After this many rejected frames in a row against one keyframe, the odometry '
+        10,
+        'After this many rejected frames in a row against one keyframe, the odometry '
         're-initialises on the current scan at the last accepted pose (the map restarts '
-        'from it; 0: never).', low=0, high=100000)
+        'from it; 0: never).',
+        low=0,
+        high=100000,
+    )
 
 
 @dataclass
@@ -435,63 +653,116 @@ class OdometryConfig:
     """
 
     constant_velocity: bool = param(
-        True, 'Refine the constant-velocity prediction against the local map; when it agrees '
+        True,
+        'Refine the constant-velocity prediction against the local map; when it agrees '
         'with the global estimate only one alignment is paid for, and when the global '
-        'estimate fails the prediction can still be accepted.')
+        'estimate fails the prediction can still be accepted.',
+    )
     global_registration: str = param(
-        'on_demand', 'always: ML-SemReg + SC2-PCR onto the keyframe for every scan (the '
+        'on_demand',
+        'always: ML-SemReg + SC2-PCR onto the keyframe for every scan (the '
         'previous default; about twice the time per scan); on_demand: only when the refined '
         'prediction is not trusted (no prediction, refused, corrected by more than '
         'odometry.tracking_translation/rotation, fewer inliers than usual, a gap in the '
         'stamps) and at least every odometry.global_interval scans as a check of the motion '
-        'model.', choices=('always', 'on_demand'))
+        'model.',
+        choices=('always', 'on_demand'),
+    )
     global_interval: int = param(
-        30, 'on_demand: the longest run of scans tracked by the refined prediction alone; '
-        'the next one is registered globally (1: every scan).', low=1, high=100000)
+        30,
+        'on_demand: the longest run of scans tracked by the refined prediction alone; '
+        'the next one is registered globally (1: every scan).',
+        low=1,
+        high=100000,
+    )
     tracking_translation: float = param(
-        0.5, 'on_demand: a refined prediction that the fine alignment moved further than this '
-        'is not trusted alone (the motion model did not hold).', unit='m', low=0.0,
-        high=100.0)
+        0.5,
+        'on_demand: a refined prediction that the fine alignment moved further than this '
+        'is not trusted alone (the motion model did not hold).',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
     tracking_rotation: float = param(
-        4.0, 'on_demand: a refined prediction that the fine alignment turned further than this '
+        4.0,
+        'on_demand: a refined prediction that the fine alignment turned further than this '
         'is not trusted alone (simulated drives: up to 4 deg at the start and end of turns, '
-        'with 0.97 of the scan as inliers).', unit='deg', low=0.0, high=180.0)
+        'with 0.97 of the scan as inliers).',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
     tracking_inlier_share: float = param(
-        0.9, 'on_demand: a refined prediction is trusted alone only with at least this share '
+        0.9,
+        'on_demand: a refined prediction is trusted alone only with at least this share '
         'of the median inlier fraction of the last accepted scans (as good as usual).',
-        low=0.0, high=1.0)
+        low=0.0,
+        high=1.0,
+    )
     tracking_min_inlier_fraction: float = param(
-        0.7, 'on_demand: ... and with at least this share of the scan as map inliers: '
+        0.7,
+        'on_demand: ... and with at least this share of the scan as map inliers: '
         'tracking is for scans that overlap the map well (simulated drives: 0.97 at 1 m '
         'per scan, 0.80 at 8 m, 0.63 at 16 m; scans 20 m apart stay registered globally).',
-        low=0.0, high=1.0)
+        low=0.0,
+        high=1.0,
+    )
     agreement_translation: float = param(
-        0.3, 'The refined prediction agrees with the global estimate within this '
-        'translation (and odometry.agreement_rotation).', unit='m', low=0.0, high=100.0)
+        0.3,
+        'The refined prediction agrees with the global estimate within this '
+        'translation (and odometry.agreement_rotation).',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
     agreement_rotation: float = param(
-        1.0, 'The refined prediction agrees with the global estimate within this rotation.',
-        unit='deg', low=0.0, high=180.0)
+        1.0,
+        'The refined prediction agrees with the global estimate within this rotation.',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
     max_correction_translation: float = param(
-        1.5, 'A fine alignment that moves its initial guess further than this is not '
-        'accepted (it ran away or started outside its basin).', unit='m', low=0.0,
-        high=100.0)
+        1.5,
+        'A fine alignment that moves its initial guess further than this is not '
+        'accepted (it ran away or started outside its basin).',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
     max_correction_rotation: float = param(
-        5.0, 'A fine alignment that turns its initial guess further than this is not '
-        'accepted.', unit='deg', low=0.0, high=180.0)
+        5.0,
+        'A fine alignment that turns its initial guess further than this is not accepted.',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
     min_inlier_fraction: float = param(
-        0.25, "Share of the scan's alignment points that must have a correspondence "
+        0.25,
+        "Share of the scan's alignment points that must have a correspondence "
         '(map or target scan) within fine.max_correspondence_distance after the fine '
-        'alignment.', low=0.0, high=1.0)
+        'alignment.',
+        low=0.0,
+        high=1.0,
+    )
     min_relative_inlier_fraction: float = param(
-        0.6, 'The inlier fraction must also reach this share of the median inlier fraction '
+        0.6,
+        'The inlier fraction must also reach this share of the median inlier fraction '
         'of the last accepted frames: a pose that overlaps the map only by chance (the '
         'mirror pose of a street, a different street) keeps far fewer inliers than the '
-        'frames before it (0: no such check).', low=0.0, high=1.0)
+        'frames before it (0: no such check).',
+        low=0.0,
+        high=1.0,
+    )
     covariance_scale: float = param(
-        7.0, 'Factor on the pose covariance inv(H) * 2E / (n - 6) of the fine alignment '
+        7.0,
+        'Factor on the pose covariance inv(H) * 2E / (n - 6) of the fine alignment '
         '(H Hessian, E final error, n inliers). Calibrated on the simulated drives (seeds '
         '0-2, strides 1-20, 756 frames): the mean NEES of the relative pose errors was 41 '
-        'with factor 1, about 6 (consistent) with 7.', low=1e-6, high=1e6)
+        'with factor 1, about 6 (consistent) with 7.',
+        low=1e-6,
+        high=1e6,
+    )
 
 
 SECTIONS: dict[str, type] = {
@@ -535,8 +806,11 @@ class Settings:
     @classmethod
     def sections(cls) -> dict[str, type]:
         """Section name -> dataclass, in declaration order."""
-        return {f.name: f.default_factory for f in dataclasses.fields(cls)
-                if dataclasses.is_dataclass(f.default_factory)}
+        return {
+            f.name: f.default_factory
+            for f in dataclasses.fields(cls)
+            if dataclasses.is_dataclass(f.default_factory)
+        }
 
     @classmethod
     def top_level_names(cls) -> set[str]:
@@ -597,8 +871,12 @@ class Settings:
             values[key] = coerce(key, value, self.field_of(key))
         sections = self.sections()
         top = {k: v for k, v in values.items() if '.' not in k}
-        parts = {s: kind(**{k.partition('.')[2]: v for k, v in values.items()
-                            if k.partition('.')[0] == s}) for s, kind in sections.items()}
+        parts = {
+            s: kind(
+                **{k.partition('.')[2]: v for k, v in values.items() if k.partition('.')[0] == s}
+            )
+            for s, kind in sections.items()
+        }
         new = type(self)(**top, **parts)
         errors = new.errors()
         if errors:
@@ -608,9 +886,14 @@ class Settings:
     # -- export --------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """Nested plain dict (YAML/JSON friendly)."""
-        return {f.name: (dataclasses.asdict(getattr(self, f.name))
-                         if f.name in self.sections() else getattr(self, f.name))
-                for f in dataclasses.fields(self)}
+        return {
+            f.name: (
+                dataclasses.asdict(getattr(self, f.name))
+                if f.name in self.sections()
+                else getattr(self, f.name)
+            )
+            for f in dataclasses.fields(self)
+        }
 
     def to_flat_dict(self) -> dict[str, Any]:
         """``{'field' or 'section.field': value}`` for every parameter."""
@@ -625,9 +908,11 @@ class Settings:
     # -- validation ----------------------------------------------------------------
     def errors(self) -> list[str]:
         """Every range, choice and cross-field violation, as readable sentences."""
-        return [e for key, value in self.to_flat_dict().items()
-                for e in metadata_errors(key, value, self.field_of(key).metadata)
-                ] + self.check()
+        return [
+            e
+            for key, value in self.to_flat_dict().items()
+            for e in metadata_errors(key, value, self.field_of(key).metadata)
+        ] + self.check()
 
     def check(self) -> list[str]:
         """Cross-field rules (none by default)."""
@@ -639,8 +924,11 @@ class RegistrationConfig(Settings):
     """Everything the core needs (registration and odometry); built from a nested or flat dict."""
 
     threads: int = param(
-        0, 'Threads of every pool of the core and of the fine alignment (0: all cores).',
-        low=0, high=256)
+        0,
+        'Threads of every pool of the core and of the fine alignment (0: all cores).',
+        low=0,
+        high=256,
+    )
     semantic: SemanticConfig = field(default_factory=SemanticConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
     keypoints: KeypointConfig = field(default_factory=KeypointConfig)
@@ -672,12 +960,15 @@ class RegistrationConfig(Settings):
         if field_m > MAX_RECEPTIVE_FIELD_M:
             errors.append(
                 f'semantic.ring_count x semantic.ring_width = {field_m:g} m exceeds the '
-                f'{MAX_RECEPTIVE_FIELD_M:g} m receptive-field limit')
+                f'{MAX_RECEPTIVE_FIELD_M:g} m receptive-field limit'
+            )
         if est.k2 > est.k1:
             errors.append(f'estimator.k2={est.k2} must not exceed estimator.k1={est.k1}')
         if self.features.min_range >= self.features.max_range:
-            errors.append(f'features.min_range={self.features.min_range:g} must be below '
-                          f'features.max_range={self.features.max_range:g}')
+            errors.append(
+                f'features.min_range={self.features.min_range:g} must be below '
+                f'features.max_range={self.features.max_range:g}'
+            )
         overlap = set(sem.landmark_classes) & set(sem.ignored_classes)
         if overlap:
             errors.append(f'classes both landmark and ignored: {sorted(overlap)}')
@@ -776,12 +1067,14 @@ def apply_overrides(config: SettingsT, items: Sequence[str]) -> SettingsT: ...
 
 
 @overload
-def apply_overrides(config: tuple[Settings, ...], items: Sequence[str]
-                    ) -> tuple[Settings, ...]: ...
+def apply_overrides(
+    config: tuple[Settings, ...], items: Sequence[str]
+) -> tuple[Settings, ...]: ...
 
 
-def apply_overrides(config: Settings | tuple[Settings, ...], items: Sequence[str]
-                    ) -> Settings | tuple[Settings, ...]:
+def apply_overrides(
+    config: Settings | tuple[Settings, ...], items: Sequence[str]
+) -> Settings | tuple[Settings, ...]:
     """
     Apply ``['section.key=value', ...]`` (every tool's ``--set``) to settings; return a copy.
 
@@ -797,8 +1090,10 @@ def apply_overrides(config: Settings | tuple[Settings, ...], items: Sequence[str
     changes: list[dict[str, Any]] = [{} for _ in parts]
     for key, value in flat.items():
         changes[_owner(parts, key)][key] = value
-    return tuple(part.replace(change) if change else part
-                 for part, change in zip(parts, changes, strict=True))
+    return tuple(
+        part.replace(change) if change else part
+        for part, change in zip(parts, changes, strict=True)
+    )
 
 
 def read_parameter_file(path: str | Path) -> dict[str, Any]:
@@ -841,8 +1136,9 @@ def split_params_yaml(path: str | Path) -> tuple[dict[str, Any], dict[str, Any]]
     return core, rest
 
 
-def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()
-                ) -> RegistrationConfig:
+def load_config(
+    path: str | Path | None = None, overrides: Sequence[str] = ()
+) -> RegistrationConfig:
     """
     Load the core config: defaults < parameter file < ``--set`` overrides.
 
@@ -854,8 +1150,11 @@ def load_config(path: str | Path | None = None, overrides: Sequence[str] = ()
     return apply_overrides(config, overrides)
 
 
-def load_settings(kinds: tuple[type[Settings], ...], path: str | Path | None = None,
-                  overrides: Sequence[str] = ()) -> tuple[Settings, ...]:
+def load_settings(
+    kinds: tuple[type[Settings], ...],
+    path: str | Path | None = None,
+    overrides: Sequence[str] = (),
+) -> tuple[Settings, ...]:
     """
     Load several settings at once (the one loader of the tools' ``--config``/``--set``).
 

@@ -33,8 +33,9 @@ import numpy as np
 _MAX_EXACT_KEY = 2.0**40
 
 
-def voxel_groups(points: np.ndarray, voxel_size: float,
-                 compiled: bool | None = None) -> tuple[np.ndarray, int]:
+def voxel_groups(
+    points: np.ndarray, voxel_size: float, compiled: bool | None = None
+) -> tuple[np.ndarray, int]:
     """
     Voxel id of every point: ``(inverse (N,) int64, number of occupied voxels)``.
 
@@ -75,8 +76,9 @@ def voxel_groups(points: np.ndarray, voxel_size: float,
     return inverse, int(inverse.max()) + 1
 
 
-def voxel_centroids(points: np.ndarray, voxel_size: float,
-                    compiled: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
+def voxel_centroids(
+    points: np.ndarray, voxel_size: float, compiled: bool | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """
     Centroids of the occupied voxels: ``(centroids (V, 3) float64, voxel of each point (N,))``.
 
@@ -89,13 +91,18 @@ def voxel_centroids(points: np.ndarray, voxel_size: float,
             return sums / sizes.astype(np.float64)[:, None], inverse
     inverse, count = voxel_groups(points, voxel_size, compiled=False)
     sizes = np.bincount(inverse, minlength=count).astype(np.float64)
-    centroids = np.stack([np.bincount(inverse, weights=points[:, k], minlength=count)
-                          for k in range(3)], axis=1) / sizes[:, None]
+    centroids = (
+        np.stack(
+            [np.bincount(inverse, weights=points[:, k], minlength=count) for k in range(3)], axis=1
+        )
+        / sizes[:, None]
+    )
     return centroids, inverse
 
 
-def voxel_downsample(points: np.ndarray, labels: np.ndarray, voxel_size: float,
-                     compiled: bool | None = None) -> tuple[np.ndarray, np.ndarray]:
+def voxel_downsample(
+    points: np.ndarray, labels: np.ndarray, voxel_size: float, compiled: bool | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """
     One point per occupied voxel: the voxel centroid with the voxel's majority label.
 
@@ -123,8 +130,9 @@ def voxel_downsample(points: np.ndarray, labels: np.ndarray, voxel_size: float,
         if compiled:
             winner = kernels.majority(inverse, label_inverse, count, len(label_ids))
             return centroids, label_ids[winner].astype(np.int32)
-        table = np.bincount(inverse * len(label_ids) + label_inverse,
-                            minlength=count * len(label_ids)).reshape(count, len(label_ids))
+        table = np.bincount(
+            inverse * len(label_ids) + label_inverse, minlength=count * len(label_ids)
+        ).reshape(count, len(label_ids))
         voxel_labels = label_ids[table.argmax(axis=1)].astype(np.int32)
         return centroids, voxel_labels
     pair = inverse * len(label_ids) + label_inverse
@@ -150,8 +158,9 @@ def _small_unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ids, inverse.reshape(-1)
 
 
-def sample_keypoints(points: np.ndarray, count: int, sampling: str, voxel_size: float,
-                     seed: int) -> np.ndarray:
+def sample_keypoints(
+    points: np.ndarray, count: int, sampling: str, voxel_size: float, seed: int
+) -> np.ndarray:
     """
     Pick at most ``count`` keypoints among ``points``; return their row indices.
 
@@ -192,8 +201,14 @@ def sample_keypoints(points: np.ndarray, count: int, sampling: str, voxel_size: 
     return candidates[np.sort(chosen)]
 
 
-def fpfh_open3d_at(points: np.ndarray, indices: np.ndarray, normal_radius: float,
-                   normal_max_nn: int, feature_radius: float, feature_max_nn: int) -> np.ndarray:
+def fpfh_open3d_at(
+    points: np.ndarray,
+    indices: np.ndarray,
+    normal_radius: float,
+    normal_max_nn: int,
+    feature_radius: float,
+    feature_max_nn: int,
+) -> np.ndarray:
     """
     FPFH descriptors (Rusu et al. 2009) of the scan points ``points[indices]``.
 
@@ -227,15 +242,19 @@ def fpfh_open3d_at(points: np.ndarray, indices: np.ndarray, normal_radius: float
     # the order of ``indices``: compute at the sorted unique rows, then scatter back.
     unique, inverse = np.unique(indices, return_inverse=True)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
-    cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(
-        radius=normal_radius, max_nn=normal_max_nn))
+    cloud.estimate_normals(
+        o3d.geometry.KDTreeSearchParamHybrid(radius=normal_radius, max_nn=normal_max_nn)
+    )
     feature = o3d.pipelines.registration.compute_fpfh_feature(
-        cloud, o3d.geometry.KDTreeSearchParamHybrid(radius=feature_radius, max_nn=feature_max_nn),
-        indices=o3d.utility.IntVector(unique.tolist()))
+        cloud,
+        o3d.geometry.KDTreeSearchParamHybrid(radius=feature_radius, max_nn=feature_max_nn),
+        indices=o3d.utility.IntVector(unique.tolist()),
+    )
     data = np.asarray(feature.data, dtype=np.float32).T
     if data.shape != (unique.shape[0], 33):
-        raise RuntimeError(f'Open3D returned FPFH of shape {data.shape} for '
-                           f'{unique.shape[0]} distinct keypoints')
+        raise RuntimeError(
+            f'Open3D returned FPFH of shape {data.shape} for {unique.shape[0]} distinct keypoints'
+        )
     return np.ascontiguousarray(data[inverse.reshape(-1)])
 
 

@@ -57,10 +57,16 @@ BINS = 11
 """Bins per pair feature; three features give the 33-d descriptor."""
 
 
-def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: float,
-                      feature_radius: float, support_voxel: float = 0.0,
-                      viewpoint: np.ndarray | None = None,
-                      snap: bool = False, compiled: bool | None = None) -> np.ndarray:
+def fpfh_at_keypoints(
+    points: np.ndarray,
+    indices: np.ndarray,
+    normal_radius: float,
+    feature_radius: float,
+    support_voxel: float = 0.0,
+    viewpoint: np.ndarray | None = None,
+    snap: bool = False,
+    compiled: bool | None = None,
+) -> np.ndarray:
     """
     FPFH descriptors of the scan points ``points[indices]``.
 
@@ -91,8 +97,11 @@ def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: fl
     # Work relative to the viewpoint: orientation needs no offset, float32 keeps precision.
     points = points - origin
     compiled = kernels.use_compiled(compiled)
-    support = (voxel_centroids(points, support_voxel, compiled=compiled)[0]
-               if support_voxel > 0 else points)
+    support = (
+        voxel_centroids(points, support_voxel, compiled=compiled)[0]
+        if support_voxel > 0
+        else points
+    )
     tree = cKDTree(support, balanced_tree=False, compact_nodes=False)  # cheaper to build
     # Keypoints that are support points reuse the support's rows and pairs.
     on_support = support_voxel <= 0 or snap
@@ -104,8 +113,7 @@ def fpfh_at_keypoints(points: np.ndarray, indices: np.ndarray, normal_radius: fl
     first, second = np.ascontiguousarray(pairs[:, 0]), np.ascontiguousarray(pairs[:, 1])
     keypoints = None if on_support else points[unique]
     describe = _describe_compiled if compiled else _describe
-    fpfh = describe(support, tree, first, second, unique, keypoints, normal_radius,
-                    feature_radius)
+    fpfh = describe(support, tree, first, second, unique, keypoints, normal_radius, feature_radius)
     return fpfh[row_of_keypoint.reshape(-1)]
 
 
@@ -123,27 +131,43 @@ def _snap(tree: cKDTree, queries: np.ndarray, support_voxel: float) -> np.ndarra
     return rows
 
 
-def _describe(support: np.ndarray, tree: cKDTree, first: np.ndarray, second: np.ndarray,
-              rows: np.ndarray, keypoints: np.ndarray | None, normal_radius: float,
-              feature_radius: float) -> np.ndarray:
+def _describe(
+    support: np.ndarray,
+    tree: cKDTree,
+    first: np.ndarray,
+    second: np.ndarray,
+    rows: np.ndarray,
+    keypoints: np.ndarray | None,
+    normal_radius: float,
+    feature_radius: float,
+) -> np.ndarray:
     """
     FPFH (NumPy passes) of the support ``rows``, or of ``keypoints`` off the support.
 
     ``first, second``: the support's pairs within ``max(r_n, r_f)``. Returns (M, 33) float32.
     """
-    normals, spfh, first, second, dist2 = _support_terms(support, first, second,
-                                                         normal_radius, feature_radius)
+    normals, spfh, first, second, dist2 = _support_terms(
+        support, first, second, normal_radius, feature_radius
+    )
     if keypoints is None:
         summed = np.asarray(_pair_weights(first, second, dist2, rows, support.shape[0]) @ spfh)
         return combine(spfh[rows], summed)
-    own_spfh, summed = _keypoint_terms(keypoints, support, tree, normals, spfh,
-                                       normal_radius, feature_radius)
+    own_spfh, summed = _keypoint_terms(
+        keypoints, support, tree, normals, spfh, normal_radius, feature_radius
+    )
     return combine(own_spfh, summed)
 
 
-def _describe_compiled(support: np.ndarray, tree: cKDTree, first: np.ndarray,
-                       second: np.ndarray, rows: np.ndarray, keypoints: np.ndarray | None,
-                       normal_radius: float, feature_radius: float) -> np.ndarray:
+def _describe_compiled(
+    support: np.ndarray,
+    tree: cKDTree,
+    first: np.ndarray,
+    second: np.ndarray,
+    rows: np.ndarray,
+    keypoints: np.ndarray | None,
+    normal_radius: float,
+    feature_radius: float,
+) -> np.ndarray:
     """:func:`_describe` with the compiled passes of :mod:`fpfh_kernels` (bit-identical)."""
     first, second = first.astype(np.int64, copy=False), second.astype(np.int64, copy=False)
     coords = np.ascontiguousarray(support.T, dtype=np.float32)
@@ -153,15 +177,20 @@ def _describe_compiled(support: np.ndarray, tree: cKDTree, first: np.ndarray,
     normals = _compiled_normals(covariance, support)
     if normal_radius > feature_radius:  # the pairs were searched with the normal radius
         within = np.flatnonzero(dist2 <= feature_radius**2)
-        first, second, delta, dist2 = (first.take(within), second.take(within),
-                                       np.ascontiguousarray(delta.take(within, axis=1)),
-                                       dist2.take(within))
-    counts, scale = _compiled_histograms(support.shape[0], delta, normals, first, normals,
-                                         second, pairs=True)
+        first, second, delta, dist2 = (
+            first.take(within),
+            second.take(within),
+            np.ascontiguousarray(delta.take(within, axis=1)),
+            dist2.take(within),
+        )
+    counts, scale = _compiled_histograms(
+        support.shape[0], delta, normals, first, normals, second, pairs=True
+    )
     if keypoints is None:
         rows = rows.astype(np.int64, copy=False)
-        summed = fpfh_kernels.support_neighbour_sums(rows, support.shape[0], first, second,
-                                                     dist2, counts, scale)
+        summed = fpfh_kernels.support_neighbour_sums(
+            rows, support.shape[0], first, second, dist2, counts, scale
+        )
         return combine(fpfh_kernels.spfh_rows(counts, scale, rows), summed)
     keypoints = np.ascontiguousarray(keypoints, dtype=np.float64)
     m = keypoints.shape[0]
@@ -171,18 +200,27 @@ def _describe_compiled(support: np.ndarray, tree: cKDTree, first: np.ndarray,
     covariance = fpfh_kernels.covariances(m, owner, np.zeros(0, dtype=np.int64), offset, near)
     own_normals = _compiled_normals(covariance, keypoints)
     within = np.flatnonzero(dist <= feature_radius)
-    owner, other, dist, offset = (owner.take(within), other.take(within), dist.take(within),
-                                  np.ascontiguousarray(offset.take(within, axis=1)))
-    own_counts, own_scale = _compiled_histograms(m, offset, own_normals, owner, normals, other,
-                                                 pairs=False)
+    owner, other, dist, offset = (
+        owner.take(within),
+        other.take(within),
+        dist.take(within),
+        np.ascontiguousarray(offset.take(within, axis=1)),
+    )
+    own_counts, own_scale = _compiled_histograms(
+        m, offset, own_normals, owner, normals, other, pairs=False
+    )
     own_spfh = fpfh_kernels.spfh_rows(own_counts, own_scale, np.arange(m))
     summed = fpfh_kernels.keypoint_neighbour_sums(m, owner, other, dist, counts, scale)
     return combine(own_spfh, summed)
 
 
-def _support_terms(support: np.ndarray, first: np.ndarray, second: np.ndarray,
-                   normal_radius: float, feature_radius: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _support_terms(
+    support: np.ndarray,
+    first: np.ndarray,
+    second: np.ndarray,
+    normal_radius: float,
+    feature_radius: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """
     Compute normals and SPFH of the support from its pairs within ``max(r_n, r_f)`` (NumPy).
 
@@ -193,12 +231,17 @@ def _support_terms(support: np.ndarray, first: np.ndarray, second: np.ndarray,
     delta = np.stack([row.take(second) - row.take(first) for row in coords])
     dist2 = np.einsum('ij,ij->j', delta, delta)
     near = np.flatnonzero(dist2 <= normal_radius**2)
-    normals = estimate_normals(support, (first.take(near), second.take(near)),
-                               delta.take(near, axis=1))
+    normals = estimate_normals(
+        support, (first.take(near), second.take(near)), delta.take(near, axis=1)
+    )
     if normal_radius > feature_radius:  # the pairs were searched with the normal radius
         within = np.flatnonzero(dist2 <= feature_radius**2)
-        first, second, delta, dist2 = (first.take(within), second.take(within),
-                                       delta.take(within, axis=1), dist2.take(within))
+        first, second, delta, dist2 = (
+            first.take(within),
+            second.take(within),
+            delta.take(within, axis=1),
+            dist2.take(within),
+        )
     bins = pair_feature_bins(delta, normals.take(first, axis=1), normals.take(second, axis=1))
     spfh = simplified_histograms((first, second), bins, support.shape[0])
     return normals, spfh, first, second, dist2
@@ -210,16 +253,22 @@ def _compiled_normals(covariance: np.ndarray, points: np.ndarray) -> np.ndarray:
     det = numerator / np.where(p > 0, p, 1.0) ** 3
     phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
     cosine = np.cos(phi + 2.0 * np.pi / 3.0)
-    return fpfh_kernels.eigen_vectors(covariance, q, p, cosine,
-                                      np.ascontiguousarray(points, dtype=np.float64))
+    return fpfh_kernels.eigen_vectors(
+        covariance, q, p, cosine, np.ascontiguousarray(points, dtype=np.float64)
+    )
 
 
-def _compiled_histograms(n: int, delta: np.ndarray, normals_a: np.ndarray, index_a: np.ndarray,
-                         normals_b: np.ndarray, index_b: np.ndarray,
-                         pairs: bool) -> tuple[np.ndarray, np.ndarray]:
+def _compiled_histograms(
+    n: int,
+    delta: np.ndarray,
+    normals_a: np.ndarray,
+    index_a: np.ndarray,
+    normals_b: np.ndarray,
+    index_b: np.ndarray,
+    pairs: bool,
+) -> tuple[np.ndarray, np.ndarray]:
     """SPFH ``(counts, scale)`` of ``n`` points from compiled pair features (NumPy arctan2)."""
-    y, x, bins, regular = fpfh_kernels.pair_angles(delta, normals_a, index_a, normals_b,
-                                                   index_b)
+    y, x, bins, regular = fpfh_kernels.pair_angles(delta, normals_a, index_a, normals_b, index_b)
     alpha = np.arctan2(y, x)
     second = index_b if pairs else np.zeros(0, dtype=np.int64)
     return fpfh_kernels.histograms(n, index_a, second, bins, regular, alpha)
@@ -242,8 +291,9 @@ def combine(own_spfh: np.ndarray, summed: np.ndarray) -> np.ndarray:
     return (own_spfh + summed).astype(np.float32)
 
 
-def _pair_weights(first: np.ndarray, second: np.ndarray, dist2: np.ndarray, rows: np.ndarray,
-                  n: int) -> sparse.csr_matrix:
+def _pair_weights(
+    first: np.ndarray, second: np.ndarray, dist2: np.ndarray, rows: np.ndarray, n: int
+) -> sparse.csr_matrix:
     """(len(rows), n) ``1/d^2`` of the support pairs that touch the requested rows."""
     position = np.full(n, -1, dtype=np.int64)
     position[rows] = np.arange(rows.shape[0])
@@ -255,18 +305,26 @@ def _pair_weights(first: np.ndarray, second: np.ndarray, dist2: np.ndarray, rows
     return sparse.csr_matrix((1.0 / d2, (target, neighbour)), shape=(rows.shape[0], n))
 
 
-def _keypoint_neighbours(keypoints: np.ndarray, tree: cKDTree, normal_radius: float,
-                         feature_radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _keypoint_neighbours(
+    keypoints: np.ndarray, tree: cKDTree, normal_radius: float, feature_radius: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Support neighbours of each keypoint: ``(owner, other, dist)`` (a coincident one dropped)."""
     found = cKDTree(keypoints).sparse_distance_matrix(
-        tree, max(feature_radius, normal_radius), output_type='ndarray')
+        tree, max(feature_radius, normal_radius), output_type='ndarray'
+    )
     found = found[found['v'] > 0]  # a coincident centroid is the keypoint itself
     return found['i'].astype(np.int64), found['j'].astype(np.int64), found['v']
 
 
-def _keypoint_terms(keypoints: np.ndarray, support: np.ndarray, tree: cKDTree,
-                    support_normals: np.ndarray, spfh: np.ndarray, normal_radius: float,
-                    feature_radius: float) -> tuple[np.ndarray, np.ndarray]:
+def _keypoint_terms(
+    keypoints: np.ndarray,
+    support: np.ndarray,
+    tree: cKDTree,
+    support_normals: np.ndarray,
+    spfh: np.ndarray,
+    normal_radius: float,
+    feature_radius: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """Own SPFH and weighted neighbour SPFH sum of keypoints that are not support points."""
     m = keypoints.shape[0]
     owner, other, dist = _keypoint_neighbours(keypoints, tree, normal_radius, feature_radius)
@@ -274,18 +332,23 @@ def _keypoint_terms(keypoints: np.ndarray, support: np.ndarray, tree: cKDTree,
     near = np.flatnonzero(dist <= normal_radius)
     normals = estimate_normals(keypoints, (owner.take(near),), offset.take(near, axis=1))
     within = np.flatnonzero(dist <= feature_radius)
-    owner, other, dist, offset = (owner.take(within), other.take(within), dist.take(within),
-                                  offset.take(within, axis=1))
-    bins = pair_feature_bins(offset, normals.take(owner, axis=1),
-                             support_normals.take(other, axis=1))
+    owner, other, dist, offset = (
+        owner.take(within),
+        other.take(within),
+        dist.take(within),
+        offset.take(within, axis=1),
+    )
+    bins = pair_feature_bins(
+        offset, normals.take(owner, axis=1), support_normals.take(other, axis=1)
+    )
     own = simplified_histograms((owner,), bins, m)
-    weights = sparse.csr_matrix((1.0 / (dist * dist), (owner, other)),
-                                shape=(m, support.shape[0]))
+    weights = sparse.csr_matrix((1.0 / (dist * dist), (owner, other)), shape=(m, support.shape[0]))
     return own, np.asarray(weights @ spfh)
 
 
-def estimate_normals(points: np.ndarray, owners: tuple[np.ndarray, ...],
-                     offset: np.ndarray) -> np.ndarray:
+def estimate_normals(
+    points: np.ndarray, owners: tuple[np.ndarray, ...], offset: np.ndarray
+) -> np.ndarray:
     """
     Estimate unit normals by PCA of each point's neighbourhood, facing the origin.
 
@@ -352,8 +415,11 @@ def smallest_eigenvectors(covariance: np.ndarray) -> np.ndarray:
     off = a01 * a01 + a02 * a02 + a12 * a12
     p = np.sqrt(np.maximum((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * off) / 6.0, 0.0))
     safe_p = np.where(p > 0, p, 1.0)
-    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
-           + a02 * (a01 * a12 - b11 * a02)) / safe_p**3
+    det = (
+        b00 * (b11 * b22 - a12 * a12)
+        - a01 * (a01 * b22 - a12 * a02)
+        + a02 * (a01 * a12 - b11 * a02)
+    ) / safe_p**3
     phi = np.arccos(np.clip(det / 2.0, -1.0, 1.0)) / 3.0
     smallest = q + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
     d00, d11, d22 = a00 - smallest, a11 - smallest, a22 - smallest
@@ -375,8 +441,9 @@ def smallest_eigenvectors(covariance: np.ndarray) -> np.ndarray:
     return vector / length[:, None]
 
 
-def pair_feature_bins(delta: np.ndarray, normal_first: np.ndarray,
-                      normal_second: np.ndarray) -> np.ndarray:
+def pair_feature_bins(
+    delta: np.ndarray, normal_first: np.ndarray, normal_second: np.ndarray
+) -> np.ndarray:
     """
     Histogram bins of the symmetric point-pair features (Rusu et al. 2009, eq. 1-2).
 
@@ -405,8 +472,9 @@ def pair_feature_bins(delta: np.ndarray, normal_first: np.ndarray,
     along_first = (n1x * dx + n1y * dy + n1z * dz) * inv_length
     along_second = (n2x * dx + n2y * dy + n2z * dz) * inv_length
     cos_normals = n1x * n2x + n1y * n2y + n1z * n2z
-    triple = (dx * (n1y * n2z - n1z * n2y) + dy * (n1z * n2x - n1x * n2z)
-              + dz * (n1x * n2y - n1y * n2x)) * inv_length
+    triple = (
+        dx * (n1y * n2z - n1z * n2y) + dy * (n1z * n2x - n1x * n2z) + dz * (n1x * n2y - n1y * n2x)
+    ) * inv_length
     swap = np.abs(along_first) < np.abs(along_second)
     theta = np.where(swap, -along_second, along_first)
     along_target = np.where(swap, -along_first, along_second)
@@ -414,8 +482,9 @@ def pair_feature_bins(delta: np.ndarray, normal_first: np.ndarray,
     regular = sine > 1e-6
     sine = np.where(regular, sine, 1.0)
     phi = np.where(regular, triple / sine, 0.0)
-    alpha = np.where(regular, np.arctan2(along_target - theta * cos_normals, cos_normals * sine),
-                     0.0)
+    alpha = np.where(
+        regular, np.arctan2(along_target - theta * cos_normals, cos_normals * sine), 0.0
+    )
     theta = np.where(regular, theta, 0.0)
     return np.stack([_bin(alpha, -np.pi, np.pi), _bin(phi, -1.0, 1.0), _bin(theta, -1.0, 1.0)])
 
@@ -425,8 +494,7 @@ def _bin(values: np.ndarray, low: float, high: float) -> np.ndarray:
     return np.clip(scaled, 0, BINS - 1).astype(np.int64)
 
 
-def simplified_histograms(owners: tuple[np.ndarray, ...], bins: np.ndarray,
-                          n: int) -> np.ndarray:
+def simplified_histograms(owners: tuple[np.ndarray, ...], bins: np.ndarray, n: int) -> np.ndarray:
     """
     SPFH: three 11-bin histograms of each point's pair features, each summing to 100.
 

@@ -41,8 +41,9 @@ _SCALE_UNIT = np.float32(11 / 2.0)
 
 
 @jit
-def pair_offsets(coords: np.ndarray, first: np.ndarray, second: np.ndarray
-                 ) -> tuple[np.ndarray, np.ndarray]:
+def pair_offsets(
+    coords: np.ndarray, first: np.ndarray, second: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """(3, P) float32 ``p_second - p_first`` of float32 ``coords`` (3, S) and (P,) ``|.|^2``."""
     size = first.shape[0]
     delta = np.empty((3, size), dtype=np.float32)
@@ -58,8 +59,9 @@ def pair_offsets(coords: np.ndarray, first: np.ndarray, second: np.ndarray
 
 
 @jit
-def keypoint_offsets(keypoints: np.ndarray, support: np.ndarray, owner: np.ndarray,
-                     other: np.ndarray) -> np.ndarray:
+def keypoint_offsets(
+    keypoints: np.ndarray, support: np.ndarray, owner: np.ndarray, other: np.ndarray
+) -> np.ndarray:
     """(3, E) float32 of the float64 differences ``support[other] - keypoints[owner]``."""
     offset = np.empty((3, owner.shape[0]), dtype=np.float32)
     for e in range(owner.shape[0]):
@@ -69,8 +71,9 @@ def keypoint_offsets(keypoints: np.ndarray, support: np.ndarray, owner: np.ndarr
 
 
 @jit
-def covariances(n: int, first: np.ndarray, second: np.ndarray, offset: np.ndarray,
-                use: np.ndarray) -> np.ndarray:
+def covariances(
+    n: int, first: np.ndarray, second: np.ndarray, offset: np.ndarray, use: np.ndarray
+) -> np.ndarray:
     """
     (n, 6) neighbourhood covariances ``[c00, c01, c02, c11, c12, c22]`` (float64).
 
@@ -116,9 +119,13 @@ def covariances(n: int, first: np.ndarray, second: np.ndarray, offset: np.ndarra
 
 
 @jit
-def pair_angles(delta: np.ndarray, normals_a: np.ndarray, index_a: np.ndarray,
-                normals_b: np.ndarray, index_b: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def pair_angles(
+    delta: np.ndarray,
+    normals_a: np.ndarray,
+    index_a: np.ndarray,
+    normals_b: np.ndarray,
+    index_b: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """
     Twin of :func:`mlsemreg_ros.core.fpfh.pair_feature_bins` up to its ``arctan2``.
 
@@ -141,8 +148,11 @@ def pair_angles(delta: np.ndarray, normals_a: np.ndarray, index_a: np.ndarray,
         along_first = (n1x * dx + n1y * dy + n1z * dz) * inv_length
         along_second = (n2x * dx + n2y * dy + n2z * dz) * inv_length
         cos_normals = n1x * n2x + n1y * n2y + n1z * n2z
-        triple = (dx * (n1y * n2z - n1z * n2y) + dy * (n1z * n2x - n1x * n2z)
-                  + dz * (n1x * n2y - n1y * n2x)) * inv_length
+        triple = (
+            dx * (n1y * n2z - n1z * n2y)
+            + dy * (n1z * n2x - n1x * n2z)
+            + dz * (n1x * n2y - n1y * n2x)
+        ) * inv_length
         if abs(along_first) < abs(along_second):
             theta, along_target = -along_second, -along_first
         else:
@@ -169,8 +179,14 @@ def _bin(value: np.float32, low: np.float32, scale: np.float32) -> int:
 
 
 @jit
-def histograms(n: int, first: np.ndarray, second: np.ndarray, bins: np.ndarray,
-               regular: np.ndarray, alpha: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def histograms(
+    n: int,
+    first: np.ndarray,
+    second: np.ndarray,
+    bins: np.ndarray,
+    regular: np.ndarray,
+    alpha: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
     """
     SPFH of :func:`mlsemreg_ros.core.fpfh.simplified_histograms` as ``(counts, scale)``.
 
@@ -208,8 +224,14 @@ def spfh_rows(counts: np.ndarray, scale: np.ndarray, rows: np.ndarray) -> np.nda
 
 
 @jit
-def _row_sums(m: int, rows: np.ndarray, cols: np.ndarray, weights: np.ndarray,
-              counts: np.ndarray, scale: np.ndarray) -> np.ndarray:
+def _row_sums(
+    m: int,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    weights: np.ndarray,
+    counts: np.ndarray,
+    scale: np.ndarray,
+) -> np.ndarray:
     """``sum_k w_k SPFH[col_k]`` per row, each row's terms in ascending column order."""
     start = np.zeros(m + 1, dtype=np.int64)
     for e in range(rows.shape[0]):
@@ -239,9 +261,15 @@ def _row_sums(m: int, rows: np.ndarray, cols: np.ndarray, weights: np.ndarray,
 
 
 @jit
-def support_neighbour_sums(rows: np.ndarray, n: int, first: np.ndarray, second: np.ndarray,
-                           dist2: np.ndarray, counts: np.ndarray, scale: np.ndarray
-                           ) -> np.ndarray:
+def support_neighbour_sums(
+    rows: np.ndarray,
+    n: int,
+    first: np.ndarray,
+    second: np.ndarray,
+    dist2: np.ndarray,
+    counts: np.ndarray,
+    scale: np.ndarray,
+) -> np.ndarray:
     """
     Sum ``SPFH[k] / d_k^2`` over the support pairs of each support point of ``rows``.
 
@@ -269,8 +297,14 @@ def support_neighbour_sums(rows: np.ndarray, n: int, first: np.ndarray, second: 
 
 
 @jit
-def keypoint_neighbour_sums(m: int, owner: np.ndarray, other: np.ndarray, dist: np.ndarray,
-                            counts: np.ndarray, scale: np.ndarray) -> np.ndarray:
+def keypoint_neighbour_sums(
+    m: int,
+    owner: np.ndarray,
+    other: np.ndarray,
+    dist: np.ndarray,
+    counts: np.ndarray,
+    scale: np.ndarray,
+) -> np.ndarray:
     """(m, 33) ``sum_k SPFH[other_k] / dist_k^2`` of every keypoint's support neighbours."""
     weights = np.empty(owner.shape[0])
     for e in range(owner.shape[0]):
@@ -292,21 +326,31 @@ def eigen_setup(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     p = np.empty(n)
     numerator = np.empty(n)
     for i in range(n):
-        a00, a01, a02, a11, a12, a22 = (covariance[i, 0], covariance[i, 1], covariance[i, 2],
-                                        covariance[i, 3], covariance[i, 4], covariance[i, 5])
+        a00, a01, a02, a11, a12, a22 = (
+            covariance[i, 0],
+            covariance[i, 1],
+            covariance[i, 2],
+            covariance[i, 3],
+            covariance[i, 4],
+            covariance[i, 5],
+        )
         mean = (a00 + a11 + a22) / 3.0
         b00, b11, b22 = a00 - mean, a11 - mean, a22 - mean
         off = a01 * a01 + a02 * a02 + a12 * a12
         q[i] = mean
         p[i] = np.sqrt(max((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * off) / 6.0, 0.0))
-        numerator[i] = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
-                        + a02 * (a01 * a12 - b11 * a02))
+        numerator[i] = (
+            b00 * (b11 * b22 - a12 * a12)
+            - a01 * (a01 * b22 - a12 * a02)
+            + a02 * (a01 * a12 - b11 * a02)
+        )
     return q, p, numerator
 
 
 @jit
-def eigen_vectors(covariance: np.ndarray, q: np.ndarray, p: np.ndarray, cosine: np.ndarray,
-                  points: np.ndarray) -> np.ndarray:
+def eigen_vectors(
+    covariance: np.ndarray, q: np.ndarray, p: np.ndarray, cosine: np.ndarray, points: np.ndarray
+) -> np.ndarray:
     """
     Second half of the solver and the orientation of :func:`mlsemreg_ros.core.fpfh.orient_normals`.
 
@@ -317,8 +361,14 @@ def eigen_vectors(covariance: np.ndarray, q: np.ndarray, p: np.ndarray, cosine: 
     normals = np.empty((3, n), dtype=np.float32)
     crosses = np.empty((3, 3))
     for i in range(n):
-        a00, a01, a02, a11, a12, a22 = (covariance[i, 0], covariance[i, 1], covariance[i, 2],
-                                        covariance[i, 3], covariance[i, 4], covariance[i, 5])
+        a00, a01, a02, a11, a12, a22 = (
+            covariance[i, 0],
+            covariance[i, 1],
+            covariance[i, 2],
+            covariance[i, 3],
+            covariance[i, 4],
+            covariance[i, 5],
+        )
         smallest = q[i] + 2.0 * p[i] * cosine[i]
         d00, d11, d22 = a00 - smallest, a11 - smallest, a22 - smallest
         crosses[0, 0] = a01 * a12 - a02 * d11  # r0 x r1
@@ -330,12 +380,21 @@ def eigen_vectors(covariance: np.ndarray, q: np.ndarray, p: np.ndarray, cosine: 
         crosses[2, 0] = d11 * d22 - a12 * a12  # r1 x r2
         crosses[2, 1] = a12 * a02 - a01 * d22
         crosses[2, 2] = a01 * a12 - d11 * a02
-        l0 = crosses[0, 0] * crosses[0, 0] + crosses[0, 1] * crosses[0, 1] \
+        l0 = (
+            crosses[0, 0] * crosses[0, 0]
+            + crosses[0, 1] * crosses[0, 1]
             + crosses[0, 2] * crosses[0, 2]
-        l1 = crosses[1, 0] * crosses[1, 0] + crosses[1, 1] * crosses[1, 1] \
+        )
+        l1 = (
+            crosses[1, 0] * crosses[1, 0]
+            + crosses[1, 1] * crosses[1, 1]
             + crosses[1, 2] * crosses[1, 2]
-        l2 = crosses[2, 0] * crosses[2, 0] + crosses[2, 1] * crosses[2, 1] \
+        )
+        l2 = (
+            crosses[2, 0] * crosses[2, 0]
+            + crosses[2, 1] * crosses[2, 1]
             + crosses[2, 2] * crosses[2, 2]
+        )
         best = 1 if l1 > l0 else 0
         if l2 > max(l0, l1):
             best = 2

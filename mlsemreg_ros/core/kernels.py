@@ -61,8 +61,10 @@ def cache_directory() -> str | None:
         return None
     base = Path(os.environ.get('XDG_CACHE_HOME') or Path.home() / '.cache')
     uid = os.getuid() if hasattr(os, 'getuid') else 0
-    for candidate in (base / 'mlsemreg_ros' / 'numba',
-                      Path(tempfile.gettempdir()) / f'mlsemreg_ros-numba-{uid}'):
+    for candidate in (
+        base / 'mlsemreg_ros' / 'numba',
+        Path(tempfile.gettempdir()) / f'mlsemreg_ros-numba-{uid}',
+    ):
         try:
             candidate.mkdir(parents=True, exist_ok=True)
         except OSError:
@@ -121,8 +123,9 @@ _GOLDEN = -7046029254386353131  # 0x9E3779B97F4A7C15 as int64 (Fibonacci hashing
 # ----------------------------------------------------------------------------------
 # Voxel grid: hash the integer keys in one pass, sort only the occupied voxels.
 @jit
-def _voxel_slots(points: np.ndarray, voxel_size: float, bits: int
-                 ) -> tuple[np.ndarray, np.ndarray, int]:
+def _voxel_slots(
+    points: np.ndarray, voxel_size: float, bits: int
+) -> tuple[np.ndarray, np.ndarray, int]:
     """
     Voxel of every point in first-seen order and each voxel's linear key, with a status.
 
@@ -172,8 +175,9 @@ def _voxel_slots(points: np.ndarray, voxel_size: float, bits: int
 
 
 @jit
-def _voxel_sums(points: np.ndarray, slot: np.ndarray, order: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _voxel_sums(
+    points: np.ndarray, slot: np.ndarray, order: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Renumber the voxels by ``order`` and sum their points in point order."""
     count = order.shape[0]
     rank = np.empty(count, dtype=np.int64)
@@ -192,8 +196,9 @@ def _voxel_sums(points: np.ndarray, slot: np.ndarray, order: np.ndarray
     return inverse, sums, sizes
 
 
-def voxel_grid(points: np.ndarray, voxel_size: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def voxel_grid(
+    points: np.ndarray, voxel_size: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """
     Occupied voxels of ``points``: ``(inverse (N,), sums (V, 3), sizes (V,))``, or None.
 
@@ -219,8 +224,9 @@ def voxel_grid(points: np.ndarray, voxel_size: float
 
 
 @jit
-def _majority(inverse: np.ndarray, label_index: np.ndarray, voxels: int,
-              classes: int) -> np.ndarray:
+def _majority(
+    inverse: np.ndarray, label_index: np.ndarray, voxels: int, classes: int
+) -> np.ndarray:
     table = np.zeros((voxels, classes), dtype=np.int32)
     for i in range(inverse.shape[0]):
         table[inverse[i], label_index[i]] += 1
@@ -234,8 +240,9 @@ def _majority(inverse: np.ndarray, label_index: np.ndarray, voxels: int,
     return winner
 
 
-def majority(inverse: np.ndarray, label_index: np.ndarray, voxels: int,
-             classes: int) -> np.ndarray:
+def majority(
+    inverse: np.ndarray, label_index: np.ndarray, voxels: int, classes: int
+) -> np.ndarray:
     """
     Index of the most frequent label of every voxel (ties: the smallest index).
 
@@ -244,9 +251,12 @@ def majority(inverse: np.ndarray, label_index: np.ndarray, voxels: int,
 
     Returns (V,) int64. Memory: a dense (V, classes) int32 count table.
     """
-    return _majority(np.ascontiguousarray(inverse, dtype=np.int64),
-                     np.ascontiguousarray(label_index, dtype=np.int64), int(voxels),
-                     int(classes))
+    return _majority(
+        np.ascontiguousarray(inverse, dtype=np.int64),
+        np.ascontiguousarray(label_index, dtype=np.int64),
+        int(voxels),
+        int(classes),
+    )
 
 
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc mallopt parameters
@@ -271,8 +281,10 @@ def keep_freed_memory(mmap_threshold: int = 32 << 20, trim_threshold: int = 256 
         mallopt = None
     if mallopt is None:
         return False
-    return bool(mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold))
-                and mallopt(_M_TRIM_THRESHOLD, int(trim_threshold)))
+    return bool(
+        mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold))
+        and mallopt(_M_TRIM_THRESHOLD, int(trim_threshold))
+    )
 
 
 def warm_up() -> dict[str, float]:

@@ -104,13 +104,13 @@ def label_bit_patterns(labels: np.ndarray) -> tuple[np.ndarray, np.ndarray | Non
         if np.any(values != np.round(values)):
             raise LabelError('float labels must hold integral values')
         values = values.astype(np.float64, copy=False)  # float16 cannot hold the bounds
-        fits = (values >= -2.0**31) & (values < 2.0**32)
+        fits = (values >= -(2.0**31)) & (values < 2.0**32)
         values = np.where(fits, values, 0.0)
     elif kind == 'u' and values.dtype.itemsize > 4:
         fits = values <= np.uint64(_UINT32_MASK)
         values = np.where(fits, values, 0)
     elif kind == 'i' and values.dtype.itemsize > 4:
-        fits = (values >= -2**31) & (values <= _UINT32_MASK)
+        fits = (values >= -(2**31)) & (values <= _UINT32_MASK)
         values = np.where(fits, values, 0)
     elif kind not in 'iub':
         raise LabelError(f'unsupported label dtype {values.dtype}')
@@ -160,7 +160,8 @@ class LabelMap:
             return self.names.index(name)
         except ValueError:
             raise ConfigError(
-                f'unknown class {name!r}; known classes: {", ".join(self.names)}') from None
+                f'unknown class {name!r}; known classes: {", ".join(self.names)}'
+            ) from None
 
     def ids_of(self, names: list[str] | tuple[str, ...]) -> np.ndarray:
         """Learning ids of several class names."""
@@ -174,8 +175,9 @@ class LabelMap:
         known[0] = True
         return known
 
-    def _validity(self, patterns: np.ndarray, fits: np.ndarray | None
-                  ) -> tuple[np.ndarray, np.ndarray]:
+    def _validity(
+        self, patterns: np.ndarray, fits: np.ndarray | None
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Return ``(valid learning id (N,) bool, valid raw id (N,) bool)`` of bit patterns."""
         learning = patterns < self.num_classes
         raw = self._known_raw()[patterns & _RAW_MASK]
@@ -184,15 +186,18 @@ class LabelMap:
             raw &= fits
         return learning, raw
 
-    def _shares(self, patterns: np.ndarray, learning: np.ndarray, raw: np.ndarray
-                ) -> tuple[float, float]:
+    def _shares(
+        self, patterns: np.ndarray, learning: np.ndarray, raw: np.ndarray
+    ) -> tuple[float, float]:
         """Shares of valid raw and learning ids among the non-zero values."""
         informative = patterns != 0
         count = int(np.count_nonzero(informative))
         if count == 0:
             return 0.0, 0.0
-        return (float(np.count_nonzero(raw & informative) / count),
-                float(np.count_nonzero(learning & informative) / count))
+        return (
+            float(np.count_nonzero(raw & informative) / count),
+            float(np.count_nonzero(learning & informative) / count),
+        )
 
     def detect_scheme(self, labels: np.ndarray) -> str:
         """
@@ -208,8 +213,13 @@ class LabelMap:
         raw_share, learning_share = self._shares(patterns, learning, raw)
         return 'raw' if raw_share - learning_share >= AUTO_RAW_MARGIN else 'learning'
 
-    def convert(self, labels: np.ndarray, scheme: str = 'auto', *,
-                max_out_of_scheme: float = MAX_OUT_OF_SCHEME_SHARE) -> LabelConversion:
+    def convert(
+        self,
+        labels: np.ndarray,
+        scheme: str = 'auto',
+        *,
+        max_out_of_scheme: float = MAX_OUT_OF_SCHEME_SHARE,
+    ) -> LabelConversion:
         """
         Map labels of any integer or float dtype to learning ids, with the counts.
 
@@ -243,13 +253,20 @@ class LabelMap:
 
     def _rejection(self, used: str, requested: str, out: int, total: int, limit: float) -> str:
         """Explain why a scan's labels are rejected (too many out-of-scheme values)."""
-        what = (f'learning ids must lie in [0, {self.num_classes - 1}] without instance bits'
-                if used == 'learning' else
-                f'raw ids must be keys of the {self.name} raw -> learning table')
-        how = (f'label_scheme auto read the scan as {used} ids' if requested == 'auto'
-               else f'label_scheme {used}')
-        return (f'{what}: {out} of {total} values ({100.0 * out / total:.1f} %) are not, more '
-                f'than the {100.0 * limit:g} % that may become unlabeled ({how})')
+        what = (
+            f'learning ids must lie in [0, {self.num_classes - 1}] without instance bits'
+            if used == 'learning'
+            else f'raw ids must be keys of the {self.name} raw -> learning table'
+        )
+        how = (
+            f'label_scheme auto read the scan as {used} ids'
+            if requested == 'auto'
+            else f'label_scheme {used}'
+        )
+        return (
+            f'{what}: {out} of {total} values ({100.0 * out / total:.1f} %) are not, more '
+            f'than the {100.0 * limit:g} % that may become unlabeled ({how})'
+        )
 
     def to_learning(self, labels: np.ndarray, scheme: str = 'auto') -> np.ndarray:
         """

@@ -22,8 +22,13 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 
-def extract_landmarks(points: np.ndarray, labels: np.ndarray, landmark_ids: np.ndarray,
-                      cluster_radius: float, min_points: int) -> Landmarks:
+def extract_landmarks(
+    points: np.ndarray,
+    labels: np.ndarray,
+    landmark_ids: np.ndarray,
+    cluster_radius: float,
+    min_points: int,
+) -> Landmarks:
     """
     Cluster the points of every landmark class; each cluster's centroid is a landmark.
 
@@ -42,12 +47,18 @@ def extract_landmarks(points: np.ndarray, labels: np.ndarray, landmark_ids: np.n
         return Landmarks.empty()
     separated = np.column_stack([pts[:, :2], cls * (10.0 * cluster_radius + 1e3)])
     edges = cKDTree(separated).query_pairs(cluster_radius, output_type='ndarray')
-    graph = sp.coo_matrix((np.ones(len(edges), dtype=np.int8), (edges[:, 0], edges[:, 1])),
-                          shape=(len(pts), len(pts)))
+    graph = sp.coo_matrix(
+        (np.ones(len(edges), dtype=np.int8), (edges[:, 0], edges[:, 1])),
+        shape=(len(pts), len(pts)),
+    )
     count, component = connected_components(graph, directed=False)
     size = np.bincount(component, minlength=count)
-    centroids = np.column_stack([np.bincount(component, weights=pts[:, k], minlength=count)
-                                 for k in range(3)]) / size[:, None]
+    centroids = (
+        np.column_stack(
+            [np.bincount(component, weights=pts[:, k], minlength=count) for k in range(3)]
+        )
+        / size[:, None]
+    )
     first = np.full(count, len(pts))
     np.minimum.at(first, component, np.arange(len(pts)))
     keep = size >= min_points

@@ -99,9 +99,14 @@ class MatchOutcome:
 
 
 # ----------------------------------------------------------------------------------------
-def ml_semreg(source: PreparedScan, target: PreparedScan, config: SemanticConfig,
-              kind: str = 'nn', timings: dict[str, float] | None = None,
-              class_names: tuple[str, ...] | None = None) -> MatchOutcome:
+def ml_semreg(
+    source: PreparedScan,
+    target: PreparedScan,
+    config: SemanticConfig,
+    kind: str = 'nn',
+    timings: dict[str, float] | None = None,
+    class_names: tuple[str, ...] | None = None,
+) -> MatchOutcome:
     """
     ML-SemReg correspondences (eq. 10) between two prepared scans.
 
@@ -109,6 +114,7 @@ def ml_semreg(source: PreparedScan, target: PreparedScan, config: SemanticConfig
     fewer than ``config.min_landmarks`` such landmarks, Mask Matching is skipped and
     Group Matching runs alone (mode ``'gm-only'``, reported in the message).
     """
+
     def name(c: int) -> str:
         return class_names[c] if class_names is not None else str(c)
 
@@ -124,38 +130,75 @@ def ml_semreg(source: PreparedScan, target: PreparedScan, config: SemanticConfig
     src_groups, dst_groups = group_bitmask(source.local_ss), group_bitmask(target.local_ss)
     mutual = _is_mutual(kind)
     if len(shared) == 0 or min(n_src, n_dst) < max(config.min_landmarks, 1):
-        message = (f'GM-only fallback: {n_src} source / {n_dst} target landmarks of shared '
-                   f'classes, fewer than semantic.min_landmarks={config.min_landmarks}')
-        corr = semantic_match(source.descriptors, target.descriptors, src_groups, dst_groups,
-                              None, None, config.top_k, mutual, diagnostics, timings=timings)
+        message = (
+            f'GM-only fallback: {n_src} source / {n_dst} target landmarks of shared '
+            f'classes, fewer than semantic.min_landmarks={config.min_landmarks}'
+        )
+        corr = semantic_match(
+            source.descriptors,
+            target.descriptors,
+            src_groups,
+            dst_groups,
+            None,
+            None,
+            config.top_k,
+            mutual,
+            diagnostics,
+            timings=timings,
+        )
         return MatchOutcome(corr, 'gm-only', message, diagnostics)
     start = time.perf_counter()
-    src_bmr = binary_multi_ring_signature(source.keypoints, source.landmarks, shared,
-                                          config.ring_count, config.ring_width)
-    dst_bmr = binary_multi_ring_signature(target.keypoints, target.landmarks, shared,
-                                          config.ring_count, config.ring_width)
+    src_bmr = binary_multi_ring_signature(
+        source.keypoints, source.landmarks, shared, config.ring_count, config.ring_width
+    )
+    dst_bmr = binary_multi_ring_signature(
+        target.keypoints, target.landmarks, shared, config.ring_count, config.ring_width
+    )
     _add_time(timings, 'bmr_ss_ms', start)
-    corr = semantic_match(source.descriptors, target.descriptors, src_groups, dst_groups,
-                          src_bmr, dst_bmr, config.top_k, mutual, diagnostics, timings=timings)
+    corr = semantic_match(
+        source.descriptors,
+        target.descriptors,
+        src_groups,
+        dst_groups,
+        src_bmr,
+        dst_bmr,
+        config.top_k,
+        mutual,
+        diagnostics,
+        timings=timings,
+    )
     return MatchOutcome(corr, 'ml-semreg', '', diagnostics)
 
 
-def group_matching(source_descriptors: np.ndarray, target_descriptors: np.ndarray,
-                   source_local_ss: np.ndarray, target_local_ss: np.ndarray,
-                   kind: str = 'nn') -> Correspondences:
+def group_matching(
+    source_descriptors: np.ndarray,
+    target_descriptors: np.ndarray,
+    source_local_ss: np.ndarray,
+    target_local_ss: np.ndarray,
+    kind: str = 'nn',
+) -> Correspondences:
     """Group Matching alone (eq. 3): the matcher inside every Local-SS group, united."""
-    return semantic_match(source_descriptors, target_descriptors,
-                          group_bitmask(source_local_ss), group_bitmask(target_local_ss),
-                          None, None, 1, _is_mutual(kind))
+    return semantic_match(
+        source_descriptors,
+        target_descriptors,
+        group_bitmask(source_local_ss),
+        group_bitmask(target_local_ss),
+        None,
+        None,
+        1,
+        _is_mutual(kind),
+    )
 
 
-def match_descriptors(source_descriptors: np.ndarray, target_descriptors: np.ndarray,
-                      kind: str = 'nn') -> Correspondences:
+def match_descriptors(
+    source_descriptors: np.ndarray, target_descriptors: np.ndarray, kind: str = 'nn'
+) -> Correspondences:
     """Plain matcher over all keypoints (the paper's baseline): NN or mutual NN."""
     src = np.ones(len(source_descriptors), dtype=np.uint64)
     dst = np.ones(len(target_descriptors), dtype=np.uint64)
-    return semantic_match(source_descriptors, target_descriptors, src, dst, None, None, 1,
-                          _is_mutual(kind))
+    return semantic_match(
+        source_descriptors, target_descriptors, src, dst, None, None, 1, _is_mutual(kind)
+    )
 
 
 def group_bitmask(local_ss: np.ndarray) -> np.ndarray:
@@ -169,12 +212,19 @@ def group_bitmask(local_ss: np.ndarray) -> np.ndarray:
 
 
 # ----------------------------------------------------------------------------------------
-def semantic_match(source_descriptors: np.ndarray, target_descriptors: np.ndarray,
-                   source_groups: np.ndarray, target_groups: np.ndarray,
-                   source_bmr: np.ndarray | sp.spmatrix | None,
-                   target_bmr: np.ndarray | sp.spmatrix | None, top_k: int, mutual: bool,
-                   diagnostics: dict[str, Any] | None = None, *,
-                   timings: dict[str, float] | None = None) -> Correspondences:
+def semantic_match(
+    source_descriptors: np.ndarray,
+    target_descriptors: np.ndarray,
+    source_groups: np.ndarray,
+    target_groups: np.ndarray,
+    source_bmr: np.ndarray | sp.spmatrix | None,
+    target_bmr: np.ndarray | sp.spmatrix | None,
+    top_k: int,
+    mutual: bool,
+    diagnostics: dict[str, Any] | None = None,
+    *,
+    timings: dict[str, float] | None = None,
+) -> Correspondences:
     """
     Masked group matching: GM (BMR-SS None) or GM o MM (BMR-SS given), NN or MNN.
 
@@ -187,8 +237,9 @@ def semantic_match(source_descriptors: np.ndarray, target_descriptors: np.ndarra
     """
     src = np.ascontiguousarray(source_descriptors, dtype=np.float32)
     dst_all = np.ascontiguousarray(target_descriptors, dtype=np.float32)
-    groups_present = (np.bitwise_or.reduce(source_groups, initial=np.uint64(0))
-                      & np.bitwise_or.reduce(target_groups, initial=np.uint64(0)))
+    groups_present = np.bitwise_or.reduce(
+        source_groups, initial=np.uint64(0)
+    ) & np.bitwise_or.reduce(target_groups, initial=np.uint64(0))
     num_groups = int(groups_present).bit_length()
     if len(src) == 0 or len(dst_all) == 0 or num_groups == 0:
         return _empty()
@@ -209,9 +260,18 @@ def semantic_match(source_descriptors: np.ndarray, target_descriptors: np.ndarra
     permissive = row_in_group
     if source_bmr is not None and target_bmr is not None:
         start = time.perf_counter()
-        restrictive = _masked_candidates(src, dst, row_in_group, col_in_group,
-                                         _dense_bits(source_bmr), _dense_bits(target_bmr)[order],
-                                         top_k, fwd, bwd, diagnostics)
+        restrictive = _masked_candidates(
+            src,
+            dst,
+            row_in_group,
+            col_in_group,
+            _dense_bits(source_bmr),
+            _dense_bits(target_bmr)[order],
+            top_k,
+            fwd,
+            bwd,
+            diagnostics,
+        )
         permissive = row_in_group & ~restrictive
         _add_time(timings, 'gm_mm_mask_ms', start)
     start = time.perf_counter()
@@ -232,14 +292,23 @@ def semantic_match(source_descriptors: np.ndarray, target_descriptors: np.ndarra
         rows, cols, dist_sq = rows[keep], cols[keep], dist_sq[keep]
     _, first = np.unique(rows * len(dst) + cols, return_index=True)
     rows, cols = rows[first].astype(np.int64), order[cols[first]].astype(np.int64)
-    return Correspondences(rows, cols, _exact_distance(source_descriptors, target_descriptors,
-                                                       rows, cols))
+    return Correspondences(
+        rows, cols, _exact_distance(source_descriptors, target_descriptors, rows, cols)
+    )
 
 
-def _masked_candidates(src: np.ndarray, dst: np.ndarray, row_in_group: np.ndarray,
-                       col_in_group: np.ndarray, source_bmr: np.ndarray,
-                       target_bmr: np.ndarray, top_k: int, fwd: np.ndarray,
-                       bwd: np.ndarray | None, diagnostics: dict[str, Any] | None) -> np.ndarray:
+def _masked_candidates(
+    src: np.ndarray,
+    dst: np.ndarray,
+    row_in_group: np.ndarray,
+    col_in_group: np.ndarray,
+    source_bmr: np.ndarray,
+    target_bmr: np.ndarray,
+    top_k: int,
+    fwd: np.ndarray,
+    bwd: np.ndarray | None,
+    diagnostics: dict[str, Any] | None,
+) -> np.ndarray:
     """
     Run steps 2-3 group by group; return the (M, G) mask of restrictive (row, group) pairs.
 
@@ -266,10 +335,19 @@ def _masked_candidates(src: np.ndarray, dst: np.ndarray, row_in_group: np.ndarra
     row_order = np.argsort(key, kind='stable')
     col_order = np.argsort(pattern_of, kind='stable')  # targets grouped by pattern
     dst_sq = _sq_norms(dst)
-    context = _MaskContext(src=src, src_sq=_sq_norms(src), bits=bits, width=width,
-                           top_k=top_k, none=int(np.iinfo(s_type).max), s_type=s_type,
-                           restrictive=np.zeros((num_rows, num_groups), dtype=bool),
-                           fwd=fwd, num_groups=num_groups, mutual=bwd is not None)
+    context = _MaskContext(
+        src=src,
+        src_sq=_sq_norms(src),
+        bits=bits,
+        width=width,
+        top_k=top_k,
+        none=int(np.iinfo(s_type).max),
+        s_type=s_type,
+        restrictive=np.zeros((num_rows, num_groups), dtype=bool),
+        fwd=fwd,
+        num_groups=num_groups,
+        mutual=bwd is not None,
+    )
     rows_in = np.asfortranarray(row_in_group[row_order])  # (M, G), columns contiguous
     cols_in = np.asfortranarray(col_in_group[col_order])
     tasks = []
@@ -280,12 +358,18 @@ def _masked_candidates(src: np.ndarray, dst: np.ndarray, row_in_group: np.ndarra
             continue
         patterns = pattern_of[cols]
         start = np.flatnonzero(np.r_[True, patterns[1:] != patterns[:-1]])
-        group = _MaskGroup(index=g, cols=cols, dst=dst[cols], dst_sq=dst_sq[cols],
-                           bins=np.take(pattern_bins, patterns[start], axis=1),
-                           start=start, count=np.diff(np.r_[start, len(cols)]))
+        group = _MaskGroup(
+            index=g,
+            cols=cols,
+            dst=dst[cols],
+            dst_sq=dst_sq[cols],
+            bins=np.take(pattern_bins, patterns[start], axis=1),
+            start=start,
+            count=np.diff(np.r_[start, len(cols)]),
+        )
         # rows x patterns bounds the mask work, rows x targets the descriptor GEMM
         step = max(1, min(_CHUNK_ELEMENTS // len(start), _DENSE_BLOCK_ELEMENTS // len(cols)))
-        tasks += [(group, rows[lo:lo + step]) for lo in range(0, len(rows), step)]
+        tasks += [(group, rows[slice(lo, lo + step)]) for lo in range(0, len(rows), step)]
     results = _run_tasks(lambda task: _masked_chunk(context, *task), tasks)
     if bwd is not None and results:
         slots = np.concatenate([r[0] for r in results])
@@ -305,8 +389,7 @@ def _padded_bins(bmr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     rows = flat // max(bmr.shape[1], 1)
     bins = flat - rows * bmr.shape[1]
     width = np.bincount(rows, minlength=bmr.shape[0])
-    bits = np.full((bmr.shape[0], max(int(width.max(initial=0)), 1)), bmr.shape[1],
-                   dtype=np.intp)
+    bits = np.full((bmr.shape[0], max(int(width.max(initial=0)), 1)), bmr.shape[1], dtype=np.intp)
     bits[rows, np.arange(len(rows)) - (np.cumsum(width) - width)[rows]] = bins
     return bits, width
 
@@ -319,7 +402,7 @@ def _target_patterns(bmr: np.ndarray, s_type: type) -> tuple[np.ndarray, np.ndar
     """
     packed = np.packbits(bmr, axis=1)
     words = np.zeros((len(bmr), max(8, -(-packed.shape[1] // 8) * 8)), dtype=np.uint8)
-    words[:, :packed.shape[1]] = packed
+    words[:, : packed.shape[1]] = packed
     words = words.view(np.uint64)  # (M', ceil(T*N / 64)) exact row keys
     order = np.lexsort(words.T)
     new = np.r_[True, (words[order[1:]] != words[order[:-1]]).any(axis=1)]
@@ -360,10 +443,11 @@ class _MaskGroup:
     count: np.ndarray  # (P,) targets of each pattern
 
 
-def _masked_chunk(ctx: _MaskContext, group: _MaskGroup,
-                  rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+def _masked_chunk(
+    ctx: _MaskContext, group: _MaskGroup, rows: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Mask Matching of source ``rows`` in one group: S, threshold, candidates, winners."""
-    bits = ctx.bits[rows, :max(int(ctx.width[rows].max()), 1)]  # padded with the zero bin
+    bits = ctx.bits[rows, : max(int(ctx.width[rows].max()), 1)]  # padded with the zero bin
     similarity = group.bins[bits[:, 0]]  # (R, P) scene similarity S per pattern, eq. 5
     for k in range(1, bits.shape[1]):  # set bins, not points
         similarity += group.bins[bits[:, k]]
@@ -405,8 +489,9 @@ def _masked_chunk(ctx: _MaskContext, group: _MaskGroup,
     return (group.cols[c] * ctx.num_groups + group.index, _pack(dist_sq, rows[r]), len(r))
 
 
-def _masked_chunk_dense(ctx: _MaskContext, group: _MaskGroup, rows: np.ndarray,
-                        mask: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+def _masked_chunk_dense(
+    ctx: _MaskContext, group: _MaskGroup, rows: np.ndarray, mask: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, int]:
     """
     Winners of :func:`_masked_chunk` from the dense (R, P) pattern mask, for many candidates.
 
@@ -419,8 +504,9 @@ def _masked_chunk_dense(ctx: _MaskContext, group: _MaskGroup, rows: np.ndarray,
     cols = group.cols[by_index]
     row_order = np.argsort(rows)
     rows, mask = rows[row_order], mask[row_order]
-    candidate = np.take(mask, np.repeat(np.arange(len(group.count)), group.count)[by_index],
-                        axis=1)  # C order (mask[:, idx] would be F order: slow below)
+    candidate = np.take(
+        mask, np.repeat(np.arange(len(group.count)), group.count)[by_index], axis=1
+    )  # C order (mask[:, idx] would be F order: slow below)
     dist_sq = ctx.src[rows] @ group.dst[by_index].T  # (R, C)
     dist_sq *= -2.0
     dist_sq += ctx.src_sq[rows][:, None] + group.dst_sq[by_index][None, :]
@@ -442,13 +528,21 @@ def _masked_chunk_dense(ctx: _MaskContext, group: _MaskGroup, rows: np.ndarray,
         return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.uint64), candidates
     hit = np.flatnonzero(candidate.any(axis=0))
     best_row = key[:, hit].argmin(axis=0)
-    return (cols[hit] * ctx.num_groups + group.index,
-            _pack(dist_sq[best_row, hit], rows[best_row]), candidates)
+    return (
+        cols[hit] * ctx.num_groups + group.index,
+        _pack(dist_sq[best_row, hit], rows[best_row]),
+        candidates,
+    )
 
 
-def _masked_keys_dense(ctx: _MaskContext, group_index: int, rows: np.ndarray,
-                       cols: np.ndarray, candidate: np.ndarray,
-                       dist_sq: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+def _masked_keys_dense(
+    ctx: _MaskContext,
+    group_index: int,
+    rows: np.ndarray,
+    cols: np.ndarray,
+    candidate: np.ndarray,
+    dist_sq: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, int]:
     """Winners of a dense chunk by packed keys (any float, NaN and inf included)."""
     high = dist_sq.view(np.uint32).astype(np.uint64) << np.uint64(32)
     best = np.where(candidate, high | cols.astype(np.uint64), NO_MATCH).min(axis=1)
@@ -496,8 +590,14 @@ def _single_threaded_blas() -> AbstractContextManager:
     return _BLAS.limit(limits=1, user_api='blas')
 
 
-def _dense_group_nn(src: np.ndarray, dst: np.ndarray, row_groups: np.ndarray,
-                    col_in_group: np.ndarray, fwd: np.ndarray, bwd: np.ndarray | None) -> None:
+def _dense_group_nn(
+    src: np.ndarray,
+    dst: np.ndarray,
+    row_groups: np.ndarray,
+    col_in_group: np.ndarray,
+    fwd: np.ndarray,
+    bwd: np.ndarray | None,
+) -> None:
     """
     Unmasked nearest neighbours inside every group for the (row, group) pairs given.
 
@@ -513,11 +613,12 @@ def _dense_group_nn(src: np.ndarray, dst: np.ndarray, row_groups: np.ndarray,
             continue
         targets = (cols, dst[cols], dst_sq[cols], g)
         step = max(1, _DENSE_BLOCK_ELEMENTS // len(cols))
-        tasks += [(targets, rows[lo:lo + step]) for lo in range(0, len(rows), step)]
+        tasks += [(targets, rows[slice(lo, lo + step)]) for lo in range(0, len(rows), step)]
     mutual = bwd is not None
 
-    def block(task: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray]
-              ) -> tuple[np.ndarray, ...]:
+    def block(
+        task: tuple[tuple[np.ndarray, np.ndarray, np.ndarray, int], np.ndarray],
+    ) -> tuple[np.ndarray, ...]:
         (cols, targets, targets_sq, g), part_rows = task
         minus_two_inner = src[part_rows] @ targets.T
         minus_two_inner *= -2.0
@@ -539,8 +640,9 @@ def _dense_group_nn(src: np.ndarray, dst: np.ndarray, row_groups: np.ndarray,
             np.minimum.at(bwd, result[2], result[3])
 
 
-def _exact_distance(source: np.ndarray, target: np.ndarray, rows: np.ndarray,
-                    cols: np.ndarray) -> np.ndarray:
+def _exact_distance(
+    source: np.ndarray, target: np.ndarray, rows: np.ndarray, cols: np.ndarray
+) -> np.ndarray:
     """
     ||d_i - d_j|| of the selected pairs, in float64, returned as float32.
 
@@ -548,8 +650,7 @@ def _exact_distance(source: np.ndarray, target: np.ndarray, rows: np.ndarray,
     BLAS blocking; the reported distance is recomputed directly so that it is the same for
     any chunking or thread count (and equals SciPy's cdist to float32 rounding).
     """
-    diff = (np.asarray(source, dtype=np.float64)[rows]
-            - np.asarray(target, dtype=np.float64)[cols])
+    diff = np.asarray(source, dtype=np.float64)[rows] - np.asarray(target, dtype=np.float64)[cols]
     return np.sqrt(np.einsum('ij,ij->i', diff, diff)).astype(np.float32)
 
 
@@ -581,5 +682,6 @@ def _is_mutual(kind: str) -> bool:
 
 
 def _empty() -> Correspondences:
-    return Correspondences(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64),
-                           np.zeros(0, dtype=np.float32))
+    return Correspondences(
+        np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.float32)
+    )

@@ -46,8 +46,9 @@ def _apply(T: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return np.asarray(pts, dtype=np.float64).reshape(-1, 3) @ T[:3, :3].T + T[:3, 3]
 
 
-def inlier_mask(src_pts: np.ndarray, dst_pts: np.ndarray, T_gt: np.ndarray,
-                threshold: float) -> np.ndarray:
+def inlier_mask(
+    src_pts: np.ndarray, dst_pts: np.ndarray, T_gt: np.ndarray, threshold: float
+) -> np.ndarray:
     """
     Correspondences with ``||T_gt p - q|| < threshold`` (paper Sec. 4.1).
 
@@ -92,10 +93,15 @@ class PairMetrics:
         return asdict(self)
 
 
-def evaluate_pair(transform: np.ndarray, src_pts: np.ndarray, dst_pts: np.ndarray,
-                  T_gt: np.ndarray, inlier_threshold: float = 0.6,
-                  max_rotation_deg: float = 5.0, max_translation_m: float = 0.6
-                  ) -> PairMetrics:
+def evaluate_pair(
+    transform: np.ndarray,
+    src_pts: np.ndarray,
+    dst_pts: np.ndarray,
+    T_gt: np.ndarray,
+    inlier_threshold: float = 0.6,
+    max_rotation_deg: float = 5.0,
+    max_translation_m: float = 0.6,
+) -> PairMetrics:
     """
     IN/IR of the correspondences and RE/TE/success of the estimate (paper Sec. 4.1).
 
@@ -144,8 +150,9 @@ def summarize(metrics: list[PairMetrics]) -> dict:
     }
 
 
-def normalized_estimation_error_squared(T_estimate: np.ndarray, T_truth: np.ndarray,
-                                        covariance: np.ndarray) -> float:
+def normalized_estimation_error_squared(
+    T_estimate: np.ndarray, T_truth: np.ndarray, covariance: np.ndarray
+) -> float:
     """
     NEES ``e^T inv(C) e`` of an estimate whose error ``T_truth^-1 T_estimate = exp(e)``.
 
@@ -173,10 +180,12 @@ def _check_poses(poses_est: np.ndarray, poses_gt: np.ndarray) -> tuple[np.ndarra
     return est, gt
 
 
-def kitti_odometry_errors(poses_est: np.ndarray, poses_gt: np.ndarray,
-                          lengths_m: tuple[float, ...] = KITTI_SEGMENT_LENGTHS_M,
-                          step_frames: int = KITTI_STEP_FRAMES
-                          ) -> tuple[float, float] | None:
+def kitti_odometry_errors(
+    poses_est: np.ndarray,
+    poses_gt: np.ndarray,
+    lengths_m: tuple[float, ...] = KITTI_SEGMENT_LENGTHS_M,
+    step_frames: int = KITTI_STEP_FRAMES,
+) -> tuple[float, float] | None:
     """
     KITTI odometry relative errors, as the devkit's ``calcSequenceErrors``.
 

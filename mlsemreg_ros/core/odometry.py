@@ -87,8 +87,10 @@ def is_new_keyframe(policy: KeyframeConfig, T_keyframe_current: np.ndarray) -> b
     if policy.policy == 'every_frame':
         return True
     T = np.asarray(T_keyframe_current, dtype=np.float64)
-    return (float(np.linalg.norm(T[:3, 3])) >= policy.min_distance
-            or rotation_angle_deg(T) >= policy.min_rotation)
+    return (
+        float(np.linalg.norm(T[:3, 3])) >= policy.min_distance
+        or rotation_angle_deg(T) >= policy.min_rotation
+    )
 
 
 @dataclass
@@ -150,8 +152,9 @@ class OdometryStep:
 class Odometry:
     """Registers every scan onto a keyframe and refines it against a local map."""
 
-    def __init__(self, registration: Registration | None = None,
-                 config: RegistrationConfig | None = None) -> None:
+    def __init__(
+        self, registration: Registration | None = None, config: RegistrationConfig | None = None
+    ) -> None:
         """Use ``registration`` (default: a new one), optionally with ``config``."""
         self.registration = registration if registration is not None else Registration()
         if config is not None:
@@ -188,8 +191,9 @@ class Odometry:
         self.registration.config = config
         if self.keyframe is not None:
             if any(getattr(old, s) != getattr(config, s) for s in _PREPARE_SECTIONS):
-                self.keyframe.prepared = self.registration.prepare(self.keyframe.points,
-                                                                   self.keyframe.labels)
+                self.keyframe.prepared = self.registration.prepare(
+                    self.keyframe.points, self.keyframe.labels
+                )
             elif old.fine != config.fine:
                 self.keyframe.prepared.alignment_clouds.clear()  # rebuilt when needed
         if self.local_map.reconfigure(config.fine, config.local_map) and self.keyframe:
@@ -214,13 +218,14 @@ class Odometry:
         needed = min(policy.min_keypoints, self.config.keypoints.count)
         points, keypoints = len(scan.points), len(scan.keypoints)
         if points < policy.min_points or keypoints < needed:
-            return (f'{points} points / {keypoints} keypoints < keyframe.min_points='
-                    f'{policy.min_points} / keyframe.min_keypoints={needed}')
+            return (
+                f'{points} points / {keypoints} keypoints < keyframe.min_points='
+                f'{policy.min_points} / keyframe.min_keypoints={needed}'
+            )
         return ''
 
     # ------------------------------------------------------------------------------
-    def process(self, points: np.ndarray, labels: np.ndarray, stamp_ns: int = 0
-                ) -> OdometryStep:
+    def process(self, points: np.ndarray, labels: np.ndarray, stamp_ns: int = 0) -> OdometryStep:
         """
         Register one scan (points (N, 3) metres, labels (N,)) and update the odometry.
 
@@ -233,8 +238,9 @@ class Odometry:
         if stamp_ns and self._last_stamp and stamp_ns <= self._last_stamp:
             if stamp_ns == self._last_stamp:
                 return self._skipped(stamp_ns, f'duplicate stamp {stamp_ns} ns: skipped', start)
-            notes.append(f'stamp went backwards ({stamp_ns} < {self._last_stamp} ns): '
-                         'odometry reset')
+            notes.append(
+                f'stamp went backwards ({stamp_ns} < {self._last_stamp} ns): odometry reset'
+            )
             self.reset()
         if stamp_ns:
             self._last_stamp = stamp_ns
@@ -247,17 +253,41 @@ class Odometry:
             refusal = self.keyframe_refusal(current)
             if refusal:
                 self._count = 0  # the next scan tries to start the odometry again
-                return OdometryStep(index, stamp_ns, self.pose.copy(), None, None, False, -1,
-                                    0, False, 1e3 * (time.perf_counter() - start), current,
-                                    timings, reason='; '.join([*notes, f'no keyframe yet: '
-                                                               f'{refusal}']),
-                                    covariance=self.covariance.copy())
+                return OdometryStep(
+                    index,
+                    stamp_ns,
+                    self.pose.copy(),
+                    None,
+                    None,
+                    False,
+                    -1,
+                    0,
+                    False,
+                    1e3 * (time.perf_counter() - start),
+                    current,
+                    timings,
+                    reason='; '.join([*notes, f'no keyframe yet: {refusal}']),
+                    covariance=self.covariance.copy(),
+                )
             self._start(index, stamp_ns, current, self.pose)
-            return OdometryStep(index, stamp_ns, self.pose.copy(), None, None, True, index,
-                                stamp_ns, True, 1e3 * (time.perf_counter() - start), current,
-                                timings, source='first', reason='; '.join(notes),
-                                covariance=self.covariance.copy(),
-                                map_voxels=len(self.local_map))
+            return OdometryStep(
+                index,
+                stamp_ns,
+                self.pose.copy(),
+                None,
+                None,
+                True,
+                index,
+                stamp_ns,
+                True,
+                1e3 * (time.perf_counter() - start),
+                current,
+                timings,
+                source='first',
+                reason='; '.join(notes),
+                covariance=self.covariance.copy(),
+                map_voxels=len(self.local_map),
+            )
         keyframe = self.keyframe
         result = None
         if self.config.fine.method == 'off':
@@ -272,11 +302,13 @@ class Odometry:
                 result = self.registration.register(current, keyframe.prepared, refine=False)
                 self._tracked = 0
                 step = self._decide(index, stamp_ns, current, keyframe, result, predicted)
-                step.reason = '; '.join(r for r in (f'registered globally: {why_global}',
-                                                    step.reason) if r)
+                step.reason = '; '.join(
+                    r for r in (f'registered globally: {why_global}', step.reason) if r
+                )
         self._count_failure(step, current)
-        registered = {} if result is None else {f'register.{k}': v
-                                                for k, v in result.timings_ms.items()}
+        registered = (
+            {} if result is None else {f'register.{k}': v for k, v in result.timings_ms.items()}
+        )
         step.timings_ms = {**timings, **registered, **step.timings_ms}
         step.latency_ms = 1e3 * (time.perf_counter() - start)
         return step
@@ -304,21 +336,34 @@ class Odometry:
         self.covariance = self.covariance + np.eye(6) * REINITIALIZATION_VARIANCE
         step.new_keyframe, step.source = True, 'reinitialized'
         step.keyframe_index, step.map_voxels = step.index, len(self.local_map)
-        step.reason += (f'; {limit} frames rejected in a row: re-initialised on this scan at '
-                        'the last accepted pose (the motion since is unknown)')
+        step.reason += (
+            f'; {limit} frames rejected in a row: re-initialised on this scan at '
+            'the last accepted pose (the motion since is unknown)'
+        )
 
     def _skipped(self, stamp_ns: int, reason: str, start: float) -> OdometryStep:
         """Return the step of a scan that was not processed at all."""
         keyframe = self.keyframe
-        return OdometryStep(self._count, stamp_ns, self.pose.copy(), None, None, False,
-                            keyframe.index if keyframe else -1,
-                            keyframe.stamp_ns if keyframe else 0, False,
-                            1e3 * (time.perf_counter() - start), reason=reason,
-                            covariance=self.covariance.copy(), map_voxels=len(self.local_map))
+        return OdometryStep(
+            self._count,
+            stamp_ns,
+            self.pose.copy(),
+            None,
+            None,
+            False,
+            keyframe.index if keyframe else -1,
+            keyframe.stamp_ns if keyframe else 0,
+            False,
+            1e3 * (time.perf_counter() - start),
+            reason=reason,
+            covariance=self.covariance.copy(),
+            map_voxels=len(self.local_map),
+        )
 
     # -- the prediction, and tracking by it -------------------------------------------
-    def _refine_prediction(self, current: PreparedScan, stamp_ns: int,
-                           timings: dict[str, float]) -> Candidate | None:
+    def _refine_prediction(
+        self, current: PreparedScan, stamp_ns: int, timings: dict[str, float]
+    ) -> Candidate | None:
         """Refine the constant-velocity prediction against the map (None without one)."""
         if not self.config.odometry.constant_velocity:
             return None
@@ -347,30 +392,54 @@ class Odometry:
         if self._prediction_factor > MAX_TRACKING_GAP:
             return f'a gap of {self._prediction_factor:.1f} frame intervals in the stamps'
         alignment = predicted.alignment
-        if not _within(alignment.T_initial, alignment.T_target_source,
-                       cfg.tracking_translation, cfg.tracking_rotation):
+        if not _within(
+            alignment.T_initial,
+            alignment.T_target_source,
+            cfg.tracking_translation,
+            cfg.tracking_rotation,
+        ):
             moved = alignment.correction
-            return (f'prediction corrected by {np.linalg.norm(moved[:3, 3]):.2f} m / '
-                    f'{rotation_angle_deg(moved):.2f} deg (odometry.tracking_*)')
+            return (
+                f'prediction corrected by {np.linalg.norm(moved[:3, 3]):.2f} m / '
+                f'{rotation_angle_deg(moved):.2f} deg (odometry.tracking_*)'
+            )
         if alignment.inlier_fraction < cfg.tracking_min_inlier_fraction:
-            return (f'prediction kept {alignment.inlier_fraction:.2f} of the scan < '
-                    f'odometry.tracking_min_inlier_fraction={cfg.tracking_min_inlier_fraction:g}')
+            return (
+                f'prediction kept {alignment.inlier_fraction:.2f} of the scan < '
+                f'odometry.tracking_min_inlier_fraction={cfg.tracking_min_inlier_fraction:g}'
+            )
         typical = float(np.median(self._fractions)) if self._fractions else 0.0
         if alignment.inlier_fraction < cfg.tracking_inlier_share * typical:
-            return (f'prediction kept {alignment.inlier_fraction:.2f} of the scan, usual '
-                    f'{typical:.2f} (odometry.tracking_inlier_share)')
+            return (
+                f'prediction kept {alignment.inlier_fraction:.2f} of the scan, usual '
+                f'{typical:.2f} (odometry.tracking_inlier_share)'
+            )
         return ''
 
-    def _track(self, index: int, stamp_ns: int, current: PreparedScan, keyframe: Keyframe,
-               predicted: Candidate) -> OdometryStep:
+    def _track(
+        self,
+        index: int,
+        stamp_ns: int,
+        current: PreparedScan,
+        keyframe: Keyframe,
+        predicted: Candidate,
+    ) -> OdometryStep:
         """Accept a scan by its refined prediction (no global registration)."""
         self._tracked += 1
         alignment = predicted.alignment
         self._fractions.append(alignment.inlier_fraction)
         frame_cov = alignment.covariance(self.config.odometry.covariance_scale, axes='source')
-        step = self._accept(index, stamp_ns, current, keyframe, None,
-                            alignment.T_target_source, frame_cov, 'prediction',
-                            f'tracked ({self._tracked} in a row)')
+        step = self._accept(
+            index,
+            stamp_ns,
+            current,
+            keyframe,
+            None,
+            alignment.T_target_source,
+            frame_cov,
+            'prediction',
+            f'tracked ({self._tracked} in a row)',
+        )
         step.candidates = [predicted]
         return step
 
@@ -394,22 +463,32 @@ class Odometry:
         self._prediction_factor = factor
         return last @ scale_motion(motion, min(factor, MAX_PREDICTION_FACTOR))
 
-    def _candidate(self, name: str, T_initial: np.ndarray, cloud: object,
-                   num_threads: int | None = None) -> Candidate:
+    def _candidate(
+        self, name: str, T_initial: np.ndarray, cloud: object, num_threads: int | None = None
+    ) -> Candidate:
         alignment = self.local_map.align(cloud, T_initial, num_threads=num_threads)
         refusal = self.registration.refinement_refusal(alignment)
         share = self.config.odometry.min_relative_inlier_fraction
         if not refusal and share > 0 and self._fractions:
             typical = float(np.median(self._fractions))
             if alignment.inlier_fraction < share * typical:
-                refusal = (f'fine alignment kept {alignment.inlier_fraction:.2f} of the scan '
-                           f'as inliers < odometry.min_relative_inlier_fraction={share:g} x '
-                           f'{typical:.2f} (median of the last accepted frames)')
+                refusal = (
+                    f'fine alignment kept {alignment.inlier_fraction:.2f} of the scan '
+                    f'as inliers < odometry.min_relative_inlier_fraction={share:g} x '
+                    f'{typical:.2f} (median of the last accepted frames)'
+                )
         return Candidate(name, np.asarray(T_initial).copy(), alignment, refusal)
 
     # -- the decision ----------------------------------------------------------------------
-    def _decide(self, index: int, stamp_ns: int, current: PreparedScan, keyframe: Keyframe,
-                result: RegistrationResult, predicted: Candidate | None) -> OdometryStep:
+    def _decide(
+        self,
+        index: int,
+        stamp_ns: int,
+        current: PreparedScan,
+        keyframe: Keyframe,
+        result: RegistrationResult,
+        predicted: Candidate | None,
+    ) -> OdometryStep:
         """
         Accept one candidate or reject the frame.
 
@@ -432,15 +511,24 @@ class Odometry:
         notes = []
         if not global_ok:
             notes.append(f'global registration failed ({result.message or "non-finite"})')
-        if (T_global is not None and predicted is not None and predicted.acceptable
-                and _within(predicted.alignment.T_target_source, T_global,
-                            cfg.agreement_translation, cfg.agreement_rotation)):
+        if (
+            T_global is not None
+            and predicted is not None
+            and predicted.acceptable
+            and _within(
+                predicted.alignment.T_target_source,
+                T_global,
+                cfg.agreement_translation,
+                cfg.agreement_rotation,
+            )
+        ):
             chosen, source = predicted, 'prediction+global'
         else:
             if T_global is not None:
                 tic = time.perf_counter()
-                candidates.append(self._candidate(
-                    'global', T_global, self.registration.alignment_cloud(current)))
+                candidates.append(
+                    self._candidate('global', T_global, self.registration.alignment_cloud(current))
+                )
                 timings['fine_global_ms'] = 1e3 * (time.perf_counter() - tic)
             acceptable = [c for c in candidates if c.acceptable]
             if acceptable:
@@ -453,34 +541,84 @@ class Odometry:
             reasons = [f'{c.name}: {c.refusal}' for c in candidates]
             reason = '; '.join(notes + reasons) or 'no candidate'
             relative = result.transform if global_ok else None
-            return OdometryStep(index, stamp_ns, self.pose.copy(), relative, result, False,
-                                keyframe.index, keyframe.stamp_ns, False, 0.0, current,
-                                timings, reason=reason, covariance=self.covariance.copy(),
-                                candidates=candidates, map_voxels=len(self.local_map))
+            return OdometryStep(
+                index,
+                stamp_ns,
+                self.pose.copy(),
+                relative,
+                result,
+                False,
+                keyframe.index,
+                keyframe.stamp_ns,
+                False,
+                0.0,
+                current,
+                timings,
+                reason=reason,
+                covariance=self.covariance.copy(),
+                candidates=candidates,
+                map_voxels=len(self.local_map),
+            )
         pose = chosen.alignment.T_target_source
         self._fractions.append(chosen.alignment.inlier_fraction)
         frame_cov = chosen.alignment.covariance(cfg.covariance_scale, axes='source')
-        step = self._accept(index, stamp_ns, current, keyframe, result, pose, frame_cov,
-                            source, '; '.join(notes))
+        step = self._accept(
+            index, stamp_ns, current, keyframe, result, pose, frame_cov, source, '; '.join(notes)
+        )
         step.candidates, step.timings_ms = candidates, timings
         return step
 
-    def _chain(self, index: int, stamp_ns: int, current: PreparedScan, keyframe: Keyframe,
-               result: RegistrationResult) -> OdometryStep:
+    def _chain(
+        self,
+        index: int,
+        stamp_ns: int,
+        current: PreparedScan,
+        keyframe: Keyframe,
+        result: RegistrationResult,
+    ) -> OdometryStep:
         """``fine.method: off``: the pose is ``pose_keyframe @ T`` of a successful registration."""
         if not (result.success and np.all(np.isfinite(result.transform))):
-            return OdometryStep(index, stamp_ns, self.pose.copy(), result.transform, result,
-                                False, keyframe.index, keyframe.stamp_ns, False, 0.0, current,
-                                reason=result.message or 'non-finite transform',
-                                covariance=self.covariance.copy(),
-                                map_voxels=len(self.local_map))
+            return OdometryStep(
+                index,
+                stamp_ns,
+                self.pose.copy(),
+                result.transform,
+                result,
+                False,
+                keyframe.index,
+                keyframe.stamp_ns,
+                False,
+                0.0,
+                current,
+                reason=result.message or 'non-finite transform',
+                covariance=self.covariance.copy(),
+                map_voxels=len(self.local_map),
+            )
         frame_cov = sparse_inlier_covariance(result, self.config.estimator.inlier_threshold)
-        return self._accept(index, stamp_ns, current, keyframe, result,
-                            keyframe.pose @ result.transform, frame_cov, 'global', '')
+        return self._accept(
+            index,
+            stamp_ns,
+            current,
+            keyframe,
+            result,
+            keyframe.pose @ result.transform,
+            frame_cov,
+            'global',
+            '',
+        )
 
-    def _accept(self, index: int, stamp_ns: int, current: PreparedScan, keyframe: Keyframe,
-                result: RegistrationResult | None, pose: np.ndarray, frame_cov: np.ndarray,
-                source: str, reason: str) -> OdometryStep:
+    def _accept(
+        self,
+        index: int,
+        stamp_ns: int,
+        current: PreparedScan,
+        keyframe: Keyframe,
+        result: RegistrationResult | None,
+        pose: np.ndarray,
+        frame_cov: np.ndarray,
+        source: str,
+        reason: str,
+    ) -> OdometryStep:
         """Move the pose, feed the map, move the keyframe; the step of an accepted frame."""
         relative = invert_transform(keyframe.pose) @ pose
         twist, twist_cov = self._twist(pose, stamp_ns, frame_cov)
@@ -491,18 +629,35 @@ class Odometry:
         if self.config.fine.method != 'off':
             self._insert(current, pose)
         self._accepted = [*self._accepted[-1:], (pose.copy(), stamp_ns)]
-        new_keyframe = (is_new_keyframe(self.config.keyframe, relative)
-                        and not self.keyframe_refusal(current))
+        new_keyframe = is_new_keyframe(
+            self.config.keyframe, relative
+        ) and not self.keyframe_refusal(current)
         if new_keyframe:
             self.keyframe = Keyframe(index, stamp_ns, *self._raw, current, pose.copy())
-        return OdometryStep(index, stamp_ns, pose.copy(), relative, result, True,
-                            keyframe.index, keyframe.stamp_ns, new_keyframe, 0.0, current,
-                            source=source, reason=reason, covariance=self.covariance.copy(),
-                            frame_covariance=frame_cov, twist=twist,
-                            twist_covariance=twist_cov, map_voxels=len(self.local_map))
+        return OdometryStep(
+            index,
+            stamp_ns,
+            pose.copy(),
+            relative,
+            result,
+            True,
+            keyframe.index,
+            keyframe.stamp_ns,
+            new_keyframe,
+            0.0,
+            current,
+            source=source,
+            reason=reason,
+            covariance=self.covariance.copy(),
+            frame_covariance=frame_cov,
+            twist=twist,
+            twist_covariance=twist_cov,
+            map_voxels=len(self.local_map),
+        )
 
-    def _twist(self, pose: np.ndarray, stamp_ns: int, body_cov: np.ndarray
-               ) -> tuple[np.ndarray, np.ndarray]:
+    def _twist(
+        self, pose: np.ndarray, stamp_ns: int, body_cov: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Twist since the last accepted pose (current frame) and its covariance."""
         last, last_stamp = self._accepted[-1]
         if stamp_ns <= last_stamp:
@@ -529,8 +684,10 @@ MAX_TRACKING_GAP = 1.5
 
 def _within(T_a: np.ndarray, T_b: np.ndarray, translation: float, rotation_deg: float) -> bool:
     delta = invert_transform(T_a) @ T_b
-    return (float(np.linalg.norm(delta[:3, 3])) <= translation
-            and rotation_angle_deg(delta) <= rotation_deg)
+    return (
+        float(np.linalg.norm(delta[:3, 3])) <= translation
+        and rotation_angle_deg(delta) <= rotation_deg
+    )
 
 
 def sparse_inlier_covariance(result: RegistrationResult, inlier_threshold: float) -> np.ndarray:

@@ -72,8 +72,9 @@ class Registration:
     ``transform`` of every result is ``T_target_source``: ``p_target = T @ p_source``.
     """
 
-    def __init__(self, config: RegistrationConfig | None = None,
-                 label_map: LabelMap | None = None) -> None:
+    def __init__(
+        self, config: RegistrationConfig | None = None, label_map: LabelMap | None = None
+    ) -> None:
         self.label_map = label_map if label_map is not None else LabelMap.load()
         self.config = config if config is not None else RegistrationConfig()
 
@@ -94,10 +95,15 @@ class Registration:
         self._config = config
 
     # ------------------------------------------------------------------------------
-    def prepare(self, points: np.ndarray, labels: np.ndarray, *,
-                keypoints: np.ndarray | None = None,
-                descriptors: np.ndarray | None = None,
-                voxelize: bool = True) -> PreparedScan:
+    def prepare(
+        self,
+        points: np.ndarray,
+        labels: np.ndarray,
+        *,
+        keypoints: np.ndarray | None = None,
+        descriptors: np.ndarray | None = None,
+        voxelize: bool = True,
+    ) -> PreparedScan:
         """
         Prepare one scan: sanitize, learning ids, voxels, keypoints, descriptors, signatures.
 
@@ -115,10 +121,13 @@ class Registration:
             scan = sanitize_scan_for(points, labels, cfg.features)
             conversion = self.label_map.convert(scan.labels, cfg.semantic.label_scheme)
         points, labels = scan.points, conversion.ids
-        input_stats = {'dropped_nonfinite': scan.dropped_nonfinite,
-                       'dropped_far': scan.dropped_far, 'dropped_near': scan.dropped_near,
-                       'label_scheme': conversion.scheme,
-                       'labels_out_of_scheme': conversion.out_of_scheme}
+        input_stats = {
+            'dropped_nonfinite': scan.dropped_nonfinite,
+            'dropped_far': scan.dropped_far,
+            'dropped_near': scan.dropped_near,
+            'label_scheme': conversion.scheme,
+            'labels_out_of_scheme': conversion.out_of_scheme,
+        }
         if voxelize and cfg.features.voxel_size > 0:
             with _timed(timings, 'voxelize_ms'):
                 points, labels = features.voxel_downsample(points, labels, cfg.features.voxel_size)
@@ -126,8 +135,9 @@ class Registration:
         with _timed(timings, 'keypoints_ms'):
             if keypoints is None:
                 kp = cfg.keypoints
-                indices = features.sample_keypoints(points, kp.count, kp.sampling,
-                                                    kp.voxel_size, kp.seed)
+                indices = features.sample_keypoints(
+                    points, kp.count, kp.sampling, kp.voxel_size, kp.seed
+                )
                 keypoints = points[indices]
             else:
                 keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 3)
@@ -143,13 +153,23 @@ class Registration:
         def semantics() -> tuple[np.ndarray, Landmarks]:
             with _timed(timings, 'local_ss_ms'):
                 local_ss = signatures.local_semantic_signature(
-                    points, labels, keypoints, cfg.semantic.local_radius,
-                    self.label_map.num_classes, ignored=self._ignored_ids,
-                    undefined=self._undefined_ids, points_tree=tree)
+                    points,
+                    labels,
+                    keypoints,
+                    cfg.semantic.local_radius,
+                    self.label_map.num_classes,
+                    ignored=self._ignored_ids,
+                    undefined=self._undefined_ids,
+                    points_tree=tree,
+                )
             with _timed(timings, 'landmarks_ms'):
-                marks = landmarks.extract_landmarks(points, labels, self._landmark_ids,
-                                                    cfg.semantic.cluster_radius,
-                                                    cfg.semantic.cluster_min_points)
+                marks = landmarks.extract_landmarks(
+                    points,
+                    labels,
+                    self._landmark_ids,
+                    cfg.semantic.cluster_radius,
+                    cfg.semantic.cluster_min_points,
+                )
             return local_ss, marks
 
         def semantics_and_tree() -> tuple[np.ndarray, Landmarks, Any]:
@@ -161,16 +181,29 @@ class Registration:
         # Descriptors | semantic signatures and the KD-tree: two threads. (small_gicp holds
         # the GIL, so the fine-alignment clouds are built later, on all cores, alone.)
         described, (local_ss, marks, tree) = _SCAN_POOL.run(
-            lambda task: task(), [describe, semantics_and_tree])
+            lambda task: task(), [describe, semantics_and_tree]
+        )
         valid = features.valid_descriptor_mask(described)
         keypoints, indices = keypoints[valid], indices[valid]
         descriptors, local_ss = described[valid], local_ss[valid]
-        return PreparedScan(points, labels, keypoints, indices, descriptors, local_ss, marks,
-                            timings, {}, input_stats, tree)
+        return PreparedScan(
+            points,
+            labels,
+            keypoints,
+            indices,
+            descriptors,
+            local_ss,
+            marks,
+            timings,
+            {},
+            input_stats,
+            tree,
+        )
 
     # ------------------------------------------------------------------------------
-    def register(self, source: PreparedScan, target: PreparedScan, *,
-                 refine: bool = True) -> RegistrationResult:
+    def register(
+        self, source: PreparedScan, target: PreparedScan, *, refine: bool = True
+    ) -> RegistrationResult:
         """
         Register ``source`` onto ``target`` (both from :meth:`prepare`).
 
@@ -178,18 +211,22 @@ class Registration:
         map instead of the target scan).
         """
         cfg, timings = self.config, {}
-        diagnostics: dict = {'source_keypoints': len(source.keypoints),
-                             'target_keypoints': len(target.keypoints)}
+        diagnostics: dict = {
+            'source_keypoints': len(source.keypoints),
+            'target_keypoints': len(target.keypoints),
+        }
         # 1. correspondences: ML-SemReg (GM o MM) or the plain matcher
         with _timed(timings, 'gm_mm_ms'):
             if cfg.semantic.enabled:
-                outcome = matching.ml_semreg(source, target, cfg.semantic, cfg.matcher.kind,
-                                             timings=timings)
+                outcome = matching.ml_semreg(
+                    source, target, cfg.semantic, cfg.matcher.kind, timings=timings
+                )
                 corr, mode, message = outcome.correspondences, outcome.mode, outcome.message
                 diagnostics.update(outcome.diagnostics)
             else:
-                corr = matching.match_descriptors(source.descriptors, target.descriptors,
-                                                  cfg.matcher.kind)
+                corr = matching.match_descriptors(
+                    source.descriptors, target.descriptors, cfg.matcher.kind
+                )
                 mode, message = 'plain', ''
         corr = _best_ranked(corr, cfg.estimator.max_correspondences)
         src_pts, dst_pts = source.keypoints[corr.source], target.keypoints[corr.target]
@@ -203,18 +240,27 @@ class Registration:
         verified = None
         if cfg.verification.enabled:
             with _timed(timings, 'verification_ms'):
-                verified = verify_hypotheses(estimate_result, src_pts, dst_pts, source, target,
-                                             cfg.verification, cfg.estimator,
-                                             self._label_compatibility)
+                verified = verify_hypotheses(
+                    estimate_result,
+                    src_pts,
+                    dst_pts,
+                    source,
+                    target,
+                    cfg.verification,
+                    cfg.estimator,
+                    self._label_compatibility,
+                )
             transform = verified.T_target_source
             diagnostics.update(verified.diagnostics)
-        residual = np.linalg.norm(src_pts @ transform[:3, :3].T + transform[:3, 3] - dst_pts,
-                                  axis=1)
+        residual = np.linalg.norm(
+            src_pts @ transform[:3, :3].T + transform[:3, 3] - dst_pts, axis=1
+        )
         inliers = residual < cfg.estimator.inlier_threshold
         # 2c. confidence: sparse and dense evidence must agree (core/confidence.py)
         with _timed(timings, 'confidence_ms'):
-            evidence = self._evidence(transform, int(inliers.sum()), len(corr), verified,
-                                      source, target)
+            evidence = self._evidence(
+                transform, int(inliers.sum()), len(corr), verified, source, target
+            )
         diagnostics.update(evidence.as_diagnostics())
         refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
         success = not refused
@@ -224,22 +270,45 @@ class Registration:
         estimated, alignment = transform, None
         if refine and success and cfg.fine.pair_method != 'off':
             with _timed(timings, 'fine_ms'):
-                alignment = align_pair(self.alignment_cloud(source, pair=True),
-                                       self.alignment_cloud(target, pair=True), transform,
-                                       cfg.fine, cfg.fine.pair_method)
+                alignment = align_pair(
+                    self.alignment_cloud(source, pair=True),
+                    self.alignment_cloud(target, pair=True),
+                    transform,
+                    cfg.fine,
+                    cfg.fine.pair_method,
+                )
             refused = self.refinement_refusal(alignment)
-            diagnostics.update(fine_inlier_fraction=alignment.inlier_fraction,
-                               fine_iterations=alignment.iterations,
-                               fine_refused=refused or '')
+            diagnostics.update(
+                fine_inlier_fraction=alignment.inlier_fraction,
+                fine_iterations=alignment.iterations,
+                fine_refused=refused or '',
+            )
             if not refused:
                 transform = alignment.T_target_source
-        return RegistrationResult(transform, corr, src_pts, dst_pts, inliers, success, mode,
-                                  message, timings, diagnostics, estimated,
-                                  alignment)
+        return RegistrationResult(
+            transform,
+            corr,
+            src_pts,
+            dst_pts,
+            inliers,
+            success,
+            mode,
+            message,
+            timings,
+            diagnostics,
+            estimated,
+            alignment,
+        )
 
-    def _evidence(self, transform: np.ndarray, num_inliers: int, correspondences: int,
-                  verified: VerificationResult | None, source: PreparedScan,
-                  target: PreparedScan) -> confidence.Evidence:
+    def _evidence(
+        self,
+        transform: np.ndarray,
+        num_inliers: int,
+        correspondences: int,
+        verified: VerificationResult | None,
+        source: PreparedScan,
+        target: PreparedScan,
+    ) -> confidence.Evidence:
         """Collect the sparse and dense evidence of the chosen pose (verification's or new)."""
         if verified is not None:
             chosen = verified.hypotheses[verified.chosen]
@@ -247,11 +316,22 @@ class Registration:
         elif not np.all(np.isfinite(transform)):
             overlap, agreement = 0.0, 0.0
         else:
-            scores = dense_scores(transform[None], source, target.points_tree(), target.labels,
-                                  self._label_compatibility, self.config.verification)
+            scores = dense_scores(
+                transform[None],
+                source,
+                target.points_tree(),
+                target.labels,
+                self._label_compatibility,
+                self.config.verification,
+            )
             overlap, agreement = float(scores[0][0]), float(scores[1][0])
-        return confidence.Evidence(num_inliers, correspondences, float(overlap),
-                                   float(agreement), confidence.tilt_deg(transform))
+        return confidence.Evidence(
+            num_inliers,
+            correspondences,
+            float(overlap),
+            float(agreement),
+            confidence.tilt_deg(transform),
+        )
 
     def alignment_cloud(self, scan: PreparedScan, pair: bool = False) -> AlignmentCloud:
         """
@@ -262,8 +342,11 @@ class Registration:
         ``fine.pair_num_neighbors``.
         """
         fine = self.config.fine
-        key = (0.0, fine.pair_num_neighbors) if pair else (fine.downsampling_resolution,
-                                                           fine.num_neighbors)
+        key = (
+            (0.0, fine.pair_num_neighbors)
+            if pair
+            else (fine.downsampling_resolution, fine.num_neighbors)
+        )
         if key not in scan.alignment_clouds:
             scan.alignment_clouds[key] = AlignmentCloud.build(scan.points, *key)
         return scan.alignment_clouds[key]
@@ -282,13 +365,17 @@ class Registration:
         if not np.all(np.isfinite(alignment.T_target_source)):
             return 'non-finite fine alignment'
         if alignment.inlier_fraction < bounds.min_inlier_fraction:
-            return (f'fine alignment kept {alignment.inlier_fraction:.2f} of the scan as '
-                    f'inliers < odometry.min_inlier_fraction={bounds.min_inlier_fraction:g}')
+            return (
+                f'fine alignment kept {alignment.inlier_fraction:.2f} of the scan as '
+                f'inliers < odometry.min_inlier_fraction={bounds.min_inlier_fraction:g}'
+            )
         if shift > bounds.max_correction_translation or turn > bounds.max_correction_rotation:
-            return (f'fine alignment moved its guess by {shift:.2f} m / {turn:.2f} deg, more '
-                    f'than odometry.max_correction_translation/rotation='
-                    f'{bounds.max_correction_translation:g} m / '
-                    f'{bounds.max_correction_rotation:g} deg')
+            return (
+                f'fine alignment moved its guess by {shift:.2f} m / {turn:.2f} deg, more '
+                f'than odometry.max_correction_translation/rotation='
+                f'{bounds.max_correction_translation:g} m / '
+                f'{bounds.max_correction_rotation:g} deg'
+            )
         return ''
 
     def prepare_scans(self, *scans: dict[str, Any]) -> list[PreparedScan]:
@@ -302,13 +389,18 @@ class Registration:
         """
         return _PREPARE_POOL.run(lambda kwargs: self.prepare(**kwargs), list(scans))
 
-    def register_scans(self, source_points: np.ndarray, source_labels: np.ndarray,
-                       target_points: np.ndarray, target_labels: np.ndarray
-                       ) -> RegistrationResult:
+    def register_scans(
+        self,
+        source_points: np.ndarray,
+        source_labels: np.ndarray,
+        target_points: np.ndarray,
+        target_labels: np.ndarray,
+    ) -> RegistrationResult:
         """Prepare both scans (concurrently) and register them; timings include preparation."""
         source, target = self.prepare_scans(
             {'points': source_points, 'labels': source_labels},
-            {'points': target_points, 'labels': target_labels})
+            {'points': target_points, 'labels': target_labels},
+        )
         result = self.register(source, target)
         for scan in (source, target):
             for stage, ms in scan.timings_ms.items():
@@ -324,10 +416,17 @@ def _fpfh(points: np.ndarray, indices: np.ndarray, cfg: RegistrationConfig) -> n
     """FPFH of ``points[indices]`` with the configured implementation."""
     f = cfg.features
     if f.descriptor == 'fpfh_open3d':
-        return features.fpfh_open3d_at(points, indices, f.normal_radius, f.normal_max_nn,
-                                       f.feature_radius, f.feature_max_nn)
-    return fpfh.fpfh_at_keypoints(points, indices, f.normal_radius, f.feature_radius,
-                                  f.support_voxel_size, snap=f.snap_keypoints)
+        return features.fpfh_open3d_at(
+            points, indices, f.normal_radius, f.normal_max_nn, f.feature_radius, f.feature_max_nn
+        )
+    return fpfh.fpfh_at_keypoints(
+        points,
+        indices,
+        f.normal_radius,
+        f.feature_radius,
+        f.support_voxel_size,
+        snap=f.snap_keypoints,
+    )
 
 
 def _best_ranked(corr: Correspondences, cap: int) -> Correspondences:

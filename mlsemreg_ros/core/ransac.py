@@ -63,19 +63,27 @@ def ransac(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
     target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(dst[rows]))
     pairs = np.repeat(np.arange(rows.size, dtype=np.int32)[:, None], 2, axis=1)
     result = registration.registration_ransac_based_on_correspondence(
-        source, target, o3d.utility.Vector2iVector(pairs), config.inlier_threshold,
-        registration.TransformationEstimationPointToPoint(False), 3,
-        [registration.CorrespondenceCheckerBasedOnEdgeLength(EDGE_LENGTH_SIMILARITY),
-         registration.CorrespondenceCheckerBasedOnDistance(config.inlier_threshold)],
-        registration.RANSACConvergenceCriteria(config.ransac_iterations,
-                                               config.ransac_confidence))
+        source,
+        target,
+        o3d.utility.Vector2iVector(pairs),
+        config.inlier_threshold,
+        registration.TransformationEstimationPointToPoint(False),
+        3,
+        [
+            registration.CorrespondenceCheckerBasedOnEdgeLength(EDGE_LENGTH_SIMILARITY),
+            registration.CorrespondenceCheckerBasedOnDistance(config.inlier_threshold),
+        ],
+        registration.RANSACConvergenceCriteria(config.ransac_iterations, config.ransac_confidence),
+    )
     transform = np.array(result.transformation, dtype=np.float64)
     if not np.isfinite(transform).all():
         transform = np.eye(4)
     residual = np.linalg.norm(apply_transform(transform, src[rows]) - dst[rows], axis=1)
     inlier_mask = np.zeros(total, dtype=bool)
     inlier_mask[rows] = residual < config.inlier_threshold
-    diagnostics.update(ransac_fitness=float(result.fitness),
-                       ransac_inlier_rmse=float(result.inlier_rmse),
-                       ransac_ms=1e3 * (time.perf_counter() - start))
+    diagnostics.update(
+        ransac_fitness=float(result.fitness),
+        ransac_inlier_rmse=float(result.inlier_rmse),
+        ransac_ms=1e3 * (time.perf_counter() - start),
+    )
     return EstimateResult(transform, inlier_mask, diagnostics)

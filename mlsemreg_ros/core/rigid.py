@@ -28,8 +28,9 @@ import numpy as np
 _MIN_WEIGHT_SUM = 1e-12
 
 
-def weighted_rigid_transform(src: np.ndarray, dst: np.ndarray,
-                             weights: np.ndarray | None = None) -> np.ndarray:
+def weighted_rigid_transform(
+    src: np.ndarray, dst: np.ndarray, weights: np.ndarray | None = None
+) -> np.ndarray:
     """
     Least-squares rigid transform mapping ``src`` onto ``dst`` (weighted Kabsch).
 

@@ -139,9 +139,14 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
     graph = graph_rows(rows.size, config.graph_size)
     p, q = p_all[graph], q_all[graph]
     count = graph.size
-    diagnostics: dict = {'n_correspondences': total, 'n_seeds': 0, 'best_hypothesis_inliers': 0,
-                         'refine_iterations': 0, 'leading_eigenvalue': 0.0,
-                         'graph_correspondences': int(count)}
+    diagnostics: dict = {
+        'n_correspondences': total,
+        'n_seeds': 0,
+        'best_hypothesis_inliers': 0,
+        'refine_iterations': 0,
+        'leading_eigenvalue': 0.0,
+        'graph_correspondences': int(count),
+    }
     if count < 3:
         diagnostics['message'] = f'sc2pcr needs at least 3 finite correspondences, got {count}'
         return EstimateResult(np.eye(4), np.zeros(total, dtype=bool), diagnostics)
@@ -190,12 +195,18 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
         # Too few inliers in the sample to seed the true pose (inlier ratio ~1 %):
         # run again on every correspondence.
         retry = sc2pcr(src, dst, dataclasses.replace(config, graph_size=0))
-        retry.diagnostics.update({'graph_retried': True, 'sampled_best_inliers':
-                                  int(inlier_counts[best]), 'sc2_total_ms': _ms(start)})
+        retry.diagnostics.update(
+            {
+                'graph_retried': True,
+                'sampled_best_inliers': int(inlier_counts[best]),
+                'sc2_total_ms': _ms(start),
+            }
+        )
         return retry
     tick = time.perf_counter()
-    transform, iterations = post_refinement(hypotheses[best], p_all, q_all,
-                                            config.refine_threshold, config.refine_iterations)
+    transform, iterations = post_refinement(
+        hypotheses[best], p_all, q_all, config.refine_threshold, config.refine_iterations
+    )
     diagnostics['refine_iterations'] = iterations
     timings['sc2_refine_ms'] = _ms(tick)
 
@@ -206,8 +217,9 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
     return EstimateResult(transform, inlier_mask, diagnostics, candidates)
 
 
-def distinct_hypotheses(transforms: np.ndarray, limit: int, rotation_deg: float,
-                        translation_m: float) -> np.ndarray:
+def distinct_hypotheses(
+    transforms: np.ndarray, limit: int, rotation_deg: float, translation_m: float
+) -> np.ndarray:
     """
     Return the indices of at most ``limit`` distinct hypotheses, best first.
 
@@ -230,8 +242,9 @@ def distinct_hypotheses(transforms: np.ndarray, limit: int, rotation_deg: float,
     return np.asarray(kept, dtype=np.int64)
 
 
-def same_pose(pose: np.ndarray, others: np.ndarray, rotation_deg: float,
-              translation_m: float) -> np.ndarray:
+def same_pose(
+    pose: np.ndarray, others: np.ndarray, rotation_deg: float, translation_m: float
+) -> np.ndarray:
     """
     ``(S,)`` bool: ``pose`` ``(4, 4)`` is within both bounds of each of ``others`` ``(S, 4, 4)``.
 
@@ -329,8 +342,9 @@ def compatibility_matrix(src: np.ndarray, dst: np.ndarray, threshold: float) -> 
             i = flat[inexact] // width
             j = flat[inexact] - i * width + first
             i += first
-            value[inexact] = np.abs(np.linalg.norm(p[i] - p[j], axis=1)
-                                    - np.linalg.norm(q[i] - q[j], axis=1))
+            value[inexact] = np.abs(
+                np.linalg.norm(p[i] - p[j], axis=1) - np.linalg.norm(q[i] - q[j], axis=1)
+            )
         keep = value < threshold
         flat, value = flat[keep], value[keep].astype(np.float32, copy=False)
         row_start = np.arange(height + 1) * width
@@ -342,12 +356,14 @@ def compatibility_matrix(src: np.ndarray, dst: np.ndarray, threshold: float) -> 
         np.subtract(np.float32(1.0), value, out=value)
         np.maximum(value, np.float32(1e-12), out=value)  # stored entries stay > 0
         values.append(value)
-    return _symmetric_from_upper(np.concatenate(row_counts), np.concatenate(columns),
-                                 np.concatenate(values), count)
+    return _symmetric_from_upper(
+        np.concatenate(row_counts), np.concatenate(columns), np.concatenate(values), count
+    )
 
 
-def _symmetric_from_upper(upper_count: np.ndarray, col: np.ndarray, value: np.ndarray,
-                          count: int) -> sparse.csr_matrix:
+def _symmetric_from_upper(
+    upper_count: np.ndarray, col: np.ndarray, value: np.ndarray, count: int
+) -> sparse.csr_matrix:
     """
     Symmetric CSR with unit diagonal from the strict upper triangle in CSR order.
 
@@ -431,8 +447,9 @@ def tight_compatibility(sc: sparse.csr_matrix) -> sparse.csr_matrix:
     return tight
 
 
-def second_order_cost(sc: sparse.csr_matrix, tight: sparse.csr_matrix,
-                      seeds: np.ndarray) -> np.ndarray:
+def second_order_cost(
+    sc: sparse.csr_matrix, tight: sparse.csr_matrix, seeds: np.ndarray
+) -> np.ndarray:
     """
     Cost-model estimate (ns) of :func:`second_order_compatibility` for every seed prefix.
 
@@ -448,14 +465,18 @@ def second_order_cost(sc: sparse.csr_matrix, tight: sparse.csr_matrix,
     sizes = np.unique(np.minimum(n_seeds, 2 ** np.arange(int(np.log2(n_seeds)) + 2)))
     cost = np.empty(sizes.size)
     for at, size in enumerate(sizes):
-        near = np.bincount(seed_rows.indices[:seed_rows.indptr[size]], minlength=sc.shape[0])
+        near = np.bincount(seed_rows.indices[: seed_rows.indptr[size]], minlength=sc.shape[0])
         per_k = np.minimum(near * degree * _ENUMERATION_COST, pairs[size - 1] * _BIT_COST)
         cost[at] = per_k.sum() + pairs[size - 1] * _PAIR_COST
     return np.interp(np.arange(1, n_seeds + 1), sizes, cost)
 
 
-def budget_seeds(sc: sparse.csr_matrix, tight: sparse.csr_matrix, seeds: np.ndarray,
-                 budget_ns: float | None = None) -> np.ndarray:
+def budget_seeds(
+    sc: sparse.csr_matrix,
+    tight: sparse.csr_matrix,
+    seeds: np.ndarray,
+    budget_ns: float | None = None,
+) -> np.ndarray:
     """
     Longest prefix of ``seeds`` (best first) whose SC2 cost fits ``budget_ns``.
 
@@ -471,9 +492,9 @@ def budget_seeds(sc: sparse.csr_matrix, tight: sparse.csr_matrix, seeds: np.ndar
     return seeds[:count]
 
 
-def second_order_compatibility(sc: sparse.csr_matrix, seeds: np.ndarray,
-                               tight: sparse.csr_matrix | None = None
-                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def second_order_compatibility(
+    sc: sparse.csr_matrix, seeds: np.ndarray, tight: sparse.csr_matrix | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
     Second-order compatibility of the seed rows (SC2-PCR eq. 4), where it can be non-zero.
 
@@ -520,8 +541,13 @@ def second_order_compatibility(sc: sparse.csr_matrix, seeds: np.ndarray,
     return pair_row, pair_col, sc2
 
 
-def _heavy_counts(tight: sparse.csr_matrix, heavy_ids: np.ndarray, seeds: np.ndarray,
-                  pair_row: np.ndarray, pair_col: np.ndarray) -> np.ndarray:
+def _heavy_counts(
+    tight: sparse.csr_matrix,
+    heavy_ids: np.ndarray,
+    seeds: np.ndarray,
+    pair_row: np.ndarray,
+    pair_col: np.ndarray,
+) -> np.ndarray:
     """``sum_{k heavy} tight[s, k] tight[k, j]`` per pair, with packed bit sets."""
     count = tight.shape[0]
     words = (heavy_ids.size + 63) // 64
@@ -537,16 +563,22 @@ def _heavy_counts(tight: sparse.csr_matrix, heavy_ids: np.ndarray, seeds: np.nda
     counts = np.empty(pair_col.size, dtype=np.int64)
     chunk = max(1, _BIT_CHUNK_WORDS // words)
     for first in range(0, pair_col.size, chunk):
-        both = seed_rows[pair_row[first:first + chunk]].view(np.uint64)
-        both &= rows[pair_col[first:first + chunk]].view(np.uint64)
+        window = slice(first, first + chunk)
+        both = seed_rows[pair_row[window]].view(np.uint64)
+        both &= rows[pair_col[window]].view(np.uint64)
         popcount = np.bitwise_count(both).reshape(-1, words).astype(np.float32)
-        counts[first:first + chunk] = popcount @ ones  # exact below 2^24
+        counts[window] = popcount @ ones  # exact below 2^24
     return counts
 
 
-def _light_counts(tight: sparse.csr_matrix, light_ids: np.ndarray, seeds: np.ndarray,
-                  pair_indptr: np.ndarray, pair_row: np.ndarray,
-                  pair_col: np.ndarray) -> np.ndarray:
+def _light_counts(
+    tight: sparse.csr_matrix,
+    light_ids: np.ndarray,
+    seeds: np.ndarray,
+    pair_indptr: np.ndarray,
+    pair_row: np.ndarray,
+    pair_col: np.ndarray,
+) -> np.ndarray:
     """
     ``sum_{k light} tight[s, k] tight[k, j]`` per pair, by enumerating ``(s, k, j)``.
 
@@ -575,9 +607,9 @@ def _light_counts(tight: sparse.csr_matrix, light_ids: np.ndarray, seeds: np.nda
     return counts
 
 
-def seed_consensus_sets(sc: sparse.csr_matrix, seeds: np.ndarray, k1: int,
-                        tight: sparse.csr_matrix | None = None
-                        ) -> tuple[np.ndarray, np.ndarray]:
+def seed_consensus_sets(
+    sc: sparse.csr_matrix, seeds: np.ndarray, k1: int, tight: sparse.csr_matrix | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """
     First-stage consensus sets: the ``k1`` most SC2-compatible correspondences per seed.
 
@@ -611,13 +643,21 @@ def seed_consensus_sets(sc: sparse.csr_matrix, seeds: np.ndarray, k1: int,
         top_score = table
     top_score = -np.sort(-top_score, axis=1)
     chosen = top_score >= 0
-    consensus[:, 1:1 + take][chosen] = (count - top_score % (count + 1))[chosen]
-    valid[:, 1:1 + take] = chosen
+    kept = slice(1, 1 + take)
+    consensus[:, kept][chosen] = (count - top_score % (count + 1))[chosen]
+    valid[:, kept] = chosen
     return consensus, valid
 
 
-def seed_hypotheses(src: np.ndarray, dst: np.ndarray, consensus: np.ndarray, valid: np.ndarray,
-                    k2: int, threshold: float, iterations: int) -> np.ndarray:
+def seed_hypotheses(
+    src: np.ndarray,
+    dst: np.ndarray,
+    consensus: np.ndarray,
+    valid: np.ndarray,
+    k2: int,
+    threshold: float,
+    iterations: int,
+) -> np.ndarray:
     """
     One rigid transform per seed from its consensus set (SC2-PCR Sec. 3.4).
 
@@ -662,8 +702,9 @@ def seed_hypotheses(src: np.ndarray, dst: np.ndarray, consensus: np.ndarray, val
     return transforms
 
 
-def count_inliers(transforms: np.ndarray, src: np.ndarray, dst: np.ndarray,
-                  threshold: float) -> np.ndarray:
+def count_inliers(
+    transforms: np.ndarray, src: np.ndarray, dst: np.ndarray, threshold: float
+) -> np.ndarray:
     """
     Correspondences with residual below ``threshold`` per ``(S, 4, 4)`` hypothesis.
 
@@ -676,20 +717,26 @@ def count_inliers(transforms: np.ndarray, src: np.ndarray, dst: np.ndarray,
     rotation = transforms[:, :3, :3]
     translation = transforms[:, :3, 3] + rotation @ centre_src - centre_dst  # centred frames
     # |Rp|^2 + |t|^2 + |q|^2 + 2 t.Rp - 2 t.q - 2 q.Rp, with |Rp| = |p|
-    hyp = np.concatenate([
-        np.ones((len(transforms), 1)),
-        (translation * translation).sum(axis=1, keepdims=True),
-        2.0 * (rotation.transpose(0, 2, 1) @ translation[:, :, None])[:, :, 0],
-        -2.0 * translation,
-        -2.0 * rotation.reshape(-1, 9),
-    ], axis=1)
-    corr = np.concatenate([
-        ((p * p).sum(axis=1) + (q * q).sum(axis=1))[None, :],
-        np.ones((1, count)),
-        p.T,
-        q.T,
-        (q[:, :, None] * p[:, None, :]).reshape(count, 9).T,  # q_a p_b, matches R_ab
-    ], axis=0)
+    hyp = np.concatenate(
+        [
+            np.ones((len(transforms), 1)),
+            (translation * translation).sum(axis=1, keepdims=True),
+            2.0 * (rotation.transpose(0, 2, 1) @ translation[:, :, None])[:, :, 0],
+            -2.0 * translation,
+            -2.0 * rotation.reshape(-1, 9),
+        ],
+        axis=1,
+    )
+    corr = np.concatenate(
+        [
+            ((p * p).sum(axis=1) + (q * q).sum(axis=1))[None, :],
+            np.ones((1, count)),
+            p.T,
+            q.T,
+            (q[:, :, None] * p[:, None, :]).reshape(count, 9).T,  # q_a p_b, matches R_ab
+        ],
+        axis=0,
+    )
     corr = np.ascontiguousarray(corr)
     # square-ish blocks of single-threaded products (small blocks mostly pack operands)
     rows = int(np.clip(np.sqrt(_BLAS_MAX_MNK / hyp.shape[1]), 1, transforms.shape[0]))
@@ -697,16 +744,22 @@ def count_inliers(transforms: np.ndarray, src: np.ndarray, dst: np.ndarray,
     limit = threshold * threshold
     counts = np.zeros(transforms.shape[0], dtype=np.int64)
     for first in range(0, transforms.shape[0], rows):
-        block = hyp[first:first + rows]
+        block_rows = slice(first, first + rows)
+        block = hyp[block_rows]
         for start in range(0, count, cols):
-            squared = block @ corr[:, start:start + cols]
-            counts[first:first + rows] += np.count_nonzero(squared < limit, axis=1)
+            squared = block @ corr[:, slice(start, start + cols)]
+            counts[block_rows] += np.count_nonzero(squared < limit, axis=1)
     return counts
 
 
-def post_refinement(transform: np.ndarray, src: np.ndarray, dst: np.ndarray, threshold: float,
-                    iterations: int,
-                    stop: Callable[[np.ndarray], bool] | None = None) -> tuple[np.ndarray, int]:
+def post_refinement(
+    transform: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    threshold: float,
+    iterations: int,
+    stop: Callable[[np.ndarray], bool] | None = None,
+) -> tuple[np.ndarray, int]:
     """
     Reweighted least squares on the inliers of ``transform`` (SC2-PCR post-refinement).
 

@@ -55,8 +55,13 @@ class SanitizedScan:
         return int(self.points.shape[0])
 
 
-def sanitize_scan(points: np.ndarray, labels: np.ndarray | None = None, *,
-                  max_range: float = 200.0, min_range: float = 0.0) -> SanitizedScan:
+def sanitize_scan(
+    points: np.ndarray,
+    labels: np.ndarray | None = None,
+    *,
+    max_range: float = 200.0,
+    min_range: float = 0.0,
+) -> SanitizedScan:
     """
     Drop non-finite points and points beyond ``max_range`` or closer than ``min_range``.
 
@@ -93,22 +98,27 @@ def sanitize_scan(points: np.ndarray, labels: np.ndarray | None = None, *,
     near = finite & (squared < min_range * min_range)
     n_far, n_near = int(np.count_nonzero(far)), int(np.count_nonzero(near))
     n_nonfinite = int(finite.size - np.count_nonzero(finite))
-    return SanitizedScan(points[keep], None if labels is None else labels[keep], keep,
-                         n_nonfinite, n_far, n_near)
+    return SanitizedScan(
+        points[keep], None if labels is None else labels[keep], keep, n_nonfinite, n_far, n_near
+    )
 
 
-def sanitize_scan_for(points: np.ndarray, labels: np.ndarray | None,
-                      features: FeatureConfig) -> SanitizedScan:
+def sanitize_scan_for(
+    points: np.ndarray, labels: np.ndarray | None, features: FeatureConfig
+) -> SanitizedScan:
     """:func:`sanitize_scan` with ``features.max_range`` and ``features.min_range``."""
-    return sanitize_scan(points, labels, max_range=features.max_range,
-                         min_range=features.min_range)
+    return sanitize_scan(
+        points, labels, max_range=features.max_range, min_range=features.min_range
+    )
 
 
 def _check_ranges(max_range: float, min_range: float) -> None:
     """Raise ConfigError unless ``0 <= min_range < max_range <= MAX_RANGE_LIMIT_M``."""
     if not 0.0 < max_range <= MAX_RANGE_LIMIT_M:  # False for NaN too
-        raise ConfigError(f'features.max_range={max_range} must lie in (0, '
-                          f'{MAX_RANGE_LIMIT_M:g}] m')
+        raise ConfigError(
+            f'features.max_range={max_range} must lie in (0, {MAX_RANGE_LIMIT_M:g}] m'
+        )
     if not 0.0 <= min_range < max_range:
-        raise ConfigError(f'features.min_range={min_range} must lie in [0, '
-                          f'features.max_range={max_range})')
+        raise ConfigError(
+            f'features.min_range={min_range} must lie in [0, features.max_range={max_range})'
+        )

@@ -34,11 +34,17 @@ _MIN_PART = 400  # keypoints per parallel part of the Local-SS search
 _POOL = LazyPool('mlsemreg-signatures')
 
 
-def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: np.ndarray,
-                             radius: float, num_classes: int, *,
-                             ignored: np.ndarray | None = None,
-                             undefined: np.ndarray | None = None,
-                             points_tree: cKDTree | None = None) -> np.ndarray:
+def local_semantic_signature(
+    points: np.ndarray,
+    labels: np.ndarray,
+    keypoints: np.ndarray,
+    radius: float,
+    num_classes: int,
+    *,
+    ignored: np.ndarray | None = None,
+    undefined: np.ndarray | None = None,
+    points_tree: cKDTree | None = None,
+) -> np.ndarray:
     """
     Local Semantic Signature n_i of every keypoint (eq. 1), as a (M, C) bool matrix.
 
@@ -58,10 +64,17 @@ def local_semantic_signature(points: np.ndarray, labels: np.ndarray, keypoints: 
     # keypoint parts are independent; SciPy releases the GIL in the dual-tree search. Parts
     # are slabs along the longest axis, so each part's tree meets only its slab of the scan
     axis = int(np.argmax(np.ptp(keypoints, axis=0)))
-    parts = np.array_split(np.argsort(keypoints[:, axis], kind='stable'),
-                           _parts(len(keypoints)))
-    for part, pairs in zip(parts, _map(lambda p: search_tree(keypoints[p]).sparse_distance_matrix(
-            points_tree, radius, output_type='ndarray'), parts), strict=True):
+    parts = np.array_split(np.argsort(keypoints[:, axis], kind='stable'), _parts(len(keypoints)))
+    for part, pairs in zip(
+        parts,
+        _map(
+            lambda p: search_tree(keypoints[p]).sparse_distance_matrix(
+                points_tree, radius, output_type='ndarray'
+            ),
+            parts,
+        ),
+        strict=True,
+    ):
         signature[part[pairs['i']], labels[pairs['j']]] = True  # zero distances included
     ignored = np.asarray(ignored if ignored is not None else [], dtype=np.int64)
     undefined = np.asarray(undefined if undefined is not None else [], dtype=np.int64)
@@ -96,9 +109,13 @@ def search_tree(points: np.ndarray) -> cKDTree:
     return cKDTree(points, balanced_tree=False, compact_nodes=False)
 
 
-def binary_multi_ring_signature(keypoints: np.ndarray, landmarks: Landmarks,
-                                classes: np.ndarray, ring_count: int,
-                                ring_width: float) -> np.ndarray:
+def binary_multi_ring_signature(
+    keypoints: np.ndarray,
+    landmarks: Landmarks,
+    classes: np.ndarray,
+    ring_count: int,
+    ring_width: float,
+) -> np.ndarray:
     """
     BMR-SS H_i of every keypoint (eq. 4) as a (M, T * N) bool matrix.
 
@@ -113,19 +130,31 @@ def binary_multi_ring_signature(keypoints: np.ndarray, landmarks: Landmarks,
     return signature
 
 
-def bmr_signature_sparse(keypoints: np.ndarray, landmarks: Landmarks, classes: np.ndarray,
-                         ring_count: int, ring_width: float) -> sp.csr_matrix:
+def bmr_signature_sparse(
+    keypoints: np.ndarray,
+    landmarks: Landmarks,
+    classes: np.ndarray,
+    ring_count: int,
+    ring_width: float,
+) -> sp.csr_matrix:
     """BMR-SS as a (M, T * N) uint8 CSR matrix, same bits as binary_multi_ring_signature."""
     classes = np.asarray(classes, dtype=np.int64)
     rows, bins = _bmr_bits(keypoints, landmarks, classes, ring_count, ring_width)
-    matrix = sp.csr_matrix((np.ones(len(rows), dtype=np.uint8), (rows, bins)),
-                           shape=(len(keypoints), len(classes) * ring_count))
+    matrix = sp.csr_matrix(
+        (np.ones(len(rows), dtype=np.uint8), (rows, bins)),
+        shape=(len(keypoints), len(classes) * ring_count),
+    )
     matrix.data[:] = 1  # duplicate (row, bin) entries were summed; H is binary
     return matrix
 
 
-def _bmr_bits(keypoints: np.ndarray, landmarks: Landmarks, classes: np.ndarray,
-              ring_count: int, ring_width: float) -> tuple[np.ndarray, np.ndarray]:
+def _bmr_bits(
+    keypoints: np.ndarray,
+    landmarks: Landmarks,
+    classes: np.ndarray,
+    ring_count: int,
+    ring_width: float,
+) -> tuple[np.ndarray, np.ndarray]:
     """Set bits (row, t * N + k) of BMR-SS; duplicates possible."""
     slot = np.full(int(max(classes.max(initial=-1), landmarks.classes.max(initial=-1))) + 1, -1)
     slot[classes] = np.arange(len(classes))

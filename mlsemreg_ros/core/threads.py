@@ -81,8 +81,10 @@ class LazyPool:
             if self._pool is None or self._size != size:
                 if self._pool is not None:  # resized: running tasks finish on the old one
                     self._pool.shutdown(wait=False)
-                self._pool, self._size = ThreadPoolExecutor(
-                    size, thread_name_prefix=self.name), size
+                self._pool, self._size = (
+                    ThreadPoolExecutor(size, thread_name_prefix=self.name),
+                    size,
+                )
             pool = self._pool
         return list(pool.map(function, items))
 

@@ -102,9 +102,13 @@ def label_compatibility(label_map: LabelMap, config: VerificationConfig) -> Labe
     return LabelCompatibility(compatible, counted)
 
 
-def candidate_hypotheses(estimate: EstimateResult, src: np.ndarray, dst: np.ndarray,
-                         config: VerificationConfig,
-                         estimator: EstimatorConfig) -> tuple[np.ndarray, np.ndarray]:
+def candidate_hypotheses(
+    estimate: EstimateResult,
+    src: np.ndarray,
+    dst: np.ndarray,
+    config: VerificationConfig,
+    estimator: EstimatorConfig,
+) -> tuple[np.ndarray, np.ndarray]:
     """
     Return the estimator's choice and its best distinct other hypotheses, refined.
 
@@ -125,8 +129,9 @@ def candidate_hypotheses(estimate: EstimateResult, src: np.ndarray, dst: np.ndar
     if candidates is not None and len(candidates) > 1 and config.hypotheses > 1:
         # hypotheses[0] started the refined choice: compare the others with the refined pose
         pool = np.concatenate([estimate.transform[None], candidates.T_target_source[1:]])
-        picked = distinct_hypotheses(pool, config.hypotheses, config.distinct_rotation,
-                                     config.distinct_translation)
+        picked = distinct_hypotheses(
+            pool, config.hypotheses, config.distinct_rotation, config.distinct_translation
+        )
         finite = np.isfinite(src).all(axis=1) & np.isfinite(dst).all(axis=1)
         p, q = src[finite], dst[finite]
         support = _REFINE_SUPPORT * estimator.refine_threshold
@@ -136,11 +141,18 @@ def candidate_hypotheses(estimate: EstimateResult, src: np.ndarray, dst: np.ndar
             known = np.stack(transforms)
 
             def joined(pose: np.ndarray, known: np.ndarray = known) -> bool:
-                return same_pose(pose, known, config.distinct_rotation,
-                                 config.distinct_translation).any()
+                return same_pose(
+                    pose, known, config.distinct_rotation, config.distinct_translation
+                ).any()
 
-            refined, _ = post_refinement(start, p[near], q[near], estimator.refine_threshold,
-                                         estimator.refine_iterations, stop=joined)
+            refined, _ = post_refinement(
+                start,
+                p[near],
+                q[near],
+                estimator.refine_threshold,
+                estimator.refine_iterations,
+                stop=joined,
+            )
             if joined(refined):
                 continue  # converged onto a better candidate: a duplicate
             transforms.append(refined)
@@ -148,9 +160,14 @@ def candidate_hypotheses(estimate: EstimateResult, src: np.ndarray, dst: np.ndar
     return np.stack(transforms), np.asarray(ranks, dtype=np.int64)
 
 
-def dense_scores(transforms: np.ndarray, source: PreparedScan, target_tree: cKDTree,
-                 target_labels: np.ndarray, labels: LabelCompatibility,
-                 config: VerificationConfig) -> tuple[np.ndarray, np.ndarray]:
+def dense_scores(
+    transforms: np.ndarray,
+    source: PreparedScan,
+    target_tree: cKDTree,
+    target_labels: np.ndarray,
+    labels: LabelCompatibility,
+    config: VerificationConfig,
+) -> tuple[np.ndarray, np.ndarray]:
     """
     Overlap and label agreement of every hypothesis on the dense scans (module docstring).
 
@@ -165,13 +182,17 @@ def dense_scores(transforms: np.ndarray, source: PreparedScan, target_tree: cKDT
     if total == 0 or target_tree.n == 0:
         return np.zeros(count), np.ones(count)
     rng = np.random.default_rng(config.seed)
-    rows = (rng.choice(total, config.sample_points, replace=False)
-            if total > config.sample_points else np.arange(total))
+    rows = (
+        rng.choice(total, config.sample_points, replace=False)
+        if total > config.sample_points
+        else np.arange(total)
+    )
     points, source_labels = source.points[rows], source.labels[rows]
     weight = area_weights(points, config.range_exponent)  # (n,), sums to 1
     moved = points @ transforms[:, :3, :3].transpose(0, 2, 1) + transforms[:, None, :3, 3]
-    distance, nearest = target_tree.query(moved.reshape(-1, 3),
-                                          distance_upper_bound=config.overlap_distance)
+    distance, nearest = target_tree.query(
+        moved.reshape(-1, 3), distance_upper_bound=config.overlap_distance
+    )
     overlapping = np.isfinite(distance).reshape(count, -1)
     nearest = np.where(overlapping.ravel(), nearest, 0).reshape(count, -1)
     nearest_labels = target_labels[nearest]  # (N, n), meaningless where not overlapping
@@ -179,8 +200,9 @@ def dense_scores(transforms: np.ndarray, source: PreparedScan, target_tree: cKDT
     counted &= labels.counted[nearest_labels]
     agreeing = counted & labels.compatible[source_labels[None, :], nearest_labels]
     counted_weight = counted @ weight
-    agreement = np.where(counted_weight > 0,
-                         (agreeing @ weight) / np.maximum(counted_weight, 1e-300), 1.0)
+    agreement = np.where(
+        counted_weight > 0, (agreeing @ weight) / np.maximum(counted_weight, 1e-300), 1.0
+    )
     return np.clip(overlapping @ weight, 0.0, 1.0), np.clip(agreement, 0.0, 1.0)
 
 
@@ -200,11 +222,11 @@ def area_weights(points: np.ndarray, exponent: float) -> np.ndarray:
     return weight / total if total > 0 else np.full(len(points), 1.0 / max(len(points), 1))
 
 
-def combined_score(overlap: np.ndarray, agreement: np.ndarray,
-                   config: VerificationConfig) -> np.ndarray:
+def combined_score(
+    overlap: np.ndarray, agreement: np.ndarray, config: VerificationConfig
+) -> np.ndarray:
     """``overlap ** overlap_weight * label_agreement ** label_weight`` (``0 ** 0 = 1``)."""
-    return (np.power(overlap, config.overlap_weight)
-            * np.power(agreement, config.label_weight))
+    return np.power(overlap, config.overlap_weight) * np.power(agreement, config.label_weight)
 
 
 def choose(scores: np.ndarray, min_gain: float) -> int:
@@ -213,10 +235,16 @@ def choose(scores: np.ndarray, min_gain: float) -> int:
     return best if scores[best] > scores[0] * (1.0 + min_gain) else 0
 
 
-def verify_hypotheses(estimate: EstimateResult, src: np.ndarray, dst: np.ndarray,
-                      source: PreparedScan, target: PreparedScan, config: VerificationConfig,
-                      estimator: EstimatorConfig,
-                      labels: LabelCompatibility) -> VerificationResult:
+def verify_hypotheses(
+    estimate: EstimateResult,
+    src: np.ndarray,
+    dst: np.ndarray,
+    source: PreparedScan,
+    target: PreparedScan,
+    config: VerificationConfig,
+    estimator: EstimatorConfig,
+    labels: LabelCompatibility,
+) -> VerificationResult:
     """
     Score the estimator's best distinct hypotheses on the dense scans and choose one.
 
@@ -244,9 +272,17 @@ def verify_hypotheses(estimate: EstimateResult, src: np.ndarray, dst: np.ndarray
     overlap, agreement = dense_scores(transforms, source, tree, target.labels, labels, config)
     scores = combined_score(overlap, agreement, config)
     chosen = choose(scores, config.min_gain)
-    hypotheses = [HypothesisScore(transforms[i], int(ranks[i]), int(inliers[i]),
-                                  float(overlap[i]), float(agreement[i]), float(scores[i]))
-                  for i in range(len(transforms))]
+    hypotheses = [
+        HypothesisScore(
+            transforms[i],
+            int(ranks[i]),
+            int(inliers[i]),
+            float(overlap[i]),
+            float(agreement[i]),
+            float(scores[i]),
+        )
+        for i in range(len(transforms))
+    ]
     diagnostics: dict[str, Any] = {
         'verification_hypotheses': len(hypotheses),
         'verification_chosen_rank': int(ranks[chosen]),
@@ -256,9 +292,13 @@ def verify_hypotheses(estimate: EstimateResult, src: np.ndarray, dst: np.ndarray
         'verification_tree_ms': tree_ms,
     }
     for i, h in enumerate(hypotheses):
-        diagnostics.update({f'verification_h{i}_rank': h.estimator_rank,
-                            f'verification_h{i}_inliers': h.num_inliers,
-                            f'verification_h{i}_overlap': h.overlap,
-                            f'verification_h{i}_label_agreement': h.label_agreement,
-                            f'verification_h{i}_score': h.score})
+        diagnostics.update(
+            {
+                f'verification_h{i}_rank': h.estimator_rank,
+                f'verification_h{i}_inliers': h.num_inliers,
+                f'verification_h{i}_overlap': h.overlap,
+                f'verification_h{i}_label_agreement': h.label_agreement,
+                f'verification_h{i}_score': h.score,
+            }
+        )
     return VerificationResult(hypotheses, chosen, diagnostics)

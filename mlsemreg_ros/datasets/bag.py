@@ -107,52 +107,81 @@ class BagWriter:
 
     def _connection(self, topic: str, msgtype: str) -> Any:
         if topic not in self._connections:
-            self._connections[topic] = self._writer.add_connection(topic, msgtype,
-                                                                   typestore=self.store)
+            self._connections[topic] = self._writer.add_connection(
+                topic, msgtype, typestore=self.store
+            )
         return self._connections[topic]
 
     def _header(self, stamp_ns: int, frame_id: str) -> Any:
-        return self.store.types['std_msgs/msg/Header'](stamp=_time(self.store, stamp_ns),
-                                                       frame_id=frame_id)
+        return self.store.types['std_msgs/msg/Header'](
+            stamp=_time(self.store, stamp_ns), frame_id=frame_id
+        )
 
     def write_raw(self, topic: str, msgtype: str, stamp_ns: int, msg: Any) -> None:
         """Serialize and write any typestore message at ``stamp_ns``."""
         data = self.store.serialize_cdr(msg, msgtype)
         self._writer.write(self._connection(topic, msgtype), int(stamp_ns), data)
 
-    def write_cloud(self, stamp_ns: int, xyz: np.ndarray, labels: np.ndarray | None = None,
-                    intensity: np.ndarray | None = None, frame_id: str = SENSOR_FRAME,
-                    topic: str = POINTS_TOPIC, label_datatype: str = 'uint32') -> None:
+    def write_cloud(
+        self,
+        stamp_ns: int,
+        xyz: np.ndarray,
+        labels: np.ndarray | None = None,
+        intensity: np.ndarray | None = None,
+        frame_id: str = SENSOR_FRAME,
+        topic: str = POINTS_TOPIC,
+        label_datatype: str = 'uint32',
+    ) -> None:
         """Write one PointCloud2 (x, y, z, intensity, label) stamped ``stamp_ns``."""
         types = self.store.types
-        msg = arrays_to_pointcloud2(types[POINTCLOUD2], types['sensor_msgs/msg/PointField'],
-                                    self._header(stamp_ns, frame_id), xyz, labels, intensity,
-                                    label_datatype=label_datatype)
+        msg = arrays_to_pointcloud2(
+            types[POINTCLOUD2],
+            types['sensor_msgs/msg/PointField'],
+            self._header(stamp_ns, frame_id),
+            xyz,
+            labels,
+            intensity,
+            label_datatype=label_datatype,
+        )
         self.write_raw(topic, POINTCLOUD2, stamp_ns, msg)
 
-    def write_odometry(self, stamp_ns: int, pose: np.ndarray, frame_id: str = WORLD_FRAME,
-                       child_frame_id: str = SENSOR_FRAME, topic: str = GT_TOPIC,
-                       pose_covariance: np.ndarray | None = None) -> None:
+    def write_odometry(
+        self,
+        stamp_ns: int,
+        pose: np.ndarray,
+        frame_id: str = WORLD_FRAME,
+        child_frame_id: str = SENSOR_FRAME,
+        topic: str = GT_TOPIC,
+        pose_covariance: np.ndarray | None = None,
+    ) -> None:
         """Write one nav_msgs/Odometry with ``pose`` (4, 4) = T_frame_child."""
         types = self.store.types
         pose = np.asarray(pose, dtype=np.float64)
         q = matrix_to_quaternion(pose[:3, :3])
         t = pose[:3, 3]
         geometry = types['geometry_msgs/msg/Pose'](
-            position=types['geometry_msgs/msg/Point'](x=float(t[0]), y=float(t[1]),
-                                                      z=float(t[2])),
+            position=types['geometry_msgs/msg/Point'](x=float(t[0]), y=float(t[1]), z=float(t[2])),
             orientation=types['geometry_msgs/msg/Quaternion'](
-                x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
-        covariance = (np.zeros(36) if pose_covariance is None
-                      else np.asarray(pose_covariance, dtype=np.float64).reshape(36))
+                x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])
+            ),
+        )
+        covariance = (
+            np.zeros(36)
+            if pose_covariance is None
+            else np.asarray(pose_covariance, dtype=np.float64).reshape(36)
+        )
         zero = types['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)
         msg = types[ODOMETRY](
-            header=self._header(stamp_ns, frame_id), child_frame_id=child_frame_id,
-            pose=types['geometry_msgs/msg/PoseWithCovariance'](pose=geometry,
-                                                               covariance=covariance),
+            header=self._header(stamp_ns, frame_id),
+            child_frame_id=child_frame_id,
+            pose=types['geometry_msgs/msg/PoseWithCovariance'](
+                pose=geometry, covariance=covariance
+            ),
             twist=types['geometry_msgs/msg/TwistWithCovariance'](
                 twist=types['geometry_msgs/msg/Twist'](linear=zero, angular=zero),
-                covariance=np.zeros(36)))
+                covariance=np.zeros(36),
+            ),
+        )
         self.write_raw(topic, ODOMETRY, stamp_ns, msg)
 
 
@@ -204,9 +233,15 @@ class BagScanReader:
     present; None disables ground truth.
     """
 
-    def __init__(self, path: str | Path, points_topic: str | None = None,
-                 gt_topic: str | None = 'auto', label_field: str = 'label',
-                 require_labels: bool = False, gt_tolerance_ns: int = 5_000_000) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        points_topic: str | None = None,
+        gt_topic: str | None = 'auto',
+        label_field: str = 'label',
+        require_labels: bool = False,
+        gt_tolerance_ns: int = 5_000_000,
+    ) -> None:
         self.path = _bag_path(Path(path))
         self.name = self.path.name
         self.label_field = label_field
@@ -217,13 +252,16 @@ class BagScanReader:
         if points_topic is None:
             if len(clouds) != 1:
                 self.close()
-                raise SourceError(f'{self.path}: cannot guess the points topic among '
-                                  f'{clouds or "no PointCloud2 topics"}; pass it explicitly')
+                raise SourceError(
+                    f'{self.path}: cannot guess the points topic among '
+                    f'{clouds or "no PointCloud2 topics"}; pass it explicitly'
+                )
             points_topic = clouds[0]
         elif points_topic not in topics or topics[points_topic].msgtype != POINTCLOUD2:
             self.close()
-            raise SourceError(f'{self.path}: no PointCloud2 topic {points_topic!r}; '
-                              f'PointCloud2 topics: {clouds}')
+            raise SourceError(
+                f'{self.path}: no PointCloud2 topic {points_topic!r}; PointCloud2 topics: {clouds}'
+            )
         self.points_topic = points_topic
         self._connections = [c for c in self.reader.connections if c.topic == points_topic]
         self._count = int(topics[points_topic].msgcount)
@@ -251,8 +289,10 @@ class BagScanReader:
         if self._gt_stamps.size == 0:
             return None
         i = int(np.searchsorted(self._gt_stamps, stamp_ns))
-        best = min((j for j in (i - 1, i) if 0 <= j < self._gt_stamps.size),
-                   key=lambda j: abs(int(self._gt_stamps[j]) - stamp_ns))
+        best = min(
+            (j for j in (i - 1, i) if 0 <= j < self._gt_stamps.size),
+            key=lambda j: abs(int(self._gt_stamps[j]) - stamp_ns),
+        )
         if abs(int(self._gt_stamps[best]) - stamp_ns) > self.gt_tolerance_ns:
             return None
         return self._gt_poses[best]
@@ -263,7 +303,8 @@ class BagScanReader:
             raise ValueError(f'stride must be >= 1, got {stride}')
         produced = 0
         for index, (connection, _, raw) in enumerate(
-                self.reader.messages(connections=self._connections)):
+            self.reader.messages(connections=self._connections)
+        ):
             if index % stride:
                 continue
             if max_frames is not None and produced >= max_frames:
@@ -271,12 +312,21 @@ class BagScanReader:
             msg = self.reader.deserialize(raw, connection.msgtype)
             cloud = pointcloud2_to_arrays(msg, self.label_field, self.require_labels)
             if cloud.labels is None and not self._warned_labels:
-                warnings.warn(f'{self.points_topic} has no {self.label_field!r} field; '
-                              f'scans are unlabeled', stacklevel=2)
+                warnings.warn(
+                    f'{self.points_topic} has no {self.label_field!r} field; scans are unlabeled',
+                    stacklevel=2,
+                )
                 self._warned_labels = True
             stamp = stamp_to_ns(msg.header.stamp)
-            yield Scan(index, stamp, cloud.xyz, cloud.labels, cloud.intensity,
-                       str(msg.header.frame_id), self.ground_truth_at(stamp))
+            yield Scan(
+                index,
+                stamp,
+                cloud.xyz,
+                cloud.labels,
+                cloud.intensity,
+                str(msg.header.frame_id),
+                self.ground_truth_at(stamp),
+            )
             produced += 1
 
 
@@ -307,8 +357,9 @@ class WrittenSequence:
         return self.points / max(self.frames, 1)
 
 
-def write_sequence_bag(out: str | Path, scans: Iterable[Scan],
-                       layout: BagLayout) -> WrittenSequence:
+def write_sequence_bag(
+    out: str | Path, scans: Iterable[Scan], layout: BagLayout
+) -> WrittenSequence:
     """
     Write labeled scans (and their ground truth) as a rosbag2, with KITTI side files.
 
@@ -326,11 +377,22 @@ def write_sequence_bag(out: str | Path, scans: Iterable[Scan],
     with BagWriter(out, storage=layout.storage, compress=layout.compress) as bag:
         for scan in scans:
             labeled = labeled and scan.labels is not None
-            bag.write_cloud(scan.stamp_ns, scan.xyz, scan.labels, scan.intensity,
-                            frame_id=layout.frame_id, topic=layout.points_topic)
+            bag.write_cloud(
+                scan.stamp_ns,
+                scan.xyz,
+                scan.labels,
+                scan.intensity,
+                frame_id=layout.frame_id,
+                topic=layout.points_topic,
+            )
             if scan.pose is not None:
-                bag.write_odometry(scan.stamp_ns, scan.pose, frame_id=layout.world_frame,
-                                   child_frame_id=layout.frame_id, topic=layout.gt_topic)
+                bag.write_odometry(
+                    scan.stamp_ns,
+                    scan.pose,
+                    frame_id=layout.world_frame,
+                    child_frame_id=layout.frame_id,
+                    topic=layout.gt_topic,
+                )
                 poses.append(scan.pose)
             stamps.append(scan.stamp_ns)
             points += len(scan)

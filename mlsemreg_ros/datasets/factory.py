@@ -37,8 +37,9 @@ def is_rosbag2(path: Path) -> bool:
     """Tell whether ``path`` is a rosbag2 directory or one .mcap/.db3 file."""
     if path.is_file():
         return path.suffix in ('.mcap', '.db3')
-    return path.is_dir() and ((path / 'metadata.yaml').exists() or
-                              any(path.glob('*.mcap')) or any(path.glob('*.db3')))
+    return path.is_dir() and (
+        (path / 'metadata.yaml').exists() or any(path.glob('*.mcap')) or any(path.glob('*.db3'))
+    )
 
 
 def open_scan_source(path: str | Path, **kwargs: Any) -> ScanSource:
@@ -59,5 +60,7 @@ def open_scan_source(path: str | Path, **kwargs: Any) -> ScanSource:
         from mlsemreg_ros.datasets.bag import BagScanReader
 
         return BagScanReader(path, **kwargs)
-    raise SourceError(f'{path} is neither a rosbag2 (directory with metadata.yaml, .mcap or '
-                      f'.db3) nor a SemanticKITTI sequence folder (with velodyne/)')
+    raise SourceError(
+        f'{path} is neither a rosbag2 (directory with metadata.yaml, .mcap or '
+        f'.db3) nor a SemanticKITTI sequence folder (with velodyne/)'
+    )

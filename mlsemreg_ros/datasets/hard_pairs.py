@@ -83,8 +83,9 @@ class PairChoice:
     overlap: float
 
 
-def read_frames(bag: Path, voxel_size: float, max_range: float,
-                progress: bool = True) -> list[Frame]:
+def read_frames(
+    bag: Path, voxel_size: float, max_range: float, progress: bool = True
+) -> list[Frame]:
     """Read every scan of ``bag`` with ground truth: cropped, voxelized, in learning ids."""
     from mlsemreg_ros.core.features import voxel_downsample
     from mlsemreg_ros.core.labels import LabelMap
@@ -95,8 +96,14 @@ def read_frames(bag: Path, voxel_size: float, max_range: float,
     source = open_scan_source(bag)
     frames: list[Frame] = []
     try:
-        for scan in tqdm(source.scans(), total=len(source), desc='read', unit='scan',
-                         file=sys.stderr, disable=not progress):
+        for scan in tqdm(
+            source.scans(),
+            total=len(source),
+            desc='read',
+            unit='scan',
+            file=sys.stderr,
+            disable=not progress,
+        ):
             if scan.pose is None or scan.labels is None:
                 continue
             keep = np.linalg.norm(scan.xyz, axis=1) <= max_range
@@ -136,9 +143,14 @@ def choose_pairs(frames: list[Frame], args: CutOptions) -> list[PairChoice]:
     turned = angle >= args.turn_angle
     kinds = {  # kind: (candidates, how many, largest overlap)
         'stride': (far & ~turned & upper, args.stride_pairs, 1.0),
-        'turn': (turned & (distance >= args.turn_min_distance)
-                 & (distance <= args.max_distance) & upper, args.turn_pairs,
-                 args.turn_max_overlap),
+        'turn': (
+            turned
+            & (distance >= args.turn_min_distance)
+            & (distance <= args.max_distance)
+            & upper,
+            args.turn_pairs,
+            args.turn_max_overlap,
+        ),
     }
     rng = np.random.default_rng(args.seed)
     trees: dict[int, Any] = {}
@@ -154,14 +166,18 @@ def choose_pairs(frames: list[Frame], args: CutOptions) -> list[PairChoice]:
             overlap = ground_truth_overlap(frames[i], frames[j], trees[j])
             if not args.min_overlap <= overlap <= max_overlap:
                 continue
-            chosen.append(PairChoice(kind, int(i), int(j), float(distance[i, j]),
-                                     float(angle[i, j]), overlap))
+            chosen.append(
+                PairChoice(
+                    kind, int(i), int(j), float(distance[i, j]), float(angle[i, j]), overlap
+                )
+            )
             kept += 1
     return chosen
 
 
-def make_pair(frames: list[Frame], choice: PairChoice, name: str, keypoints: int,
-              seed: int) -> Any:
+def make_pair(
+    frames: list[Frame], choice: PairChoice, name: str, keypoints: int, seed: int
+) -> Any:
     """Build the :class:`~mlsemreg_ros.datasets.pairs.Pair` of a choice, random keypoints."""
     from mlsemreg_ros.core.features import sample_keypoints
     from mlsemreg_ros.datasets.pairs import Pair
@@ -169,14 +185,26 @@ def make_pair(frames: list[Frame], choice: PairChoice, name: str, keypoints: int
     source, target = frames[choice.source], frames[choice.target]
     src_rows = sample_keypoints(source.points, keypoints, 'random', 1.0, seed)
     dst_rows = sample_keypoints(target.points, keypoints, 'random', 1.0, seed + 1)
-    return Pair(name=name, pts_src=source.points, label_src=source.labels,
-                pts_dst=target.points, label_dst=target.labels,
-                trans_gt=relative_transform(target.T_world_sensor, source.T_world_sensor),
-                kpts_src=source.points[src_rows], kpts_dst=target.points[dst_rows])
+    return Pair(
+        name=name,
+        pts_src=source.points,
+        label_src=source.labels,
+        pts_dst=target.points,
+        label_dst=target.labels,
+        trans_gt=relative_transform(target.T_world_sensor, source.T_world_sensor),
+        kpts_src=source.points[src_rows],
+        kpts_dst=target.points[dst_rows],
+    )
 
 
-def write_pair_files(frames: list[Frame], choices: list[PairChoice], out: Path, prefix: str,
-                     keypoints: int, seed: int) -> None:
+def write_pair_files(
+    frames: list[Frame],
+    choices: list[PairChoice],
+    out: Path,
+    prefix: str,
+    keypoints: int,
+    seed: int,
+) -> None:
     """Write one pair file per choice into ``out`` and list them in ``out/pairs.csv``."""
     import csv
 
@@ -185,13 +213,31 @@ def write_pair_files(frames: list[Frame], choices: list[PairChoice], out: Path, 
     out.mkdir(parents=True, exist_ok=True)
     with (out / 'pairs.csv').open('w', newline='') as handle:
         writer = csv.writer(handle)
-        writer.writerow(['name', 'kind', 'source_frame', 'target_frame', 'distance_m',
-                         'rotation_deg', 'overlap'])
+        writer.writerow(
+            [
+                'name',
+                'kind',
+                'source_frame',
+                'target_frame',
+                'distance_m',
+                'rotation_deg',
+                'overlap',
+            ]
+        )
         for number, choice in enumerate(choices):
             source, target = frames[choice.source], frames[choice.target]
             name = f'{prefix}_{source.index:04d}_{target.index:04d}'
-            save_pair(out / f'{name}.npz',
-                      make_pair(frames, choice, name, keypoints, seed + 2 * number))
-            writer.writerow([name, choice.kind, source.index, target.index,
-                             f'{choice.distance_m:.2f}', f'{choice.rotation_deg:.2f}',
-                             f'{choice.overlap:.3f}'])
+            save_pair(
+                out / f'{name}.npz', make_pair(frames, choice, name, keypoints, seed + 2 * number)
+            )
+            writer.writerow(
+                [
+                    name,
+                    choice.kind,
+                    source.index,
+                    target.index,
+                    f'{choice.distance_m:.2f}',
+                    f'{choice.rotation_deg:.2f}',
+                    f'{choice.overlap:.3f}',
+                ]
+            )

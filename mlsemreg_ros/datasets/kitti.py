@@ -53,9 +53,15 @@ class KittiSequence:
     ``poses``, ``calib`` and ``times`` default to the files inside the folder.
     """
 
-    def __init__(self, path: str | Path, poses: str | Path | None = None,
-                 calib: str | Path | None = None, times: str | Path | None = None,
-                 start_time_ns: int = START_TIME_NS, frame_id: str = 'lidar') -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        poses: str | Path | None = None,
+        calib: str | Path | None = None,
+        times: str | Path | None = None,
+        start_time_ns: int = START_TIME_NS,
+        frame_id: str = 'lidar',
+    ) -> None:
         self.path = Path(path)
         self.name = self.path.name
         self.frame_id = frame_id
@@ -68,26 +74,29 @@ class KittiSequence:
             self.label_files = [label_dir / f'{f.stem}.label' for f in self.scan_files]
             missing = [f.name for f in self.label_files if not f.exists()]
             if missing:
-                raise SourceError(f'{label_dir}: {len(missing)} label file(s) missing, e.g. '
-                                  f'{missing[0]}')
+                raise SourceError(
+                    f'{label_dir}: {len(missing)} label file(s) missing, e.g. {missing[0]}'
+                )
         else:
-            warnings.warn(f'{self.path} has no labels/ folder: scans are unlabeled (label 0); '
-                          f'ML-SemReg then degenerates to plain descriptor matching',
-                          stacklevel=2)
+            warnings.warn(
+                f'{self.path} has no labels/ folder: scans are unlabeled (label 0); '
+                f'ML-SemReg then degenerates to plain descriptor matching',
+                stacklevel=2,
+            )
         self.poses = self._load_poses(poses, calib)
         times_path = Path(times) if times is not None else self.path / 'times.txt'
         if times_path.exists():
             seconds = read_kitti_times(times_path)
             if seconds.size != len(self.scan_files):
-                raise SourceError(f'{times_path}: {seconds.size} times for '
-                                  f'{len(self.scan_files)} scans')
+                raise SourceError(
+                    f'{times_path}: {seconds.size} times for {len(self.scan_files)} scans'
+                )
         else:
             warnings.warn(f'{times_path} not found: assuming 10 Hz', stacklevel=2)
             seconds = 0.1 * np.arange(len(self.scan_files))
         self.stamps_ns = start_time_ns + np.round(seconds * 1e9).astype(np.int64)
 
-    def _load_poses(self, poses: str | Path | None, calib: str | Path | None
-                    ) -> np.ndarray | None:
+    def _load_poses(self, poses: str | Path | None, calib: str | Path | None) -> np.ndarray | None:
         poses_path = Path(poses) if poses is not None else self.path / 'poses.txt'
         if not poses_path.exists():
             if poses is not None:
@@ -95,12 +104,14 @@ class KittiSequence:
             return None
         camera = read_kitti_poses(poses_path)
         if camera.shape[0] != len(self.scan_files):
-            raise SourceError(f'{poses_path}: {camera.shape[0]} poses for '
-                              f'{len(self.scan_files)} scans')
+            raise SourceError(
+                f'{poses_path}: {camera.shape[0]} poses for {len(self.scan_files)} scans'
+            )
         calib_path = Path(calib) if calib is not None else self.path / 'calib.txt'
         if not calib_path.exists():
-            warnings.warn(f'{calib_path} not found: using {poses_path.name} as LiDAR poses',
-                          stacklevel=3)
+            warnings.warn(
+                f'{calib_path} not found: using {poses_path.name} as LiDAR poses', stacklevel=3
+            )
             return camera
         entries = read_kitti_calib(calib_path)
         if 'Tr' not in entries or np.shape(entries['Tr']) != (4, 4):
@@ -123,13 +134,21 @@ class KittiSequence:
         if self.label_files is not None:
             labels = np.fromfile(self.label_files[index], dtype='<u4').astype(np.int64)
             if labels.size != data.shape[0]:
-                raise SourceError(f'{self.label_files[index]}: {labels.size} labels for '
-                                  f'{data.shape[0]} points')
+                raise SourceError(
+                    f'{self.label_files[index]}: {labels.size} labels for {data.shape[0]} points'
+                )
         else:
             labels = np.zeros(data.shape[0], dtype=np.int64)
         pose = None if self.poses is None else self.poses[index]
-        return Scan(index, int(self.stamps_ns[index]), data[:, :3].astype(np.float64), labels,
-                    data[:, 3].copy(), self.frame_id, pose)
+        return Scan(
+            index,
+            int(self.stamps_ns[index]),
+            data[:, :3].astype(np.float64),
+            labels,
+            data[:, 3].copy(),
+            self.frame_id,
+            pose,
+        )
 
     def scans(self, stride: int = 1, max_frames: int | None = None) -> Iterator[Scan]:
         """Yield scans 0, stride, 2 * stride, ... (at most ``max_frames``)."""

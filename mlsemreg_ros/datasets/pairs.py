@@ -60,8 +60,10 @@ class Pair:
     def descriptors(self, name: str) -> tuple[np.ndarray, np.ndarray]:
         """``(source (M, D), target (M', D))`` descriptors called ``name``."""
         if name not in self.descriptor_names:
-            raise KeyError(f'pair {self.name} has no {name!r} descriptors '
-                           f'(stored: {self.descriptor_names or "none"})')
+            raise KeyError(
+                f'pair {self.name} has no {name!r} descriptors '
+                f'(stored: {self.descriptor_names or "none"})'
+            )
         return self.descriptors_src[name], self.descriptors_dst[name]
 
 
@@ -101,14 +103,17 @@ def _check(path: Path, pair: Pair) -> None:
     for side in ('src', 'dst'):
         pts, labels = getattr(pair, f'pts_{side}'), getattr(pair, f'label_{side}')
         if labels.shape[0] != pts.shape[0]:
-            raise PairFileError(f'{path}: {pts.shape[0]} pts_{side} but '
-                                f'{labels.shape[0]} label_{side}')
+            raise PairFileError(
+                f'{path}: {pts.shape[0]} pts_{side} but {labels.shape[0]} label_{side}'
+            )
         kpts = getattr(pair, f'kpts_{side}')
         for name, desc in getattr(pair, f'descriptors_{side}').items():
             if kpts is None or desc.shape[0] != kpts.shape[0]:
-                raise PairFileError(f'{path}: {name}_{side} has {desc.shape[0]} rows but '
-                                    f'kpts_{side} has '
-                                    f'{"none" if kpts is None else kpts.shape[0]}')
+                raise PairFileError(
+                    f'{path}: {name}_{side} has {desc.shape[0]} rows but '
+                    f'kpts_{side} has '
+                    f'{"none" if kpts is None else kpts.shape[0]}'
+                )
 
 
 def list_pairs(directory: str | Path) -> list[Path]:
@@ -126,8 +131,12 @@ def save_pair(path: str | Path, pair: Pair) -> Path:
     Keypoints and descriptors are written only when present.
     """
     arrays: dict[str, np.ndarray] = {
-        'pts_src': pair.pts_src, 'label_src': pair.label_src,
-        'pts_dst': pair.pts_dst, 'label_dst': pair.label_dst, 'trans_gt': pair.trans_gt}
+        'pts_src': pair.pts_src,
+        'label_src': pair.label_src,
+        'pts_dst': pair.pts_dst,
+        'label_dst': pair.label_dst,
+        'trans_gt': pair.trans_gt,
+    }
     if pair.kpts_src is not None:
         arrays['kpts_src'] = pair.kpts_src
     if pair.kpts_dst is not None:

@@ -53,8 +53,10 @@ def write_tum_poses(path: str | Path, stamps_ns: np.ndarray, poses: np.ndarray) 
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     with open(path, 'w') as f:
         for stamp, t, q in zip(stamps, poses[:, :3, 3], quats, strict=False):
-            f.write(f'{format_seconds(stamp)} {t[0]:.9f} {t[1]:.9f} {t[2]:.9f} '
-                    f'{q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}\n')
+            f.write(
+                f'{format_seconds(stamp)} {t[0]:.9f} {t[1]:.9f} {t[2]:.9f} '
+                f'{q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}\n'
+            )
 
 
 def read_tum_poses(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

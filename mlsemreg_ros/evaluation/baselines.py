@@ -34,8 +34,9 @@ import numpy as np
 
 BASELINES = ('kiss-matcher', 'fpfh-ransac')
 KISS_MATCHER_VOXEL_M = 0.3
-KISS_MATCHER_MISSING = ('kiss-matcher is not installed (an optional baseline): '
-                        'pip install kiss-matcher==1.0.2')
+KISS_MATCHER_MISSING = (
+    'kiss-matcher is not installed (an optional baseline): pip install kiss-matcher==1.0.2'
+)
 
 
 class BaselineUnavailable(RuntimeError):
@@ -55,8 +56,9 @@ class KissMatcherResult:
     stage_ms: dict[str, float] = field(default_factory=dict)
 
 
-def kiss_matcher_register(pts_src: np.ndarray, pts_dst: np.ndarray,
-                          voxel_size: float = KISS_MATCHER_VOXEL_M) -> KissMatcherResult:
+def kiss_matcher_register(
+    pts_src: np.ndarray, pts_dst: np.ndarray, voxel_size: float = KISS_MATCHER_VOXEL_M
+) -> KissMatcherResult:
     """
     Register raw points with KISS-Matcher (default configuration for ``voxel_size``).
 
@@ -76,22 +78,34 @@ def kiss_matcher_register(pts_src: np.ndarray, pts_dst: np.ndarray,
     transform = np.eye(4)
     transform[:3, :3] = np.asarray(solution.rotation, dtype=np.float64).reshape(3, 3)
     transform[:3, 3] = np.asarray(solution.translation, dtype=np.float64).reshape(3)
-    keypoints_src, keypoints_dst = (np.asarray(k, dtype=np.float64).reshape(-1, 3)
-                                    for k in matcher.get_keypoints_from_faster_pfh())
+    keypoints_src, keypoints_dst = (
+        np.asarray(k, dtype=np.float64).reshape(-1, 3)
+        for k in matcher.get_keypoints_from_faster_pfh()
+    )
     pairs = np.asarray(matcher.get_initial_correspondences(), dtype=np.int64).reshape(-1, 2)
     return KissMatcherResult(
-        transform, bool(solution.valid), int(matcher.get_num_final_inliers()),
-        keypoints_src[pairs[:, 0]], keypoints_dst[pairs[:, 1]], time_ms,
-        {'processing_ms': 1e3 * matcher.get_processing_time(),
-         'extraction_ms': 1e3 * matcher.get_extraction_time(),
-         'matching_ms': 1e3 * matcher.get_matching_time(),
-         'rejection_ms': 1e3 * matcher.get_rejection_time(),
-         'solver_ms': 1e3 * matcher.get_solver_time()})
+        transform,
+        bool(solution.valid),
+        int(matcher.get_num_final_inliers()),
+        keypoints_src[pairs[:, 0]],
+        keypoints_dst[pairs[:, 1]],
+        time_ms,
+        {
+            'processing_ms': 1e3 * matcher.get_processing_time(),
+            'extraction_ms': 1e3 * matcher.get_extraction_time(),
+            'matching_ms': 1e3 * matcher.get_matching_time(),
+            'rejection_ms': 1e3 * matcher.get_rejection_time(),
+            'solver_ms': 1e3 * matcher.get_solver_time(),
+        },
+    )
 
 
-def evaluate_kiss_matcher(paths: list[Any], bounds: EvaluationConfig,
-                          voxel_size: float = KISS_MATCHER_VOXEL_M,
-                          progress: bool = True) -> dict[str, Any]:
+def evaluate_kiss_matcher(
+    paths: list[Any],
+    bounds: EvaluationConfig,
+    voxel_size: float = KISS_MATCHER_VOXEL_M,
+    progress: bool = True,
+) -> dict[str, Any]:
     """
     KISS-Matcher on every pair file; the same report layout as ``evaluate_directory``.
 
@@ -104,25 +118,40 @@ def evaluate_kiss_matcher(paths: list[Any], bounds: EvaluationConfig,
     from tqdm import tqdm
 
     rows, metrics = [], []
-    for path in tqdm(paths, desc='kiss-matcher', unit='pair', file=sys.stderr,
-                     disable=not progress):
+    for path in tqdm(
+        paths, desc='kiss-matcher', unit='pair', file=sys.stderr, disable=not progress
+    ):
         pair = load_pair(path)
         result = kiss_matcher_register(pair.pts_src, pair.pts_dst, voxel_size)
-        pair_metrics = score_pair(result.T_target_source, result.src_matched,
-                                  result.dst_matched, pair.trans_gt, bounds)
+        pair_metrics = score_pair(
+            result.T_target_source, result.src_matched, result.dst_matched, pair.trans_gt, bounds
+        )
         metrics.append(pair_metrics)
         row = pair_row(pair.name, pair_metrics, {'total_ms': result.time_ms, **result.stage_ms})
-        row.update(mode='kiss-matcher', kiss_matcher_valid=result.valid,
-                   estimator_inliers=result.num_final_inliers, message='')
+        row.update(
+            mode='kiss-matcher',
+            kiss_matcher_valid=result.valid,
+            estimator_inliers=result.num_final_inliers,
+            message='',
+        )
         rows.append(row)
     summary = summarize(metrics)
     summary['time_ms'] = {'total_ms': float(np.mean([r['time_ms']['total_ms'] for r in rows]))}
-    return {'method': f'KISS-Matcher (voxel {voxel_size:g} m, raw points, no labels)',
-            'pairs': rows, 'summary': summary}
+    return {
+        'method': f'KISS-Matcher (voxel {voxel_size:g} m, raw points, no labels)',
+        'pairs': rows,
+        'summary': summary,
+    }
 
 
 def fpfh_ransac_config(config: Any) -> Any:
     """``config`` turned into Open3D FPFH + plain NN + Open3D RANSAC, no verification."""
-    return config.replace({'features.descriptor': 'fpfh_open3d', 'semantic.enabled': False,
-                           'estimator.kind': 'ransac', 'verification.enabled': False,
-                           'fine.pair_method': 'off'})
+    return config.replace(
+        {
+            'features.descriptor': 'fpfh_open3d',
+            'semantic.enabled': False,
+            'estimator.kind': 'ransac',
+            'verification.enabled': False,
+            'fine.pair_method': 'off',
+        }
+    )

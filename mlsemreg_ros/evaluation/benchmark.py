@@ -46,11 +46,25 @@ from typing import Any
 from mlsemreg_ros.evaluation.tables import ResultTable
 
 KEYPOINT_COUNTS = (250, 500, 1000, 2500, 5000)
-STAGES = ('local_ss_ms', 'bmr_ss_ms', 'gm_mm_ms', 'fpfh_ms', 'sc2pcr_ms', 'verification_ms',
-          'fine_ms', 'total_ms', 'total_parallel_ms')
+STAGES = (
+    'local_ss_ms',
+    'bmr_ss_ms',
+    'gm_mm_ms',
+    'fpfh_ms',
+    'sc2pcr_ms',
+    'verification_ms',
+    'fine_ms',
+    'total_ms',
+    'total_parallel_ms',
+)
 #: Paper appendix, Table "Average consumed time (ms) per point cloud pair on KITTI".
-PAPER_MS = {250: (9.88, 6.67, 14.59), 500: (12.61, 5.98, 27.28), 1000: (18.15, 6.32, 58.93),
-            2500: (35.19, 6.72, 187.23), 5000: (62.87, 6.38, 513.56)}
+PAPER_MS = {
+    250: (9.88, 6.67, 14.59),
+    500: (12.61, 5.98, 27.28),
+    1000: (18.15, 6.32, 58.93),
+    2500: (35.19, 6.72, 187.23),
+    5000: (62.87, 6.38, 513.56),
+}
 
 
 def generated_pair(seed: int = 0, keypoints: int = 5000) -> Any:
@@ -96,8 +110,9 @@ def stage_times(source: Any, target: Any, result: Any, total_ms: float) -> dict[
     }
 
 
-def bench_pair(registration: Any, pair: Any, counts: tuple[int, ...], repeats: int,
-               progress: bool = True) -> dict[str, dict[str, Any]]:
+def bench_pair(
+    registration: Any, pair: Any, counts: tuple[int, ...], repeats: int, progress: bool = True
+) -> dict[str, dict[str, Any]]:
     """Median per-stage times for each keypoint count (FPFH computed at the keypoints)."""
     from tqdm import tqdm
 
@@ -106,10 +121,20 @@ def bench_pair(registration: Any, pair: Any, counts: tuple[int, ...], repeats: i
     samples: dict[int, list[dict[str, float]]] = {n: [] for n in counts}
     extra: dict[int, dict[str, Any]] = {}
     for n, _ in tqdm(tasks, desc='bench', unit='run', file=sys.stderr, disable=not progress):
-        scans = ({'points': pair.pts_src, 'labels': pair.label_src,
-                  'keypoints': pair.kpts_src[:n], 'voxelize': False},
-                 {'points': pair.pts_dst, 'labels': pair.label_dst,
-                  'keypoints': pair.kpts_dst[:n], 'voxelize': False})
+        scans = (
+            {
+                'points': pair.pts_src,
+                'labels': pair.label_src,
+                'keypoints': pair.kpts_src[:n],
+                'voxelize': False,
+            },
+            {
+                'points': pair.pts_dst,
+                'labels': pair.label_dst,
+                'keypoints': pair.kpts_dst[:n],
+                'voxelize': False,
+            },
+        )
         start = time.perf_counter()
         source, target = (registration.prepare(**scan) for scan in scans)
         result = registration.register(source, target)
@@ -119,8 +144,11 @@ def bench_pair(registration: Any, pair: Any, counts: tuple[int, ...], repeats: i
         registration.register(*registration.prepare_scans(*scans))
         times['total_parallel_ms'] = 1e3 * (time.perf_counter() - start)
         samples[n].append(times)
-        extra[n] = {'keypoints_used': min(n, len(pair.kpts_src), len(pair.kpts_dst)),
-                    'correspondences': len(result.correspondences), 'mode': result.mode}
+        extra[n] = {
+            'keypoints_used': min(n, len(pair.kpts_src), len(pair.kpts_dst)),
+            'correspondences': len(result.correspondences),
+            'mode': result.mode,
+        }
     for n in counts:
         medians = {s: statistics.median(run[s] for run in samples[n]) for s in STAGES}
         out[str(n)] = {**medians, **extra[n], 'repeats': repeats}
@@ -133,12 +161,35 @@ def timing_table(rows: dict[str, dict[str, Any]]) -> ResultTable:
     for n, row in rows.items():
         total1 = row['local_ss_ms'] + row['bmr_ss_ms'] + row['gm_mm_ms']
         paper = PAPER_MS.get(int(n))
-        lines.append([n] + [f'{row[s]:.1f}' for s in ('local_ss_ms', 'bmr_ss_ms', 'gm_mm_ms')]
-                     + [f'{total1:.1f}', f'{row["fpfh_ms"]:.1f}', f'{row["sc2pcr_ms"]:.1f}',
-                        f'{row["verification_ms"]:.1f}', f'{row.get("fine_ms", 0.0):.1f}',
-                        f'{row["total_ms"]:.1f}',
-                        f'{row["total_parallel_ms"]:.1f}',
-                        f'{sum(paper):.2f}' if paper else '-'])
-    return ResultTable(('keypoints', 'Local-SS', 'BMR-SS', 'GM+MM', 'Total-1', 'FPFH',
-                        'SC2-PCR', 'verification', 'fine', 'total', 'total 2 threads',
-                        'paper Total-1'), lines, left_columns=0)
+        lines.append(
+            [n]
+            + [f'{row[s]:.1f}' for s in ('local_ss_ms', 'bmr_ss_ms', 'gm_mm_ms')]
+            + [
+                f'{total1:.1f}',
+                f'{row["fpfh_ms"]:.1f}',
+                f'{row["sc2pcr_ms"]:.1f}',
+                f'{row["verification_ms"]:.1f}',
+                f'{row.get("fine_ms", 0.0):.1f}',
+                f'{row["total_ms"]:.1f}',
+                f'{row["total_parallel_ms"]:.1f}',
+                f'{sum(paper):.2f}' if paper else '-',
+            ]
+        )
+    return ResultTable(
+        (
+            'keypoints',
+            'Local-SS',
+            'BMR-SS',
+            'GM+MM',
+            'Total-1',
+            'FPFH',
+            'SC2-PCR',
+            'verification',
+            'fine',
+            'total',
+            'total 2 threads',
+            'paper Total-1',
+        ),
+        lines,
+        left_columns=0,
+    )

@@ -87,8 +87,9 @@ def dev_cases(directory: Path, seed: int = 0) -> list[Case]:
         flipped = np.array(p.label_src, dtype=np.int64)
         hit = rng.random(flipped.size) < 0.2
         flipped[hit] = rng.integers(0, 20, int(hit.sum()))
-        cases.append(Case('labels-flip', f'{p.name} 20 % flipped', (p.pts_src, flipped), dst,
-                          p.trans_gt))
+        cases.append(
+            Case('labels-flip', f'{p.name} 20 % flipped', (p.pts_src, flipped), dst, p.trans_gt)
+        )
     # the chain: T_dst(k)_dst(k-1) = trans_gt of pair k; poses of the dst scans in dst(0)
     poses = [np.eye(4)]
     for p in pairs[1:]:
@@ -98,13 +99,17 @@ def dev_cases(directory: Path, seed: int = 0) -> list[Case]:
             T_i_j = invert_transform(poses[i]) @ poses[j]
             a, b = (pairs[i].pts_dst, pairs[i].label_dst), (pairs[j].pts_dst, pairs[j].label_dst)
             cases.append(Case('chain-far', f'{pairs[j].name}->{pairs[i].name}', b, a, T_i_j))
-            cases.append(Case('chain-far', f'{pairs[i].name}->{pairs[j].name}', a, b,
-                              invert_transform(T_i_j)))
+            cases.append(
+                Case(
+                    'chain-far', f'{pairs[i].name}->{pairs[j].name}', a, b, invert_transform(T_i_j)
+                )
+            )
     return cases
 
 
-def sim_cases(bag: Path, strides: tuple[int, ...] = (1, 10, 20), per_stride: int = 8
-              ) -> list[Case]:
+def sim_cases(
+    bag: Path, strides: tuple[int, ...] = (1, 10, 20), per_stride: int = 8
+) -> list[Case]:
     """Pairs of a simulated bag ``stride`` scans apart (every scan is read once)."""
     from mlsemreg_ros.core.rigid import invert_transform
     from mlsemreg_ros.datasets.factory import open_scan_source
@@ -120,13 +125,17 @@ def sim_cases(bag: Path, strides: tuple[int, ...] = (1, 10, 20), per_stride: int
         for start in np.linspace(0, last - stride, per_stride).astype(int):
             a, b = scans[int(start)], scans[int(start) + stride]
             T = invert_transform(a.pose) @ b.pose  # b onto a
-            cases.append(Case('sim', f'{bag.name} {start}+{stride}', (b.xyz, b.labels),
-                              (a.xyz, a.labels), T))
+            cases.append(
+                Case(
+                    'sim', f'{bag.name} {start}+{stride}', (b.xyz, b.labels), (a.xyz, a.labels), T
+                )
+            )
     return cases
 
 
-def measure(cases: list[Case], config: Any, bounds: EvaluationConfig | None = None
-            ) -> list[dict[str, Any]]:
+def measure(
+    cases: list[Case], config: Any, bounds: EvaluationConfig | None = None
+) -> list[dict[str, Any]]:
     """
     Register every case with every threshold off; one row of evidence and outcome each.
 
@@ -137,10 +146,17 @@ def measure(cases: list[Case], config: Any, bounds: EvaluationConfig | None = No
     from mlsemreg_ros.core.pipeline import Registration
     from tqdm import tqdm
 
-    registration = Registration(config.replace({
-        'confidence.min_inlier_ratio': 0.0, 'confidence.min_overlap': 0.0,
-        'confidence.min_label_agreement': 0.0, 'confidence.max_tilt': 180.0,
-        'estimator.min_inliers': 3}))
+    registration = Registration(
+        config.replace(
+            {
+                'confidence.min_inlier_ratio': 0.0,
+                'confidence.min_overlap': 0.0,
+                'confidence.min_label_agreement': 0.0,
+                'confidence.max_tilt': 180.0,
+                'estimator.min_inliers': 3,
+            }
+        )
+    )
     rows = []
     for case in tqdm(cases, desc='confidence', unit='pair', file=sys.stderr):
         result = registration.register_scans(*case.source, *case.target)
@@ -151,14 +167,33 @@ def measure(cases: list[Case], config: Any, bounds: EvaluationConfig | None = No
             te = translation_error_m(result.transform[:3, 3], case.T_target_source[:3, 3])
             right = (bounds or EvaluationConfig()).succeeded(re, te)
         d = result.diagnostics
-        evidence = confidence.Evidence(*(d[f'confidence_{k}'] for k in (
-            'num_inliers', 'correspondences', 'overlap', 'label_agreement', 'tilt_deg')))
+        evidence = confidence.Evidence(
+            *(
+                d[f'confidence_{k}']
+                for k in (
+                    'num_inliers',
+                    'correspondences',
+                    'overlap',
+                    'label_agreement',
+                    'tilt_deg',
+                )
+            )
+        )
         reason = confidence.refusal(evidence, config.confidence, config.estimator.min_inliers)
-        rows.append({'kind': case.kind, 'name': case.name, 'right': right,
-                     'accepted': not reason, 'reason': reason, 're_deg': re,
-                     'te_m': te, 'mode': result.mode,
-                     **{k: d[f'confidence_{k}'] for k in EVIDENCE},
-                     'fine_inlier_fraction': d.get('fine_inlier_fraction', float('nan'))})
+        rows.append(
+            {
+                'kind': case.kind,
+                'name': case.name,
+                'right': right,
+                'accepted': not reason,
+                'reason': reason,
+                're_deg': re,
+                'te_m': te,
+                'mode': result.mode,
+                **{k: d[f'confidence_{k}'] for k in EVIDENCE},
+                'fine_inlier_fraction': d.get('fine_inlier_fraction', float('nan')),
+            }
+        )
     return rows
 
 
@@ -174,14 +209,18 @@ def summary_lines(rows: list[dict[str, Any]]) -> list[str]:
         left = f'{ok.min():.4g} / {np.percentile(ok, 5):.4g}' if ok.size else '-'
         rest = f'{np.percentile(bad, 95):.4g} / {bad.max():.4g}' if bad.size else '-'
         lines.append(f'{key:<22} {left:>18} {rest:>18}')
-    lines.append(f'{"kind":<12} {"cases":>5} {"right":>5} {"accepted":>8} '
-                 f'{"right rejected":>14} {"wrong accepted":>14}')
+    lines.append(
+        f'{"kind":<12} {"cases":>5} {"right":>5} {"accepted":>8} '
+        f'{"right rejected":>14} {"wrong accepted":>14}'
+    )
     for kind in sorted({r['kind'] for r in rows}):
         of_kind = [r for r in rows if r['kind'] == kind]
-        lines.append(f'{kind:<12} {len(of_kind):>5} {sum(r["right"] for r in of_kind):>5} '
-                     f'{sum(r["accepted"] for r in of_kind):>8} '
-                     f'{sum(r["right"] and not r["accepted"] for r in of_kind):>14} '
-                     f'{sum(r["accepted"] and not r["right"] for r in of_kind):>14}')
+        lines.append(
+            f'{kind:<12} {len(of_kind):>5} {sum(r["right"] for r in of_kind):>5} '
+            f'{sum(r["accepted"] for r in of_kind):>8} '
+            f'{sum(r["right"] and not r["accepted"] for r in of_kind):>14} '
+            f'{sum(r["accepted"] and not r["right"] for r in of_kind):>14}'
+        )
     return lines
 
 
@@ -204,22 +243,78 @@ def stream_cases(directory: Path) -> list[tuple[str, list[tuple[Case, bool]]]]:
     for p in pairs:
         huge = p.pts_src.copy()
         huge[0] = 1e30
-        streams.append(('huge-point', [(Case('huge-point', p.name, (huge, p.label_src),
-                                             (p.pts_dst, p.label_dst), p.trans_gt), True)]))
+        streams.append(
+            (
+                'huge-point',
+                [
+                    (
+                        Case(
+                            'huge-point',
+                            p.name,
+                            (huge, p.label_src),
+                            (p.pts_dst, p.label_dst),
+                            p.trans_gt,
+                        ),
+                        True,
+                    )
+                ],
+            )
+        )
         one = np.array(p.label_src, dtype=np.int64)
         one[0] = 20
-        streams.append(('labels-20', [(Case('labels-20', p.name, (p.pts_src, one),
-                                            (p.pts_dst, p.label_dst), p.trans_gt), True)]))
-        tiny = [Case('degenerate', f'{p.name} {n} points', (p.pts_dst[:n], p.label_dst[:n]),
-                     (p.pts_dst[:n], p.label_dst[:n]), None) for n in (1, 3, 12)]
-        streams.append(('degenerate-first', [(c, False) for c in tiny] + [
-            (Case('degenerate', p.name, (p.pts_src, p.label_src), (p.pts_dst, p.label_dst),
-                  p.trans_gt), True)]))
+        streams.append(
+            (
+                'labels-20',
+                [
+                    (
+                        Case(
+                            'labels-20',
+                            p.name,
+                            (p.pts_src, one),
+                            (p.pts_dst, p.label_dst),
+                            p.trans_gt,
+                        ),
+                        True,
+                    )
+                ],
+            )
+        )
+        tiny = [
+            Case(
+                'degenerate',
+                f'{p.name} {n} points',
+                (p.pts_dst[:n], p.label_dst[:n]),
+                (p.pts_dst[:n], p.label_dst[:n]),
+                None,
+            )
+            for n in (1, 3, 12)
+        ]
+        streams.append(
+            (
+                'degenerate-first',
+                [(c, False) for c in tiny]
+                + [
+                    (
+                        Case(
+                            'degenerate',
+                            p.name,
+                            (p.pts_src, p.label_src),
+                            (p.pts_dst, p.label_dst),
+                            p.trans_gt,
+                        ),
+                        True,
+                    )
+                ],
+            )
+        )
     return streams
 
 
-def run_streams(streams: list[tuple[str, list[tuple[Case, bool]]]], config: Any,
-                bounds: EvaluationConfig | None = None) -> list[dict[str, Any]]:
+def run_streams(
+    streams: list[tuple[str, list[tuple[Case, bool]]]],
+    config: Any,
+    bounds: EvaluationConfig | None = None,
+) -> list[dict[str, Any]]:
     """Feed each stream to a fresh :class:`Odometry`; count published and wrong frames."""
     from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
     from mlsemreg_ros.core.odometry import Odometry
@@ -240,13 +335,24 @@ def run_streams(streams: list[tuple[str, list[tuple[Case, bool]]]], config: Any,
                 continue
             published += 1
             T, truth = step.relative, case.T_target_source
-            right = (truth is not None and expected_right
-                     and (bounds or EvaluationConfig()).succeeded(
-                         rotation_error_deg(T[:3, :3], truth[:3, :3]),
-                         translation_error_m(T[:3, 3], truth[:3, 3])))
+            right = (
+                truth is not None
+                and expected_right
+                and (bounds or EvaluationConfig()).succeeded(
+                    rotation_error_deg(T[:3, :3], truth[:3, :3]),
+                    translation_error_m(T[:3, 3], truth[:3, 3]),
+                )
+            )
             wrong += not right
-        out.append({'kind': kind, 'tried': tried, 'rejected': rejected, 'published': published,
-                    'wrong_published': wrong})
+        out.append(
+            {
+                'kind': kind,
+                'tried': tried,
+                'rejected': rejected,
+                'published': published,
+                'wrong_published': wrong,
+            }
+        )
     return out
 
 
@@ -257,8 +363,10 @@ def stream_table(rows: list[dict[str, Any]]) -> list[str]:
         of_kind = [r for r in rows if r['kind'] == kind]
         keys = ('tried', 'rejected', 'published', 'wrong_published')
         total = {k: sum(r[k] for r in of_kind) for k in keys}
-        lines.append(f'{kind:<18} {total["tried"]:>6} {total["rejected"]:>9} '
-                     f'{total["published"]:>10} {total["wrong_published"]:>6}')
+        lines.append(
+            f'{kind:<18} {total["tried"]:>6} {total["rejected"]:>9} '
+            f'{total["published"]:>10} {total["wrong_published"]:>6}'
+        )
     return lines
 
 
@@ -270,35 +378,67 @@ def plot(rows: list[dict[str, Any]], path: Path, config: Any) -> None:
     import matplotlib.pyplot as plt
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 5), constrained_layout=True)
-    markers = {'dev': 'o', 'chain-far': 'x', 'mirror': 's', 'labels-20': '^',
-               'labels-flip': 'v', 'sim': 'D'}
+    markers = {
+        'dev': 'o',
+        'chain-far': 'x',
+        'mirror': 's',
+        'labels-20': '^',
+        'labels-flip': 'v',
+        'sim': 'D',
+    }
     for kind, marker in markers.items():
         for good, colour in ((True, 'tab:green'), (False, 'tab:red')):
             chosen = [r for r in rows if r['kind'] == kind and r['right'] == good]
             if not chosen:
                 continue
             label = f'{kind}, {"right" if good else "wrong"} ({len(chosen)})'
-            left.scatter([r['overlap'] for r in chosen], [r['label_agreement'] for r in chosen],
-                         marker=marker, c=colour, s=28, alpha=0.7, label=label)
-            right.scatter([max(r['inlier_ratio'], 1e-4) for r in chosen],
-                          [max(r['num_inliers'], 1) for r in chosen], marker=marker, c=colour,
-                          s=28, alpha=0.7, label=label)
+            left.scatter(
+                [r['overlap'] for r in chosen],
+                [r['label_agreement'] for r in chosen],
+                marker=marker,
+                c=colour,
+                s=28,
+                alpha=0.7,
+                label=label,
+            )
+            right.scatter(
+                [max(r['inlier_ratio'], 1e-4) for r in chosen],
+                [max(r['num_inliers'], 1) for r in chosen],
+                marker=marker,
+                c=colour,
+                s=28,
+                alpha=0.7,
+                label=label,
+            )
     thresholds = config.confidence
     left.axvline(thresholds.min_overlap, color='k', lw=0.8, ls='--')
     left.axhline(thresholds.min_label_agreement, color='k', lw=0.8, ls='--')
-    left.set(xlabel='overlap (share of the seen surface)', ylabel='label agreement',
-             title='dense evidence of the chosen pose')
+    left.set(
+        xlabel='overlap (share of the seen surface)',
+        ylabel='label agreement',
+        title='dense evidence of the chosen pose',
+    )
     right.axvline(max(thresholds.min_inlier_ratio, 1e-4), color='k', lw=0.8, ls='--')
     right.axhline(config.estimator.min_inliers, color='k', lw=0.8, ls='--')
-    right.set(xscale='log', yscale='log', xlabel='inlier ratio', ylabel='inliers',
-              title='sparse evidence (SC2-PCR inliers)')
+    right.set(
+        xscale='log',
+        yscale='log',
+        xlabel='inlier ratio',
+        ylabel='inliers',
+        title='sparse evidence (SC2-PCR inliers)',
+    )
     right.legend(fontsize=7, loc='lower right')
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
 
-def run_study(directory: Path | None, bags: list[Path], out: Path, config: Any,
-              bounds: EvaluationConfig | None = None) -> list[str]:
+def run_study(
+    directory: Path | None,
+    bags: list[Path],
+    out: Path,
+    config: Any,
+    bounds: EvaluationConfig | None = None,
+) -> list[str]:
     """Measure every case, write the results folder, return the text to print."""
     cases = dev_cases(directory) if directory is not None and directory.is_dir() else []
     for bag in bags:

@@ -61,23 +61,53 @@ class OdometryEstimator:
         result = step.result
         if result is None and step.relative is not None:  # tracked by the prediction alone
             return FrameEstimate(
-                step.pose, self._bag_index[step.keyframe_index], step.relative,
-                bool(step.accepted), step.latency_ms, mode='tracking',
-                new_keyframe=bool(step.new_keyframe), message=step.reason, source=step.source,
-                frame_covariance=step.frame_covariance, timings_ms=step.timings_ms)
+                step.pose,
+                self._bag_index[step.keyframe_index],
+                step.relative,
+                bool(step.accepted),
+                step.latency_ms,
+                mode='tracking',
+                new_keyframe=bool(step.new_keyframe),
+                message=step.reason,
+                source=step.source,
+                frame_covariance=step.frame_covariance,
+                timings_ms=step.timings_ms,
+            )
         if result is None:  # the first scan (or one the odometry started again on)
-            return FrameEstimate(step.pose, None, accepted=bool(step.accepted),
-                                 latency_ms=step.latency_ms, new_keyframe=step.new_keyframe,
-                                 message=step.reason, source=step.source,
-                                 timings_ms=step.timings_ms)
-        clouds = PairClouds(keyframe.prepared.points, keyframe.prepared.labels,
-                            step.prepared.points, step.prepared.labels)
+            return FrameEstimate(
+                step.pose,
+                None,
+                accepted=bool(step.accepted),
+                latency_ms=step.latency_ms,
+                new_keyframe=step.new_keyframe,
+                message=step.reason,
+                source=step.source,
+                timings_ms=step.timings_ms,
+            )
+        clouds = PairClouds(
+            keyframe.prepared.points,
+            keyframe.prepared.labels,
+            step.prepared.points,
+            step.prepared.labels,
+        )
         return FrameEstimate(
-            step.pose, self._bag_index[step.keyframe_index], step.relative,
-            bool(step.accepted), step.latency_ms, len(result.correspondences),
-            result.num_inliers, result.source_points, result.target_points, result.mode,
-            bool(step.new_keyframe), step.reason or result.message, step.source,
-            step.frame_covariance, step.timings_ms, clouds)
+            step.pose,
+            self._bag_index[step.keyframe_index],
+            step.relative,
+            bool(step.accepted),
+            step.latency_ms,
+            len(result.correspondences),
+            result.num_inliers,
+            result.source_points,
+            result.target_points,
+            result.mode,
+            bool(step.new_keyframe),
+            step.reason or result.message,
+            step.source,
+            step.frame_covariance,
+            step.timings_ms,
+            clouds,
+        )
 
 
 class KissIcpEstimator:
@@ -114,11 +144,18 @@ class KissIcpEstimator:
         pose = self.odometry.last_pose.copy()
         previous, self._previous = self._previous, (scan.index, pose)
         if previous is None:
-            return FrameEstimate(pose, None, accepted=True, latency_ms=latency,
-                                 mode='kiss-icp', new_keyframe=True)
-        return FrameEstimate(pose, previous[0], relative_transform(previous[1], pose),
-                             accepted=True, latency_ms=latency, mode='kiss-icp',
-                             new_keyframe=True)
+            return FrameEstimate(
+                pose, None, accepted=True, latency_ms=latency, mode='kiss-icp', new_keyframe=True
+            )
+        return FrameEstimate(
+            pose,
+            previous[0],
+            relative_transform(previous[1], pose),
+            accepted=True,
+            latency_ms=latency,
+            mode='kiss-icp',
+            new_keyframe=True,
+        )
 
 
 @dataclass
@@ -169,16 +206,22 @@ class RecordedRunEstimator:
         rec, stamp, k = self.recording, scan.stamp_ns, scan.index
         values = rec.diagnostics.get(stamp, {})
         self._pose = rec.odometry.get(stamp, self._pose)
-        kf_stamp = (rec.nearest_scan(parse_seconds(values['keyframe_stamp']))
-                    if values.get('keyframe_stamp') else stamp)
+        kf_stamp = (
+            rec.nearest_scan(parse_seconds(values['keyframe_stamp']))
+            if values.get('keyframe_stamp')
+            else stamp
+        )
         kf_index = self._index_of.get(kf_stamp, k)
         registered = k > 0 and bool(values) and kf_index != k
         T = rec.transforms.get(stamp)
         return FrameEstimate(
-            self._pose, kf_index if registered else None, T if registered else None,
+            self._pose,
+            kf_index if registered else None,
+            T if registered else None,
             accepted=(T is not None) if registered else bool(values),
             latency_ms=float(values.get('processing_ms', math.nan)),
             correspondences=int(float(values.get('correspondences', 0))),
             estimator_inliers=int(float(values.get('num_inliers', 0))),
             mode=values.get('mode', ''),
-            message=rec.messages.get(stamp, 'no answer from the node'))
+            message=rec.messages.get(stamp, 'no answer from the node'),
+        )

@@ -48,8 +48,9 @@ def percentile(values: list[float], q: float) -> float:
     return float(np.percentile(values, q)) if values else float('nan')
 
 
-def bench_node_latency(pairs: list[Any], repeats: int, rate_hz: float, probe: Any,
-                       bounds: EvaluationConfig) -> list[dict]:
+def bench_node_latency(
+    pairs: list[Any], repeats: int, rate_hz: float, probe: Any, bounds: EvaluationConfig
+) -> list[dict]:
     """Publish every pair as reset, dst, src, dst, ... at ``rate_hz``; one record per frame."""
     period, records, stamp_s = 1.0 / rate_hz, [], 1000.0
     for pair in pairs:
@@ -68,25 +69,41 @@ def bench_node_latency(pairs: list[Any], repeats: int, rate_hz: float, probe: An
             status = probe.status_for(stamp, timeout=30.0)
             if frame > 0:
                 found = probe.wait_until(lambda s=stamp: probe.find('transform', s), 0.5)
-                records.append({
-                    'pair': pair.name, 'frame': frame,
-                    'node_ms': float(status['latency_ms']) if status and 'latency_ms' in status
-                    else None,
-                    'e2e_ms': 1e3 * (found[0] - published) if found else None,
-                    'processing_ms': float(status['processing_ms']) if status else None,
-                    'success': found is not None,
-                    **transform_errors(found[1] if found else None, pair.trans_gt,
-                                       frame % 2, which.get((status or {}).get(
-                                           'keyframe_stamp', ''), 1 - frame % 2), bounds),
-                    'stages_ms': {k[6:]: float(v) for k, v in (status or {}).items()
-                                  if k.startswith('stage.')},
-                })
+                records.append(
+                    {
+                        'pair': pair.name,
+                        'frame': frame,
+                        'node_ms': float(status['latency_ms'])
+                        if status and 'latency_ms' in status
+                        else None,
+                        'e2e_ms': 1e3 * (found[0] - published) if found else None,
+                        'processing_ms': float(status['processing_ms']) if status else None,
+                        'success': found is not None,
+                        **transform_errors(
+                            found[1] if found else None,
+                            pair.trans_gt,
+                            frame % 2,
+                            which.get((status or {}).get('keyframe_stamp', ''), 1 - frame % 2),
+                            bounds,
+                        ),
+                        'stages_ms': {
+                            k[6:]: float(v)
+                            for k, v in (status or {}).items()
+                            if k.startswith('stage.')
+                        },
+                    }
+                )
             time.sleep(max(0.0, period - (time.perf_counter() - tick)))
     return records
 
 
-def transform_errors(message: Any, truth: np.ndarray | None, current: int, keyframe: int,
-                     bounds: EvaluationConfig | None = None) -> dict[str, Any]:
+def transform_errors(
+    message: Any,
+    truth: np.ndarray | None,
+    current: int,
+    keyframe: int,
+    bounds: EvaluationConfig | None = None,
+) -> dict[str, Any]:
     """
     RE (deg), TE (m) and success of a transform message against the pair's ground truth.
 
@@ -98,37 +115,58 @@ def transform_errors(message: Any, truth: np.ndarray | None, current: int, keyfr
         return {}
     bounds = bounds or EvaluationConfig()
     estimate = transform_message_to_matrix(message.transform)
-    expected = (np.eye(4) if current == keyframe else truth if current == 1
-                else invert_transform(truth))
+    expected = (
+        np.eye(4) if current == keyframe else truth if current == 1 else invert_transform(truth)
+    )
     rotation_error = rotation_error_deg(estimate[:3, :3], expected[:3, :3])
     translation_error = translation_error_m(estimate[:3, 3], expected[:3, 3])
-    return {'rotation_error_deg': rotation_error, 'translation_error_m': translation_error,
-            'correct': bounds.succeeded(rotation_error, translation_error)}
+    return {
+        'rotation_error_deg': rotation_error,
+        'translation_error_m': translation_error,
+        'correct': bounds.succeeded(rotation_error, translation_error),
+    }
 
 
 def latency_summary(records: list[dict]) -> dict[str, Any]:
     """p50/p95/mean of node and end-to-end latency, stage medians, success rate."""
-    out: dict[str, Any] = {'frames': len(records),
-                           'registered': sum(r['success'] for r in records),
-                           'correct': sum(r.get('correct', False) for r in records)}
+    out: dict[str, Any] = {
+        'frames': len(records),
+        'registered': sum(r['success'] for r in records),
+        'correct': sum(r.get('correct', False) for r in records),
+    }
     for key in ('node_ms', 'e2e_ms', 'processing_ms'):
         values = [r[key] for r in records if r[key] is not None]
-        out[key] = {'p50': percentile(values, 50), 'p95': percentile(values, 95),
-                    'mean': float(np.mean(values)) if values else float('nan')}
+        out[key] = {
+            'p50': percentile(values, 50),
+            'p95': percentile(values, 95),
+            'mean': float(np.mean(values)) if values else float('nan'),
+        }
     stages = sorted({k for r in records for k in r['stages_ms']})
-    out['stage_p50_ms'] = {s: percentile([r['stages_ms'][s] for r in records
-                                          if s in r['stages_ms']], 50) for s in stages}
+    out['stage_p50_ms'] = {
+        s: percentile([r['stages_ms'][s] for r in records if s in r['stages_ms']], 50)
+        for s in stages
+    }
     return out
 
 
 def latency_table(result: dict[str, Any], bounds: EvaluationConfig) -> ResultTable:
     """(metric, unit, value) of :func:`latency_summary`."""
-    rows = [['frames registered', '', f'{result["registered"]}/{result["frames"]}'],
-            [f'  of them RE <= {bounds.max_rotation_deg:g} deg, TE <= '
-             f'{bounds.max_translation_m:g} m', '', f'{result["correct"]}/{result["frames"]}']]
-    for key, label in (('node_ms', 'node latency'), ('e2e_ms', 'end-to-end latency'),
-                       ('processing_ms', 'core prepare+register')):
+    rows = [
+        ['frames registered', '', f'{result["registered"]}/{result["frames"]}'],
+        [
+            f'  of them RE <= {bounds.max_rotation_deg:g} deg, TE <= '
+            f'{bounds.max_translation_m:g} m',
+            '',
+            f'{result["correct"]}/{result["frames"]}',
+        ],
+    ]
+    for key, label in (
+        ('node_ms', 'node latency'),
+        ('e2e_ms', 'end-to-end latency'),
+        ('processing_ms', 'core prepare+register'),
+    ):
         rows += [[f'{label} {q}', 'ms', f'{result[key][q]:.1f}'] for q in ('p50', 'p95', 'mean')]
-    rows += [[f'  stage {stage} p50', 'ms', f'{ms:.1f}']
-             for stage, ms in result['stage_p50_ms'].items()]
+    rows += [
+        [f'  stage {stage} p50', 'ms', f'{ms:.1f}'] for stage, ms in result['stage_p50_ms'].items()
+    ]
     return ResultTable(('metric', 'unit', 'value'), rows, left_columns=2)

@@ -46,8 +46,9 @@ def _sum_timings(*dicts: dict[str, float]) -> dict[str, float]:
     return out
 
 
-def run_pair(registration: Any, pair: Any, descriptor: str, bounds: EvaluationConfig
-             ) -> tuple[Any, Any, dict[str, float]]:
+def run_pair(
+    registration: Any, pair: Any, descriptor: str, bounds: EvaluationConfig
+) -> tuple[Any, Any, dict[str, float]]:
     """
     Register one pair; return ``(RegistrationResult, PairMetrics, timings_ms)``.
 
@@ -60,16 +61,28 @@ def run_pair(registration: Any, pair: Any, descriptor: str, bounds: EvaluationCo
         desc_src, desc_dst = pair.descriptors(descriptor)
     start = time.perf_counter()
     source, target = registration.prepare_scans(  # concurrently, on two threads
-        {'points': pair.pts_src, 'labels': pair.label_src, 'keypoints': pair.kpts_src,
-         'descriptors': desc_src, 'voxelize': False},
-        {'points': pair.pts_dst, 'labels': pair.label_dst, 'keypoints': pair.kpts_dst,
-         'descriptors': desc_dst, 'voxelize': False})
+        {
+            'points': pair.pts_src,
+            'labels': pair.label_src,
+            'keypoints': pair.kpts_src,
+            'descriptors': desc_src,
+            'voxelize': False,
+        },
+        {
+            'points': pair.pts_dst,
+            'labels': pair.label_dst,
+            'keypoints': pair.kpts_dst,
+            'descriptors': desc_dst,
+            'voxelize': False,
+        },
+    )
     result = registration.register(source, target)
     total_ms = 1e3 * (time.perf_counter() - start)
     timings = _sum_timings(source.timings_ms, target.timings_ms, result.timings_ms)
     timings['total_ms'] = total_ms
-    metrics = score_pair(result.transform, result.source_points, result.target_points,
-                         pair.trans_gt, bounds)
+    metrics = score_pair(
+        result.transform, result.source_points, result.target_points, pair.trans_gt, bounds
+    )
     return result, metrics, timings
 
 
@@ -93,10 +106,13 @@ def verification_summary(diagnostics: dict[str, Any]) -> dict[str, Any] | None:
     if count is None:
         return None
     fields = ('rank', 'inliers', 'overlap', 'label_agreement', 'score')
-    return {'switched': diagnostics['verification_switched'],
-            'chosen_rank': diagnostics['verification_chosen_rank'],
-            'hypotheses': [{f: diagnostics[f'verification_h{i}_{f}'] for f in fields}
-                           for i in range(count)]}
+    return {
+        'switched': diagnostics['verification_switched'],
+        'chosen_rank': diagnostics['verification_chosen_rank'],
+        'hypotheses': [
+            {f: diagnostics[f'verification_h{i}_{f}'] for f in fields} for i in range(count)
+        ],
+    }
 
 
 def summarize_pairs(metrics: list[Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
@@ -106,13 +122,15 @@ def summarize_pairs(metrics: list[Any], rows: list[dict[str, Any]]) -> dict[str,
     summary = summarize(metrics)
     stages = sorted({stage for row in rows for stage in row['time_ms']})
     # A stage absent from a pair (e.g. bmr_ss_ms in a GM-only fallback) took 0 ms there.
-    summary['time_ms'] = {stage: sum(r['time_ms'].get(stage, 0.0) for r in rows) / len(rows)
-                          for stage in stages}
+    summary['time_ms'] = {
+        stage: sum(r['time_ms'].get(stage, 0.0) for r in rows) / len(rows) for stage in stages
+    }
     return summary
 
 
-def evaluate_directory(directory: Path, descriptor: str, config: Any,
-                       bounds: EvaluationConfig, progress: bool = True) -> dict[str, Any]:
+def evaluate_directory(
+    directory: Path, descriptor: str, config: Any, bounds: EvaluationConfig, progress: bool = True
+) -> dict[str, Any]:
     """Run every pair of ``directory``; return the JSON report (config, pairs, summary)."""
     from mlsemreg_ros.core.pipeline import Registration
     from mlsemreg_ros.datasets.pairs import list_pairs, load_pair, PairFileError
@@ -132,19 +150,29 @@ def evaluate_directory(directory: Path, descriptor: str, config: Any,
         except (PairFileError, OSError, ValueError) as error:
             raise EvalError(f'cannot read {path}: {error}') from None
         if descriptor != 'fpfh' and descriptor not in pair.descriptor_names:
-            raise EvalError(f'{path} has no {descriptor!r} descriptors (stored: '
-                            f'{pair.descriptor_names or "none"}); try --descriptor fpfh')
+            raise EvalError(
+                f'{path} has no {descriptor!r} descriptors (stored: '
+                f'{pair.descriptor_names or "none"}); try --descriptor fpfh'
+            )
         if descriptor != 'fpfh' and (pair.kpts_src is None or pair.kpts_dst is None):
             raise EvalError(f'{path} has descriptors but no keypoints (kpts_src/kpts_dst)')
         result, metrics, timings = run_pair(registration, pair, descriptor, bounds)
         all_metrics.append(metrics)
         row = pair_row(pair.name, metrics, timings)
-        row.update(mode=result.mode, estimator_inliers=result.num_inliers,
-                   message=result.message,
-                   verification=verification_summary(result.diagnostics))
+        row.update(
+            mode=result.mode,
+            estimator_inliers=result.num_inliers,
+            message=result.message,
+            verification=verification_summary(result.diagnostics),
+        )
         rows.append(row)
-    return {'directory': str(directory), 'descriptor': descriptor, 'config': config.to_dict(),
-            'pairs': rows, 'summary': summarize_pairs(all_metrics, rows)}
+    return {
+        'directory': str(directory),
+        'descriptor': descriptor,
+        'config': config.to_dict(),
+        'pairs': rows,
+        'summary': summarize_pairs(all_metrics, rows),
+    }
 
 
 def method_label(descriptor: str, config: Any) -> str:
@@ -152,13 +180,16 @@ def method_label(descriptor: str, config: Any) -> str:
     mode = 'plain' if not config.semantic.enabled else 'ML-SemReg'
     name = 'Open3D FPFH' if config.features.descriptor == 'fpfh_open3d' else descriptor.upper()
     fine = config.fine.pair_method
-    return (f'{name} + {config.matcher.kind.upper()} ({mode}) + {config.estimator.kind}'
-            f'{" + verification" if config.verification.enabled else ""}'
-            f'{"" if fine == "off" else " + " + fine.upper()}')
+    return (
+        f'{name} + {config.matcher.kind.upper()} ({mode}) + {config.estimator.kind}'
+        f'{" + verification" if config.verification.enabled else ""}'
+        f'{"" if fine == "off" else " + " + fine.upper()}'
+    )
 
 
-def run_baselines(directory: Path, names: list[str], config: Any, bounds: EvaluationConfig,
-                  progress: bool = True) -> dict[str, dict[str, Any]]:
+def run_baselines(
+    directory: Path, names: list[str], config: Any, bounds: EvaluationConfig, progress: bool = True
+) -> dict[str, dict[str, Any]]:
     """Run the named baselines on the pairs of ``directory``; reports by method label."""
     from mlsemreg_ros.datasets.pairs import list_pairs
     from mlsemreg_ros.evaluation.baselines import evaluate_kiss_matcher, fpfh_ransac_config

@@ -64,8 +64,12 @@ def expected_frames(total: int, stride: int, max_frames: int | None) -> int:
     return n if max_frames is None else min(n, max_frames)
 
 
-def replay(source: ScanSource, estimator: SequenceEstimator, bounds: EvaluationConfig,
-           options: ReplayOptions | None = None) -> EvalRun:
+def replay(
+    source: ScanSource,
+    estimator: SequenceEstimator,
+    bounds: EvaluationConfig,
+    options: ReplayOptions | None = None,
+) -> EvalRun:
     """
     Run every selected scan of ``source`` through ``estimator`` and score it.
 
@@ -86,9 +90,13 @@ def replay(source: ScanSource, estimator: SequenceEstimator, bounds: EvaluationC
     stage_sums: dict[str, float] = {}
     plot_pair = None
     start = time.perf_counter()
-    for scan in tqdm(source.scans(options.stride, options.max_frames), total=expected,
-                     desc=source.name + estimator.progress_label, unit='scan',
-                     disable=not options.progress):
+    for scan in tqdm(
+        source.scans(options.stride, options.max_frames),
+        total=expected,
+        desc=source.name + estimator.progress_label,
+        unit='scan',
+        disable=not options.progress,
+    ):
         gt = scan.pose
         if options.gt_poses is not None:
             gt = options.gt_poses[scan.index] if scan.index < options.gt_poses.shape[0] else None
@@ -103,32 +111,55 @@ def replay(source: ScanSource, estimator: SequenceEstimator, bounds: EvaluationC
         stamps.append(scan.stamp_ns)
         poses.append(estimate.pose.copy())
         gts.append(gt)
-        if (plot_pair is None and estimate.clouds is not None and scan.index >= plot_frame
-                and gt is not None and gt_keyframe is not None):
-            plot_pair = correspondence_plot_data(estimate, relative_transform(gt_keyframe, gt),
-                                                 scan.index, kf, bounds)
+        if (
+            plot_pair is None
+            and estimate.clouds is not None
+            and scan.index >= plot_frame
+            and gt is not None
+            and gt_keyframe is not None
+        ):
+            plot_pair = correspondence_plot_data(
+                estimate, relative_transform(gt_keyframe, gt), scan.index, kf, bounds
+            )
     wall = time.perf_counter() - start
     gt_array = None
     if gts and all(g is not None for g in gts):
         gt_array = np.asarray(gts)
         gt_array = relative_transform(gt_array[0], gt_array)
     n = max(len(records), 1)
-    return EvalRun(source.name, records, np.asarray(stamps, dtype=np.int64),
-                   np.asarray(poses).reshape(-1, 4, 4), gt_array, wall,
-                   {k: v / n for k, v in sorted(stage_sums.items())}, plot_pair,
-                   estimator.method)
+    return EvalRun(
+        source.name,
+        records,
+        np.asarray(stamps, dtype=np.int64),
+        np.asarray(poses).reshape(-1, 4, 4),
+        gt_array,
+        wall,
+        {k: v / n for k, v in sorted(stage_sums.items())},
+        plot_pair,
+        estimator.method,
+    )
 
 
-def correspondence_plot_data(estimate: FrameEstimate, T_gt: np.ndarray, index: int,
-                             keyframe_index: int, bounds: EvaluationConfig
-                             ) -> dict[str, np.ndarray]:
+def correspondence_plot_data(
+    estimate: FrameEstimate,
+    T_gt: np.ndarray,
+    index: int,
+    keyframe_index: int,
+    bounds: EvaluationConfig,
+) -> dict[str, np.ndarray]:
     """Collect the arrays of ``correspondences.png`` (see ``reports.write_plots``)."""
     clouds = estimate.clouds
-    return {'target_points': clouds.target_points, 'source_points': clouds.source_points,
-            'T_gt': T_gt, 'target_labels': clouds.target_labels,
-            'source_labels': clouds.source_labels,
-            'source_keypoints': estimate.source_points,
-            'target_keypoints': estimate.target_points,
-            'inliers': inlier_mask(estimate.source_points, estimate.target_points, T_gt,
-                                   bounds.inlier_threshold),
-            'bag_index': np.array(index), 'keyframe_index': np.array(keyframe_index)}
+    return {
+        'target_points': clouds.target_points,
+        'source_points': clouds.source_points,
+        'T_gt': T_gt,
+        'target_labels': clouds.target_labels,
+        'source_labels': clouds.source_labels,
+        'source_keypoints': estimate.source_points,
+        'target_keypoints': estimate.target_points,
+        'inliers': inlier_mask(
+            estimate.source_points, estimate.target_points, T_gt, bounds.inlier_threshold
+        ),
+        'bag_index': np.array(index),
+        'keyframe_index': np.array(keyframe_index),
+    }

@@ -52,6 +52,7 @@ def effective_config(config: Settings) -> dict[str, Any]:
 
 def write_json(path: Path, report: dict[str, Any]) -> None:
     """Write ``report`` as strict JSON (NaN/inf become null), creating parent folders."""
+
     def clean(value: Any) -> Any:
         if isinstance(value, dict):
             return {str(k): clean(v) for k, v in value.items()}
@@ -67,9 +68,16 @@ def write_json(path: Path, report: dict[str, Any]) -> None:
     path.write_text(json.dumps(clean(report), indent=2, allow_nan=False) + '\n')
 
 
-def write_results(out: Path, run: EvalRun, summary: dict, details: dict, config: dict | None,
-                  bounds: EvaluationConfig, plots: bool = True,
-                  extra: dict[str, np.ndarray] | None = None) -> None:
+def write_results(
+    out: Path,
+    run: EvalRun,
+    summary: dict,
+    details: dict,
+    config: dict | None,
+    bounds: EvaluationConfig,
+    plots: bool = True,
+    extra: dict[str, np.ndarray] | None = None,
+) -> None:
     """Write the results folder (see the module docstring); ``extra``: more trajectories."""
     from mlsemreg_ros.datasets.pose_files import write_kitti_poses, write_tum_poses
 
@@ -94,36 +102,57 @@ def write_results(out: Path, run: EvalRun, summary: dict, details: dict, config:
         write_plots(out, run, summary, bounds, extra)
 
 
-def write_plots(out: Path, run: EvalRun, summary: dict, bounds: EvaluationConfig,
-                extra: dict[str, np.ndarray] | None = None) -> None:
+def write_plots(
+    out: Path,
+    run: EvalRun,
+    summary: dict,
+    bounds: EvaluationConfig,
+    extra: dict[str, np.ndarray] | None = None,
+) -> None:
     """Plot trajectory.png, errors.png and correspondences.png (``extra``: more paths)."""
     from mlsemreg_ros.evaluation import plots
 
     rejected = np.array([r.registered and not r.accepted for r in run.records])
     rr = summary['registration_recall_pct']
     rr_text = f'RR {rr:.1f} %' if rr is not None else 'no ground truth'
-    plots.plot_trajectory(out / 'trajectory.png', run.poses, run.gt_poses, rejected,
-                          f'{run.name}: estimated vs ground-truth trajectory ({rr_text})',
-                          extra, label=run.method)
+    plots.plot_trajectory(
+        out / 'trajectory.png',
+        run.poses,
+        run.gt_poses,
+        rejected,
+        f'{run.name}: estimated vs ground-truth trajectory ({rr_text})',
+        extra,
+        label=run.method,
+    )
     registered = [r for r in run.records if r.registered]
     if registered:
-        plots.plot_errors(out / 'errors.png', np.array([r.bag_index for r in registered]),
-                          np.array([r.re_deg for r in registered]),
-                          np.array([r.te_cm for r in registered]),
-                          np.array([r.success for r in registered]),
-                          f'{run.name}: per-frame error against the keyframe ({rr_text})',
-                          max_re_deg=bounds.max_rotation_deg,
-                          max_te_cm=100.0 * bounds.max_translation_m)
+        plots.plot_errors(
+            out / 'errors.png',
+            np.array([r.bag_index for r in registered]),
+            np.array([r.re_deg for r in registered]),
+            np.array([r.te_cm for r in registered]),
+            np.array([r.success for r in registered]),
+            f'{run.name}: per-frame error against the keyframe ({rr_text})',
+            max_re_deg=bounds.max_rotation_deg,
+            max_te_cm=100.0 * bounds.max_translation_m,
+        )
     pair = run.plot_pair
     if pair is not None:
         n_in, n = int(pair['inliers'].sum()), int(pair['inliers'].size)
         plots.plot_correspondences(
-            out / 'correspondences.png', pair['target_points'], pair['source_points'],
-            pair['T_gt'], pair['source_keypoints'], pair['target_keypoints'], pair['inliers'],
-            target_labels=pair['target_labels'], source_labels=pair['source_labels'],
+            out / 'correspondences.png',
+            pair['target_points'],
+            pair['source_points'],
+            pair['T_gt'],
+            pair['source_keypoints'],
+            pair['target_keypoints'],
+            pair['inliers'],
+            target_labels=pair['target_labels'],
+            source_labels=pair['source_labels'],
             title=f'scan {int(pair["bag_index"])} onto keyframe {int(pair["keyframe_index"])}: '
             f'{n_in} of {n} correspondences are ground-truth inliers '
-            f'(IR {100 * n_in / max(n, 1):.1f} %); points coloured by class')
+            f'(IR {100 * n_in / max(n, 1):.1f} %); points coloured by class',
+        )
 
 
 def default_output(root: Path, kind: str, name: str) -> Path:

@@ -44,14 +44,31 @@ from mlsemreg_ros.evaluation.settings import EvaluationConfig
 import numpy as np
 
 #: summary.json keys, in order (the contract of every sequence evaluation).
-SUMMARY_KEYS = ('n_frames', 'registration_recall_pct', 'rotation_error_deg',
-                'translation_error_cm', 'kitti_t_err_pct', 'kitti_r_err_deg_per_100m',
-                'ate_rmse_m', 'latency_ms_p50', 'latency_ms_p95', 'nees_mean')
+SUMMARY_KEYS = (
+    'n_frames',
+    'registration_recall_pct',
+    'rotation_error_deg',
+    'translation_error_cm',
+    'kitti_t_err_pct',
+    'kitti_r_err_deg_per_100m',
+    'ate_rmse_m',
+    'latency_ms_p50',
+    'latency_ms_p95',
+    'nees_mean',
+)
 #: Units of the summary keys (the results table).
-SUMMARY_UNITS = {'n_frames': '', 'registration_recall_pct': '%', 'rotation_error_deg': 'deg',
-                 'translation_error_cm': 'cm', 'kitti_t_err_pct': '%',
-                 'kitti_r_err_deg_per_100m': 'deg/100m', 'ate_rmse_m': 'm',
-                 'latency_ms_p50': 'ms', 'latency_ms_p95': 'ms', 'nees_mean': '(6 ideal)'}
+SUMMARY_UNITS = {
+    'n_frames': '',
+    'registration_recall_pct': '%',
+    'rotation_error_deg': 'deg',
+    'translation_error_cm': 'cm',
+    'kitti_t_err_pct': '%',
+    'kitti_r_err_deg_per_100m': 'deg/100m',
+    'ate_rmse_m': 'm',
+    'latency_ms_p50': 'ms',
+    'latency_ms_p95': 'ms',
+    'nees_mean': '(6 ideal)',
+}
 
 
 def finite_or_none(value: Any) -> Any:
@@ -61,15 +78,33 @@ def finite_or_none(value: Any) -> Any:
     return value
 
 
-def score_pair(transform: np.ndarray, src_pts: np.ndarray, dst_pts: np.ndarray,
-               T_gt: np.ndarray, bounds: EvaluationConfig) -> PairMetrics:
+def score_pair(
+    transform: np.ndarray,
+    src_pts: np.ndarray,
+    dst_pts: np.ndarray,
+    T_gt: np.ndarray,
+    bounds: EvaluationConfig,
+) -> PairMetrics:
     """IN / IR of the correspondences and RE / TE / success of one registered pair."""
-    return evaluate_pair(transform, src_pts, dst_pts, T_gt, bounds.inlier_threshold,
-                         bounds.max_rotation_deg, bounds.max_translation_m)
+    return evaluate_pair(
+        transform,
+        src_pts,
+        dst_pts,
+        T_gt,
+        bounds.inlier_threshold,
+        bounds.max_rotation_deg,
+        bounds.max_translation_m,
+    )
 
 
-def score_frame(frame: int, scan: Scan, estimate: FrameEstimate, gt: np.ndarray | None,
-                gt_keyframe: np.ndarray | None, bounds: EvaluationConfig) -> FrameRecord:
+def score_frame(
+    frame: int,
+    scan: Scan,
+    estimate: FrameEstimate,
+    gt: np.ndarray | None,
+    gt_keyframe: np.ndarray | None,
+    bounds: EvaluationConfig,
+) -> FrameRecord:
     """
     Score one scan of a replay against the ground truth: its ``frames.csv`` row.
 
@@ -92,17 +127,42 @@ def score_frame(frame: int, scan: Scan, estimate: FrameEstimate, gt: np.ndarray 
             if estimate.accepted and estimate.frame_covariance is not None:
                 nees = normalized_estimation_error_squared(T, T_gt, estimate.frame_covariance)
         if estimate.correspondences and estimate.source_points is not None:
-            gt_inliers = int(np.count_nonzero(inlier_mask(
-                estimate.source_points, estimate.target_points, T_gt, bounds.inlier_threshold)))
+            gt_inliers = int(
+                np.count_nonzero(
+                    inlier_mask(
+                        estimate.source_points,
+                        estimate.target_points,
+                        T_gt,
+                        bounds.inlier_threshold,
+                    )
+                )
+            )
             ir = 100.0 * gt_inliers / estimate.correspondences
     success = registered and estimate.accepted and bounds.succeeded(re, te)
     gt_xyz = gt[:3, 3] if gt is not None else (nan, nan, nan)
     return FrameRecord(
-        frame, scan.index, scan.stamp_ns, keyframe_index, registered, bool(estimate.accepted),
-        bool(success), re, 100.0 * te, estimate.correspondences, estimate.estimator_inliers,
-        gt_inliers, ir, estimate.mode, bool(estimate.new_keyframe), estimate.latency_ms,
-        *map(float, estimate.pose[:3, 3]), *map(float, gt_xyz), estimate.message,
-        estimate.source, nees)
+        frame,
+        scan.index,
+        scan.stamp_ns,
+        keyframe_index,
+        registered,
+        bool(estimate.accepted),
+        bool(success),
+        re,
+        100.0 * te,
+        estimate.correspondences,
+        estimate.estimator_inliers,
+        gt_inliers,
+        ir,
+        estimate.mode,
+        bool(estimate.new_keyframe),
+        estimate.latency_ms,
+        *map(float, estimate.pose[:3, 3]),
+        *map(float, gt_xyz),
+        estimate.message,
+        estimate.source,
+        nees,
+    )
 
 
 def summarize_run(run: EvalRun) -> dict[str, Any]:
@@ -111,8 +171,9 @@ def summarize_run(run: EvalRun) -> dict[str, Any]:
     pairs = [r for r in run.records if r.registered and math.isfinite(r.gt_x)]
     ok = [r for r in pairs if r.success]
     nees = [r.nees for r in run.records if math.isfinite(r.nees)]
-    latencies = [r.latency_ms for r in run.records if r.registered] or \
-        [r.latency_ms for r in run.records]
+    latencies = [r.latency_ms for r in run.records if r.registered] or [
+        r.latency_ms for r in run.records
+    ]
     kitti = None
     ate = None
     if run.gt_poses is not None and len(run.records) >= 2:
@@ -155,10 +216,12 @@ def run_details(run: EvalRun, **extra: Any) -> dict[str, Any]:
         'n_rejected': sum(not r.accepted for r in registered),
         'n_success': sum(r.success for r in registered),
         'inlier_ratio_gt_pct_mean': float(np.mean(irs)) if irs else None,
-        'inlier_number_gt_mean': (float(np.mean([r.gt_inliers for r in registered]))
-                                  if registered else None),
-        'correspondences_mean': (float(np.mean([r.correspondences for r in registered]))
-                                 if registered else None),
+        'inlier_number_gt_mean': (
+            float(np.mean([r.gt_inliers for r in registered])) if registered else None
+        ),
+        'correspondences_mean': (
+            float(np.mean([r.correspondences for r in registered])) if registered else None
+        ),
         'modes': modes,
         'pose_sources': sources,
         'path_length_m': path_length,

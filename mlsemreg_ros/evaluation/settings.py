@@ -33,21 +33,37 @@ class EvaluationConfig:
     """When a registration counts as a success, and a correspondence as a true inlier."""
 
     max_rotation_deg: float = param(
-        5.0, 'A registration succeeds when its rotation error RE is at most this (and its '
-        'translation error at most evaluation.max_translation_m).', unit='deg', low=0.0,
-        high=180.0)
+        5.0,
+        'A registration succeeds when its rotation error RE is at most this (and its '
+        'translation error at most evaluation.max_translation_m).',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
     max_translation_m: float = param(
-        0.6, 'A registration succeeds when its translation error TE is at most this.',
-        unit='m', low=0.0, high=100.0)
+        0.6,
+        'A registration succeeds when its translation error TE is at most this.',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
     inlier_threshold: float = param(
-        0.6, 'A correspondence (p, q) is a ground-truth inlier when the distance of T_gt p '
-        'to q is below this (IN, IR).', unit='m', low=0.001, high=10.0)
+        0.6,
+        'A correspondence (p, q) is a ground-truth inlier when the distance of T_gt p '
+        'to q is below this (IN, IR).',
+        unit='m',
+        low=0.001,
+        high=10.0,
+    )
 
     def succeeded(self, rotation_error_deg: float, translation_error_m: float) -> bool:
         """Tell whether RE <= max and TE <= max (NaN fails): the success test of every tool."""
-        return bool(math.isfinite(rotation_error_deg) and math.isfinite(translation_error_m)
-                    and rotation_error_deg <= self.max_rotation_deg
-                    and translation_error_m <= self.max_translation_m)
+        return bool(
+            math.isfinite(rotation_error_deg)
+            and math.isfinite(translation_error_m)
+            and rotation_error_deg <= self.max_rotation_deg
+            and translation_error_m <= self.max_translation_m
+        )
 
 
 @dataclass

@@ -53,8 +53,14 @@ def rss_mb(pid: int) -> float:
     return float('nan')
 
 
-def soak(scans: list[tuple[np.ndarray, np.ndarray]], frames: int, every: int, probe: Any,
-         pid: int, timeout_s: float = 30.0) -> list[SoakSample]:
+def soak(
+    scans: list[tuple[np.ndarray, np.ndarray]],
+    frames: int,
+    every: int,
+    probe: Any,
+    pid: int,
+    timeout_s: float = 30.0,
+) -> list[SoakSample]:
     """Publish ``frames`` scans (looping over ``scans``) to the node; sample its RSS."""
     samples = [SoakSample(0, rss_mb(pid), 0.0)]
     start = time.monotonic()

@@ -54,12 +54,21 @@ def render(table: ResultTable) -> Any:
     from rich import box
     from rich.table import Table
 
-    out = Table(title=table.title, box=box.SIMPLE, show_edge=False, pad_edge=False,
-                show_footer=table.footer is not None, title_justify='left')
+    out = Table(
+        title=table.title,
+        box=box.SIMPLE,
+        show_edge=False,
+        pad_edge=False,
+        show_footer=table.footer is not None,
+        title_justify='left',
+    )
     for i, header in enumerate(table.headers):
-        out.add_column(header, justify='left' if i < table.left_columns else 'right',
-                       no_wrap=True,
-                       footer=table.footer[i] if table.footer is not None else '')
+        out.add_column(
+            header,
+            justify='left' if i < table.left_columns else 'right',
+            no_wrap=True,
+            footer=table.footer[i] if table.footer is not None else '',
+        )
     for row in table.rows:
         out.add_row(*row)
     return out
@@ -90,29 +99,50 @@ def print_text(text: str) -> None:
 
 
 # -- the tables of the tools -------------------------------------------------------------
-def sequence_summary_table(summary: dict[str, Any], method: str = 'value',
-                           others: dict[str, dict[str, Any]] | None = None) -> ResultTable:
+def sequence_summary_table(
+    summary: dict[str, Any], method: str = 'value', others: dict[str, dict[str, Any]] | None = None
+) -> ResultTable:
     """(metric, unit, value) of a sequence evaluation; ``others`` add columns by method."""
     columns = {method if others else 'value': summary, **(others or {})}
-    return ResultTable(['metric', 'unit', *columns],
-                       [[key, SUMMARY_UNITS[key], *(cell(s[key]) for s in columns.values())]
-                        for key in SUMMARY_KEYS], left_columns=2)
+    return ResultTable(
+        ['metric', 'unit', *columns],
+        [
+            [key, SUMMARY_UNITS[key], *(cell(s[key]) for s in columns.values())]
+            for key in SUMMARY_KEYS
+        ],
+        left_columns=2,
+    )
 
 
 def pair_results_table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> ResultTable:
     """Paper-style table: one line per pair and a mean line (RE/TE over successes only)."""
-    lines = [[r['name'], str(r['n_correspondences']), str(r['inlier_number']),
-              cell(r['inlier_ratio_pct'], 2), cell(r['rotation_error_deg'], 2),
-              cell(r['translation_error_cm'], 1), 'yes' if r['success'] else 'no',
-              cell(r['time_ms']['total_ms'], 0)] for r in rows]
+    lines = [
+        [
+            r['name'],
+            str(r['n_correspondences']),
+            str(r['inlier_number']),
+            cell(r['inlier_ratio_pct'], 2),
+            cell(r['rotation_error_deg'], 2),
+            cell(r['translation_error_cm'], 1),
+            'yes' if r['success'] else 'no',
+            cell(r['time_ms']['total_ms'], 0),
+        ]
+        for r in rows
+    ]
     mean_corr = sum(r['n_correspondences'] for r in rows) / max(len(rows), 1)
-    footer = ['mean', cell(mean_corr, 1), cell(summary['inlier_number'], 1),
-              cell(summary['inlier_ratio_pct'], 2), cell(summary['rotation_error_deg'], 2),
-              cell(summary['translation_error_cm'], 1),
-              f'RR {cell(summary["registration_recall_pct"], 1)}%',
-              cell(summary['time_ms'].get('total_ms'), 0)]
-    return ResultTable(('pair', '#corr', 'IN', 'IR %', 'RE deg', 'TE cm', 'success',
-                        'total ms'), lines, footer)
+    footer = [
+        'mean',
+        cell(mean_corr, 1),
+        cell(summary['inlier_number'], 1),
+        cell(summary['inlier_ratio_pct'], 2),
+        cell(summary['rotation_error_deg'], 2),
+        cell(summary['translation_error_cm'], 1),
+        f'RR {cell(summary["registration_recall_pct"], 1)}%',
+        cell(summary['time_ms'].get('total_ms'), 0),
+    ]
+    return ResultTable(
+        ('pair', '#corr', 'IN', 'IR %', 'RE deg', 'TE cm', 'success', 'total ms'), lines, footer
+    )
 
 
 def comparison_table(reports: dict[str, dict[str, Any]]) -> ResultTable:
@@ -124,9 +154,16 @@ def comparison_table(reports: dict[str, dict[str, Any]]) -> ResultTable:
     lines = []
     for label, report in reports.items():
         s = report['summary']
-        lines.append([label, cell(s['registration_recall_pct'], 1),
-                      cell(s['rotation_error_deg'], 2), cell(s['translation_error_cm'], 1),
-                      cell(s['time_ms'].get('total_ms'), 0), str(s['n_pairs'])])
+        lines.append(
+            [
+                label,
+                cell(s['registration_recall_pct'], 1),
+                cell(s['rotation_error_deg'], 2),
+                cell(s['translation_error_cm'], 1),
+                cell(s['time_ms'].get('total_ms'), 0),
+                str(s['n_pairs']),
+            ]
+        )
     return ResultTable(('method', 'RR %', 'RE deg', 'TE cm', 'ms/pair', 'pairs'), lines)
 
 
@@ -140,10 +177,13 @@ def per_pair_table(reports: dict[str, dict[str, Any]]) -> tuple[ResultTable, str
         cells = [name]
         for label in labels:
             row = by_name[label].get(name)
-            cells.append('n/a' if row is None else
-                         f'{cell(row["rotation_error_deg"], 2)} / '
-                         f'{cell(row["translation_error_cm"], 1)} '
-                         f'{"ok" if row["success"] else "--"}')
+            cells.append(
+                'n/a'
+                if row is None
+                else f'{cell(row["rotation_error_deg"], 2)} / '
+                f'{cell(row["translation_error_cm"], 1)} '
+                f'{"ok" if row["success"] else "--"}'
+            )
         lines.append(cells)
     legend = '\n'.join(f'[{i + 1}] {label}' for i, label in enumerate(labels))
     headers = ('pair', *(f'[{i + 1}] RE deg / TE cm' for i in range(len(labels))))

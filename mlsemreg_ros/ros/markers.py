@@ -76,8 +76,9 @@ def _marker(header: Header, ns: str, kind: int, scale: float, rgba: tuple) -> Ma
     return marker
 
 
-def _lines(header: Header, ns: str, a: np.ndarray, b: np.ndarray, rgba: tuple,
-           max_lines: int) -> Marker | None:
+def _lines(
+    header: Header, ns: str, a: np.ndarray, b: np.ndarray, rgba: tuple, max_lines: int
+) -> Marker | None:
     """LINE_LIST from a[k] to b[k] (each (K, 3)); None when there is nothing to draw."""
     keep = evenly(a.shape[0], max_lines)
     if keep.size == 0:
@@ -89,9 +90,15 @@ def _lines(header: Header, ns: str, a: np.ndarray, b: np.ndarray, rgba: tuple,
     return marker
 
 
-def correspondence_markers(header: Header, result: RegistrationResult, landmarks: Landmarks,
-                           class_names: tuple[str, ...], *, publish_outliers: bool,
-                           max_lines: int) -> MarkerArray:
+def correspondence_markers(
+    header: Header,
+    result: RegistrationResult,
+    landmarks: Landmarks,
+    class_names: tuple[str, ...],
+    *,
+    publish_outliers: bool,
+    max_lines: int,
+) -> MarkerArray:
     """
     Draw one registration as a MarkerArray in the current scan's frame (``header``).
 
@@ -104,17 +111,35 @@ def correspondence_markers(header: Header, result: RegistrationResult, landmarks
     current = result.source_points
     inl = result.inlier_mask
     markers = [Marker(header=header, action=Marker.DELETEALL)]
-    drawn = [_lines(header, 'inliers', keyframe_in_current[inl], current[inl],
-                    (0.1, 0.9, 0.1, 0.9), max_lines)]
+    drawn = [
+        _lines(
+            header,
+            'inliers',
+            keyframe_in_current[inl],
+            current[inl],
+            (0.1, 0.9, 0.1, 0.9),
+            max_lines,
+        )
+    ]
     if publish_outliers:
-        drawn.append(_lines(header, 'outliers', keyframe_in_current[~inl], current[~inl],
-                            (0.9, 0.1, 0.1, 0.5), max_lines))
+        drawn.append(
+            _lines(
+                header,
+                'outliers',
+                keyframe_in_current[~inl],
+                current[~inl],
+                (0.9, 0.1, 0.1, 0.5),
+                max_lines,
+            )
+        )
     if len(landmarks):
-        spheres = _marker(header, 'landmarks', Marker.SPHERE_LIST, SPHERE_DIAMETER_M,
-                          (1.0, 1.0, 1.0, 1.0))
+        spheres = _marker(
+            header, 'landmarks', Marker.SPHERE_LIST, SPHERE_DIAMETER_M, (1.0, 1.0, 1.0, 1.0)
+        )
         spheres.points = to_points(landmarks.centroids)
-        palette = {int(c): class_color(class_names[int(c)], int(c))
-                   for c in np.unique(landmarks.classes)}
+        palette = {
+            int(c): class_color(class_names[int(c)], int(c)) for c in np.unique(landmarks.classes)
+        }
         spheres.colors = [palette[c] for c in landmarks.classes.tolist()]
         drawn.append(spheres)
     markers += [m for m in drawn if m is not None]

@@ -41,7 +41,11 @@ def _transform(transform: np.ndarray) -> Transform:
     out = Transform()
     out.translation.x, out.translation.y, out.translation.z = map(float, transform[:3, 3])
     out.rotation.x, out.rotation.y, out.rotation.z, out.rotation.w = (
-        float(x), float(y), float(z), float(w))
+        float(x),
+        float(y),
+        float(z),
+        float(w),
+    )
     return out
 
 
@@ -50,16 +54,21 @@ def pose_msg(transform: np.ndarray) -> Pose:
     t = _transform(transform)
     pose = Pose()
     pose.position.x, pose.position.y, pose.position.z = (
-        t.translation.x, t.translation.y, t.translation.z)
+        t.translation.x,
+        t.translation.y,
+        t.translation.z,
+    )
     pose.orientation = t.rotation
     return pose
 
 
-def transform_msg(stamp: Time, parent: str, child: str, transform: np.ndarray
-                  ) -> TransformStamped:
+def transform_msg(stamp: Time, parent: str, child: str, transform: np.ndarray) -> TransformStamped:
     """4x4 ``T_parent_child`` -> TransformStamped."""
-    return TransformStamped(header=Header(stamp=stamp, frame_id=parent), child_frame_id=child,
-                            transform=_transform(transform))
+    return TransformStamped(
+        header=Header(stamp=stamp, frame_id=parent),
+        child_frame_id=child,
+        transform=_transform(transform),
+    )
 
 
 def pose_stamped(stamp: Time, frame: str, transform: np.ndarray) -> PoseStamped:
@@ -67,30 +76,45 @@ def pose_stamped(stamp: Time, frame: str, transform: np.ndarray) -> PoseStamped:
     return PoseStamped(header=Header(stamp=stamp, frame_id=frame), pose=pose_msg(transform))
 
 
-def odometry_msg(stamp: Time, frame: str, child: str, pose: np.ndarray,
-                 pose_covariance: np.ndarray, twist: np.ndarray,
-                 twist_covariance: np.ndarray) -> Odometry:
+def odometry_msg(
+    stamp: Time,
+    frame: str,
+    child: str,
+    pose: np.ndarray,
+    pose_covariance: np.ndarray,
+    twist: np.ndarray,
+    twist_covariance: np.ndarray,
+) -> Odometry:
     """nav_msgs/Odometry; covariances (6, 6) in ROS order ``[x, y, z, roll, pitch, yaw]``."""
     msg = Odometry(header=Header(stamp=stamp, frame_id=frame), child_frame_id=child)
     msg.pose.pose = pose_msg(pose)
     msg.pose.covariance = np.asarray(pose_covariance, dtype=np.float64).reshape(-1)
     msg.twist.twist.linear.x, msg.twist.twist.linear.y, msg.twist.twist.linear.z = (
-        float(v) for v in twist[:3])
+        float(v) for v in twist[:3]
+    )
     msg.twist.twist.angular.x, msg.twist.twist.angular.y, msg.twist.twist.angular.z = (
-        float(v) for v in twist[3:])
+        float(v) for v in twist[3:]
+    )
     msg.twist.covariance = np.asarray(twist_covariance, dtype=np.float64).reshape(-1)
     return msg
 
 
-LEVELS = {'ok': DiagnosticStatus.OK, 'warn': DiagnosticStatus.WARN,
-          'error': DiagnosticStatus.ERROR}
+LEVELS = {
+    'ok': DiagnosticStatus.OK,
+    'warn': DiagnosticStatus.WARN,
+    'error': DiagnosticStatus.ERROR,
+}
 
 
-def diagnostics_msg(stamp: Time, name: str, hardware_id: str, level: str, message: str,
-                    values: dict[str, Any]) -> DiagnosticArray:
+def diagnostics_msg(
+    stamp: Time, name: str, hardware_id: str, level: str, message: str, values: dict[str, Any]
+) -> DiagnosticArray:
     """Build a DiagnosticArray with one status; floats are written with 3 decimals."""
-    pairs = [KeyValue(key=k, value=f'{v:.3f}' if isinstance(v, float) else str(v))
-             for k, v in values.items()]
-    status = DiagnosticStatus(level=LEVELS[level], name=name, message=message,
-                              hardware_id=hardware_id, values=pairs)
+    pairs = [
+        KeyValue(key=k, value=f'{v:.3f}' if isinstance(v, float) else str(v))
+        for k, v in values.items()
+    ]
+    status = DiagnosticStatus(
+        level=LEVELS[level], name=name, message=message, hardware_id=hardware_id, values=pairs
+    )
     return DiagnosticArray(header=Header(stamp=stamp), status=[status])

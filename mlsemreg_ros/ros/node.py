@@ -175,10 +175,13 @@ class MlSemRegNode(Node):
         self._stream = StampGaps()
         self._counts = collections.Counter()
         self._latencies: collections.deque[float] = collections.deque(maxlen=100)
-        qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=config.node.qos.depth,
-                         reliability=ReliabilityPolicy.BEST_EFFORT
-                         if config.node.qos.reliability == 'best_effort'
-                         else ReliabilityPolicy.RELIABLE)
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST,
+            depth=config.node.qos.depth,
+            reliability=ReliabilityPolicy.BEST_EFFORT
+            if config.node.qos.reliability == 'best_effort'
+            else ReliabilityPolicy.RELIABLE,
+        )
         self._pub_transform = self.create_publisher(TransformStamped, 'mlsemreg/transform', 10)
         self._pub_odometry = self.create_publisher(Odometry, 'mlsemreg/odometry', 10)
         self._pub_path = self.create_publisher(Path, 'mlsemreg/path', 1)
@@ -189,13 +192,16 @@ class MlSemRegNode(Node):
         self.create_service(Trigger, 'mlsemreg/reset', self._on_reset)
         self._tf = TransformBroadcaster(self) if TransformBroadcaster is not None else None
         if self._tf is None:
-            self.get_logger().info('tf2_ros is not importable: no TF output '
-                                   '(mlsemreg/odometry carries the same pose)')
+            self.get_logger().info(
+                'tf2_ros is not importable: no TF output (mlsemreg/odometry carries the same pose)'
+            )
         if config.node.keep_freed_memory:
             kernels.keep_freed_memory()
         warm = kernels.warm_up()  # compile or load the numba kernels before the first scan
-        self._startup_ms = {'kernels_ms': warm.get('total_ms', 0.0),
-                            'node_ms': 1e3 * (time.perf_counter() - started)}
+        self._startup_ms = {
+            'kernels_ms': warm.get('total_ms', 0.0),
+            'node_ms': 1e3 * (time.perf_counter() - started),
+        }
         self._slot = LatestSlot()
         self._worker = threading.Thread(target=self._work, name='mlsemreg_worker', daemon=True)
         self._worker.start()
@@ -203,7 +209,8 @@ class MlSemRegNode(Node):
             f'registering scans on {self.resolve_topic_name("points")} '
             f'({config.node.qos.reliability}, label field {config.node.label_field!r}); ready in '
             f'{self._startup_ms["node_ms"]:.0f} ms (kernels {self._startup_ms["kernels_ms"]:.0f} '
-            'ms)')
+            'ms)'
+        )
 
     # -- executor thread ------------------------------------------------------------------
     def _on_points(self, msg: PointCloud2) -> None:
@@ -215,11 +222,18 @@ class MlSemRegNode(Node):
         except PointCloudError as error:
             self._skip(msg.header.stamp, f'skipped malformed PointCloud2: {error}')
             return
-        self._slot.put(Scan(msg.header.stamp, msg.header.frame_id, cloud.xyz, cloud.labels,
-                            received, cloud.dropped_nonfinite))
+        self._slot.put(
+            Scan(
+                msg.header.stamp,
+                msg.header.frame_id,
+                cloud.xyz,
+                cloud.labels,
+                received,
+                cloud.dropped_nonfinite,
+            )
+        )
 
-    def _on_reset(self, request: Trigger.Request, response: Trigger.Response
-                  ) -> Trigger.Response:
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """Drop the keyframe and restart the odometry at identity (from the next scan)."""
         with self._lock:
             self._reset_pending, self._path = True, Path()
@@ -253,18 +267,24 @@ class MlSemRegNode(Node):
             return
         with self._lock:
             reset = self._reset_pending  # a reset arrived while registering: discard
-            latency_ms = (self._publish_step(scan, step, config)
-                          if step.accepted and not reset else None)
+            latency_ms = (
+                self._publish_step(scan, step, config) if step.accepted and not reset else None
+            )
         if reset:
             self._count('frames_dropped_by_reset')
-            self._publish_diagnostics(scan.stamp, 'warn', 'scan dropped: a reset arrived '
-                                      'while it was being registered', {})
+            self._publish_diagnostics(
+                scan.stamp,
+                'warn',
+                'scan dropped: a reset arrived while it was being registered',
+                {},
+            )
             return
         result = step.result
         if step.source == 'first':
             note = f' ({step.reason})' if step.reason else ''
-            self._diagnose(scan, 'ok', f'first scan: keyframe set, odometry at identity{note}',
-                           step)
+            self._diagnose(
+                scan, 'ok', f'first scan: keyframe set, odometry at identity{note}', step
+            )
             return
         if result is not None:
             self._publish_markers(scan, result, step.prepared, config.node)
@@ -276,8 +296,9 @@ class MlSemRegNode(Node):
         else:
             reason = step.reason or (result.message if result is not None else '') or 'rejected'
             self._count('failures')
-            self.get_logger().warning(f'frame rejected, keyframe kept: {reason}',
-                                      throttle_duration_sec=LOG_THROTTLE_S)
+            self.get_logger().warning(
+                f'frame rejected, keyframe kept: {reason}', throttle_duration_sec=LOG_THROTTLE_S
+            )
             self._diagnose(scan, 'warn', f'frame rejected: {reason}', step)
 
     def _check_frame(self, scan: Scan, node: NodeConfig) -> bool:
@@ -288,12 +309,17 @@ class MlSemRegNode(Node):
         self._count('frame_changes')
         if node.frame_change == 'skip':
             self._frame_id = previous  # the odometry stays in the old frame
-            self._skip(scan.stamp, f'skipped scan in frame {scan.frame_id!r}: the odometry runs '
-                       f'in {previous!r} (frame_change: skip)')
+            self._skip(
+                scan.stamp,
+                f'skipped scan in frame {scan.frame_id!r}: the odometry runs '
+                f'in {previous!r} (frame_change: skip)',
+            )
             return False
         self._odometry.reset()
-        self.get_logger().warning(f'frame_id changed from {previous!r} to {scan.frame_id!r}: '
-                                  'odometry reset (frame_change: reset)')
+        self.get_logger().warning(
+            f'frame_id changed from {previous!r} to {scan.frame_id!r}: '
+            'odometry reset (frame_change: reset)'
+        )
         with self._lock:
             self._path = Path()
         return True
@@ -310,15 +336,18 @@ class MlSemRegNode(Node):
                 self._odometry.reconfigure(config.core)  # re-prepares the cached keyframe
             except LabelError as error:  # e.g. label_scheme changed under a raw keyframe
                 self._odometry.reset()
-                self.get_logger().warning(f'keyframe unusable with the new parameters ({error}):'
-                                          ' odometry restarts at identity')
+                self.get_logger().warning(
+                    f'keyframe unusable with the new parameters ({error}):'
+                    ' odometry restarts at identity'
+                )
         return config
 
     def _publish_step(self, scan: Scan, step: OdometryStep, config: ConfigSnapshot) -> float:
         """Publish transform, odometry, path and TF of an accepted step (lock held)."""
         if step.relative is not None:
-            self._pub_transform.publish(messages.transform_msg(
-                scan.stamp, scan.frame_id, scan.frame_id, step.relative))
+            self._pub_transform.publish(
+                messages.transform_msg(scan.stamp, scan.frame_id, scan.frame_id, step.relative)
+            )
             self._counts['registrations'] += 1
         latency_ms = 1e3 * (time.perf_counter() - scan.received)
         self._latencies.append(latency_ms)
@@ -331,44 +360,67 @@ class MlSemRegNode(Node):
         child = node.base_frame or scan.frame_id
         pose = step.pose
         twist = step.twist if step.twist is not None else np.zeros(6)
-        twist_cov = (step.twist_covariance if step.twist_covariance is not None
-                     else np.eye(6) * messages.UNKNOWN_VARIANCE)
-        self._pub_odometry.publish(messages.odometry_msg(
-            scan.stamp, node.odom_frame, child, pose, step.covariance, twist, twist_cov))
+        twist_cov = (
+            step.twist_covariance
+            if step.twist_covariance is not None
+            else np.eye(6) * messages.UNKNOWN_VARIANCE
+        )
+        self._pub_odometry.publish(
+            messages.odometry_msg(
+                scan.stamp, node.odom_frame, child, pose, step.covariance, twist, twist_cov
+            )
+        )
         self._path.header = Header(stamp=scan.stamp, frame_id=node.odom_frame)
         self._path.poses.append(messages.pose_stamped(scan.stamp, node.odom_frame, pose))
         if node.path.max_length and len(self._path.poses) > node.path.max_length:
-            del self._path.poses[:len(self._path.poses) - node.path.max_length]
+            del self._path.poses[: len(self._path.poses) - node.path.max_length]
         now = time.monotonic()  # the whole path is O(length): only when watched, throttled
-        if (self._pub_path.get_subscription_count() > 0
-                and now - self._path_published >= node.path.publish_period):
+        if (
+            self._pub_path.get_subscription_count() > 0
+            and now - self._path_published >= node.path.publish_period
+        ):
             self._path_published = now
             self._pub_path.publish(self._path)
         if node.publish_tf and self._tf is not None:
             self._tf.sendTransform(
                 messages.transform_msg(scan.stamp, child, node.odom_frame, invert_transform(pose))
-                if node.invert_tf else
-                messages.transform_msg(scan.stamp, node.odom_frame, child, pose))
+                if node.invert_tf
+                else messages.transform_msg(scan.stamp, node.odom_frame, child, pose)
+            )
 
     def _publish_local_map(self, scan: Scan, node: NodeConfig) -> None:
         """Publish the local map, at most every ``local_map_period`` s and only if watched."""
         now = time.monotonic()
-        if (node.local_map_period <= 0.0 or self._pub_local_map.get_subscription_count() == 0
-                or now - self._local_map_published < node.local_map_period):
+        if (
+            node.local_map_period <= 0.0
+            or self._pub_local_map.get_subscription_count() == 0
+            or now - self._local_map_published < node.local_map_period
+        ):
             return
         self._local_map_published = now
         header = Header(stamp=scan.stamp, frame_id=node.odom_frame)
-        self._pub_local_map.publish(arrays_to_pointcloud2(
-            PointCloud2, PointField, header, self._odometry.local_map.points()))
+        self._pub_local_map.publish(
+            arrays_to_pointcloud2(
+                PointCloud2, PointField, header, self._odometry.local_map.points()
+            )
+        )
 
-    def _publish_markers(self, scan: Scan, result: RegistrationResult, current: PreparedScan,
-                         node: NodeConfig) -> None:
+    def _publish_markers(
+        self, scan: Scan, result: RegistrationResult, current: PreparedScan, node: NodeConfig
+    ) -> None:
         if self._pub_markers.get_subscription_count() == 0:
             return  # nobody looks: do not build thousands of points
         header = Header(stamp=scan.stamp, frame_id=scan.frame_id)
-        self._pub_markers.publish(correspondence_markers(
-            header, result, current.landmarks, self._label_map.names,
-            publish_outliers=node.publish_outliers, max_lines=MAX_MARKER_LINES))
+        self._pub_markers.publish(
+            correspondence_markers(
+                header,
+                result,
+                current.landmarks,
+                self._label_map.names,
+                publish_outliers=node.publish_outliers,
+                max_lines=MAX_MARKER_LINES,
+            )
+        )
 
     def _skip(self, stamp: Time, reason: str) -> None:
         """Count, log (throttled) and report a scan that cannot be used."""
@@ -376,13 +428,24 @@ class MlSemRegNode(Node):
         self.get_logger().warning(reason, throttle_duration_sec=LOG_THROTTLE_S)
         self._publish_diagnostics(stamp, 'warn', reason, {})
 
-    def _diagnose(self, scan: Scan, level: str, message: str, step: OdometryStep,
-                  latency_ms: float | None = None) -> None:
+    def _diagnose(
+        self,
+        scan: Scan,
+        level: str,
+        message: str,
+        step: OdometryStep,
+        latency_ms: float | None = None,
+    ) -> None:
         """Report one processed frame: counts, latency, stage timings, result summary."""
         values: dict[str, Any] = {'startup.' + k: v for k, v in self._startup_ms.items()}
-        values.update({'dropped_nonfinite_points': scan.dropped_nonfinite,
-                       'keyframe_stamp': f'{1e-9 * step.keyframe_stamp_ns:.9f}',
-                       'processing_ms': step.latency_ms, 'frame_index': step.index})
+        values.update(
+            {
+                'dropped_nonfinite_points': scan.dropped_nonfinite,
+                'keyframe_stamp': f'{1e-9 * step.keyframe_stamp_ns:.9f}',
+                'processing_ms': step.latency_ms,
+                'frame_index': step.index,
+            }
+        )
         if latency_ms is not None:
             values['latency_ms'] = latency_ms
             values['latency_p50_ms'] = float(np.median(self._latencies))
@@ -391,32 +454,53 @@ class MlSemRegNode(Node):
         if step.prepared is not None:  # dropped points, label scheme, out-of-scheme labels
             values.update({f'input.{k}': v for k, v in step.prepared.input_stats.items()})
         for candidate in step.candidates:
-            values[f'fine.{candidate.name}.inlier_fraction'] = \
-                candidate.alignment.inlier_fraction
+            values[f'fine.{candidate.name}.inlier_fraction'] = candidate.alignment.inlier_fraction
             if candidate.refusal:
                 values[f'fine.{candidate.name}.refused'] = candidate.refusal
         if step.result is None and step.source == 'prediction':
             values['mode'] = 'tracking'  # the refined prediction alone, no global registration
         if step.result is not None:
             result = step.result
-            values.update({'mode': result.mode, 'num_inliers': result.num_inliers,
-                           'correspondences': len(result.correspondences)})
-            values.update({k: v for k, v in result.diagnostics.items()
-                           if isinstance(v, (bool, int, float, str))})
+            values.update(
+                {
+                    'mode': result.mode,
+                    'num_inliers': result.num_inliers,
+                    'correspondences': len(result.correspondences),
+                }
+            )
+            values.update(
+                {
+                    k: v
+                    for k, v in result.diagnostics.items()
+                    if isinstance(v, (bool, int, float, str))
+                }
+            )
             if result.message:
                 values['note'] = result.message
         self._publish_diagnostics(scan.stamp, level, message, values)
 
-    def _publish_diagnostics(self, stamp: Time, level: str, message: str,
-                             values: dict[str, Any]) -> None:
+    def _publish_diagnostics(
+        self, stamp: Time, level: str, message: str, values: dict[str, Any]
+    ) -> None:
         with self._lock:
             counts = dict(self._counts)
-        values = {'scan_stamp': f'{stamp_to_seconds(stamp):.9f}',
-                  'frames_dropped': self._slot.dropped,
-                  'frames_lost_estimate': self._stream.lost, **counts, **values}
-        self._pub_diagnostics.publish(messages.diagnostics_msg(
-            self.get_clock().now().to_msg(), f'{self.get_name()}: registration',
-            self.get_fully_qualified_name(), level, message, values))
+        values = {
+            'scan_stamp': f'{stamp_to_seconds(stamp):.9f}',
+            'frames_dropped': self._slot.dropped,
+            'frames_lost_estimate': self._stream.lost,
+            **counts,
+            **values,
+        }
+        self._pub_diagnostics.publish(
+            messages.diagnostics_msg(
+                self.get_clock().now().to_msg(),
+                f'{self.get_name()}: registration',
+                self.get_fully_qualified_name(),
+                level,
+                message,
+                values,
+            )
+        )
 
     def _count(self, key: str) -> None:
         with self._lock:

@@ -37,8 +37,11 @@ class QosConfig:
     """QoS of the ``points`` subscription (read-only: set at startup)."""
 
     reliability: str = param(
-        'best_effort', 'best_effort: sensor-data QoS (drivers publish best effort); reliable: '
-        'for bag playback or reliable publishers.', choices=('best_effort', 'reliable'))
+        'best_effort',
+        'best_effort: sensor-data QoS (drivers publish best effort); reliable: '
+        'for bag playback or reliable publishers.',
+        choices=('best_effort', 'reliable'),
+    )
     depth: int = param(5, 'History depth of the points subscription.', low=1, high=1000)
 
 
@@ -47,12 +50,19 @@ class PathConfig:
     """The ``mlsemreg/path`` output."""
 
     max_length: int = param(
-        10000, 'Poses kept in mlsemreg/path; the oldest are dropped (0: unlimited).',
-        low=0, high=10000000)
+        10000,
+        'Poses kept in mlsemreg/path; the oldest are dropped (0: unlimited).',
+        low=0,
+        high=10000000,
+    )
     publish_period: float = param(
-        1.0, 'Minimum time between two mlsemreg/path messages; the path is published only '
-        'while someone subscribes (its cost grows with its length).', unit='s', low=0.0,
-        high=3600.0)
+        1.0,
+        'Minimum time between two mlsemreg/path messages; the path is published only '
+        'while someone subscribes (its cost grows with its length).',
+        unit='s',
+        low=0.0,
+        high=3600.0,
+    )
 
 
 #: Parameters that only take effect at startup (declared read-only).
@@ -64,30 +74,49 @@ class NodeConfig(Settings):
     """Everything the node needs besides the core's RegistrationConfig (same engine)."""
 
     label_field: str = param(
-        'label', 'Name of the PointCloud2 field holding the semantic label (any integer or '
-        'float datatype).')
-    odom_frame: str = param('odom', 'Frame of mlsemreg/odometry and mlsemreg/path (the pose of '
-                            'the first scan after startup or reset).')
+        'label',
+        'Name of the PointCloud2 field holding the semantic label (any integer or '
+        'float datatype).',
+    )
+    odom_frame: str = param(
+        'odom',
+        'Frame of mlsemreg/odometry and mlsemreg/path (the pose of '
+        'the first scan after startup or reset).',
+    )
     base_frame: str = param(
-        '', "Child frame of the odometry and TF; '' uses the cloud's frame_id. No extrinsic is "
-        "applied: the estimated motion is the sensor's.")
+        '',
+        "Child frame of the odometry and TF; '' uses the cloud's frame_id. No extrinsic is "
+        "applied: the estimated motion is the sensor's.",
+    )
     publish_outliers: bool = param(
-        False, 'Also draw outlier correspondences (red) in mlsemreg/correspondences.')
+        False, 'Also draw outlier correspondences (red) in mlsemreg/correspondences.'
+    )
     publish_tf: bool = param(True, 'Broadcast TF odom_frame -> base_frame (needs tf2_ros).')
     invert_tf: bool = param(
-        False, 'Broadcast base_frame -> odom_frame instead (when base_frame already has a '
-        'parent in the TF tree).')
+        False,
+        'Broadcast base_frame -> odom_frame instead (when base_frame already has a '
+        'parent in the TF tree).',
+    )
     frame_change: str = param(
-        'reset', "What a change of the clouds' frame_id does: reset (the odometry restarts "
+        'reset',
+        "What a change of the clouds' frame_id does: reset (the odometry restarts "
         'in the new frame) or skip (scans in another frame are skipped).',
-        choices=('reset', 'skip'))
+        choices=('reset', 'skip'),
+    )
     keep_freed_memory: bool = param(
-        True, 'At startup, let glibc keep freed memory for reuse (mallopt): the per-scan '
+        True,
+        'At startup, let glibc keep freed memory for reuse (mallopt): the per-scan '
         'temporaries stop costing page faults and the resident size stays at its working '
-        'set instead of swinging by several MB (read-only).')
+        'set instead of swinging by several MB (read-only).',
+    )
     local_map_period: float = param(
-        1.0, 'Minimum time between two mlsemreg/local_map clouds (published only while '
-        'someone subscribes; 0: never).', unit='s', low=0.0, high=3600.0)
+        1.0,
+        'Minimum time between two mlsemreg/local_map clouds (published only while '
+        'someone subscribes; 0: never).',
+        unit='s',
+        low=0.0,
+        high=3600.0,
+    )
     qos: QosConfig = field(default_factory=QosConfig)
     path: PathConfig = field(default_factory=PathConfig)
 
@@ -100,8 +129,9 @@ class NodeConfig(Settings):
             errors.append('odom_frame must not be empty')
         for key in ('odom_frame', 'base_frame'):
             if getattr(self, key).startswith('/'):
-                errors.append(f'{key}={getattr(self, key)!r}: tf2 frame ids must not start '
-                              "with '/'")
+                errors.append(
+                    f"{key}={getattr(self, key)!r}: tf2 frame ids must not start with '/'"
+                )
         if self.base_frame and self.base_frame == self.odom_frame:
             errors.append(f'base_frame and odom_frame are both {self.odom_frame!r}')
         return errors

@@ -49,8 +49,12 @@ def start_node(domain_id: int, params_file: Path | None, log: Path) -> subproces
     args = ['--ros-args', '--params-file', str(params_file)] if params_file is not None else []
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
     env.setdefault('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp')
-    command = [sys.executable, '-c', 'import sys; from mlsemreg_ros.ros.node import main; '
-               'sys.exit(main())', *args]
+    command = [
+        sys.executable,
+        '-c',
+        'import sys; from mlsemreg_ros.ros.node import main; sys.exit(main())',
+        *args,
+    ]
     return subprocess.Popen(command, env=env, stdout=log.open('w'), stderr=subprocess.STDOUT)
 
 

@@ -58,14 +58,18 @@ def _kind(f: dataclasses.Field) -> str:
     return f.type if isinstance(f.type, str) else getattr(f.type, '__name__', str(f.type))
 
 
-def descriptor_for(name: str, f: dataclasses.Field, label_map: LabelMap | None = None
-                   ) -> ParameterDescriptor:
+def descriptor_for(
+    name: str, f: dataclasses.Field, label_map: LabelMap | None = None
+) -> ParameterDescriptor:
     """Build the ParameterDescriptor of a config field (description, unit, range, choices)."""
     meta, kind = f.metadata, _kind(f)
     unit = f' [{meta["unit"]}]' if meta['unit'] else ''
-    descriptor = ParameterDescriptor(name=name, type=_TYPES[kind].value,
-                                     description=meta['description'] + unit,
-                                     read_only=name in READ_ONLY)
+    descriptor = ParameterDescriptor(
+        name=name,
+        type=_TYPES[kind].value,
+        description=meta['description'] + unit,
+        read_only=name in READ_ONLY,
+    )
     constraints = []
     if meta['choices'] is not None:
         constraints.append('one of: ' + ', '.join(meta['choices']))
@@ -76,13 +80,21 @@ def descriptor_for(name: str, f: dataclasses.Field, label_map: LabelMap | None =
     descriptor.additional_constraints = '; '.join(constraints)
     low, high = meta['low'], meta['high']
     if kind == 'float' and (low is not None or high is not None):
-        descriptor.floating_point_range = [FloatingPointRange(
-            from_value=float(low if low is not None else -float('inf')),
-            to_value=float(high if high is not None else float('inf')), step=0.0)]
+        descriptor.floating_point_range = [
+            FloatingPointRange(
+                from_value=float(low if low is not None else -float('inf')),
+                to_value=float(high if high is not None else float('inf')),
+                step=0.0,
+            )
+        ]
     elif kind == 'int' and (low is not None or high is not None):
-        descriptor.integer_range = [IntegerRange(
-            from_value=int(low if low is not None else _INT64[0]),
-            to_value=int(high if high is not None else _INT64[1]), step=0)]
+        descriptor.integer_range = [
+            IntegerRange(
+                from_value=int(low if low is not None else _INT64[0]),
+                to_value=int(high if high is not None else _INT64[1]),
+                step=0,
+            )
+        ]
     return descriptor
 
 
@@ -134,8 +146,9 @@ class LiveParameters:
             return self._snapshot
 
     # ------------------------------------------------------------------------------
-    def _build(self, core: RegistrationConfig, node_cfg: NodeConfig,
-               values: dict[str, Any]) -> tuple[RegistrationConfig, NodeConfig]:
+    def _build(
+        self, core: RegistrationConfig, node_cfg: NodeConfig, values: dict[str, Any]
+    ) -> tuple[RegistrationConfig, NodeConfig]:
         """Apply flat values; ConfigError (with the reason) if the result is invalid."""
         node_keys = set(NodeConfig().to_flat_dict())
         node_values = {k: v for k, v in values.items() if k in node_keys}
@@ -156,8 +169,9 @@ class LiveParameters:
         values = self._ours(parameters)
         unset = sorted(k for k, v in values.items() if v is None)
         if unset:
-            return SetParametersResult(successful=False,
-                                       reason=f'parameters cannot be unset: {unset}')
+            return SetParametersResult(
+                successful=False, reason=f'parameters cannot be unset: {unset}'
+            )
         current = self.snapshot()
         try:
             self._build(current.core, current.node, values)
@@ -178,7 +192,8 @@ class LiveParameters:
             self._snapshot = ConfigSnapshot(core, node_cfg, version)
         self._node.get_logger().info(
             'parameters changed (from the next frame on): '
-            + ', '.join(f'{k}={v!r}' for k, v in values.items()))
+            + ', '.join(f'{k}={v!r}' for k, v in values.items())
+        )
 
 
 def nested_defaults() -> dict[str, Any]:

@@ -67,8 +67,13 @@ class PlayOptions:
 class Player:
     """Publishes the messages of one bag on a node (create, then :meth:`run`)."""
 
-    def __init__(self, node: Any, bag: str | Path, options: PlayOptions | None = None,
-                 answered: Callable[[int], bool] | None = None) -> None:
+    def __init__(
+        self,
+        node: Any,
+        bag: str | Path,
+        options: PlayOptions | None = None,
+        answered: Callable[[int], bool] | None = None,
+    ) -> None:
         """
         Open the bag and create one publisher per topic on ``node``.
 
@@ -92,16 +97,25 @@ class Player:
                 try:
                     cls = message_class(connection.msgtype)
                 except (ImportError, AttributeError, ValueError):
-                    node.get_logger().warning(f'skipping {connection.topic}: message type '
-                                              f'{connection.msgtype} is not installed')
+                    node.get_logger().warning(
+                        f'skipping {connection.topic}: message type '
+                        f'{connection.msgtype} is not installed'
+                    )
                     continue
-                durability = (DurabilityPolicy.TRANSIENT_LOCAL if connection.topic == '/tf_static'
-                              else DurabilityPolicy.VOLATILE)
-                qos = QoSProfile(history=HistoryPolicy.KEEP_LAST,
-                                 depth=self.options.qos_depth,
-                                 reliability=ReliabilityPolicy.RELIABLE, durability=durability)
+                durability = (
+                    DurabilityPolicy.TRANSIENT_LOCAL
+                    if connection.topic == '/tf_static'
+                    else DurabilityPolicy.VOLATILE
+                )
+                qos = QoSProfile(
+                    history=HistoryPolicy.KEEP_LAST,
+                    depth=self.options.qos_depth,
+                    reliability=ReliabilityPolicy.RELIABLE,
+                    durability=durability,
+                )
                 self.publishers[connection.topic] = node.create_publisher(
-                    cls, connection.topic, qos)
+                    cls, connection.topic, qos
+                )
             self.connections.append(connection)
         if wanted is not None:
             missing = sorted(wanted - set(self.publishers))
@@ -120,12 +134,14 @@ class Player:
         if answered is None and self.options.pace_topic:
             from rclpy.executors import SingleThreadedExecutor
 
-            node.create_subscription(message_class(self.options.pace_type),
-                                     self.options.pace_topic, self._on_pace, 100)
+            node.create_subscription(
+                message_class(self.options.pace_type), self.options.pace_topic, self._on_pace, 100
+            )
             self._pace_executor = SingleThreadedExecutor(context=node.context)
             self._pace_executor.add_node(node)
-        self._paced = {c.topic for c in self.connections
-                       if c.msgtype == 'sensor_msgs/msg/PointCloud2'}
+        self._paced = {
+            c.topic for c in self.connections if c.msgtype == 'sensor_msgs/msg/PointCloud2'
+        }
 
     def close(self) -> None:
         """Close the bag."""
@@ -149,7 +165,8 @@ class Player:
                 self._pace_executor.spin_once(timeout_sec=0.05)
         if time.monotonic() >= deadline:
             self.node.get_logger().warning(
-                f'no answer within {self.options.pace_timeout:g} s; going on')
+                f'no answer within {self.options.pace_timeout:g} s; going on'
+            )
         return time.monotonic() - start
 
     def wait_for_subscribers(self) -> bool:
@@ -171,11 +188,13 @@ class Player:
 
         bag_ns = max(int(bag_ns), self._last_clock)
         self._last_clock = bag_ns
-        self.clock_publisher.publish(Clock(clock=Time(sec=bag_ns // 1_000_000_000,
-                                                      nanosec=bag_ns % 1_000_000_000)))
+        self.clock_publisher.publish(
+            Clock(clock=Time(sec=bag_ns // 1_000_000_000, nanosec=bag_ns % 1_000_000_000))
+        )
 
-    def _sleep_until(self, wall_target: float, bag_start: int, wall_start: float,
-                     bag_target: int) -> None:
+    def _sleep_until(
+        self, wall_target: float, bag_start: int, wall_start: float, bag_target: int
+    ) -> None:
         """Sleep until ``wall_target`` (monotonic), ticking /clock up to ``bag_target``."""
         rate = self.options.rate
         while True:
@@ -218,7 +237,8 @@ class Player:
         if not self.wait_for_subscribers():
             self.node.get_logger().warning(
                 f'not every topic has {self.options.wait_for_subscribers} subscriber(s) after '
-                f'{self.options.wait_timeout:g} s; playing anyway')
+                f'{self.options.wait_timeout:g} s; playing anyway'
+            )
         if self.options.delay > 0:
             time.sleep(self.options.delay)
         while True:

@@ -52,8 +52,9 @@ class NodeProbe:
     with a given stamp from any thread.
     """
 
-    def __init__(self, context: Any, name: str = 'mlsemreg_probe', target: str = 'mlsemreg_node'
-                 ) -> None:
+    def __init__(
+        self, context: Any, name: str = 'mlsemreg_probe', target: str = 'mlsemreg_node'
+    ) -> None:
         """Create publishers, subscriptions, the reset client and a parameter client."""
         from diagnostic_msgs.msg import DiagnosticArray
         from geometry_msgs.msg import TransformStamped
@@ -71,12 +72,15 @@ class NodeProbe:
         self._cond = threading.Condition()
         self.received: dict[str, list[tuple[float, Any]]] = {}
         self._publisher = self.node.create_publisher(
-            PointCloud2, 'points', QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-        topics = {'transform': ('mlsemreg/transform', TransformStamped),
-                  'odometry': ('mlsemreg/odometry', Odometry),
-                  'path': ('mlsemreg/path', PathMsg),
-                  'markers': ('mlsemreg/correspondences', MarkerArray),
-                  'diagnostics': ('/diagnostics', DiagnosticArray)}
+            PointCloud2, 'points', QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+        )
+        topics = {
+            'transform': ('mlsemreg/transform', TransformStamped),
+            'odometry': ('mlsemreg/odometry', Odometry),
+            'path': ('mlsemreg/path', PathMsg),
+            'markers': ('mlsemreg/correspondences', MarkerArray),
+            'diagnostics': ('/diagnostics', DiagnosticArray),
+        }
         for key, (topic, cls) in topics.items():
             self.received[key] = []
             self.node.create_subscription(cls, topic, self._recorder(key), 10)
@@ -90,6 +94,7 @@ class NodeProbe:
             with self._cond:
                 self.received[key].append((time.perf_counter(), msg))
                 self._cond.notify_all()
+
         return record
 
     # -- waiting -------------------------------------------------------------------------
@@ -108,9 +113,11 @@ class NodeProbe:
         """Wait until the node subscribes to ``points`` and publishes every output topic."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
-            if (self._publisher.get_subscription_count() > 0
-                    and all(self.node.count_publishers(t) > 0 for t in self._topics)
-                    and self._reset.service_is_ready()):
+            if (
+                self._publisher.get_subscription_count() > 0
+                and all(self.node.count_publishers(t) > 0 for t in self._topics)
+                and self._reset.service_is_ready()
+            ):
                 return True
             time.sleep(0.05)
         return False
@@ -131,9 +138,17 @@ class NodeProbe:
     def markers_for(self, stamp: Any, timeout: float) -> Any:
         """Return the MarkerArray drawn for the scan stamped ``stamp``."""
         want = stamp_key(stamp)
-        return self.wait_until(lambda: next(
-            (m for _, m in self.received['markers']
-             if m.markers and stamp_key(m.markers[-1].header.stamp) == want), None), timeout)
+        return self.wait_until(
+            lambda: next(
+                (
+                    m
+                    for _, m in self.received['markers']
+                    if m.markers and stamp_key(m.markers[-1].header.stamp) == want
+                ),
+                None,
+            ),
+            timeout,
+        )
 
     def status_for(self, stamp: Any, timeout: float, skip: int = 0) -> dict[str, str] | None:
         """
@@ -150,10 +165,14 @@ class NodeProbe:
                     values = {kv.key: kv.value for kv in status.values}
                     if values.get('scan_stamp') == want:
                         if seen == skip:
-                            return {**values, 'level': int.from_bytes(status.level, 'little'),
-                                    'message': status.message}
+                            return {
+                                **values,
+                                'level': int.from_bytes(status.level, 'little'),
+                                'message': status.message,
+                            }
                         seen += 1
             return None
+
         return self.wait_until(lookup, timeout)
 
     # -- acting -----------------------------------------------------------------------------
@@ -162,14 +181,25 @@ class NodeProbe:
         """Seconds -> builtin_interfaces/Time (for the scans the probe publishes)."""
         return to_stamp(seconds)
 
-    def cloud(self, points: np.ndarray, labels: np.ndarray | None, stamp: Any,
-              frame_id: str = 'velodyne', label_datatype: str = 'uint32') -> Any:
+    def cloud(
+        self,
+        points: np.ndarray,
+        labels: np.ndarray | None,
+        stamp: Any,
+        frame_id: str = 'velodyne',
+        label_datatype: str = 'uint32',
+    ) -> Any:
         """Build a PointCloud2 message of the scan (labels stored as ``label_datatype``)."""
         from mlsemreg_ros.codec.pointcloud2 import arrays_to_pointcloud2
         from std_msgs.msg import Header
 
-        return arrays_to_pointcloud2(*self._msg_classes, Header(stamp=stamp, frame_id=frame_id),
-                                     points, labels, label_datatype=label_datatype)
+        return arrays_to_pointcloud2(
+            *self._msg_classes,
+            Header(stamp=stamp, frame_id=frame_id),
+            points,
+            labels,
+            label_datatype=label_datatype,
+        )
 
     def publish(self, msg: Any) -> float:
         """Publish on ``points``; returns the perf_counter time of the call."""
@@ -203,8 +233,9 @@ class NodeProbe:
 
 
 @contextlib.contextmanager
-def node_and_probe(domain_id: int | None = None, args: list[str] | None = None
-                   ) -> Iterator[tuple[Any, NodeProbe]]:
+def node_and_probe(
+    domain_id: int | None = None, args: list[str] | None = None
+) -> Iterator[tuple[Any, NodeProbe]]:
     """Run mlsemreg_node and a NodeProbe in a private rclpy context (executor thread)."""
     from mlsemreg_ros.ros.node import MlSemRegNode
     import rclpy

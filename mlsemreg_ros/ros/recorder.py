@@ -39,15 +39,20 @@ def scan_stamps(bag: Path) -> np.ndarray:
     reader = open_reader(bag)
     try:
         connections = [c for c in reader.connections if c.topic == POINTS_TOPIC]
-        return np.array([stamp_to_ns(reader.deserialize(raw, c.msgtype).header.stamp)
-                         for c, _, raw in reader.messages(connections=connections)],
-                        dtype=np.int64)
+        return np.array(
+            [
+                stamp_to_ns(reader.deserialize(raw, c.msgtype).header.stamp)
+                for c, _, raw in reader.messages(connections=connections)
+            ],
+            dtype=np.int64,
+        )
     finally:
         reader.close()
 
 
-def record_and_play(bag: Path, domain_id: int, rate: float, timeout: float,
-                    node: subprocess.Popen, quiet: bool) -> NodeRecording:
+def record_and_play(
+    bag: Path, domain_id: int, rate: float, timeout: float, node: subprocess.Popen, quiet: bool
+) -> NodeRecording:
     """Play ``/points`` paced by the node's diagnostics and record what the node says."""
     from diagnostic_msgs.msg import DiagnosticArray
     from geometry_msgs.msg import TransformStamped
@@ -65,12 +70,14 @@ def record_and_play(bag: Path, domain_id: int, rate: float, timeout: float,
     def on_odometry(msg: Odometry) -> None:
         with recording.lock:
             recording.odometry[stamp_to_ns(msg.header.stamp)] = pose_message_to_matrix(
-                msg.pose.pose)
+                msg.pose.pose
+            )
 
     def on_transform(msg: TransformStamped) -> None:
         with recording.lock:
-            recording.transforms[stamp_to_ns(msg.header.stamp)] = \
-                transform_message_to_matrix(msg.transform)
+            recording.transforms[stamp_to_ns(msg.header.stamp)] = transform_message_to_matrix(
+                msg.transform
+            )
 
     def on_diagnostics(msg: DiagnosticArray) -> None:
         for status in msg.status:
@@ -80,8 +87,11 @@ def record_and_play(bag: Path, domain_id: int, rate: float, timeout: float,
             stamp = recording.nearest_scan(parse_seconds(values['scan_stamp']))
             with recording.lock:
                 recording.diagnostics[stamp] = values
-                recording.levels[stamp] = int.from_bytes(status.level, 'little') \
-                    if isinstance(status.level, bytes) else int(status.level)
+                recording.levels[stamp] = (
+                    int.from_bytes(status.level, 'little')
+                    if isinstance(status.level, bytes)
+                    else int(status.level)
+                )
                 recording.messages[stamp] = status.message
             progress.update(1)
 
@@ -91,21 +101,29 @@ def record_and_play(bag: Path, domain_id: int, rate: float, timeout: float,
         listener = rclpy.create_node('mlsemreg_demo_recorder', context=context)
         reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         listener.create_subscription(Odometry, 'mlsemreg/odometry', on_odometry, reliable)
-        listener.create_subscription(TransformStamped, 'mlsemreg/transform', on_transform,
-                                     reliable)
+        listener.create_subscription(
+            TransformStamped, 'mlsemreg/transform', on_transform, reliable
+        )
         listener.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, reliable)
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(listener)
         spinner = threading.Thread(target=executor.spin, daemon=True)
         spinner.start()
         player_node = rclpy.create_node('mlsemreg_demo_player', context=context)
-        options = PlayOptions(rate=rate, topics=[POINTS_TOPIC], wait_for_subscribers=1,
-                              wait_timeout=60.0, pace_timeout=timeout, quiet=True)
+        options = PlayOptions(
+            rate=rate,
+            topics=[POINTS_TOPIC],
+            wait_for_subscribers=1,
+            wait_timeout=60.0,
+            pace_timeout=timeout,
+            quiet=True,
+        )
         player = Player(player_node, bag, options, answered=recording.answered)
         try:
             if not player.wait_for_subscribers():
-                raise RuntimeError('mlsemreg_node did not subscribe to /points within 60 s '
-                                   '(see node.log)')
+                raise RuntimeError(
+                    'mlsemreg_node did not subscribe to /points within 60 s (see node.log)'
+                )
             if node.poll() is not None:
                 raise RuntimeError('mlsemreg_node exited (see node.log)')
             player.play_once()
@@ -125,5 +143,6 @@ def write_recording(path: Path, recording: NodeRecording) -> None:
 
     with BagWriter(path, storage='mcap') as writer:
         for stamp in sorted(recording.odometry):
-            writer.write_odometry(stamp, recording.odometry[stamp], frame_id='odom',
-                                  topic='/mlsemreg/odometry')
+            writer.write_odometry(
+                stamp, recording.odometry[stamp], frame_id='odom', topic='/mlsemreg/odometry'
+            )

@@ -28,8 +28,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 
-def _neighbourhood_classes(points: np.ndarray, class_index: np.ndarray, radius: float
-                           ) -> np.ndarray:
+def _neighbourhood_classes(
+    points: np.ndarray, class_index: np.ndarray, radius: float
+) -> np.ndarray:
     """
     Return, per point, a bit mask (N,) uint64 of the classes in its 3x3x3 cell block.
 
@@ -54,8 +55,9 @@ def _neighbourhood_classes(points: np.ndarray, class_index: np.ndarray, radius: 
     return mask
 
 
-def classes_within(points: np.ndarray, labels: np.ndarray, radius: float) -> tuple[
-        np.ndarray, np.ndarray]:
+def classes_within(
+    points: np.ndarray, labels: np.ndarray, radius: float
+) -> tuple[np.ndarray, np.ndarray]:
     """
     Find which classes have a point within ``radius`` of each point (exact).
 
@@ -80,19 +82,24 @@ def classes_within(points: np.ndarray, labels: np.ndarray, radius: float) -> tup
         nearby = _neighbourhood_classes(points, class_index, radius)
     for c in range(classes.size):
         member = class_index == c
-        candidates = np.flatnonzero(~member & ((nearby >> np.uint64(c)) & np.uint64(1)
-                                               ).astype(bool))
+        candidates = np.flatnonzero(
+            ~member & ((nearby >> np.uint64(c)) & np.uint64(1)).astype(bool)
+        )
         if candidates.size == 0:
             continue
         tree = cKDTree(points[member])
-        distance, _ = tree.query(points[candidates], k=1, distance_upper_bound=radius,
-                                 workers=-1)
+        distance, _ = tree.query(points[candidates], k=1, distance_upper_bound=radius, workers=-1)
         present[candidates, c] = np.isfinite(distance)
     return classes, present
 
 
-def boundary_blur(points: np.ndarray, labels: np.ndarray, radius: float,
-                  rng: np.random.Generator, probability: float = 0.5) -> np.ndarray:
+def boundary_blur(
+    points: np.ndarray,
+    labels: np.ndarray,
+    radius: float,
+    rng: np.random.Generator,
+    probability: float = 0.5,
+) -> np.ndarray:
     """
     Blur class boundaries: boundary points take another nearby class with ``probability``.
 
@@ -118,8 +125,9 @@ def boundary_blur(points: np.ndarray, labels: np.ndarray, radius: float,
     return out
 
 
-def random_flips(labels: np.ndarray, fraction: float, classes: np.ndarray,
-                 rng: np.random.Generator) -> np.ndarray:
+def random_flips(
+    labels: np.ndarray, fraction: float, classes: np.ndarray, rng: np.random.Generator
+) -> np.ndarray:
     """Give a random ``fraction`` of the points a uniformly drawn other class of ``classes``."""
     labels = np.asarray(labels)
     out = labels.copy()
@@ -129,8 +137,7 @@ def random_flips(labels: np.ndarray, fraction: float, classes: np.ndarray,
     rows = np.flatnonzero(rng.random(labels.size) < fraction)
     # Draw among the classes except the point's own: shift past its position.
     own = np.searchsorted(classes, labels[rows])
-    own_known = (own < classes.size) & (classes[np.minimum(own, classes.size - 1)] ==
-                                        labels[rows])
+    own_known = (own < classes.size) & (classes[np.minimum(own, classes.size - 1)] == labels[rows])
     draw = rng.integers(0, classes.size - own_known.astype(np.int64), rows.size)
     draw = np.where(own_known & (draw >= own), draw + 1, draw)
     out[rows] = classes[draw].astype(labels.dtype)

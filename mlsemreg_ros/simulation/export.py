@@ -53,32 +53,46 @@ def _scans(sim: Simulation, progress: bool) -> Iterator[Scan]:
 
     for frame in tqdm(sim, total=len(sim), desc='simulate', unit='scan', disable=not progress):
         scan = frame.scan
-        yield Scan(frame.index, frame.stamp_ns, scan.points, sim.raw_labels(scan),
-                   scan.intensity, '', frame.pose)
+        yield Scan(
+            frame.index,
+            frame.stamp_ns,
+            scan.points,
+            sim.raw_labels(scan),
+            scan.intensity,
+            '',
+            frame.pose,
+        )
 
 
-def write_simulation_bag(out: Path, config: SimulationConfig, layout: BagLayout | None = None,
-                         progress: bool = True) -> SimulationReport:
+def write_simulation_bag(
+    out: Path, config: SimulationConfig, layout: BagLayout | None = None, progress: bool = True
+) -> SimulationReport:
     """Simulate ``config`` and write the bag folder ``out`` (which must not exist)."""
     layout = layout or BagLayout()
     start = time.perf_counter()
     sim = Simulation(config)
     built = time.perf_counter()
     written = write_sequence_bag(out, _scans(sim, progress), layout)
-    meta = {'simulation': dataclasses.asdict(config),
-            'topics': {'points': layout.points_topic, 'ground_truth': layout.gt_topic},
-            'frames': {'sensor': layout.frame_id, 'world': layout.world_frame},
-            'world': {'triangles': sim.world.num_triangles,
-                      'blocks': {f'{i},{j}': kind for (i, j), kind in sim.world.blocks.items()},
-                      'objects': sim.world.object_counts}}
+    meta = {
+        'simulation': dataclasses.asdict(config),
+        'topics': {'points': layout.points_topic, 'ground_truth': layout.gt_topic},
+        'frames': {'sensor': layout.frame_id, 'world': layout.world_frame},
+        'world': {
+            'triangles': sim.world.num_triangles,
+            'blocks': {f'{i},{j}': kind for (i, j), kind in sim.world.blocks.items()},
+            'objects': sim.world.object_counts,
+        },
+    }
     (out / 'simulation.yaml').write_text(yaml.safe_dump(meta, sort_keys=False))
     path_m = float(np.sum(np.linalg.norm(np.diff(sim.poses[:, :3, 3], axis=0), axis=1)))
-    return SimulationReport(written.frames, written.points_per_scan, path_m, built - start,
-                            time.perf_counter() - start)
+    return SimulationReport(
+        written.frames, written.points_per_scan, path_m, built - start, time.perf_counter() - start
+    )
 
 
-def cached_simulation(cache_dir: Path, config: SimulationConfig, progress: bool = True
-                      ) -> tuple[Path, bool]:
+def cached_simulation(
+    cache_dir: Path, config: SimulationConfig, progress: bool = True
+) -> tuple[Path, bool]:
     """
     Return ``(bag, reused)``: the cached bag of ``config``, simulated first if needed.
 

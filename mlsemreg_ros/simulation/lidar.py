@@ -33,8 +33,31 @@ import open3d as o3d
 #: Reflectivity per learning id (0..19): unlabeled, car, bicycle, motorcycle, truck,
 #: other-vehicle, person, bicyclist, motorcyclist, road, parking, sidewalk,
 #: other-ground, building, fence, vegetation, trunk, terrain, pole, traffic-sign.
-REFLECTIVITY = np.array([0.3, 0.45, 0.4, 0.4, 0.45, 0.4, 0.3, 0.3, 0.3, 0.18, 0.2, 0.28,
-                         0.22, 0.35, 0.38, 0.42, 0.3, 0.4, 0.35, 0.95], dtype=np.float32)
+REFLECTIVITY = np.array(
+    [
+        0.3,
+        0.45,
+        0.4,
+        0.4,
+        0.45,
+        0.4,
+        0.3,
+        0.3,
+        0.3,
+        0.18,
+        0.2,
+        0.28,
+        0.22,
+        0.35,
+        0.38,
+        0.42,
+        0.3,
+        0.4,
+        0.35,
+        0.95,
+    ],
+    dtype=np.float32,
+)
 
 
 @dataclass
@@ -74,8 +97,7 @@ class Lidar:
         self.config = config if config is not None else LidarConfig()
         self.world = world
         self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(o3d.core.Tensor(world.vertices),
-                                 o3d.core.Tensor(world.triangles))
+        self.scene.add_triangles(o3d.core.Tensor(world.vertices), o3d.core.Tensor(world.triangles))
         cfg = self.config
         self._elevation = np.radians(np.linspace(cfg.fov_up_deg, cfg.fov_down_deg, cfg.beams))
 
@@ -84,8 +106,9 @@ class Lidar:
         steps = self.config.azimuth_steps
         azimuth = 2.0 * np.pi * (np.arange(steps) + azimuth_offset) / steps
         el, az = np.meshgrid(self._elevation, azimuth, indexing='ij')
-        return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)],
-                        axis=-1).reshape(-1, 3)
+        return np.stack(
+            [np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=-1
+        ).reshape(-1, 3)
 
     def scan(self, T_world_sensor: np.ndarray, rng: np.random.Generator) -> LidarScan:
         """One sweep from the pose (4, 4) ``T_world_sensor``; noise drawn from ``rng``."""
@@ -110,5 +133,10 @@ class Lidar:
         intensity *= np.exp(-distance / 250.0)
         intensity += rng.normal(0.0, cfg.intensity_noise, index.size)
         ring = (index // cfg.azimuth_steps).astype(np.uint16)
-        return LidarScan(points, labels.astype(np.int32), self.world.triangle_instances[triangle],
-                         np.clip(intensity, 0.0, 1.0).astype(np.float32), ring)
+        return LidarScan(
+            points,
+            labels.astype(np.int32),
+            self.world.triangle_instances[triangle],
+            np.clip(intensity, 0.0, 1.0).astype(np.float32),
+            ring,
+        )

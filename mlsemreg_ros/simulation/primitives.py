@@ -29,18 +29,35 @@ import numpy as np
 
 Mesh = tuple[np.ndarray, np.ndarray]
 
-_BOX_CORNERS = np.array([
-    [-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0], [-0.5, 0.5, 0.0],
-    [-0.5, -0.5, 1.0], [0.5, -0.5, 1.0], [0.5, 0.5, 1.0], [-0.5, 0.5, 1.0],
-])
-_BOX_TRIANGLES = np.array([
-    [0, 2, 1], [0, 3, 2],  # bottom
-    [4, 5, 6], [4, 6, 7],  # top
-    [0, 1, 5], [0, 5, 4],  # -y
-    [1, 2, 6], [1, 6, 5],  # +x
-    [2, 3, 7], [2, 7, 6],  # +y
-    [3, 0, 4], [3, 4, 7],  # -x
-], dtype=np.int64)
+_BOX_CORNERS = np.array(
+    [
+        [-0.5, -0.5, 0.0],
+        [0.5, -0.5, 0.0],
+        [0.5, 0.5, 0.0],
+        [-0.5, 0.5, 0.0],
+        [-0.5, -0.5, 1.0],
+        [0.5, -0.5, 1.0],
+        [0.5, 0.5, 1.0],
+        [-0.5, 0.5, 1.0],
+    ]
+)
+_BOX_TRIANGLES = np.array(
+    [
+        [0, 2, 1],
+        [0, 3, 2],  # bottom
+        [4, 5, 6],
+        [4, 6, 7],  # top
+        [0, 1, 5],
+        [0, 5, 4],  # -y
+        [1, 2, 6],
+        [1, 6, 5],  # +x
+        [2, 3, 7],
+        [2, 7, 6],  # +y
+        [3, 0, 4],
+        [3, 4, 7],  # -x
+    ],
+    dtype=np.int64,
+)
 
 
 def yaw_matrix(yaw: float) -> np.ndarray:
@@ -49,14 +66,16 @@ def yaw_matrix(yaw: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
-def place(vertices: np.ndarray, x: float, y: float, z: float = 0.0, yaw: float = 0.0
-          ) -> np.ndarray:
+def place(
+    vertices: np.ndarray, x: float, y: float, z: float = 0.0, yaw: float = 0.0
+) -> np.ndarray:
     """Rotate local vertices (V, 3) by ``yaw`` about +z and translate them to (x, y, z)."""
     return vertices @ yaw_matrix(yaw).T + np.array([x, y, z])
 
 
-def box(x: float, y: float, length: float, width: float, z0: float, z1: float,
-        yaw: float = 0.0) -> Mesh:
+def box(
+    x: float, y: float, length: float, width: float, z0: float, z1: float, yaw: float = 0.0
+) -> Mesh:
     """Box with footprint centre (x, y), ``length`` along the yawed x axis, from z0 to z1."""
     local = _BOX_CORNERS * np.array([length, width, z1 - z0])
     return place(local, x, y, z0, yaw), _BOX_TRIANGLES.copy()
@@ -71,25 +90,36 @@ def box_between(x0: float, y0: float, x1: float, y1: float, z0: float, z1: float
 def _unit_cylinder(sides: int) -> Mesh:
     angles = 2.0 * np.pi * np.arange(sides) / sides
     ring = np.stack([np.cos(angles), np.sin(angles)], axis=1)
-    vertices = np.concatenate([
-        np.column_stack([ring, np.zeros(sides)]),
-        np.column_stack([ring, np.ones(sides)]),
-        [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
-    ])
+    vertices = np.concatenate(
+        [
+            np.column_stack([ring, np.zeros(sides)]),
+            np.column_stack([ring, np.ones(sides)]),
+            [[0.0, 0.0, 0.0], [0.0, 0.0, 1.0]],
+        ]
+    )
     i = np.arange(sides)
     j = (i + 1) % sides
     bottom, top = 2 * sides, 2 * sides + 1
-    triangles = np.concatenate([
-        np.stack([i, j, sides + j], axis=1),
-        np.stack([i, sides + j, sides + i], axis=1),
-        np.stack([np.full(sides, bottom), j, i], axis=1),
-        np.stack([np.full(sides, top), sides + i, sides + j], axis=1),
-    ])
+    triangles = np.concatenate(
+        [
+            np.stack([i, j, sides + j], axis=1),
+            np.stack([i, sides + j, sides + i], axis=1),
+            np.stack([np.full(sides, bottom), j, i], axis=1),
+            np.stack([np.full(sides, top), sides + i, sides + j], axis=1),
+        ]
+    )
     return vertices, triangles.astype(np.int64)
 
 
-def cylinder(x: float, y: float, radius: float, z0: float, z1: float, sides: int = 10,
-             tilt: tuple[float, float] = (0.0, 0.0)) -> Mesh:
+def cylinder(
+    x: float,
+    y: float,
+    radius: float,
+    z0: float,
+    z1: float,
+    sides: int = 10,
+    tilt: tuple[float, float] = (0.0, 0.0),
+) -> Mesh:
     """
     Vertical cylinder of ``radius`` around (x, y) from z0 to z1.
 
@@ -102,8 +132,9 @@ def cylinder(x: float, y: float, radius: float, z0: float, z1: float, sides: int
     return vertices, triangles.copy()
 
 
-def horizontal_cylinder(x: float, y: float, z: float, radius: float, length: float,
-                        yaw: float, sides: int = 10) -> Mesh:
+def horizontal_cylinder(
+    x: float, y: float, z: float, radius: float, length: float, yaw: float, sides: int = 10
+) -> Mesh:
     """Cylinder whose axis is horizontal along ``yaw``, centred at (x, y, z) (wheels, plates)."""
     unit, triangles = _unit_cylinder(sides)
     local = unit * np.array([radius, radius, length]) - np.array([0.0, 0.0, 0.5 * length])
@@ -115,31 +146,81 @@ def horizontal_cylinder(x: float, y: float, z: float, radius: float, length: flo
 @lru_cache(maxsize=4)
 def _unit_icosphere(subdivisions: int) -> Mesh:
     """Icosphere of radius 1 (12 -> 42 -> 162 vertices)."""
-    t = (1.0 + 5.0 ** 0.5) / 2.0
-    vertices = np.array([
-        [-1, t, 0], [1, t, 0], [-1, -t, 0], [1, -t, 0], [0, -1, t], [0, 1, t],
-        [0, -1, -t], [0, 1, -t], [t, 0, -1], [t, 0, 1], [-t, 0, -1], [-t, 0, 1]], dtype=float)
-    faces = np.array([
-        [0, 11, 5], [0, 5, 1], [0, 1, 7], [0, 7, 10], [0, 10, 11], [1, 5, 9], [5, 11, 4],
-        [11, 10, 2], [10, 7, 6], [7, 1, 8], [3, 9, 4], [3, 4, 2], [3, 2, 6], [3, 6, 8],
-        [3, 8, 9], [4, 9, 5], [2, 4, 11], [6, 2, 10], [8, 6, 7], [9, 8, 1]], dtype=np.int64)
+    t = (1.0 + 5.0**0.5) / 2.0
+    vertices = np.array(
+        [
+            [-1, t, 0],
+            [1, t, 0],
+            [-1, -t, 0],
+            [1, -t, 0],
+            [0, -1, t],
+            [0, 1, t],
+            [0, -1, -t],
+            [0, 1, -t],
+            [t, 0, -1],
+            [t, 0, 1],
+            [-t, 0, -1],
+            [-t, 0, 1],
+        ],
+        dtype=float,
+    )
+    faces = np.array(
+        [
+            [0, 11, 5],
+            [0, 5, 1],
+            [0, 1, 7],
+            [0, 7, 10],
+            [0, 10, 11],
+            [1, 5, 9],
+            [5, 11, 4],
+            [11, 10, 2],
+            [10, 7, 6],
+            [7, 1, 8],
+            [3, 9, 4],
+            [3, 4, 2],
+            [3, 2, 6],
+            [3, 6, 8],
+            [3, 8, 9],
+            [4, 9, 5],
+            [2, 4, 11],
+            [6, 2, 10],
+            [8, 6, 7],
+            [9, 8, 1],
+        ],
+        dtype=np.int64,
+    )
     for _ in range(subdivisions):
-        edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]),
-                        axis=1)
+        edges = np.sort(
+            np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1
+        )
         unique, inverse = np.unique(edges, axis=0, return_inverse=True)
         mid = vertices.shape[0] + inverse.reshape(3, -1).T  # (F, 3): midpoints of e01, e12, e20
-        vertices = np.concatenate([vertices, 0.5 * (vertices[unique[:, 0]] +
-                                                    vertices[unique[:, 1]])])
+        vertices = np.concatenate(
+            [vertices, 0.5 * (vertices[unique[:, 0]] + vertices[unique[:, 1]])]
+        )
         a, b, c = faces[:, 0], faces[:, 1], faces[:, 2]
         ab, bc, ca = mid[:, 0], mid[:, 1], mid[:, 2]
-        faces = np.concatenate([np.stack([a, ab, ca], 1), np.stack([b, bc, ab], 1),
-                                np.stack([c, ca, bc], 1), np.stack([ab, bc, ca], 1)])
+        faces = np.concatenate(
+            [
+                np.stack([a, ab, ca], 1),
+                np.stack([b, bc, ab], 1),
+                np.stack([c, ca, bc], 1),
+                np.stack([ab, bc, ca], 1),
+            ]
+        )
     vertices /= np.linalg.norm(vertices, axis=1, keepdims=True)
     return vertices, faces
 
 
-def blob(x: float, y: float, z: float, radii: tuple[float, float, float],
-         rng: np.random.Generator, roughness: float = 0.15, subdivisions: int = 2) -> Mesh:
+def blob(
+    x: float,
+    y: float,
+    z: float,
+    radii: tuple[float, float, float],
+    rng: np.random.Generator,
+    roughness: float = 0.15,
+    subdivisions: int = 2,
+) -> Mesh:
     """Irregular ellipsoid (tree canopy, bush) centred at (x, y, z) with radial noise."""
     unit, faces = _unit_icosphere(subdivisions)
     scale = 1.0 + roughness * rng.uniform(-1.0, 1.0, size=(unit.shape[0], 1))
@@ -147,19 +228,38 @@ def blob(x: float, y: float, z: float, radii: tuple[float, float, float],
     return vertices, faces.copy()
 
 
-def gable_roof(x: float, y: float, length: float, width: float, z0: float, rise: float,
-               yaw: float = 0.0) -> Mesh:
+def gable_roof(
+    x: float, y: float, length: float, width: float, z0: float, rise: float, yaw: float = 0.0
+) -> Mesh:
     """Gable roof prism on a ``length`` x ``width`` footprint, ridge along the length."""
     hl, hw = 0.5 * length, 0.5 * width
-    local = np.array([[-hl, -hw, 0.0], [hl, -hw, 0.0], [hl, hw, 0.0], [-hl, hw, 0.0],
-                      [-hl, 0.0, rise], [hl, 0.0, rise]])
-    triangles = np.array([[0, 1, 5], [0, 5, 4], [2, 3, 4], [2, 4, 5],
-                          [1, 2, 5], [3, 0, 4], [0, 2, 1], [0, 3, 2]], dtype=np.int64)
+    local = np.array(
+        [
+            [-hl, -hw, 0.0],
+            [hl, -hw, 0.0],
+            [hl, hw, 0.0],
+            [-hl, hw, 0.0],
+            [-hl, 0.0, rise],
+            [hl, 0.0, rise],
+        ]
+    )
+    triangles = np.array(
+        [[0, 1, 5], [0, 5, 4], [2, 3, 4], [2, 4, 5], [1, 2, 5], [3, 0, 4], [0, 2, 1], [0, 3, 2]],
+        dtype=np.int64,
+    )
     return place(local, x, y, z0, yaw), triangles
 
 
-def height_grid(x0: float, y0: float, x1: float, y1: float, cell: float, z: float,
-                rng: np.random.Generator, bump: float = 0.0) -> Mesh:
+def height_grid(
+    x0: float,
+    y0: float,
+    x1: float,
+    y1: float,
+    cell: float,
+    z: float,
+    rng: np.random.Generator,
+    bump: float = 0.0,
+) -> Mesh:
     """
     Ground patch over [x0, x1] x [y0, y1] as a grid of ``cell``-sized quads.
 

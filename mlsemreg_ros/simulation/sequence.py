@@ -71,8 +71,9 @@ class SimFrame:
 class Simulation:
     """Builds the world and route once; renders frames on demand."""
 
-    def __init__(self, config: SimulationConfig | None = None,
-                 label_map: LabelMap | None = None) -> None:
+    def __init__(
+        self, config: SimulationConfig | None = None, label_map: LabelMap | None = None
+    ) -> None:
         cfg = config if config is not None else SimulationConfig()
         self.config = cfg
         self.label_map = label_map if label_map is not None else LabelMap.load()
@@ -81,12 +82,18 @@ class Simulation:
         # Plan beyond the last frame: the car brakes for turns ahead of it, so frame k
         # must see the same route whatever the number of frames.
         length = max(cfg.frames - 1, 1) * cfg.step + ROUTE_LOOKAHEAD_M
-        self.path: Path2D = plan_route(self.grid, length, np.random.default_rng([cfg.seed, 3]),
-                                       cfg.trajectory)
-        self.world_poses = sensor_poses(self.path, cfg.frames, cfg.step,
-                                        cfg.lidar.mount_height,
-                                        np.random.default_rng([cfg.seed, 4]), cfg.trajectory,
-                                        dt=1.0 / cfg.rate_hz)
+        self.path: Path2D = plan_route(
+            self.grid, length, np.random.default_rng([cfg.seed, 3]), cfg.trajectory
+        )
+        self.world_poses = sensor_poses(
+            self.path,
+            cfg.frames,
+            cfg.step,
+            cfg.lidar.mount_height,
+            np.random.default_rng([cfg.seed, 4]),
+            cfg.trajectory,
+            dt=1.0 / cfg.rate_hz,
+        )
         route_xy = self.path.sample(np.arange(0.0, self.path.length + 5.0, 5.0))[0]
         self.world: World = build_world(self.grid, route_xy, world_cfg, self.label_map)
         self.lidar = Lidar(self.world, cfg.lidar)
@@ -108,14 +115,14 @@ class Simulation:
     def frame(self, index: int) -> SimFrame:
         """Render frame ``index`` (deterministic for the seed)."""
         cfg = self.config
-        scan = self.lidar.scan(self.world_poses[index],
-                               np.random.default_rng([cfg.seed, 5, index]))
+        scan = self.lidar.scan(
+            self.world_poses[index], np.random.default_rng([cfg.seed, 5, index])
+        )
         clean = scan.labels
         labels = clean
         rng = np.random.default_rng([cfg.seed, 6, index])
         if cfg.blur_radius > 0.0:
-            labels = boundary_blur(scan.points, labels, cfg.blur_radius, rng,
-                                   cfg.blur_probability)
+            labels = boundary_blur(scan.points, labels, cfg.blur_radius, rng, cfg.blur_probability)
         if cfg.flip_fraction > 0.0:
             labels = random_flips(labels, cfg.flip_fraction, self._classes, rng)
         if labels is not clean:

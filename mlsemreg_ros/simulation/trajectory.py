@@ -67,8 +67,9 @@ class Path2D:
     def curvature(self, s: np.ndarray) -> np.ndarray:
         """Look up the signed curvature at the arc lengths ``s`` (n,), in 1/m."""
         ends = np.cumsum(self.lengths)
-        piece = np.minimum(np.searchsorted(ends, np.asarray(s), side='right'),
-                           self.lengths.size - 1)
+        piece = np.minimum(
+            np.searchsorted(ends, np.asarray(s), side='right'), self.lengths.size - 1
+        )
         return self.curvatures[piece]
 
     def sample(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -90,16 +91,21 @@ def _right(direction: np.ndarray) -> np.ndarray:
     return np.array([direction[1], -direction[0]], dtype=np.float64)
 
 
-def plan_route(grid: StreetGrid, length: float, rng: np.random.Generator,
-               config: TrajectoryConfig | None = None) -> Path2D:
+def plan_route(
+    grid: StreetGrid,
+    length: float,
+    rng: np.random.Generator,
+    config: TrajectoryConfig | None = None,
+) -> Path2D:
     """Random walk of at least ``length`` metres in the right lane, starting near the origin."""
     cfg = config if config is not None else TrajectoryConfig()
     lane, radius = cfg.lane_offset, cfg.turn_radius
     node = np.array([grid.origin, grid.origin])
     heading_index = int(rng.integers(4))
     a = _DIRECTIONS[heading_index].astype(np.float64)
-    first_edge = np.linalg.norm(grid.intersection(*(node + _DIRECTIONS[heading_index])) -
-                                grid.intersection(*node))
+    first_edge = np.linalg.norm(
+        grid.intersection(*(node + _DIRECTIONS[heading_index])) - grid.intersection(*node)
+    )
     p = grid.intersection(*node) + rng.uniform(0.5, 0.75) * first_edge * a + lane * _right(a)
     starts, headings, lengths, curvatures = [], [], [], []
     total, last_turn = 0.0, 0.0
@@ -119,8 +125,12 @@ def plan_route(grid: StreetGrid, length: float, rng: np.random.Generator,
             add(p, float(np.arctan2(a[1], a[0])), length - total + 1.0, 0.0)
             break
         options = [(heading_index + turn) % 4 for turn in (1, -1)]
-        options = [d for d in options if 0 < node[0] + _DIRECTIONS[d][0] < size - 1 and
-                   0 < node[1] + _DIRECTIONS[d][1] < size - 1]
+        options = [
+            d
+            for d in options
+            if 0 < node[0] + _DIRECTIONS[d][0] < size - 1
+            and 0 < node[1] + _DIRECTIONS[d][1] < size - 1
+        ]
         ahead = node + _DIRECTIONS[heading_index]
         can_go_straight = 0 < ahead[0] < size - 1 and 0 < ahead[1] < size - 1
         must_turn = total + to_center - last_turn > cfg.max_straight or not can_go_straight
@@ -132,14 +142,19 @@ def plan_route(grid: StreetGrid, length: float, rng: np.random.Generator,
             heading = float(np.arctan2(a[1], a[0]))
             add(p, heading, straight, 0.0)
             left = (new_index - heading_index) % 4 == 1
-            add(corner - radius * a, heading, 0.5 * np.pi * radius,
-                (1.0 if left else -1.0) / radius)
+            add(
+                corner - radius * a,
+                heading,
+                0.5 * np.pi * radius,
+                (1.0 if left else -1.0) / radius,
+            )
             total += straight + 0.5 * np.pi * radius
             last_turn = total
             p = corner + radius * b
             a, heading_index = b, new_index
-    return Path2D(np.asarray(starts), np.asarray(headings), np.asarray(lengths),
-                  np.asarray(curvatures))
+    return Path2D(
+        np.asarray(starts), np.asarray(headings), np.asarray(lengths), np.asarray(curvatures)
+    )
 
 
 def euler_to_matrix(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -147,15 +162,24 @@ def euler_to_matrix(roll: np.ndarray, pitch: np.ndarray, yaw: np.ndarray) -> np.
     cr, sr = np.cos(roll), np.sin(roll)
     cp, sp = np.cos(pitch), np.sin(pitch)
     cy, sy = np.cos(yaw), np.sin(yaw)
-    return np.stack([
-        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
-        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
-        np.stack([-sp, cp * sr, cp * cr], axis=-1),
-    ], axis=-2)
+    return np.stack(
+        [
+            np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
+            np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
+            np.stack([-sp, cp * sr, cp * cr], axis=-1),
+        ],
+        axis=-2,
+    )
 
 
-def frame_positions(path: Path2D, frames: int, step: float, config: TrajectoryConfig,
-                    dt: float = 0.1, resolution: float = 0.1) -> np.ndarray:
+def frame_positions(
+    path: Path2D,
+    frames: int,
+    step: float,
+    config: TrajectoryConfig,
+    dt: float = 0.1,
+    resolution: float = 0.1,
+) -> np.ndarray:
     """
     Return the arc length (F,) of each frame for a car cruising at ``step`` m/frame.
 
@@ -178,9 +202,15 @@ def frame_positions(path: Path2D, frames: int, step: float, config: TrajectoryCo
     return np.interp(dt * np.arange(frames), time_at, grid)
 
 
-def sensor_poses(path: Path2D, frames: int, step: float, mount_height: float,
-                 rng: np.random.Generator, config: TrajectoryConfig | None = None,
-                 dt: float = 0.1) -> np.ndarray:
+def sensor_poses(
+    path: Path2D,
+    frames: int,
+    step: float,
+    mount_height: float,
+    rng: np.random.Generator,
+    config: TrajectoryConfig | None = None,
+    dt: float = 0.1,
+) -> np.ndarray:
     """
     World poses (F, 4, 4) ``T_world_sensor`` of a car cruising at ``step`` m/frame.
 

@@ -93,8 +93,12 @@ class StreetGrid:
 
     def block_rect(self, i: int, j: int) -> tuple[float, float, float, float]:
         """Curb rectangle ``(x0, x1, y0, y1)`` of block (i, j)."""
-        return (self.xs[i] + 0.5 * self.widths_x[i], self.xs[i + 1] - 0.5 * self.widths_x[i + 1],
-                self.ys[j] + 0.5 * self.widths_y[j], self.ys[j + 1] - 0.5 * self.widths_y[j + 1])
+        return (
+            self.xs[i] + 0.5 * self.widths_x[i],
+            self.xs[i + 1] - 0.5 * self.widths_x[i + 1],
+            self.ys[j] + 0.5 * self.widths_y[j],
+            self.ys[j + 1] - 0.5 * self.widths_y[j + 1],
+        )
 
 
 @dataclass
@@ -147,10 +151,15 @@ class _MeshBuilder:
         return self._next_instance - 1
 
     def build(self, grid: StreetGrid, blocks: dict[tuple[int, int], str]) -> World:
-        return World(np.concatenate(self._vertices).astype(np.float32),
-                     np.concatenate(self._triangles).astype(np.uint32),
-                     np.concatenate(self._labels), np.concatenate(self._instances),
-                     grid, blocks, dict(sorted(self.objects.items())))
+        return World(
+            np.concatenate(self._vertices).astype(np.float32),
+            np.concatenate(self._triangles).astype(np.uint32),
+            np.concatenate(self._labels),
+            np.concatenate(self._instances),
+            grid,
+            blocks,
+            dict(sorted(self.objects.items())),
+        )
 
 
 # -- objects ------------------------------------------------------------------------------
@@ -166,18 +175,46 @@ def _car(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float, yaw: flo
     if not van:
         cabin = rng.uniform(0.45, 0.6) * length
         shift = rng.uniform(-0.15, 0.0) * length
-        b.add(prim.box(x + c * shift, y + s * shift, cabin, width - 0.12, top,
-                       top + rng.uniform(0.4, 0.6), yaw), 'car', inst)
+        b.add(
+            prim.box(
+                x + c * shift,
+                y + s * shift,
+                cabin,
+                width - 0.12,
+                top,
+                top + rng.uniform(0.4, 0.6),
+                yaw,
+            ),
+            'car',
+            inst,
+        )
     for fx in (-0.33, 0.33):
         for fy in (-1.0, 1.0):
             dx, dy = fx * length, fy * (0.5 * width - 0.12)
-            b.add(prim.horizontal_cylinder(x + c * dx - s * dy, y + s * dx + c * dy, 0.32, 0.32,
-                                           0.22, yaw + np.pi / 2, sides=8), 'car', inst)
+            b.add(
+                prim.horizontal_cylinder(
+                    x + c * dx - s * dy,
+                    y + s * dx + c * dy,
+                    0.32,
+                    0.32,
+                    0.22,
+                    yaw + np.pi / 2,
+                    sides=8,
+                ),
+                'car',
+                inst,
+            )
     b.objects['car'] += 1
 
 
-def _truck(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float, yaw: float,
-           length: float | None = None) -> None:
+def _truck(
+    b: _MeshBuilder,
+    rng: np.random.Generator,
+    x: float,
+    y: float,
+    yaw: float,
+    length: float | None = None,
+) -> None:
     """Truck: cab, cargo box and six wheels (class truck, one instance)."""
     inst = b.instance()
     c, s = np.cos(yaw), np.sin(yaw)
@@ -185,22 +222,40 @@ def _truck(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float, yaw: f
     width = rng.uniform(2.35, 2.55)
     cab = 2.2
     fx = 0.5 * length - 0.5 * cab
-    b.add(prim.box(x + c * fx, y + s * fx, cab, width, 0.6, rng.uniform(2.8, 3.2), yaw),
-          'truck', inst)
+    b.add(
+        prim.box(x + c * fx, y + s * fx, cab, width, 0.6, rng.uniform(2.8, 3.2), yaw),
+        'truck',
+        inst,
+    )
     cargo = length - cab - 0.3
     bx = -0.5 * length + 0.5 * cargo
-    b.add(prim.box(x + c * bx, y + s * bx, cargo, width, 1.0, rng.uniform(3.4, 4.0), yaw),
-          'truck', inst)
+    b.add(
+        prim.box(x + c * bx, y + s * bx, cargo, width, 1.0, rng.uniform(3.4, 4.0), yaw),
+        'truck',
+        inst,
+    )
     for wx in (fx, bx - 0.25 * cargo, bx + 0.25 * cargo):
         for fy in (-1.0, 1.0):
             dy = fy * (0.5 * width - 0.2)
-            b.add(prim.horizontal_cylinder(x + c * wx - s * dy, y + s * wx + c * dy, 0.5, 0.5,
-                                           0.35, yaw + np.pi / 2, sides=8), 'truck', inst)
+            b.add(
+                prim.horizontal_cylinder(
+                    x + c * wx - s * dy,
+                    y + s * wx + c * dy,
+                    0.5,
+                    0.5,
+                    0.35,
+                    yaw + np.pi / 2,
+                    sides=8,
+                ),
+                'truck',
+                inst,
+            )
     b.objects['truck'] += 1
 
 
-def _tree(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float,
-          scale: float = 1.0) -> None:
+def _tree(
+    b: _MeshBuilder, rng: np.random.Generator, x: float, y: float, scale: float = 1.0
+) -> None:
     """Trunk (class trunk) with an irregular canopy (class vegetation)."""
     radius = rng.uniform(0.12, 0.32) * scale
     height = rng.uniform(2.0, 3.6) * scale
@@ -208,40 +263,62 @@ def _tree(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float,
     b.add(prim.cylinder(x, y, radius, -0.1, height, sides=9, tilt=tilt), 'trunk')
     rxy = rng.uniform(1.6, 3.3) * scale
     rz = rng.uniform(1.4, 2.8) * scale
-    b.add(prim.blob(x + tilt[0], y + tilt[1], height + 0.7 * rz, (rxy, rxy * rng.uniform(0.8, 1.2),
-                                                                  rz), rng), 'vegetation')
+    b.add(
+        prim.blob(
+            x + tilt[0],
+            y + tilt[1],
+            height + 0.7 * rz,
+            (rxy, rxy * rng.uniform(0.8, 1.2), rz),
+            rng,
+        ),
+        'vegetation',
+    )
     b.objects['tree'] += 1
 
 
 def _bush(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float) -> None:
     r = rng.uniform(0.5, 1.4)
-    b.add(prim.blob(x, y, 0.5 * r, (r, r * rng.uniform(0.7, 1.3), 0.8 * r), rng, 0.25, 1),
-          'vegetation')
+    b.add(
+        prim.blob(x, y, 0.5 * r, (r, r * rng.uniform(0.7, 1.3), 0.8 * r), rng, 0.25, 1),
+        'vegetation',
+    )
     b.objects['bush'] += 1
 
 
-def _lamp(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float,
-          arm_yaw: float) -> None:
+def _lamp(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float, arm_yaw: float) -> None:
     """Street lamp or utility pole (class pole)."""
     if rng.random() < 0.25:  # utility pole with a cross arm
         height = rng.uniform(8.5, 11.0)
         b.add(prim.cylinder(x, y, rng.uniform(0.13, 0.17), 0.0, height, sides=8), 'pole')
-        b.add(prim.box(x, y, 0.12, rng.uniform(1.4, 2.2), height - 0.8, height - 0.68, arm_yaw),
-              'pole')
+        b.add(
+            prim.box(x, y, 0.12, rng.uniform(1.4, 2.2), height - 0.8, height - 0.68, arm_yaw),
+            'pole',
+        )
     else:
         height = rng.uniform(6.0, 9.0)
         b.add(prim.cylinder(x, y, rng.uniform(0.08, 0.13), 0.0, height, sides=8), 'pole')
         arm = rng.uniform(1.0, 2.6)
         c, s = np.cos(arm_yaw), np.sin(arm_yaw)
-        b.add(prim.box(x + 0.5 * arm * c, y + 0.5 * arm * s, arm, 0.12, height - 0.3,
-                       height - 0.18, arm_yaw), 'pole')
-        b.add(prim.box(x + arm * c, y + arm * s, 0.7, 0.35, height - 0.45, height - 0.25,
-                       arm_yaw), 'pole')
+        b.add(
+            prim.box(
+                x + 0.5 * arm * c,
+                y + 0.5 * arm * s,
+                arm,
+                0.12,
+                height - 0.3,
+                height - 0.18,
+                arm_yaw,
+            ),
+            'pole',
+        )
+        b.add(
+            prim.box(x + arm * c, y + arm * s, 0.7, 0.35, height - 0.45, height - 0.25, arm_yaw),
+            'pole',
+        )
     b.objects['pole'] += 1
 
 
-def _sign(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float,
-          face_yaw: float) -> None:
+def _sign(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float, face_yaw: float) -> None:
     """Traffic sign: a thin pole (class pole) with one or two plates (class traffic-sign)."""
     bottom = rng.uniform(1.9, 2.5)
     plates = 2 if rng.random() < 0.25 else 1
@@ -253,11 +330,17 @@ def _sign(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float,
     for size in sizes:
         px, py = x + 0.06 * c, y + 0.06 * s
         if rng.random() < 0.5:
-            b.add(prim.horizontal_cylinder(px, py, z + 0.5 * size, 0.5 * size, 0.04, face_yaw,
-                                           sides=10), 'traffic-sign')
+            b.add(
+                prim.horizontal_cylinder(
+                    px, py, z + 0.5 * size, 0.5 * size, 0.04, face_yaw, sides=10
+                ),
+                'traffic-sign',
+            )
         else:
-            b.add(prim.box(px, py, 0.04, size, z, z + size * rng.uniform(0.8, 1.3), face_yaw),
-                  'traffic-sign')
+            b.add(
+                prim.box(px, py, 0.04, size, z, z + size * rng.uniform(0.8, 1.3), face_yaw),
+                'traffic-sign',
+            )
         z += size + 0.1
     b.objects['traffic-sign'] += 1
 
@@ -277,8 +360,13 @@ def _clutter(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float, yaw:
     b.objects['clutter'] += 1
 
 
-def _fence(b: _MeshBuilder, rng: np.random.Generator, p0: np.ndarray, p1: np.ndarray,
-           gaps: list[tuple[float, float]] = ()) -> None:
+def _fence(
+    b: _MeshBuilder,
+    rng: np.random.Generator,
+    p0: np.ndarray,
+    p1: np.ndarray,
+    gaps: list[tuple[float, float]] = (),
+) -> None:
     """
     Fence from p0 to p1 (class fence): a solid panel or posts with rails.
 
@@ -315,8 +403,18 @@ def _hedge(b: _MeshBuilder, rng: np.random.Generator, p0: np.ndarray, p1: np.nda
     if length < 1.0:
         return
     mid = 0.5 * (p0 + p1)
-    b.add(prim.box(mid[0], mid[1], length, rng.uniform(0.6, 1.1), 0.0, rng.uniform(0.8, 1.8),
-                   float(np.arctan2(delta[1], delta[0]))), 'vegetation')
+    b.add(
+        prim.box(
+            mid[0],
+            mid[1],
+            length,
+            rng.uniform(0.6, 1.1),
+            0.0,
+            rng.uniform(0.8, 1.8),
+            float(np.arctan2(delta[1], delta[0])),
+        ),
+        'vegetation',
+    )
     b.objects['hedge'] += 1
 
 
@@ -340,14 +438,17 @@ class _Side:
         return float(np.arctan2(self.u[1], self.u[0]))
 
 
-def _sides(rect: tuple[float, float, float, float], grid: StreetGrid, i: int, j: int
-           ) -> list[_Side]:
+def _sides(
+    rect: tuple[float, float, float, float], grid: StreetGrid, i: int, j: int
+) -> list[_Side]:
     """Return the four curb sides, counter-clockwise (inward normal = left of the direction)."""
     x0, x1, y0, y1 = rect
-    corners = [(np.array([x0, y0]), np.array([x1, y0]), grid.widths_y[j]),
-               (np.array([x1, y0]), np.array([x1, y1]), grid.widths_x[i + 1]),
-               (np.array([x1, y1]), np.array([x0, y1]), grid.widths_y[j + 1]),
-               (np.array([x0, y1]), np.array([x0, y0]), grid.widths_x[i])]
+    corners = [
+        (np.array([x0, y0]), np.array([x1, y0]), grid.widths_y[j]),
+        (np.array([x1, y0]), np.array([x1, y1]), grid.widths_x[i + 1]),
+        (np.array([x1, y1]), np.array([x0, y1]), grid.widths_y[j + 1]),
+        (np.array([x0, y1]), np.array([x0, y0]), grid.widths_x[i]),
+    ]
     sides = []
     for a, bb, width in corners:
         length = float(np.linalg.norm(bb - a))
@@ -356,8 +457,9 @@ def _sides(rect: tuple[float, float, float, float], grid: StreetGrid, i: int, j:
     return sides
 
 
-def _positions(rng: np.random.Generator, start: float, stop: float,
-               spacing: tuple[float, float]) -> np.ndarray:
+def _positions(
+    rng: np.random.Generator, start: float, stop: float, spacing: tuple[float, float]
+) -> np.ndarray:
     """Irregularly spaced positions in [start, stop]."""
     out, s = [], start + rng.uniform(0.0, spacing[1])
     while s <= stop:
@@ -366,13 +468,25 @@ def _positions(rng: np.random.Generator, start: float, stop: float,
     return np.asarray(out)
 
 
-def _street_side(b: _MeshBuilder, rng: np.random.Generator, side: _Side, sidewalk: float,
-                 kind: str, config: WorldConfig) -> None:
+def _street_side(
+    b: _MeshBuilder,
+    rng: np.random.Generator,
+    side: _Side,
+    sidewalk: float,
+    kind: str,
+    config: WorldConfig,
+) -> None:
     """Lamps, street trees, signs, clutter on the sidewalk; parked vehicles on the road."""
-    tree_p = {'urban': 0.45, 'residential': 0.7, 'park': 0.8, 'parking': 0.3,
-              'industrial': 0.25}[kind]
-    park_p = {'urban': 0.65, 'residential': 0.6, 'park': 0.35, 'parking': 0.35,
-              'industrial': 0.55}[kind]
+    tree_p = {'urban': 0.45, 'residential': 0.7, 'park': 0.8, 'parking': 0.3, 'industrial': 0.25}[
+        kind
+    ]
+    park_p = {
+        'urban': 0.65,
+        'residential': 0.6,
+        'park': 0.35,
+        'parking': 0.35,
+        'industrial': 0.55,
+    }[kind]
     taken: list[float] = []
     curb_d = min(0.6, 0.3 * sidewalk)
     if rng.random() < 0.85:
@@ -388,10 +502,15 @@ def _street_side(b: _MeshBuilder, rng: np.random.Generator, side: _Side, sidewal
             p = side.at(s, d)
             _tree(b, rng, p[0], p[1])
             taken.append(s)
-    signs = [s for s, prob in ((rng.uniform(3.0, 8.0), 0.55),
-                               (side.length - rng.uniform(3.0, 8.0), 0.55),
-                               (rng.uniform(0.3, 0.7) * side.length, 0.35))
-             if rng.random() < prob]
+    signs = [
+        s
+        for s, prob in (
+            (rng.uniform(3.0, 8.0), 0.55),
+            (side.length - rng.uniform(3.0, 8.0), 0.55),
+            (rng.uniform(0.3, 0.7) * side.length, 0.35),
+        )
+        if rng.random() < prob
+    ]
     for s in signs:
         p = side.at(s, curb_d + 0.2)
         _sign(b, rng, p[0], p[1], side.yaw + (np.pi if rng.random() < 0.5 else 0.0))
@@ -418,8 +537,9 @@ def _street_side(b: _MeshBuilder, rng: np.random.Generator, side: _Side, sidewal
             s += length + gap
 
 
-def _lot_ground(b: _MeshBuilder, rng: np.random.Generator, lot: tuple[float, float, float, float],
-                cls: str) -> None:
+def _lot_ground(
+    b: _MeshBuilder, rng: np.random.Generator, lot: tuple[float, float, float, float], cls: str
+) -> None:
     x0, x1, y0, y1 = lot
     if cls == 'terrain':
         b.add(prim.height_grid(x0, y0, x1, y1, 2.5, 0.1, rng, bump=0.12), 'terrain')
@@ -427,14 +547,23 @@ def _lot_ground(b: _MeshBuilder, rng: np.random.Generator, lot: tuple[float, flo
         b.add(prim.quad(x0, y0, x1, y1, 0.06), cls)
 
 
-def _scatter(rng: np.random.Generator, lot: tuple[float, float, float, float], count: int,
-             min_gap: float, inset: float = 0.0) -> np.ndarray:
+def _scatter(
+    rng: np.random.Generator,
+    lot: tuple[float, float, float, float],
+    count: int,
+    min_gap: float,
+    inset: float = 0.0,
+) -> np.ndarray:
     """Up to ``count`` random points in the lot at least ``min_gap`` apart (greedy thinning)."""
     x0, x1, y0, y1 = lot
     if x1 - x0 <= 2 * inset or y1 - y0 <= 2 * inset or count <= 0:
         return np.zeros((0, 2))
-    candidates = np.column_stack([rng.uniform(x0 + inset, x1 - inset, 3 * count),
-                                  rng.uniform(y0 + inset, y1 - inset, 3 * count)])
+    candidates = np.column_stack(
+        [
+            rng.uniform(x0 + inset, x1 - inset, 3 * count),
+            rng.uniform(y0 + inset, y1 - inset, 3 * count),
+        ]
+    )
     kept: list[np.ndarray] = []
     for c in candidates:
         if all(np.hypot(*(c - k)) >= min_gap for k in kept):
@@ -444,8 +573,13 @@ def _scatter(rng: np.random.Generator, lot: tuple[float, float, float, float], c
     return np.asarray(kept).reshape(-1, 2)
 
 
-def _urban(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side], sidewalk: float,
-           lot: tuple[float, float, float, float]) -> None:
+def _urban(
+    b: _MeshBuilder,
+    rng: np.random.Generator,
+    sides: list[_Side],
+    sidewalk: float,
+    lot: tuple[float, float, float, float],
+) -> None:
     """Perimeter rows of buildings with varied widths, depths, heights and setbacks."""
     _lot_ground(b, rng, lot, 'terrain' if rng.random() < 0.6 else 'other-ground')
     half = 0.5 * min(lot[1] - lot[0], lot[3] - lot[2])
@@ -465,8 +599,18 @@ def _urban(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side], sidewa
             b.add(prim.box(c[0], c[1], width, depth, 0.0, height, side.yaw), 'building')
             if rng.random() < 0.4 and depth > 8.0 and width > 8.0:
                 c2 = side.at(s + 0.5 * width, front + 2.5 + 0.5 * (depth - 2.5))
-                b.add(prim.box(c2[0], c2[1], width - 3.0, depth - 2.5, height,
-                               height + rng.uniform(3.0, 9.0), side.yaw), 'building')
+                b.add(
+                    prim.box(
+                        c2[0],
+                        c2[1],
+                        width - 3.0,
+                        depth - 2.5,
+                        height,
+                        height + rng.uniform(3.0, 9.0),
+                        side.yaw,
+                    ),
+                    'building',
+                )
             b.objects['building'] += 1
             s += width + (rng.uniform(2.0, 9.0) if rng.random() < 0.35 else 0.0)
         if setback >= 1.5 and rng.random() < 0.5:
@@ -476,14 +620,23 @@ def _urban(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side], sidewa
                 _hedge(b, rng, p0, p1)
             else:
                 _fence(b, rng, p0, p1, [(5.0, 8.0)])
-    inner = (lot[0] + max_depth + 2, lot[1] - max_depth - 2, lot[2] + max_depth + 2,
-             lot[3] - max_depth - 2)
+    inner = (
+        lot[0] + max_depth + 2,
+        lot[1] - max_depth - 2,
+        lot[2] + max_depth + 2,
+        lot[3] - max_depth - 2,
+    )
     for x, y in _scatter(rng, inner, int(rng.integers(1, 7)), 5.0):
         _tree(b, rng, x, y)
 
 
-def _residential(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side],
-                 sidewalk: float, lot: tuple[float, float, float, float]) -> None:
+def _residential(
+    b: _MeshBuilder,
+    rng: np.random.Generator,
+    sides: list[_Side],
+    sidewalk: float,
+    lot: tuple[float, float, float, float],
+) -> None:
     """Parcels with houses (gable roofs), front fences or hedges, garden trees, cars."""
     _lot_ground(b, rng, lot, 'terrain')
     half = 0.5 * min(lot[1] - lot[0], lot[3] - lot[2])
@@ -492,13 +645,19 @@ def _residential(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side],
         while s < side.length - sidewalk - 12.0:
             parcel = min(rng.uniform(14.0, 24.0), side.length - sidewalk - s)
             setback = rng.uniform(4.0, 8.0)
-            house_w, house_d = rng.uniform(8.0, 12.0), min(rng.uniform(8.0, 11.0),
-                                                           max(4.0, half - setback - 1.0))
+            house_w, house_d = (
+                rng.uniform(8.0, 12.0),
+                min(rng.uniform(8.0, 11.0), max(4.0, half - setback - 1.0)),
+            )
             wall = rng.uniform(3.0, 6.0)
             c = side.at(s + 0.5 * parcel, sidewalk + setback + 0.5 * house_d)
             b.add(prim.box(c[0], c[1], house_w, house_d, 0.0, wall, side.yaw), 'building')
-            b.add(prim.gable_roof(c[0], c[1], house_w + 0.6, house_d + 0.6, wall,
-                                  rng.uniform(1.5, 3.2), side.yaw), 'building')
+            b.add(
+                prim.gable_roof(
+                    c[0], c[1], house_w + 0.6, house_d + 0.6, wall, rng.uniform(1.5, 3.2), side.yaw
+                ),
+                'building',
+            )
             b.objects['building'] += 1
             drive = rng.uniform(1.0, parcel - 4.0)
             front = rng.random()
@@ -513,14 +672,21 @@ def _residential(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side],
                 p = side.at(s + drive + 1.5, sidewalk + 2.8)
                 _car(b, rng, p[0], p[1], side.yaw + np.pi / 2)
             for _ in range(int(rng.integers(0, 3))):
-                p = side.at(s + rng.uniform(1.0, parcel - 1.0),
-                            sidewalk + rng.uniform(1.5, max(1.6, setback - 1.0)))
+                p = side.at(
+                    s + rng.uniform(1.0, parcel - 1.0),
+                    sidewalk + rng.uniform(1.5, max(1.6, setback - 1.0)),
+                )
                 (_tree if rng.random() < 0.6 else _bush)(b, rng, p[0], p[1])
             s += parcel
 
 
-def _park(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side], sidewalk: float,
-          lot: tuple[float, float, float, float]) -> None:
+def _park(
+    b: _MeshBuilder,
+    rng: np.random.Generator,
+    sides: list[_Side],
+    sidewalk: float,
+    lot: tuple[float, float, float, float],
+) -> None:
     """Terrain with trees, bushes, paths, lamps and benches; sometimes fenced."""
     _lot_ground(b, rng, lot, 'terrain')
     x0, x1, y0, y1 = lot
@@ -537,13 +703,22 @@ def _park(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side], sidewal
             _clutter(b, rng, s + 3.0, cy + 1.8, 0.0)
     if rng.random() < 0.4:
         for side in sides:
-            _fence(b, rng, side.at(sidewalk, sidewalk + 0.2),
-                   side.at(side.length - sidewalk, sidewalk + 0.2),
-                   [(0.5 * side.length - 2.0, 0.5 * side.length + 2.0)])
+            _fence(
+                b,
+                rng,
+                side.at(sidewalk, sidewalk + 0.2),
+                side.at(side.length - sidewalk, sidewalk + 0.2),
+                [(0.5 * side.length - 2.0, 0.5 * side.length + 2.0)],
+            )
 
 
-def _parking(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side], sidewalk: float,
-             lot: tuple[float, float, float, float]) -> None:
+def _parking(
+    b: _MeshBuilder,
+    rng: np.random.Generator,
+    sides: list[_Side],
+    sidewalk: float,
+    lot: tuple[float, float, float, float],
+) -> None:
     """Rows of perpendicular parked cars, trucks along one edge, lamps, a perimeter fence."""
     _lot_ground(b, rng, lot, 'parking')
     x0, x1, y0, y1 = lot
@@ -573,29 +748,45 @@ def _parking(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side], side
             u += rng.uniform(6.0, 14.0)
     if rng.random() < 0.6:
         for side in sides:
-            _fence(b, rng, side.at(sidewalk, sidewalk + 0.2),
-                   side.at(side.length - sidewalk, sidewalk + 0.2),
-                   [(0.3 * side.length, 0.3 * side.length + 6.0)])
+            _fence(
+                b,
+                rng,
+                side.at(sidewalk, sidewalk + 0.2),
+                side.at(side.length - sidewalk, sidewalk + 0.2),
+                [(0.3 * side.length, 0.3 * side.length + 6.0)],
+            )
     if rng.random() < 0.3:
         b.add(prim.box(*xy(u0 + 4.0, v1 - 9.0), 4.0, 3.0, 0.0, 2.8, row_yaw), 'building')
         b.objects['building'] += 1
 
 
-def _industrial(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side], sidewalk: float,
-                lot: tuple[float, float, float, float]) -> None:
+def _industrial(
+    b: _MeshBuilder,
+    rng: np.random.Generator,
+    sides: list[_Side],
+    sidewalk: float,
+    lot: tuple[float, float, float, float],
+) -> None:
     """Warehouses with loading docks, parked trucks, containers and a fence."""
     _lot_ground(b, rng, lot, 'other-ground' if rng.random() < 0.7 else 'terrain')
     x0, x1, y0, y1 = lot
     mx, my = rng.uniform(8.0, 16.0, size=2)
     if x1 - x0 > 2 * mx + 10 and y1 - y0 > 2 * my + 10:
         split = rng.random() < 0.5 and (x1 - x0) > 2 * mx + 40
-        spans = ([(x0 + mx, 0.5 * (x0 + x1) - 3), (0.5 * (x0 + x1) + 3, x1 - mx)] if split
-                 else [(x0 + mx, x1 - mx)])
+        spans = (
+            [(x0 + mx, 0.5 * (x0 + x1) - 3), (0.5 * (x0 + x1) + 3, x1 - mx)]
+            if split
+            else [(x0 + mx, x1 - mx)]
+        )
         for a, c in spans:
             height = rng.uniform(7.0, 14.0)
             b.add(prim.box_between(a, y0 + my, c, y1 - my, 0.0, height), 'building')
-            b.add(prim.box_between(a + 3, y0 + my - 3.0, a + 3 + rng.uniform(6, 15),
-                                   y0 + my, 0.0, 1.2), 'building')
+            b.add(
+                prim.box_between(
+                    a + 3, y0 + my - 3.0, a + 3 + rng.uniform(6, 15), y0 + my, 0.0, 1.2
+                ),
+                'building',
+            )
             b.objects['building'] += 1
             for u in _positions(rng, a + 4.0, c - 4.0, (4.0, 9.0)):
                 if rng.random() < 0.55:
@@ -606,13 +797,22 @@ def _industrial(b: _MeshBuilder, rng: np.random.Generator, sides: list[_Side], s
         b.objects['clutter'] += 1
     if rng.random() < 0.8:
         for side in sides:
-            _fence(b, rng, side.at(sidewalk, sidewalk + 0.2),
-                   side.at(side.length - sidewalk, sidewalk + 0.2),
-                   [(0.5 * side.length - 4.0, 0.5 * side.length + 4.0)])
+            _fence(
+                b,
+                rng,
+                side.at(sidewalk, sidewalk + 0.2),
+                side.at(side.length - sidewalk, sidewalk + 0.2),
+                [(0.5 * side.length - 4.0, 0.5 * side.length + 4.0)],
+            )
 
 
-_BLOCK_BUILDERS = {'urban': _urban, 'residential': _residential, 'park': _park,
-                   'parking': _parking, 'industrial': _industrial}
+_BLOCK_BUILDERS = {
+    'urban': _urban,
+    'residential': _residential,
+    'park': _park,
+    'parking': _parking,
+    'industrial': _industrial,
+}
 
 
 def _block(b: _MeshBuilder, grid: StreetGrid, i: int, j: int, config: WorldConfig) -> str:
@@ -623,9 +823,12 @@ def _block(b: _MeshBuilder, grid: StreetGrid, i: int, j: int, config: WorldConfi
     rect = grid.block_rect(i, j)
     x0, x1, y0, y1 = rect
     sidewalk = rng.uniform(*config.sidewalk_width)
-    for box in ((x0, y0, x1, y0 + sidewalk), (x0, y1 - sidewalk, x1, y1),
-                (x0, y0 + sidewalk, x0 + sidewalk, y1 - sidewalk),
-                (x1 - sidewalk, y0 + sidewalk, x1, y1 - sidewalk)):
+    for box in (
+        (x0, y0, x1, y0 + sidewalk),
+        (x0, y1 - sidewalk, x1, y1),
+        (x0, y0 + sidewalk, x0 + sidewalk, y1 - sidewalk),
+        (x1 - sidewalk, y0 + sidewalk, x1, y1 - sidewalk),
+    ):
         b.add(prim.box_between(box[0], box[1], box[2], box[3], 0.0, 0.15), 'sidewalk')
     lot = (x0 + sidewalk, x1 - sidewalk, y0 + sidewalk, y1 - sidewalk)
     sides = _sides(rect, grid, i, j)
@@ -637,15 +840,20 @@ def _block(b: _MeshBuilder, grid: StreetGrid, i: int, j: int, config: WorldConfi
 
 def _rect_distance(rects: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Distance (B,) from each rectangle (B, 4: x0, x1, y0, y1) to the nearest point (P, 2)."""
-    dx = np.maximum(np.maximum(rects[:, None, 0] - points[None, :, 0],
-                               points[None, :, 0] - rects[:, None, 1]), 0.0)
-    dy = np.maximum(np.maximum(rects[:, None, 2] - points[None, :, 1],
-                               points[None, :, 1] - rects[:, None, 3]), 0.0)
+    dx = np.maximum(
+        np.maximum(rects[:, None, 0] - points[None, :, 0], points[None, :, 0] - rects[:, None, 1]),
+        0.0,
+    )
+    dy = np.maximum(
+        np.maximum(rects[:, None, 2] - points[None, :, 1], points[None, :, 1] - rects[:, None, 3]),
+        0.0,
+    )
     return np.hypot(dx, dy).min(axis=1)
 
 
-def build_world(grid: StreetGrid, route_xy: np.ndarray, config: WorldConfig,
-                label_map: LabelMap | None = None) -> World:
+def build_world(
+    grid: StreetGrid, route_xy: np.ndarray, config: WorldConfig, label_map: LabelMap | None = None
+) -> World:
     """
     Build every block within ``config.margin`` of the route points (P, 2), with its roads.
 

@@ -39,9 +39,11 @@ from mlsemreg_ros.tools.common import (
 )
 import typer
 
-HELP = ('Per-stage median time (ms per pair, both clouds) of the registration core for '
-        '250..5000 keypoints per cloud, as in the appendix table of the paper ("Time cost '
-        'analysis").')
+HELP = (
+    'Per-stage median time (ms per pair, both clouds) of the registration core for '
+    '250..5000 keypoints per cloud, as in the appendix table of the paper ("Time cost '
+    'analysis").'
+)
 
 
 def keypoint_counts(text: str) -> tuple[int, ...]:
@@ -56,24 +58,46 @@ def keypoint_counts(text: str) -> tuple[int, ...]:
 
 
 def bench(
-    pair_path: Annotated[Path | None, typer.Option(
-        '--pair', metavar='PATH', exists=True, dir_okay=False,
-        help='pair file (.npz); default: the first KITTI dev pair if present, else a '
-        'generated scene', rich_help_panel=DATA)] = None,
-    synthetic: Annotated[bool, typer.Option(
-        '--synthetic', help='use the generated scene even when real pairs are present',
-        rich_help_panel=DATA)] = False,
+    pair_path: Annotated[
+        Path | None,
+        typer.Option(
+            '--pair',
+            metavar='PATH',
+            exists=True,
+            dir_okay=False,
+            help='pair file (.npz); default: the first KITTI dev pair if present, else a '
+            'generated scene',
+            rich_help_panel=DATA,
+        ),
+    ] = None,
+    synthetic: Annotated[
+        bool,
+        typer.Option(
+            '--synthetic',
+            help='use the generated scene even when real pairs are present',
+            rich_help_panel=DATA,
+        ),
+    ] = False,
     repeats: Annotated[int, typer.Option(min=1, help='runs per size (median)')] = 5,
-    keypoints: Annotated[str, typer.Option(help='comma-separated keypoint counts')] =
-    '250,500,1000,2500,5000',
+    keypoints: Annotated[
+        str, typer.Option(help='comma-separated keypoint counts')
+    ] = '250,500,1000,2500,5000',
     config: ConfigOption = None,
     overrides: SetOption = None,
-    json_path: Annotated[Path | None, typer.Option(
-        '--json', metavar='PATH', dir_okay=False, help='write the results as JSON',
-        rich_help_panel=OUTPUT)] = None,
+    json_path: Annotated[
+        Path | None,
+        typer.Option(
+            '--json',
+            metavar='PATH',
+            dir_okay=False,
+            help='write the results as JSON',
+            rich_help_panel=OUTPUT,
+        ),
+    ] = None,
     quiet: QuietOption = False,
-    no_progress: Annotated[bool, typer.Option('--no-progress', hidden=True,
-                                              help='the same as --quiet')] = False,
+    no_progress: Annotated[
+        bool, typer.Option('--no-progress', hidden=True, help='the same as --quiet')
+    ] = False,
 ) -> int:
     """Per-stage median times of the registration core (alias mlsemreg-bench)."""
     from mlsemreg_ros.core.config import RegistrationConfig
@@ -101,26 +125,37 @@ def bench(
     available = min(len(pair.kpts_src), len(pair.kpts_dst))
     if max(counts) > available:
         tables.console(stderr=True).print(
-            f'note: the pair has {available} keypoints per cloud; larger counts use all of '
-            'them', markup=False)
-    rows = bench_pair(Registration(core), pair, counts, repeats,
-                      progress=not (quiet or no_progress))
+            f'note: the pair has {available} keypoints per cloud; larger counts use all of them',
+            markup=False,
+        )
+    rows = bench_pair(
+        Registration(core), pair, counts, repeats, progress=not (quiet or no_progress)
+    )
     load = ', '.join(f'{x:.1f}' for x in os.getloadavg())
     tables.print_text(
         f'pair: {source_name} ({len(pair.pts_src)} / {len(pair.pts_dst)} points); median of '
         f'{repeats} runs, ms per pair (both clouds); {os.cpu_count()} CPUs, load average '
-        f'{load} (other work makes timings noisy)')
+        f'{load} (other work makes timings noisy)'
+    )
     tables.print_table(timing_table(rows))
     tables.print_text(
         'Total-1 = Local-SS + BMR-SS + GM+MM (paper); BMR-SS includes landmark extraction; '
         'total = wall time of prepare x2 + register (keypoint lookup, FPFH, signatures, '
         'matching, estimator); total 2 threads = the same with both clouds prepared '
-        'concurrently (Registration.prepare_scans).')
+        'concurrently (Registration.prepare_scans).'
+    )
     if json_path is not None:
-        report = {'pair': source_name, 'config': core.to_dict(), 'keypoints': rows,
-                  'machine': {'cpu_count': os.cpu_count(), 'numpy': numpy.__version__,
-                              'python': sys.version.split()[0],
-                              'load_average': list(os.getloadavg())}}
+        report = {
+            'pair': source_name,
+            'config': core.to_dict(),
+            'keypoints': rows,
+            'machine': {
+                'cpu_count': os.cpu_count(),
+                'numpy': numpy.__version__,
+                'python': sys.version.split()[0],
+                'load_average': list(os.getloadavg()),
+            },
+        }
         write_json(json_path, report)
         tables.print_text(f'wrote {json_path}')
     return 0

@@ -51,20 +51,31 @@ def load_pairs(directory: Path | None, limit: int) -> list[Any]:
 
 
 def bench_node(
-    pairs_dir: Annotated[Path | None, typer.Option(
-        '--pairs', file_okay=False, help='directory of pair files (default: the KITTI dev '
-        'pairs; the synthetic street when absent)', rich_help_panel=DATA)] = None,
-    synthetic: Annotated[bool, typer.Option('--synthetic', help='use the synthetic street',
-                                            rich_help_panel=DATA)] = False,
+    pairs_dir: Annotated[
+        Path | None,
+        typer.Option(
+            '--pairs',
+            file_okay=False,
+            help='directory of pair files (default: the KITTI dev '
+            'pairs; the synthetic street when absent)',
+            rich_help_panel=DATA,
+        ),
+    ] = None,
+    synthetic: Annotated[
+        bool, typer.Option('--synthetic', help='use the synthetic street', rich_help_panel=DATA)
+    ] = False,
     limit: Annotated[int, typer.Option(min=1, help='pairs to use', rich_help_panel=DATA)] = 10,
-    repeats: Annotated[int, typer.Option(min=1, help='registrations per pair and '
-                                         'direction')] = 2,
+    repeats: Annotated[int, typer.Option(min=1, help='registrations per pair and direction')] = 2,
     rate: Annotated[float, typer.Option(min=0.01, help='publish rate, Hz')] = 2.0,
-    domain_id: Annotated[int | None, typer.Option(
-        min=0, max=232, help='ROS domain id (default: ROS_DOMAIN_ID)')] = None,
-    json_path: Annotated[Path | None, typer.Option(
-        '--json', dir_okay=False, help='write records + summary here',
-        rich_help_panel=OUTPUT)] = None,
+    domain_id: Annotated[
+        int | None, typer.Option(min=0, max=232, help='ROS domain id (default: ROS_DOMAIN_ID)')
+    ] = None,
+    json_path: Annotated[
+        Path | None,
+        typer.Option(
+            '--json', dir_okay=False, help='write records + summary here', rich_help_panel=OUTPUT
+        ),
+    ] = None,
     config: ConfigOption = None,
     overrides: SetOption = None,
 ) -> int:
@@ -83,13 +94,16 @@ def bench_node(
     from mlsemreg_ros.ros.node_process import write_params_file
     from mlsemreg_ros.ros.probe import node_and_probe
 
-    core, node, evaluation = settings((RegistrationConfig, NodeConfig, EvaluationSettings),
-                                      config, overrides)
+    core, node, evaluation = settings(
+        (RegistrationConfig, NodeConfig, EvaluationSettings), config, overrides
+    )
     directory = None if synthetic else (pairs_dir or dev_pairs_dir())
     pairs = load_pairs(directory, limit)
-    tables.print_text(f'{len(pairs)} pair(s) from '
-                      f'{directory if directory else "the synthetic street"}; {repeats} x 2 '
-                      f'registrations each at {rate:g} Hz')
+    tables.print_text(
+        f'{len(pairs)} pair(s) from '
+        f'{directory if directory else "the synthetic street"}; {repeats} x 2 '
+        f'registrations each at {rate:g} Hz'
+    )
     if overrides:
         tables.print_text('parameters: ' + ', '.join(overrides))
     with tempfile.TemporaryDirectory() as folder:

@@ -45,22 +45,42 @@ import typer
 
 EVALUATION, DATA, MAINTENANCE = 'Evaluation', 'Data and playback', 'Maintenance'
 #: (import name, what needs it); the first group must load, the second may be missing.
-REQUIRED = ('numpy', 'scipy', 'open3d', 'small_gicp', 'rosbags', 'threadpoolctl', 'yaml',
-            'matplotlib', 'tqdm')
-OPTIONAL = {'rclpy': 'the node, play, demo and bench-node (ROS 2 Jazzy)',
-            'kiss_icp': 'eval-bag --baseline kiss-icp',
-            'kiss_matcher': 'eval-pairs --baseline kiss-matcher'}
+REQUIRED = (
+    'numpy',
+    'scipy',
+    'open3d',
+    'small_gicp',
+    'rosbags',
+    'threadpoolctl',
+    'yaml',
+    'matplotlib',
+    'tqdm',
+)
+OPTIONAL = {
+    'rclpy': 'the node, play, demo and bench-node (ROS 2 Jazzy)',
+    'kiss_icp': 'eval-bag --baseline kiss-icp',
+    'kiss_matcher': 'eval-pairs --baseline kiss-matcher',
+}
 
-app = typer.Typer(name='mlsemreg', no_args_is_help=True, add_completion=False,
-                  rich_markup_mode='rich',
-                  context_settings={'help_option_names': ['-h', '--help']},
-                  help='ML-SemReg registration of labeled LiDAR scans: benchmarks, offline '
-                  'evaluation, simulation, bags and the ROS 2 node demo.')
+app = typer.Typer(
+    name='mlsemreg',
+    no_args_is_help=True,
+    add_completion=False,
+    rich_markup_mode='rich',
+    context_settings={'help_option_names': ['-h', '--help']},
+    help='ML-SemReg registration of labeled LiDAR scans: benchmarks, offline '
+    'evaluation, simulation, bags and the ROS 2 node demo.',
+)
 
 
 #: Import name -> distribution name, where they differ.
-DISTRIBUTIONS = {'small_gicp': 'small-gicp', 'rclpy': 'ros-jazzy-rclpy', 'yaml': 'PyYAML',
-                 'open3d': 'open3d-cpu', 'kiss_matcher': 'kiss-matcher'}
+DISTRIBUTIONS = {
+    'small_gicp': 'small-gicp',
+    'rclpy': 'ros-jazzy-rclpy',
+    'yaml': 'PyYAML',
+    'open3d': 'open3d-cpu',
+    'kiss_matcher': 'kiss-matcher',
+}
 
 
 def _distribution_version(name: str) -> str:
@@ -99,25 +119,34 @@ def _version(value: bool) -> None:
 
 
 @app.callback()
-def _main(version: Annotated[bool, typer.Option(
-        '--version', callback=_version, is_eager=True,
-        help='show the version and check that the heavy imports load')] = False) -> None:
+def _main(
+    version: Annotated[
+        bool,
+        typer.Option(
+            '--version',
+            callback=_version,
+            is_eager=True,
+            help='show the version and check that the heavy imports load',
+        ),
+    ] = False,
+) -> None:
     """ML-SemReg registration of labeled LiDAR scans."""
 
 
 for module, function, name, panel in (
-        (eval_pairs, eval_pairs.eval_pairs, 'eval-pairs', EVALUATION),
-        (eval_bag, eval_bag.eval_bag, 'eval-bag', EVALUATION),
-        (bench, bench.bench, 'bench', EVALUATION),
-        (bench_node, bench_node.bench_node, 'bench-node', EVALUATION),
-        (confidence, confidence.confidence, 'confidence', EVALUATION),
-        (demo, demo.demo, 'demo', EVALUATION),
-        (soak, soak.soak, 'soak', EVALUATION),
-        (simulate, simulate.simulate, 'simulate', DATA),
-        (kitti_to_bag, kitti_to_bag.kitti_to_bag, 'kitti-to-bag', DATA),
-        (cut_pairs, cut_pairs.cut_pairs, 'cut-pairs', DATA),
-        (play, play.play, 'play', DATA),
-        (params, params.params, 'params', MAINTENANCE)):
+    (eval_pairs, eval_pairs.eval_pairs, 'eval-pairs', EVALUATION),
+    (eval_bag, eval_bag.eval_bag, 'eval-bag', EVALUATION),
+    (bench, bench.bench, 'bench', EVALUATION),
+    (bench_node, bench_node.bench_node, 'bench-node', EVALUATION),
+    (confidence, confidence.confidence, 'confidence', EVALUATION),
+    (demo, demo.demo, 'demo', EVALUATION),
+    (soak, soak.soak, 'soak', EVALUATION),
+    (simulate, simulate.simulate, 'simulate', DATA),
+    (kitti_to_bag, kitti_to_bag.kitti_to_bag, 'kitti-to-bag', DATA),
+    (cut_pairs, cut_pairs.cut_pairs, 'cut-pairs', DATA),
+    (play, play.play, 'play', DATA),
+    (params, params.params, 'params', MAINTENANCE),
+):
     app.command(name, help=module.HELP, rich_help_panel=panel)(function)
 
 

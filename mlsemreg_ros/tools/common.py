@@ -36,29 +36,47 @@ import typer
 #: Help panels of the options.
 DATA, PARAMETERS, OUTPUT = 'Data', 'Parameters', 'Output'
 
-ConfigOption = Annotated[Path | None, typer.Option(
-    '--config', metavar='PATH', dir_okay=False, exists=True, rich_help_panel=PARAMETERS,
-    help='parameter YAML: the node layout (config/params.yaml) or plain sections')]
-SetOption = Annotated[list[str] | None, typer.Option(
-    '--set', metavar='KEY=VALUE', rich_help_panel=PARAMETERS,
-    help='override one parameter, e.g. --set semantic.top_k=3 or --set '
-    'evaluation.max_rotation_deg=15 (repeatable; values are YAML)')]
-QuietOption = Annotated[bool, typer.Option('--quiet', help='no progress bar',
-                                           rich_help_panel=OUTPUT)]
+ConfigOption = Annotated[
+    Path | None,
+    typer.Option(
+        '--config',
+        metavar='PATH',
+        dir_okay=False,
+        exists=True,
+        rich_help_panel=PARAMETERS,
+        help='parameter YAML: the node layout (config/params.yaml) or plain sections',
+    ),
+]
+SetOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        '--set',
+        metavar='KEY=VALUE',
+        rich_help_panel=PARAMETERS,
+        help='override one parameter, e.g. --set semantic.top_k=3 or --set '
+        'evaluation.max_rotation_deg=15 (repeatable; values are YAML)',
+    ),
+]
+QuietOption = Annotated[
+    bool, typer.Option('--quiet', help='no progress bar', rich_help_panel=OUTPUT)
+]
 ForceOption = Annotated[bool, typer.Option('--force', help='replace OUT if it exists')]
 #: The bag layout of the bag writers (simulate, kitti-to-bag).
 TOPICS = 'Topics and frames'
-StorageOption = Annotated[Literal['mcap', 'sqlite3'], typer.Option(
-    help='rosbag2 storage plugin')]
-CompressOption = Annotated[bool, typer.Option(
-    '--compress', help='zstd compression (mcap chunks / sqlite3 messages)')]
-PointsTopicOption = Annotated[str, typer.Option(help='topic of the clouds',
-                                                rich_help_panel=TOPICS)]
-GtTopicOption = Annotated[str, typer.Option(help='topic of the ground truth',
-                                            rich_help_panel=TOPICS)]
+StorageOption = Annotated[Literal['mcap', 'sqlite3'], typer.Option(help='rosbag2 storage plugin')]
+CompressOption = Annotated[
+    bool, typer.Option('--compress', help='zstd compression (mcap chunks / sqlite3 messages)')
+]
+PointsTopicOption = Annotated[
+    str, typer.Option(help='topic of the clouds', rich_help_panel=TOPICS)
+]
+GtTopicOption = Annotated[
+    str, typer.Option(help='topic of the ground truth', rich_help_panel=TOPICS)
+]
 FrameIdOption = Annotated[str, typer.Option(help='frame of the clouds', rich_help_panel=TOPICS)]
-WorldFrameOption = Annotated[str, typer.Option(help='frame of the ground truth',
-                                               rich_help_panel=TOPICS)]
+WorldFrameOption = Annotated[
+    str, typer.Option(help='frame of the ground truth', rich_help_panel=TOPICS)
+]
 
 
 class CommandError(Exception):
@@ -71,8 +89,9 @@ class CommandError(Exception):
         self.exit_code = exit_code
 
 
-def settings(kinds: tuple[type, ...], config: Path | None, overrides: Sequence[str] | None
-             ) -> tuple[Any, ...]:
+def settings(
+    kinds: tuple[type, ...], config: Path | None, overrides: Sequence[str] | None
+) -> tuple[Any, ...]:
     """Load settings of ``kinds``: defaults < ``--config`` < ``--set`` (exit 2 when invalid)."""
     from mlsemreg_ros.core.config import ConfigError, load_settings
 
@@ -105,8 +124,7 @@ def run(command: Any, argv: Sequence[str] | None, prog: str) -> int:
     """Run a typer (click) command on ``argv``; return its exit code (one error style)."""
     args = list(argv) if argv is not None else sys.argv[1:]
     try:
-        result = command.main(args=args, prog_name=prog, standalone_mode=False,
-                              obj={'argv': args})
+        result = command.main(args=args, prog_name=prog, standalone_mode=False, obj={'argv': args})
     except CommandError as error:
         _print_error(prog, error.message)
         return error.exit_code
@@ -124,15 +142,20 @@ def run(command: Any, argv: Sequence[str] | None, prog: str) -> int:
 
 def single_command_app(function: Callable[..., int], help_text: str | None = None) -> Any:
     """Build the click command of one subcommand function (its ``mlsemreg-<name>`` alias)."""
-    app = typer.Typer(add_completion=False, rich_markup_mode='rich',
-                      context_settings={'help_option_names': ['-h', '--help']})
+    app = typer.Typer(
+        add_completion=False,
+        rich_markup_mode='rich',
+        context_settings={'help_option_names': ['-h', '--help']},
+    )
     app.command(help=help_text)(function)
     return typer.main.get_command(app)
 
 
-def alias(function: Callable[..., int], help_text: str, prog: str
-          ) -> Callable[[Sequence[str] | None], int]:
+def alias(
+    function: Callable[..., int], help_text: str, prog: str
+) -> Callable[[Sequence[str] | None], int]:
     """Return the ``main(argv)`` of the ``mlsemreg-<name>`` alias of a subcommand function."""
+
     def main(argv: Sequence[str] | None = None) -> int:
         return run(single_command_app(function, help_text), argv, prog)
 

@@ -26,19 +26,31 @@ from typing import Annotated
 from mlsemreg_ros.tools.common import alias, CommandError, ConfigOption, SetOption, settings
 import typer
 
-HELP = ('Register pairs of known outcome (dev pairs both ways, far chain pairs, mirrored '
-        'clouds, corrupted labels, simulated drives) with every threshold off, plot their '
-        'evidence and count what the configured thresholds accept; run the failure cases '
-        'through the odometry.')
+HELP = (
+    'Register pairs of known outcome (dev pairs both ways, far chain pairs, mirrored '
+    'clouds, corrupted labels, simulated drives) with every threshold off, plot their '
+    'evidence and count what the configured thresholds accept; run the failure cases '
+    'through the odometry.'
+)
 
 
 def confidence(
-    dev: Annotated[Path | None, typer.Option(
-        file_okay=False, help='folder of the dev pair files (default: ../shared/data/'
-        'kitti_pairs_dev or MLSEMREG_DEV_PAIRS)')] = None,
-    bags: Annotated[list[Path] | None, typer.Option(
-        '--bags', exists=True, help='simulated bags with ground truth (pairs at strides 1, '
-        '10, 20; repeatable)')] = None,
+    dev: Annotated[
+        Path | None,
+        typer.Option(
+            file_okay=False,
+            help='folder of the dev pair files (default: ../shared/data/'
+            'kitti_pairs_dev or MLSEMREG_DEV_PAIRS)',
+        ),
+    ] = None,
+    bags: Annotated[
+        list[Path] | None,
+        typer.Option(
+            '--bags',
+            exists=True,
+            help='simulated bags with ground truth (pairs at strides 1, 10, 20; repeatable)',
+        ),
+    ] = None,
     out: Annotated[Path, typer.Option(help='results folder')] = Path('results/confidence'),
     config: ConfigOption = None,
     overrides: SetOption = None,
@@ -52,8 +64,13 @@ def confidence(
 
     core, evaluation = settings((RegistrationConfig, EvaluationSettings), config, overrides)
     try:
-        lines = run_study(dev if dev is not None else dev_pairs_dir(), list(bags or []), out,
-                          core, evaluation.evaluation)
+        lines = run_study(
+            dev if dev is not None else dev_pairs_dir(),
+            list(bags or []),
+            out,
+            core,
+            evaluation.evaluation,
+        )
     except ValueError as error:
         raise CommandError(str(error), 2) from None
     print_text('\n'.join([*lines, f'results: {out}']))

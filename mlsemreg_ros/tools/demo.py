@@ -45,8 +45,10 @@ from mlsemreg_ros.tools.common import (
 )
 import typer
 
-HELP = ('Simulate a drive (cached), run mlsemreg_node on it through the player, record its '
-        'odometry, print the metrics and write plots.')
+HELP = (
+    'Simulate a drive (cached), run mlsemreg_node on it through the player, record its '
+    'odometry, print the metrics and write plots.'
+)
 
 #: Seconds as the node writes them -> exact nanoseconds (kept under its old name).
 parse_stamp = parse_seconds
@@ -81,8 +83,11 @@ def correspondence_pair(bag: Path, run: Any, core: Any, bounds: Any) -> dict | N
     record = pairs[len(pairs) // 2]
     source = BagScanReader(bag)
     try:
-        scans = {s.index: s for s in source.scans()
-                 if s.index in (record.bag_index, record.keyframe_index)}
+        scans = {
+            s.index: s
+            for s in source.scans()
+            if s.index in (record.bag_index, record.keyframe_index)
+        }
     finally:
         source.close()
     current, keyframe = scans[record.bag_index], scans[record.keyframe_index]
@@ -93,28 +98,48 @@ def correspondence_pair(bag: Path, run: Any, core: Any, bounds: Any) -> dict | N
     prepared = registration.prepare(current.xyz, current.labels)
     result = registration.register(prepared, target)
     estimate = FrameEstimate(
-        current.pose, keyframe.index, source_points=result.source_points,
+        current.pose,
+        keyframe.index,
+        source_points=result.source_points,
         target_points=result.target_points,
-        clouds=PairClouds(target.points, target.labels, prepared.points, prepared.labels))
-    return correspondence_plot_data(estimate, relative_transform(keyframe.pose, current.pose),
-                                    record.bag_index, record.keyframe_index, bounds)
+        clouds=PairClouds(target.points, target.labels, prepared.points, prepared.labels),
+    )
+    return correspondence_plot_data(
+        estimate,
+        relative_transform(keyframe.pose, current.pose),
+        record.bag_index,
+        record.keyframe_index,
+        bounds,
+    )
 
 
 def demo(
     frames: Annotated[int, typer.Option(min=2, help='scans of the simulated drive')] = 100,
     seed: Annotated[int, typer.Option(min=0, help='world seed')] = 0,
-    cache_dir: Annotated[Path, typer.Option(help='where simulated bags are kept')] =
-    Path('.cache'),
-    output: Annotated[Path | None, typer.Option(
-        '-o', '--output', help='results folder (default: results/demo/<time>_<bag>, link '
-        'results/demo/latest)', rich_help_panel=OUTPUT)] = None,
-    rate: Annotated[float, typer.Option(help='player speed factor (playback is also paced '
-                                        'by the node)')] = 1.0,
-    domain_id: Annotated[int, typer.Option(
-        min=0, max=232, envvar='ROS_DOMAIN_ID',
-        help='ROS_DOMAIN_ID of the node and the player')] = 0,
-    timeout: Annotated[float, typer.Option(min=1.0, help='seconds to wait for the node on '
-                                           'one scan')] = 120.0,
+    cache_dir: Annotated[Path, typer.Option(help='where simulated bags are kept')] = Path(
+        '.cache'
+    ),
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            '-o',
+            '--output',
+            help='results folder (default: results/demo/<time>_<bag>, link results/demo/latest)',
+            rich_help_panel=OUTPUT,
+        ),
+    ] = None,
+    rate: Annotated[
+        float, typer.Option(help='player speed factor (playback is also paced by the node)')
+    ] = 1.0,
+    domain_id: Annotated[
+        int,
+        typer.Option(
+            min=0, max=232, envvar='ROS_DOMAIN_ID', help='ROS_DOMAIN_ID of the node and the player'
+        ),
+    ] = 0,
+    timeout: Annotated[
+        float, typer.Option(min=1.0, help='seconds to wait for the node on one scan')
+    ] = 120.0,
     config: ConfigOption = None,
     overrides: SetOption = None,
     quiet: QuietOption = False,
@@ -132,7 +157,8 @@ def demo(
     from mlsemreg_ros.ros.recorder import record_and_play, scan_stamps, write_recording
 
     core, node_settings, evaluation = settings(
-        (RegistrationConfig, NodeConfig, EvaluationSettings), config, overrides)
+        (RegistrationConfig, NodeConfig, EvaluationSettings), config, overrides
+    )
     bounds = evaluation.evaluation
     # paced playback needs a reliable subscription with room for a few scans
     node_settings = node_settings.replace({'qos.reliability': 'reliable', 'qos.depth': 10})
@@ -140,8 +166,9 @@ def demo(
     bag = ensure_sequence(cache_dir, frames, seed, quiet)
     out = output or reports.default_output(Path('results'), 'demo', bag.name)
     out.mkdir(parents=True, exist_ok=True)
-    tables.print_text(f'starting mlsemreg_node (ROS_DOMAIN_ID {domain_id}); log: '
-                      f'{out / "node.log"}')
+    tables.print_text(
+        f'starting mlsemreg_node (ROS_DOMAIN_ID {domain_id}); log: {out / "node.log"}'
+    )
     with tempfile.TemporaryDirectory() as folder:
         params = write_params_file(Path(folder) / 'params.yaml', core, node_settings)
         node = start_node(domain_id, params, out / 'node.log')
@@ -158,9 +185,13 @@ def demo(
         source.close()
     run_.plot_pair = correspondence_pair(bag, run_, core, bounds)
     summary = summarize_run(run_)
-    details = run_details(run_, bag=str(bag), answered_scans=len(recording.diagnostics),
-                          node_params=list(overrides or []),
-                          total_time_s=time.monotonic() - start)
+    details = run_details(
+        run_,
+        bag=str(bag),
+        answered_scans=len(recording.diagnostics),
+        node_params=list(overrides or []),
+        total_time_s=time.monotonic() - start,
+    )
     reports.write_results(out, run_, summary, details, None, bounds)
     if output is None:
         reports.link_latest(out)

@@ -40,52 +40,103 @@ from mlsemreg_ros.tools.common import (
 )
 import typer
 
-HELP = ("Replay a bag (mcap or sqlite3) or SemanticKITTI folder offline through the node's "
-        'registration and keyframe policy; write metrics, trajectories and plots.')
+HELP = (
+    "Replay a bag (mcap or sqlite3) or SemanticKITTI folder offline through the node's "
+    'registration and keyframe policy; write metrics, trajectories and plots.'
+)
 
 
 def eval_bag(
     context: typer.Context,
-    bag: Annotated[Path, typer.Argument(
-        exists=True, help='rosbag2 directory / .mcap / .db3, or a SemanticKITTI sequence '
-        'folder')],
-    output: Annotated[Path | None, typer.Option(
-        '-o', '--output', help='results folder (default: RESULTS_ROOT/eval_bag/<time>_<bag>)',
-        rich_help_panel=OUTPUT)] = None,
-    results_root: Annotated[Path, typer.Option(help='where default results folders go',
-                                               rich_help_panel=OUTPUT)] = Path('results'),
-    points_topic: Annotated[str | None, typer.Option(
-        help='PointCloud2 topic (default: the only one)', rich_help_panel=DATA)] = None,
-    label_field: Annotated[str, typer.Option(help='label field of the clouds',
-                                             rich_help_panel=DATA)] = 'label',
-    gt_topic: Annotated[str, typer.Option(
-        help='ground-truth Odometry/PoseStamped topic; auto: /ground_truth/odometry if '
-        'present; none: ignore', rich_help_panel=DATA)] = 'auto',
-    gt_poses: Annotated[Path | None, typer.Option(
-        exists=True, dir_okay=False, help='KITTI poses file, one line per bag scan (overrides '
-        'the bag ground truth)', rich_help_panel=DATA)] = None,
-    gt_calib: Annotated[Path | None, typer.Option(
-        exists=True, dir_okay=False, help='KITTI calib.txt: convert --gt-poses from camera to '
-        'LiDAR frame with Tr', rich_help_panel=DATA)] = None,
-    stride: Annotated[int, typer.Option(min=1, help='register scan k against k - S',
-                                        rich_help_panel=DATA)] = 1,
-    max_frames: Annotated[int | None, typer.Option(
-        min=1, help='stop after this many (strided) scans', rich_help_panel=DATA)] = None,
+    bag: Annotated[
+        Path,
+        typer.Argument(
+            exists=True,
+            help='rosbag2 directory / .mcap / .db3, or a SemanticKITTI sequence folder',
+        ),
+    ],
+    output: Annotated[
+        Path | None,
+        typer.Option(
+            '-o',
+            '--output',
+            help='results folder (default: RESULTS_ROOT/eval_bag/<time>_<bag>)',
+            rich_help_panel=OUTPUT,
+        ),
+    ] = None,
+    results_root: Annotated[
+        Path, typer.Option(help='where default results folders go', rich_help_panel=OUTPUT)
+    ] = Path('results'),
+    points_topic: Annotated[
+        str | None,
+        typer.Option(help='PointCloud2 topic (default: the only one)', rich_help_panel=DATA),
+    ] = None,
+    label_field: Annotated[
+        str, typer.Option(help='label field of the clouds', rich_help_panel=DATA)
+    ] = 'label',
+    gt_topic: Annotated[
+        str,
+        typer.Option(
+            help='ground-truth Odometry/PoseStamped topic; auto: /ground_truth/odometry if '
+            'present; none: ignore',
+            rich_help_panel=DATA,
+        ),
+    ] = 'auto',
+    gt_poses: Annotated[
+        Path | None,
+        typer.Option(
+            exists=True,
+            dir_okay=False,
+            help='KITTI poses file, one line per bag scan (overrides the bag ground truth)',
+            rich_help_panel=DATA,
+        ),
+    ] = None,
+    gt_calib: Annotated[
+        Path | None,
+        typer.Option(
+            exists=True,
+            dir_okay=False,
+            help='KITTI calib.txt: convert --gt-poses from camera to LiDAR frame with Tr',
+            rich_help_panel=DATA,
+        ),
+    ] = None,
+    stride: Annotated[
+        int, typer.Option(min=1, help='register scan k against k - S', rich_help_panel=DATA)
+    ] = 1,
+    max_frames: Annotated[
+        int | None,
+        typer.Option(min=1, help='stop after this many (strided) scans', rich_help_panel=DATA),
+    ] = None,
     config: ConfigOption = None,
     overrides: SetOption = None,
-    plot_frame: Annotated[int | None, typer.Option(
-        min=0, help='bag index of the correspondence plot (default: middle of the run)',
-        rich_help_panel=OUTPUT)] = None,
-    no_plots: Annotated[bool, typer.Option('--no-plots', help='skip the PNG plots',
-                                           rich_help_panel=OUTPUT)] = False,
-    fail_below: Annotated[float | None, typer.Option(
-        metavar='RR', min=0.0, max=100.0,
-        help='exit with status 1 if the registration recall (%) is below RR',
-        rich_help_panel=OUTPUT)] = None,
+    plot_frame: Annotated[
+        int | None,
+        typer.Option(
+            min=0,
+            help='bag index of the correspondence plot (default: middle of the run)',
+            rich_help_panel=OUTPUT,
+        ),
+    ] = None,
+    no_plots: Annotated[
+        bool, typer.Option('--no-plots', help='skip the PNG plots', rich_help_panel=OUTPUT)
+    ] = False,
+    fail_below: Annotated[
+        float | None,
+        typer.Option(
+            metavar='RR',
+            min=0.0,
+            max=100.0,
+            help='exit with status 1 if the registration recall (%) is below RR',
+            rich_help_panel=OUTPUT,
+        ),
+    ] = None,
     quiet: QuietOption = False,
-    baseline: Annotated[Literal['none', 'kiss-icp'], typer.Option(
-        help='also run KISS-ICP on the same scans and compare (results in OUTPUT/kiss-icp/)'
-    )] = 'none',
+    baseline: Annotated[
+        Literal['none', 'kiss-icp'],
+        typer.Option(
+            help='also run KISS-ICP on the same scans and compare (results in OUTPUT/kiss-icp/)'
+        ),
+    ] = 'none',
 ) -> int:
     """Replay a bag offline through the node's odometry and score it (alias mlsemreg-eval-bag)."""
     from mlsemreg_ros.core.config import RegistrationConfig
@@ -108,8 +159,11 @@ def eval_bag(
     bounds = evaluation.evaluation
     kwargs: dict[str, Any] = {}
     if is_rosbag2(bag):
-        kwargs = {'points_topic': points_topic, 'label_field': label_field,
-                  'gt_topic': None if gt_topic == 'none' or gt_poses else gt_topic}
+        kwargs = {
+            'points_topic': points_topic,
+            'label_field': label_field,
+            'gt_topic': None if gt_topic == 'none' or gt_poses else gt_topic,
+        }
 
     def open_source() -> Any:
         try:
@@ -131,25 +185,44 @@ def eval_bag(
     if not run_.records:
         raise CommandError('no scans read')
     summary = summarize_run(run_)
-    details = run_details(run_, bag=str(bag), stride=stride, max_frames=max_frames,
-                          argv=invocation_argv(context))
+    details = run_details(
+        run_, bag=str(bag), stride=stride, max_frames=max_frames, argv=invocation_argv(context)
+    )
     out = output or reports.default_output(results_root, 'eval_bag', run_.name)
     others: dict[str, dict] = {}
     extra = {}
     if baseline == 'kiss-icp':
         source = open_source()
         try:
-            kiss = replay(source, KissIcpEstimator(), bounds,
-                          ReplayOptions(stride, max_frames, truth, progress=not quiet))
+            kiss = replay(
+                source,
+                KissIcpEstimator(),
+                bounds,
+                ReplayOptions(stride, max_frames, truth, progress=not quiet),
+            )
         finally:
             source.close()
         others[kiss.method] = summarize_run(kiss)
         extra[kiss.method] = kiss.poses
-        reports.write_results(out / 'kiss-icp', kiss, others[kiss.method],
-                              run_details(kiss, bag=str(bag), stride=stride), None, bounds,
-                              plots=False)
-    reports.write_results(out, run_, summary, details, reports.effective_config(core), bounds,
-                          plots=not no_plots, extra=extra)
+        reports.write_results(
+            out / 'kiss-icp',
+            kiss,
+            others[kiss.method],
+            run_details(kiss, bag=str(bag), stride=stride),
+            None,
+            bounds,
+            plots=False,
+        )
+    reports.write_results(
+        out,
+        run_,
+        summary,
+        details,
+        reports.effective_config(core),
+        bounds,
+        plots=not no_plots,
+        extra=extra,
+    )
     if output is None:
         reports.link_latest(out)
     tables.print_table(tables.sequence_summary_table(summary, run_.method, others))

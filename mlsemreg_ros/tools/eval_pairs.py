@@ -49,13 +49,16 @@ class Baseline(StrEnum):
 
 
 BASELINES = tuple(b.value for b in Baseline)
-HELP = ('Register every pair file (*.npz) of DIR and print the paper metrics (IN, IR under '
-        'trans_gt; RE, TE, success within the evaluation bounds, default RE <= 5 deg and '
-        'TE <= 60 cm; RR; per-stage times).')
+HELP = (
+    'Register every pair file (*.npz) of DIR and print the paper metrics (IN, IR under '
+    'trans_gt; RE, TE, success within the evaluation bounds, default RE <= 5 deg and '
+    'TE <= 60 cm; RR; per-stage times).'
+)
 
 
-def build_settings(config_path: Path | None, flags: dict[str, Any],
-                   overrides: list[str]) -> tuple[Any, Any]:
+def build_settings(
+    config_path: Path | None, flags: dict[str, Any], overrides: list[str]
+) -> tuple[Any, Any]:
     """
     ``(RegistrationConfig, EvaluationSettings)``: defaults < YAML < ``flags`` < ``--set``.
 
@@ -74,42 +77,81 @@ def build_config(config_path: Path | None, flags: dict[str, Any], overrides: lis
     """Build the core part of :func:`build_settings` (``evaluation.*`` keys are rejected)."""
     from mlsemreg_ros.core.config import apply_overrides, RegistrationConfig
 
-    config = (RegistrationConfig.from_file(config_path) if config_path is not None
-              else RegistrationConfig())
+    config = (
+        RegistrationConfig.from_file(config_path)
+        if config_path is not None
+        else RegistrationConfig()
+    )
     return apply_overrides(config.replace(flags) if flags else config, overrides)
 
 
 def eval_pairs(
-    directory: Annotated[Path, typer.Argument(metavar='DIR', help='folder of pair files',
-                                              exists=True, file_okay=False)],
-    descriptor: Annotated[Literal['gedi', 'fpfh'], typer.Option(
-        help='gedi: descriptors stored in the pair files; fpfh: computed at the stored '
-        'keypoints')] = 'gedi',
-    matcher: Annotated[Literal['nn', 'mnn'] | None, typer.Option(
-        help='matcher.kind', rich_help_panel=PARAMETERS)] = None,
-    no_semantic: Annotated[bool, typer.Option(
-        '--no-semantic', help='plain matcher (the paper baseline): semantic.enabled=false',
-        rich_help_panel=PARAMETERS)] = False,
-    estimator: Annotated[Literal['sc2pcr', 'ransac'] | None, typer.Option(
-        help='estimator.kind', rich_help_panel=PARAMETERS)] = None,
-    no_refine: Annotated[bool, typer.Option(
-        '--no-refine', help='the estimator alone, no fine alignment: fine.pair_method=off',
-        rich_help_panel=PARAMETERS)] = False,
-    no_verification: Annotated[bool, typer.Option(
-        '--no-verification', help="keep the estimator's choice: verification.enabled=false",
-        rich_help_panel=PARAMETERS)] = False,
-    baseline: Annotated[list[Baseline] | None, typer.Option(
-        help='also run a baseline on the same pairs and compare (repeatable): kiss-matcher '
-        '(raw points, voxel 0.3 m, no labels; needs the kiss-matcher package) or fpfh-ransac '
-        '(Open3D FPFH + NN + Open3D RANSAC)')] = None,
+    directory: Annotated[
+        Path,
+        typer.Argument(metavar='DIR', help='folder of pair files', exists=True, file_okay=False),
+    ],
+    descriptor: Annotated[
+        Literal['gedi', 'fpfh'],
+        typer.Option(
+            help='gedi: descriptors stored in the pair files; fpfh: computed at the stored '
+            'keypoints'
+        ),
+    ] = 'gedi',
+    matcher: Annotated[
+        Literal['nn', 'mnn'] | None, typer.Option(help='matcher.kind', rich_help_panel=PARAMETERS)
+    ] = None,
+    no_semantic: Annotated[
+        bool,
+        typer.Option(
+            '--no-semantic',
+            help='plain matcher (the paper baseline): semantic.enabled=false',
+            rich_help_panel=PARAMETERS,
+        ),
+    ] = False,
+    estimator: Annotated[
+        Literal['sc2pcr', 'ransac'] | None,
+        typer.Option(help='estimator.kind', rich_help_panel=PARAMETERS),
+    ] = None,
+    no_refine: Annotated[
+        bool,
+        typer.Option(
+            '--no-refine',
+            help='the estimator alone, no fine alignment: fine.pair_method=off',
+            rich_help_panel=PARAMETERS,
+        ),
+    ] = False,
+    no_verification: Annotated[
+        bool,
+        typer.Option(
+            '--no-verification',
+            help="keep the estimator's choice: verification.enabled=false",
+            rich_help_panel=PARAMETERS,
+        ),
+    ] = False,
+    baseline: Annotated[
+        list[Baseline] | None,
+        typer.Option(
+            help='also run a baseline on the same pairs and compare (repeatable): kiss-matcher '
+            '(raw points, voxel 0.3 m, no labels; needs the kiss-matcher package) or fpfh-ransac '
+            '(Open3D FPFH + NN + Open3D RANSAC)'
+        ),
+    ] = None,
     config: ConfigOption = None,
     overrides: SetOption = None,
-    json_path: Annotated[Path | None, typer.Option('--json', metavar='PATH', dir_okay=False,
-                                                   help='write the report as JSON',
-                                                   rich_help_panel=OUTPUT)] = None,
+    json_path: Annotated[
+        Path | None,
+        typer.Option(
+            '--json',
+            metavar='PATH',
+            dir_okay=False,
+            help='write the report as JSON',
+            rich_help_panel=OUTPUT,
+        ),
+    ] = None,
     quiet: QuietOption = False,
-    no_progress: Annotated[bool, typer.Option('--no-progress', hidden=True,
-                                              help='the same as --quiet')] = False,
+    no_progress: Annotated[
+        bool, typer.Option('--no-progress', hidden=True, help='the same as --quiet')
+    ] = False,
 ) -> int:
     """Register every pair file of DIR and print the paper metrics (alias mlsemreg-eval-pairs)."""
     from mlsemreg_ros.core.config import ConfigError
@@ -150,13 +192,13 @@ def eval_pairs(
     tables.print_text(f'mean time per pair (ms, both clouds): {stages}')
     if baseline:
         try:
-            report['baselines'] = run_baselines(directory, [b.value for b in baseline], core,
-                                                bounds, progress=progress)
+            report['baselines'] = run_baselines(
+                directory, [b.value for b in baseline], core, bounds, progress=progress
+            )
         except (BaselineUnavailable, EvalError) as error:
             raise CommandError(str(error)) from None
         reports = {label: report, **report['baselines']}
-        tables.print_text('\ncomparison on the same pairs (RE/TE: means over successful '
-                          'pairs):')
+        tables.print_text('\ncomparison on the same pairs (RE/TE: means over successful pairs):')
         tables.print_table(tables.comparison_table(reports))
         per_pair, legend = tables.per_pair_table(reports)
         tables.print_table(per_pair)

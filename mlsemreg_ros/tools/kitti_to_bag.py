@@ -47,8 +47,10 @@ from mlsemreg_ros.tools.common import (
 )
 import typer
 
-HELP = ('Convert a SemanticKITTI sequence folder (velodyne/, labels/, poses.txt, calib.txt, '
-        'times.txt) into a rosbag2.')
+HELP = (
+    'Convert a SemanticKITTI sequence folder (velodyne/, labels/, poses.txt, calib.txt, '
+    'times.txt) into a rosbag2.'
+)
 
 
 def _uint32_labels(scans: Iterator[Any]) -> Iterator[Any]:
@@ -62,28 +64,49 @@ def _uint32_labels(scans: Iterator[Any]) -> Iterator[Any]:
 
 
 def kitti_to_bag(
-    sequence: Annotated[Path, typer.Argument(exists=True, file_okay=False,
-                                             help='sequence folder, e.g. .../sequences/08')],
-    out: Annotated[Path, typer.Argument(help='output bag directory (must not exist, see '
-                                        '--force)')],
+    sequence: Annotated[
+        Path,
+        typer.Argument(
+            exists=True, file_okay=False, help='sequence folder, e.g. .../sequences/08'
+        ),
+    ],
+    out: Annotated[
+        Path, typer.Argument(help='output bag directory (must not exist, see --force)')
+    ],
     storage: StorageOption = 'mcap',
     compress: CompressOption = False,
-    poses: Annotated[Path | None, typer.Option(
-        dir_okay=False, help='poses file (default: SEQUENCE/poses.txt)',
-        rich_help_panel=DATA)] = None,
-    calib: Annotated[Path | None, typer.Option(
-        dir_okay=False, help='calib file (default: SEQUENCE/calib.txt)',
-        rich_help_panel=DATA)] = None,
-    times: Annotated[Path | None, typer.Option(
-        dir_okay=False, help='times file (default: SEQUENCE/times.txt)',
-        rich_help_panel=DATA)] = None,
-    start_time: Annotated[float, typer.Option(
-        min=0.0, help='header stamp of time 0 of times.txt, seconds since the epoch',
-        rich_help_panel=DATA)] = 1.7e9,
-    stride: Annotated[int, typer.Option(min=1, help='keep every n-th scan',
-                                        rich_help_panel=DATA)] = 1,
-    max_frames: Annotated[int | None, typer.Option(min=1, help='stop after this many scans',
-                                                   rich_help_panel=DATA)] = None,
+    poses: Annotated[
+        Path | None,
+        typer.Option(
+            dir_okay=False, help='poses file (default: SEQUENCE/poses.txt)', rich_help_panel=DATA
+        ),
+    ] = None,
+    calib: Annotated[
+        Path | None,
+        typer.Option(
+            dir_okay=False, help='calib file (default: SEQUENCE/calib.txt)', rich_help_panel=DATA
+        ),
+    ] = None,
+    times: Annotated[
+        Path | None,
+        typer.Option(
+            dir_okay=False, help='times file (default: SEQUENCE/times.txt)', rich_help_panel=DATA
+        ),
+    ] = None,
+    start_time: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            help='header stamp of time 0 of times.txt, seconds since the epoch',
+            rich_help_panel=DATA,
+        ),
+    ] = 1.7e9,
+    stride: Annotated[
+        int, typer.Option(min=1, help='keep every n-th scan', rich_help_panel=DATA)
+    ] = 1,
+    max_frames: Annotated[
+        int | None, typer.Option(min=1, help='stop after this many scans', rich_help_panel=DATA)
+    ] = None,
     points_topic: PointsTopicOption = POINTS_TOPIC,
     gt_topic: GtTopicOption = GT_TOPIC,
     frame_id: FrameIdOption = 'velodyne',
@@ -105,22 +128,36 @@ def kitti_to_bag(
     warnings.simplefilter('default')
     start = time.perf_counter()
     try:
-        source = KittiSequence(sequence, poses=poses, calib=calib, times=times,
-                               start_time_ns=round(start_time * 1e9), frame_id=frame_id)
+        source = KittiSequence(
+            sequence,
+            poses=poses,
+            calib=calib,
+            times=times,
+            start_time_ns=round(start_time * 1e9),
+            frame_id=frame_id,
+        )
         if source.poses is None:
-            warnings.warn(f'{sequence} has no poses.txt: the bag has no ground truth',
-                          stacklevel=2)
-        scans = tqdm(source.scans(stride, max_frames), desc='convert', unit='scan',
-                     total=expected_frames(len(source), stride, max_frames), disable=quiet)
+            warnings.warn(
+                f'{sequence} has no poses.txt: the bag has no ground truth', stacklevel=2
+            )
+        scans = tqdm(
+            source.scans(stride, max_frames),
+            desc='convert',
+            unit='scan',
+            total=expected_frames(len(source), stride, max_frames),
+            disable=quiet,
+        )
         layout = BagLayout(storage, compress, points_topic, gt_topic, frame_id, world_frame)
         written = write_sequence_bag(out, _uint32_labels(scans), layout)
     except SourceError as error:
         shutil.rmtree(out, ignore_errors=True)
         raise CommandError(str(error)) from None
-    print_text(f'wrote {out}: {written.frames} scans, {written.points_per_scan:.0f} '
-               f'points/scan, labels {"yes" if source.label_files is not None else "NO"}'
-               f'{"" if source.label_files is not None else " (unlabeled)"}, ground truth '
-               f'{"yes" if written.ground_truth else "no"}, {time.perf_counter() - start:.1f} s')
+    print_text(
+        f'wrote {out}: {written.frames} scans, {written.points_per_scan:.0f} '
+        f'points/scan, labels {"yes" if source.label_files is not None else "NO"}'
+        f'{"" if source.label_files is not None else " (unlabeled)"}, ground truth '
+        f'{"yes" if written.ground_truth else "no"}, {time.perf_counter() - start:.1f} s'
+    )
     return 0
 
 

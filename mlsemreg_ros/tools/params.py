@@ -31,14 +31,19 @@ HELP = 'Write config/params.yaml and the README parameter tables from the config
 
 
 def params(
-    params_file: Annotated[Path, typer.Option(
-        '--params-file', dir_okay=False, help='the node parameter file to write')] =
-    Path('config/params.yaml'),
-    readme: Annotated[Path, typer.Option(
-        exists=True, dir_okay=False, help='the README whose generated block to update')] =
-    Path('README.md'),
-    check: Annotated[bool, typer.Option(
-        '--check', help='write nothing; exit 1 if a file is not up to date')] = False,
+    params_file: Annotated[
+        Path,
+        typer.Option('--params-file', dir_okay=False, help='the node parameter file to write'),
+    ] = Path('config/params.yaml'),
+    readme: Annotated[
+        Path,
+        typer.Option(
+            exists=True, dir_okay=False, help='the README whose generated block to update'
+        ),
+    ] = Path('README.md'),
+    check: Annotated[
+        bool, typer.Option('--check', help='write nothing; exit 1 if a file is not up to date')
+    ] = False,
 ) -> int:
     """Regenerate config/params.yaml and the README parameter tables (alias mlsemreg-params)."""
     from mlsemreg_ros.evaluation.tables import print_text
@@ -48,12 +53,14 @@ def params(
         wanted = {params_file: params_yaml_text(), readme: update_readme(readme.read_text())}
     except MarkerError as error:
         raise CommandError(f'{readme}: {error}', 2) from None
-    stale = [path for path, text in wanted.items()
-             if not path.exists() or path.read_text() != text]
+    stale = [
+        path for path, text in wanted.items() if not path.exists() or path.read_text() != text
+    ]
     if check:
         if stale:
-            raise CommandError('not up to date (run mlsemreg params): '
-                               + ', '.join(map(str, stale)))
+            raise CommandError(
+                'not up to date (run mlsemreg params): ' + ', '.join(map(str, stale))
+            )
         print_text(f'up to date: {params_file}, {readme}')
         return 0
     for path in stale:

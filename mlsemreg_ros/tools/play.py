@@ -32,46 +32,74 @@ PACING = 'Pacing'
 
 
 def play(
-    bag: Annotated[Path, typer.Argument(exists=True, help='rosbag2 directory (mcap or '
-                                        'sqlite3)')],
-    rate: Annotated[float, typer.Option(
-        '-r', '--rate', help='speed factor of the recorded rate (<= 0: as fast as possible)')
+    bag: Annotated[Path, typer.Argument(exists=True, help='rosbag2 directory (mcap or sqlite3)')],
+    rate: Annotated[
+        float,
+        typer.Option(
+            '-r', '--rate', help='speed factor of the recorded rate (<= 0: as fast as possible)'
+        ),
     ] = 1.0,
-    topics: Annotated[list[str] | None, typer.Option(
-        help='only these topics (repeatable; --topics A B also works)')] = None,
-    clock: Annotated[bool, typer.Option('--clock', help='publish /clock with the bag '
-                                        'time')] = False,
+    topics: Annotated[
+        list[str] | None,
+        typer.Option(help='only these topics (repeatable; --topics A B also works)'),
+    ] = None,
+    clock: Annotated[
+        bool, typer.Option('--clock', help='publish /clock with the bag time')
+    ] = False,
     clock_rate: Annotated[float, typer.Option(min=0.1, help='/clock frequency, Hz')] = 100.0,
     loop: Annotated[bool, typer.Option('-l', '--loop', help='play again and again')] = False,
-    delay: Annotated[float, typer.Option('-d', '--delay', min=0.0,
-                                         help='seconds to wait before the first message')
-                     ] = 0.0,
-    wait_for_subscribers: Annotated[int, typer.Option(
-        metavar='N', min=0, help='hold playback until every topic has N subscribers')] = 0,
-    wait_timeout: Annotated[float, typer.Option(min=0.0, help='seconds to wait for '
-                                                'subscribers')] = 30.0,
-    qos_depth: Annotated[int, typer.Option(min=1, help='history depth of the (reliable) '
-                                           'publishers')] = 1000,
-    pace_topic: Annotated[str | None, typer.Option(
-        help='after each PointCloud2 message, wait for one message on this topic (e.g. '
-        '/diagnostics of a slow consumer) so none is dropped', rich_help_panel=PACING)] = None,
-    pace_type: Annotated[str, typer.Option(help='message type of --pace-topic',
-                                           rich_help_panel=PACING)] =
-    'diagnostic_msgs/msg/DiagnosticArray',
-    pace_timeout: Annotated[float, typer.Option(
-        min=0.0, help='seconds to wait for each answer on --pace-topic',
-        rich_help_panel=PACING)] = 60.0,
+    delay: Annotated[
+        float,
+        typer.Option('-d', '--delay', min=0.0, help='seconds to wait before the first message'),
+    ] = 0.0,
+    wait_for_subscribers: Annotated[
+        int,
+        typer.Option(metavar='N', min=0, help='hold playback until every topic has N subscribers'),
+    ] = 0,
+    wait_timeout: Annotated[
+        float, typer.Option(min=0.0, help='seconds to wait for subscribers')
+    ] = 30.0,
+    qos_depth: Annotated[
+        int, typer.Option(min=1, help='history depth of the (reliable) publishers')
+    ] = 1000,
+    pace_topic: Annotated[
+        str | None,
+        typer.Option(
+            help='after each PointCloud2 message, wait for one message on this topic (e.g. '
+            '/diagnostics of a slow consumer) so none is dropped',
+            rich_help_panel=PACING,
+        ),
+    ] = None,
+    pace_type: Annotated[
+        str, typer.Option(help='message type of --pace-topic', rich_help_panel=PACING)
+    ] = 'diagnostic_msgs/msg/DiagnosticArray',
+    pace_timeout: Annotated[
+        float,
+        typer.Option(
+            min=0.0, help='seconds to wait for each answer on --pace-topic', rich_help_panel=PACING
+        ),
+    ] = 60.0,
     quiet: Annotated[bool, typer.Option('--quiet', help='no log output')] = False,
 ) -> int:
     """Publish a bag's topics at the recorded rate (alias mlsemreg-play)."""
     from mlsemreg_ros.ros.player import Player, PlayOptions
     import rclpy
 
-    options = PlayOptions(rate=rate, topics=topics, clock=clock, clock_rate=clock_rate,
-                          loop=loop, delay=delay, wait_for_subscribers=wait_for_subscribers,
-                          wait_timeout=wait_timeout, qos_depth=qos_depth, quiet=quiet,
-                          pace_topic=pace_topic, pace_type=pace_type,
-                          pace_timeout=pace_timeout)
+    options = PlayOptions(
+        rate=rate,
+        topics=topics,
+        clock=clock,
+        clock_rate=clock_rate,
+        loop=loop,
+        delay=delay,
+        wait_for_subscribers=wait_for_subscribers,
+        wait_timeout=wait_timeout,
+        qos_depth=qos_depth,
+        quiet=quiet,
+        pace_topic=pace_topic,
+        pace_type=pace_type,
+        pace_timeout=pace_timeout,
+    )
     rclpy.init()
     player = None
     try:
@@ -104,8 +132,11 @@ def expand_topics(argv: list[str]) -> list[str]:
 
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``mlsemreg-play`` alias (same flags as the subcommand)."""
-    return run(single_command_app(play, HELP), expand_topics(
-        list(argv) if argv is not None else sys.argv[1:]), 'mlsemreg-play')
+    return run(
+        single_command_app(play, HELP),
+        expand_topics(list(argv) if argv is not None else sys.argv[1:]),
+        'mlsemreg-play',
+    )
 
 
 if __name__ == '__main__':

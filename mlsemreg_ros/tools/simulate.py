@@ -44,33 +44,55 @@ SENSOR, LABELS = 'Sensor', 'Label degradation'
 
 
 def simulate(
-    out: Annotated[Path, typer.Argument(help='output bag directory (must not exist, see '
-                                        '--force)')],
+    out: Annotated[
+        Path, typer.Argument(help='output bag directory (must not exist, see --force)')
+    ],
     frames: Annotated[int, typer.Option(min=1, help='number of scans')] = 200,
     seed: Annotated[int, typer.Option(min=0, help='world, route and noise seed')] = 0,
     storage: StorageOption = 'mcap',
     compress: CompressOption = False,
-    blur_radius: Annotated[float, typer.Option(
-        min=0.0, help='paper boundary blur radius in metres (0: clean labels)',
-        rich_help_panel=LABELS)] = 0.0,
-    blur_probability: Annotated[float, typer.Option(
-        min=0.0, max=1.0, help='chance that a boundary point takes another nearby class',
-        rich_help_panel=LABELS)] = 0.5,
-    flip_fraction: Annotated[float, typer.Option(
-        min=0.0, max=1.0, help='share of points given a random other class',
-        rich_help_panel=LABELS)] = 0.0,
+    blur_radius: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            help='paper boundary blur radius in metres (0: clean labels)',
+            rich_help_panel=LABELS,
+        ),
+    ] = 0.0,
+    blur_probability: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            max=1.0,
+            help='chance that a boundary point takes another nearby class',
+            rich_help_panel=LABELS,
+        ),
+    ] = 0.5,
+    flip_fraction: Annotated[
+        float,
+        typer.Option(
+            min=0.0,
+            max=1.0,
+            help='share of points given a random other class',
+            rich_help_panel=LABELS,
+        ),
+    ] = 0.0,
     step: Annotated[float, typer.Option(min=0.0, help='metres driven per frame')] = 1.0,
     rate: Annotated[float, typer.Option(min=0.001, help='scan rate in Hz')] = 10.0,
-    beams: Annotated[int, typer.Option(min=1, help='vertical beams',
-                                       rich_help_panel=SENSOR)] = 64,
-    azimuth_steps: Annotated[int, typer.Option(min=1, help='horizontal samples per revolution',
-                                               rich_help_panel=SENSOR)] = 2000,
-    max_range: Annotated[float, typer.Option(min=0.1, help='metres',
-                                             rich_help_panel=SENSOR)] = 100.0,
-    range_noise: Annotated[float, typer.Option(min=0.0, help='Gaussian range noise sigma, '
-                                               'metres', rich_help_panel=SENSOR)] = 0.02,
-    dropout: Annotated[float, typer.Option(min=0.0, max=1.0, help='share of lost returns',
-                                           rich_help_panel=SENSOR)] = 0.05,
+    beams: Annotated[int, typer.Option(min=1, help='vertical beams', rich_help_panel=SENSOR)] = 64,
+    azimuth_steps: Annotated[
+        int, typer.Option(min=1, help='horizontal samples per revolution', rich_help_panel=SENSOR)
+    ] = 2000,
+    max_range: Annotated[
+        float, typer.Option(min=0.1, help='metres', rich_help_panel=SENSOR)
+    ] = 100.0,
+    range_noise: Annotated[
+        float,
+        typer.Option(min=0.0, help='Gaussian range noise sigma, metres', rich_help_panel=SENSOR),
+    ] = 0.02,
+    dropout: Annotated[
+        float, typer.Option(min=0.0, max=1.0, help='share of lost returns', rich_help_panel=SENSOR)
+    ] = 0.05,
     points_topic: PointsTopicOption = POINTS_TOPIC,
     gt_topic: GtTopicOption = GT_TOPIC,
     frame_id: FrameIdOption = SENSOR_FRAME,
@@ -86,16 +108,30 @@ def simulate(
     from mlsemreg_ros.simulation.sequence import SimulationConfig
 
     replace_output(out, force)
-    lidar = LidarConfig(beams=beams, azimuth_steps=azimuth_steps, max_range=max_range,
-                        range_noise=range_noise, dropout=dropout)
-    config = SimulationConfig(seed=seed, frames=frames, rate_hz=rate, step=step,
-                              blur_radius=blur_radius, blur_probability=blur_probability,
-                              flip_fraction=flip_fraction, lidar=lidar)
+    lidar = LidarConfig(
+        beams=beams,
+        azimuth_steps=azimuth_steps,
+        max_range=max_range,
+        range_noise=range_noise,
+        dropout=dropout,
+    )
+    config = SimulationConfig(
+        seed=seed,
+        frames=frames,
+        rate_hz=rate,
+        step=step,
+        blur_radius=blur_radius,
+        blur_probability=blur_probability,
+        flip_fraction=flip_fraction,
+        lidar=lidar,
+    )
     layout = BagLayout(storage, compress, points_topic, gt_topic, frame_id, world_frame)
     report = write_simulation_bag(out, config, layout, progress=not quiet)
-    print_text(f'wrote {out}: {report.frames} scans, {report.points_per_scan:.0f} points/scan, '
-               f'{report.path_m:.1f} m driven; world {report.world_s:.1f} s, total '
-               f'{report.total_s:.1f} s')
+    print_text(
+        f'wrote {out}: {report.frames} scans, {report.points_per_scan:.0f} points/scan, '
+        f'{report.path_m:.1f} m driven; world {report.world_s:.1f} s, total '
+        f'{report.total_s:.1f} s'
+    )
     return 0
 
 

@@ -23,17 +23,23 @@ from typing import Annotated
 from mlsemreg_ros.tools.common import alias, CommandError
 import typer
 
-HELP = ('Publish the scans of a bag in a loop to mlsemreg_node (its own process, default '
-        'parameters) and sample its resident memory: the growth after the warm-up.')
+HELP = (
+    'Publish the scans of a bag in a loop to mlsemreg_node (its own process, default '
+    'parameters) and sample its resident memory: the growth after the warm-up.'
+)
 
 
 def soak(
     bag: Annotated[Path, typer.Argument(help='bag with labeled clouds', exists=True)],
     frames: Annotated[int, typer.Option(min=1, help='scans to publish')] = 2000,
     every: Annotated[int, typer.Option(min=1, help='scans between two samples')] = 100,
-    warm_up: Annotated[int, typer.Option(min=0, help='scans before the growth is '
-                                         'counted (the heap first grows to its working '
-                                         'set)')] = 500,
+    warm_up: Annotated[
+        int,
+        typer.Option(
+            min=0,
+            help='scans before the growth is counted (the heap first grows to its working set)',
+        ),
+    ] = 500,
     domain_id: Annotated[int, typer.Option(min=0, max=232, help='ROS domain id')] = 77,
 ) -> int:
     """Soak the node with a looping bag (alias mlsemreg-soak)."""
@@ -49,13 +55,18 @@ def soak(
 
     source = open_scan_source(bag)
     try:
-        scans = [(s.xyz, (s.labels if s.labels is not None else np.zeros(len(s))
-                          ).astype(np.uint32)) for s in source.scans()]
+        scans = [
+            (s.xyz, (s.labels if s.labels is not None else np.zeros(len(s))).astype(np.uint32))
+            for s in source.scans()
+        ]
     finally:
         source.close()
     with tempfile.TemporaryDirectory() as folder:
-        params = write_params_file(Path(folder) / 'params.yaml', RegistrationConfig(),
-                                   NodeConfig().replace({'qos.reliability': 'reliable'}))
+        params = write_params_file(
+            Path(folder) / 'params.yaml',
+            RegistrationConfig(),
+            NodeConfig().replace({'qos.reliability': 'reliable'}),
+        )
         node = start_node(domain_id, params, Path(folder) / 'node.log')
         try:
             with probe_only(domain_id) as probe:
@@ -67,10 +78,12 @@ def soak(
     rows = [[str(s.frames), f'{s.rss_mb:.1f}', f'{s.seconds:.0f}'] for s in samples]
     print_table(ResultTable(('scans', 'RSS MiB', 's'), rows))
     after = [s.rss_mb for s in samples if s.frames >= warm_up]
-    print_text(f'RSS growth after {warm_up} scans (least-squares trend): '
-               f'{growth_mb(samples, warm_up):+.1f} MiB; range after the warm-up '
-               f'{min(after):.1f}-{max(after):.1f} MiB ({frames} scans of {bag.name}, '
-               f'{len(scans)} per loop)')
+    print_text(
+        f'RSS growth after {warm_up} scans (least-squares trend): '
+        f'{growth_mb(samples, warm_up):+.1f} MiB; range after the warm-up '
+        f'{min(after):.1f}-{max(after):.1f} MiB ({frames} scans of {bag.name}, '
+        f'{len(scans)} per loop)'
+    )
     return 0
 
 
