@@ -253,22 +253,10 @@ class Odometry:
             refusal = self.keyframe_refusal(current)
             if refusal:
                 self._count = 0  # the next scan tries to start the odometry again
-                return OdometryStep(
-                    index,
-                    stamp_ns,
-                    self.pose.copy(),
-                    None,
-                    None,
-                    False,
-                    -1,
-                    0,
-                    False,
-                    1e3 * (time.perf_counter() - start),
-                    current,
-                    timings,
-                    reason='; '.join([*notes, f'no keyframe yet: {refusal}']),
-                    covariance=self.covariance.copy(),
-                )
+                reason = '; '.join([*notes, f'no keyframe yet: {refusal}'])
+                step = self._rejected(index, stamp_ns, current, None, None, reason, timings)
+                step.latency_ms = 1e3 * (time.perf_counter() - start)
+                return step
             self._start(index, stamp_ns, current, self.pose)
             return OdometryStep(
                 index,
@@ -343,20 +331,39 @@ class Odometry:
 
     def _skipped(self, stamp_ns: int, reason: str, start: float) -> OdometryStep:
         """Return the step of a scan that was not processed at all."""
+        step = self._rejected(self._count, stamp_ns, None, None, None, reason)
+        step.latency_ms = 1e3 * (time.perf_counter() - start)
+        return step
+
+    def _rejected(
+        self,
+        index: int,
+        stamp_ns: int,
+        current: PreparedScan | None,
+        result: RegistrationResult | None,
+        relative: np.ndarray | None,
+        reason: str,
+        timings: dict[str, float] | None = None,
+        candidates: list[Candidate] | None = None,
+    ) -> OdometryStep:
+        """Return the step of a rejected scan: pose, keyframe, map and covariance stay."""
         keyframe = self.keyframe
         return OdometryStep(
-            self._count,
+            index,
             stamp_ns,
             self.pose.copy(),
-            None,
-            None,
+            relative,
+            result,
             False,
             keyframe.index if keyframe else -1,
             keyframe.stamp_ns if keyframe else 0,
             False,
-            1e3 * (time.perf_counter() - start),
+            0.0,
+            current,
+            timings or {},
             reason=reason,
             covariance=self.covariance.copy(),
+            candidates=candidates or [],
             map_voxels=len(self.local_map),
         )
 
@@ -541,23 +548,8 @@ class Odometry:
             reasons = [f'{c.name}: {c.refusal}' for c in candidates]
             reason = '; '.join(notes + reasons) or 'no candidate'
             relative = result.transform if global_ok else None
-            return OdometryStep(
-                index,
-                stamp_ns,
-                self.pose.copy(),
-                relative,
-                result,
-                False,
-                keyframe.index,
-                keyframe.stamp_ns,
-                False,
-                0.0,
-                current,
-                timings,
-                reason=reason,
-                covariance=self.covariance.copy(),
-                candidates=candidates,
-                map_voxels=len(self.local_map),
+            return self._rejected(
+                index, stamp_ns, current, result, relative, reason, timings, candidates
             )
         pose = chosen.alignment.T_target_source
         self._fractions.append(chosen.alignment.inlier_fraction)
@@ -578,22 +570,8 @@ class Odometry:
     ) -> OdometryStep:
         """``fine.method: off``: the pose is ``pose_keyframe @ T`` of a successful registration."""
         if not (result.success and np.all(np.isfinite(result.transform))):
-            return OdometryStep(
-                index,
-                stamp_ns,
-                self.pose.copy(),
-                result.transform,
-                result,
-                False,
-                keyframe.index,
-                keyframe.stamp_ns,
-                False,
-                0.0,
-                current,
-                reason=result.message or 'non-finite transform',
-                covariance=self.covariance.copy(),
-                map_voxels=len(self.local_map),
-            )
+            reason = result.message or 'non-finite transform'
+            return self._rejected(index, stamp_ns, current, result, result.transform, reason)
         frame_cov = sparse_inlier_covariance(result, self.config.estimator.inlier_threshold)
         return self._accept(
             index,
