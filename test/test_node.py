@@ -462,3 +462,25 @@ def test_input_the_old_node_got_wrong_now_registers(probe: NodeProbe, scene: Any
     assert_close_to(
         matrix(probe.wait_for('transform', src.header.stamp, 5.0).transform), scene.trans_gt
     )
+
+
+def test_the_local_map_is_published_only_while_subscribed(probe: NodeProbe, scene: Any) -> None:
+    from mlsemreg_ros.codec.pointcloud2 import pointcloud2_to_arrays
+    from sensor_msgs.msg import PointCloud2
+
+    clouds: list[Any] = []
+    subscription = probe.node.create_subscription(
+        PointCloud2, 'mlsemreg/local_map', clouds.append, 1
+    )
+    try:
+        assert probe.wait_until(
+            lambda: probe.node.count_publishers('mlsemreg/local_map') > 0, 10.0
+        )
+        send_pair(probe, scene)
+        assert probe.wait_until(lambda: bool(clouds), 10.0), 'no mlsemreg/local_map'
+        cloud = clouds[-1]
+        assert cloud.header.frame_id == 'odom'
+        xyz = pointcloud2_to_arrays(cloud, 'label', require_labels=False).xyz
+        assert xyz.shape[0] > 1000 and np.isfinite(xyz).all()
+    finally:
+        probe.node.destroy_subscription(subscription)
