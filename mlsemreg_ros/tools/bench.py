@@ -32,7 +32,8 @@ from mlsemreg_ros.tools.common import (
     CommandError,
     ConfigOption,
     DATA,
-    OUTPUT,
+    JsonOption,
+    NoProgressOption,
     QuietOption,
     SetOption,
     settings,
@@ -84,20 +85,9 @@ def bench(
     ] = '250,500,1000,2500,5000',
     config: ConfigOption = None,
     overrides: SetOption = None,
-    json_path: Annotated[
-        Path | None,
-        typer.Option(
-            '--json',
-            metavar='PATH',
-            dir_okay=False,
-            help='write the results as JSON',
-            rich_help_panel=OUTPUT,
-        ),
-    ] = None,
+    json_path: JsonOption = None,
     quiet: QuietOption = False,
-    no_progress: Annotated[
-        bool, typer.Option('--no-progress', hidden=True, help='the same as --quiet')
-    ] = False,
+    no_progress: NoProgressOption = False,
 ) -> int:
     """Per-stage median times of the registration core (alias mlsemreg-bench)."""
     from mlsemreg_ros.core.config import RegistrationConfig

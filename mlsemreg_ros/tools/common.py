@@ -60,6 +60,21 @@ SetOption = Annotated[
 QuietOption = Annotated[
     bool, typer.Option('--quiet', help='no progress bar', rich_help_panel=OUTPUT)
 ]
+#: The hidden old spelling of --quiet (kept for the mlsemreg-* aliases).
+NoProgressOption = Annotated[
+    bool, typer.Option('--no-progress', hidden=True, help='the same as --quiet')
+]
+#: Where a command writes its results as JSON.
+JsonOption = Annotated[
+    Path | None,
+    typer.Option(
+        '--json',
+        metavar='PATH',
+        dir_okay=False,
+        help='write the results as JSON',
+        rich_help_panel=OUTPUT,
+    ),
+]
 ForceOption = Annotated[bool, typer.Option('--force', help='replace OUT if it exists')]
 #: The bag layout of the bag writers (simulate, kitti-to-bag).
 TOPICS = 'Topics and frames'

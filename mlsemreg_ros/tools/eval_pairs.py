@@ -33,7 +33,8 @@ from mlsemreg_ros.tools.common import (
     alias,
     CommandError,
     ConfigOption,
-    OUTPUT,
+    JsonOption,
+    NoProgressOption,
     PARAMETERS,
     QuietOption,
     SetOption,
@@ -138,20 +139,9 @@ def eval_pairs(
     ] = None,
     config: ConfigOption = None,
     overrides: SetOption = None,
-    json_path: Annotated[
-        Path | None,
-        typer.Option(
-            '--json',
-            metavar='PATH',
-            dir_okay=False,
-            help='write the report as JSON',
-            rich_help_panel=OUTPUT,
-        ),
-    ] = None,
+    json_path: JsonOption = None,
     quiet: QuietOption = False,
-    no_progress: Annotated[
-        bool, typer.Option('--no-progress', hidden=True, help='the same as --quiet')
-    ] = False,
+    no_progress: NoProgressOption = False,
 ) -> int:
     """Register every pair file of DIR and print the paper metrics (alias mlsemreg-eval-pairs)."""
     from mlsemreg_ros.core.config import ConfigError
