@@ -32,9 +32,6 @@ from nav_msgs.msg import Odometry
 import numpy as np
 from std_msgs.msg import Header
 
-#: Variance reported when a quantity is unknown (first frame's twist, zero stamp difference).
-UNKNOWN_VARIANCE = 1e6
-
 
 def _transform(transform: np.ndarray) -> Transform:
     x, y, z, w = matrix_to_quaternion(transform[:3, :3])

@@ -57,6 +57,7 @@ from mlsemreg_ros.codec.pointcloud2 import (
 )
 from mlsemreg_ros.codec.stamps import stamp_to_ns, stamp_to_seconds
 from mlsemreg_ros.core import kernels
+from mlsemreg_ros.core.alignment import UNKNOWN_VARIANCE
 from mlsemreg_ros.core.config import ConfigError, NODE_NAME
 from mlsemreg_ros.core.labels import LabelError, LabelMap
 from mlsemreg_ros.core.odometry import Odometry as ScanOdometry
@@ -364,7 +365,7 @@ class MlSemRegNode(Node):
         twist_cov = (
             step.twist_covariance
             if step.twist_covariance is not None
-            else np.eye(6) * messages.UNKNOWN_VARIANCE
+            else np.eye(6) * UNKNOWN_VARIANCE
         )
         self._pub_odometry.publish(
             messages.odometry_msg(
