@@ -81,8 +81,11 @@ def test_gedi_semantics_beat_the_plain_matcher(gedi):
     assert gedi['inlier_ratio_pct'] > 2.0 * plain['inlier_ratio_pct']
 
 
-def test_fpfh_ml_semreg_at_least_matches_the_reference():
+def test_fpfh_ml_semreg_registers_every_pair():
     fpfh = _run('fpfh')
-    assert fpfh['registration_recall_pct'] >= 80.0
+    # 9 pairs by the estimator and verification, 000007 by the BEV search (see
+    # test_dev_pairs_verification.py); measured RE 0.26 deg, TE 10.5 cm
+    assert fpfh['registration_recall_pct'] == 100.0
+    assert fpfh['rotation_error_deg'] < 0.5 and fpfh['translation_error_cm'] < 15.0
     assert fpfh['inlier_ratio_pct'] >= 4.41
     assert np.isfinite(fpfh['inlier_number'])

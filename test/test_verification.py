@@ -269,7 +269,11 @@ def street_pair() -> dict:
 
 
 def _register(pair: dict, **overrides: object):
-    flat = {'semantic.enabled': False, **{f'verification.{k}': v for k, v in overrides.items()}}
+    flat = {
+        'semantic.enabled': False,
+        'bev_search.enabled': False,  # verification alone (tested with it below)
+        **{f'verification.{k}': v for k, v in overrides.items()},
+    }
     return Registration(RegistrationConfig().replace(flat)).register(
         pair['source'], pair['target']
     )
@@ -314,3 +318,15 @@ def test_one_hypothesis_verifies_only_the_estimator_choice(street_pair):
     result = _register(street_pair, hypotheses=1)
     assert result.diagnostics['verification_hypotheses'] == 1
     assert _errors(result.transform, street_pair['mirror'])[0] < 2.0
+
+
+def test_a_refused_mirror_sends_the_scans_to_the_bev_search(street_pair):
+    config = RegistrationConfig().replace(
+        {'semantic.enabled': False, 'verification.hypotheses': 1}
+    )
+    result = Registration(config).register(street_pair['source'], street_pair['target'])
+    d = result.diagnostics
+    assert d['bev_search_used']  # the mirror's label agreement is refused
+    re, te = _errors(result.transform, street_pair['truth'])
+    assert re < 1.0 and te < 0.3
+    assert d['bev_search_label_agreement'] > 0.95

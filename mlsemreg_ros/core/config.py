@@ -453,6 +453,71 @@ class VerificationConfig:
 
 
 @dataclass
+class BevSearchConfig:
+    """
+    Semantic bird's-eye-view search when the estimator's choice is refused (beyond the paper).
+
+    The scans' static structure is correlated as BEV occupancy grids over every yaw and
+    translation (FFT); the best peaks are refined on the correspondences and verified on
+    the dense scans like the estimator's hypotheses (core/bev_search.py). Assumes z-up
+    sensor frames and a mostly yaw motion between the scans (a ground vehicle).
+    """
+
+    enabled: bool = param(
+        True,
+        "Search the scans when confidence.* refuses the estimator's (verified) choice; "
+        'needs verification.enabled. Costs ~0.2 s, and only on refused registrations.',
+    )
+    classes: list[str] = param(
+        ['building~fence', 'vegetation~trunk', 'pole~traffic-sign'],
+        'One BEV channel per entry: class names joined by ~ (static structure; '
+        'the ground is everywhere and would favour no motion).',
+    )
+    cell_size: float = param(1.0, 'BEV cell size.', unit='m', low=0.1, high=10.0)
+    radius: float = param(
+        50.0,
+        'Source points farther than this (x or y) from the sensor are left out.',
+        unit='m',
+        low=1.0,
+        high=500.0,
+    )
+    max_translation: float = param(
+        40.0, 'Largest translation (x and y) searched.', unit='m', low=0.0, high=500.0
+    )
+    yaw_step: float = param(
+        2.0, 'Yaw step of the search over 360 deg.', unit='deg', low=0.1, high=90.0
+    )
+    peaks_per_yaw: int = param(3, 'Best local correlation maxima kept per yaw.', low=1, high=100)
+    hypotheses: int = param(
+        64,
+        'Peaks (after suppression) refined and verified on the dense scans.',
+        low=1,
+        high=1024,
+    )
+    nms_rotation: float = param(
+        4.0,
+        'A peak within this yaw and bev_search.nms_translation of a better one is dropped.',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
+    nms_translation: float = param(
+        2.0, 'Translation bound of the peak suppression.', unit='m', low=0.0, high=100.0
+    )
+
+    def __post_init__(self) -> None:
+        """Reject an empty channel list or an empty class name."""
+        if not self.classes:
+            raise ConfigError('bev_search.classes: give at least one channel, e.g. building~fence')
+        for rule in self.classes:
+            if not all(n.strip() for n in rule.split('~')):
+                raise ConfigError(
+                    f'bev_search.classes: {rule!r} is not of the form '
+                    "'class' or 'class~class' (e.g. 'building~fence')"
+                )
+
+
+@dataclass
 class ConfidenceConfig:
     """
     When a registration counts as successful (core/confidence.py), besides min_inliers.
@@ -935,6 +1000,7 @@ class RegistrationConfig(Settings):
     matcher: MatcherConfig = field(default_factory=MatcherConfig)
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     verification: VerificationConfig = field(default_factory=VerificationConfig)
+    bev_search: BevSearchConfig = field(default_factory=BevSearchConfig)
     confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
     fine: FineAlignmentConfig = field(default_factory=FineAlignmentConfig)
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)

@@ -32,6 +32,7 @@ import time
 from typing import Any
 
 from mlsemreg_ros.core import (
+    bev_search,
     confidence,
     features,
     fpfh,
@@ -92,6 +93,7 @@ class Registration:
         self._ignored_ids = self.label_map.ids_of(sem.ignored_classes)
         self._undefined_ids = self.label_map.ids_of(sem.undefined_classes)
         self._label_compatibility = label_compatibility(self.label_map, config.verification)
+        self._bev_channels = bev_search.channel_lookup(self.label_map, config.bev_search)
         self._config = config
 
     # ------------------------------------------------------------------------------
@@ -208,7 +210,8 @@ class Registration:
         Register ``source`` onto ``target`` (both from :meth:`prepare`).
 
         ``refine=False`` stops after the estimator (the odometry refines against its local
-        map instead of the target scan).
+        map instead of the target scan). The fine alignment refines a refused pose too (it
+        is the best one found; ``success`` stays false).
         """
         cfg, timings = self.config, {}
         diagnostics: dict = {
@@ -252,23 +255,33 @@ class Registration:
                 )
             transform = verified.T_target_source
             diagnostics.update(verified.diagnostics)
-        residual = np.linalg.norm(
-            src_pts @ transform[:3, :3].T + transform[:3, 3] - dst_pts, axis=1
-        )
-        inliers = residual < cfg.estimator.inlier_threshold
         # 2c. confidence: sparse and dense evidence must agree (core/confidence.py)
         with _timed(timings, 'confidence_ms'):
-            evidence = self._evidence(
-                transform, int(inliers.sum()), len(corr), verified, source, target
+            inliers, evidence = self._evidence(
+                transform, src_pts, dst_pts, verified, source, target
             )
-        diagnostics.update(evidence.as_diagnostics())
         refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
+        # 2d. refused: search the scans themselves (core/bev_search.py)
+        if refused and verified is not None and cfg.bev_search.enabled:
+            with _timed(timings, 'bev_search_ms'):
+                searched = self._bev_search(
+                    source, target, src_pts, dst_pts, verified, diagnostics
+                )
+            if searched is not None:
+                verified, transform = searched, searched.T_target_source
+                inliers, evidence = self._evidence(
+                    transform, src_pts, dst_pts, verified, source, target
+                )
+                estimator_refused = refused
+                refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
+                message = f"bev_search pose (the estimator's was refused: {estimator_refused})"
+        diagnostics.update(evidence.as_diagnostics())
         success = not refused
         if refused:
             message = refused + (f'; {message}' if message else '')
         # 3. fine alignment of the scans (GICP/VGICP), from the (verified) estimate
         estimated, alignment = transform, None
-        if refine and success and cfg.fine.pair_method != 'off':
+        if refine and np.all(np.isfinite(transform)) and cfg.fine.pair_method != 'off':
             with _timed(timings, 'fine_ms'):
                 alignment = align_pair(
                     self.alignment_cloud(source, pair=True),
@@ -303,13 +316,17 @@ class Registration:
     def _evidence(
         self,
         transform: np.ndarray,
-        num_inliers: int,
-        correspondences: int,
+        src_pts: np.ndarray,
+        dst_pts: np.ndarray,
         verified: VerificationResult | None,
         source: PreparedScan,
         target: PreparedScan,
-    ) -> confidence.Evidence:
-        """Collect the sparse and dense evidence of the chosen pose (verification's or new)."""
+    ) -> tuple[np.ndarray, confidence.Evidence]:
+        """Inlier mask and the sparse and dense evidence of ``transform`` (verified or new)."""
+        residual = np.linalg.norm(
+            src_pts @ transform[:3, :3].T + transform[:3, 3] - dst_pts, axis=1
+        )
+        inliers = residual < self.config.estimator.inlier_threshold
         if verified is not None:
             chosen = verified.hypotheses[verified.chosen]
             overlap, agreement = chosen.overlap, chosen.label_agreement
@@ -325,13 +342,40 @@ class Registration:
                 self.config.verification,
             )
             overlap, agreement = float(scores[0][0]), float(scores[1][0])
-        return confidence.Evidence(
-            num_inliers,
-            correspondences,
+        return inliers, confidence.Evidence(
+            int(inliers.sum()),
+            len(src_pts),
             float(overlap),
             float(agreement),
             confidence.tilt_deg(transform),
         )
+
+    def _bev_search(
+        self,
+        source: PreparedScan,
+        target: PreparedScan,
+        src_pts: np.ndarray,
+        dst_pts: np.ndarray,
+        verified: VerificationResult,
+        diagnostics: dict[str, Any],
+    ) -> VerificationResult | None:
+        """
+        Return the BEV search's verified pose if it beats the estimator's, else None.
+
+        Adds ``bev_search_*`` to ``diagnostics`` (``bev_search_used``: it won).
+        """
+        cfg = self.config
+        searched = bev_search.search_scans(
+            source, target, src_pts, dst_pts, cfg, self._label_compatibility, self._bev_channels
+        )
+        if searched is not None:
+            diagnostics.update(searched.diagnostics)
+        best = verified.hypotheses[verified.chosen].score
+        won = searched is not None and searched.hypotheses[searched.chosen].score > best * (
+            1.0 + cfg.verification.min_gain
+        )
+        diagnostics['bev_search_used'] = won
+        return searched if won else None
 
     def alignment_cloud(self, scan: PreparedScan, pair: bool = False) -> AlignmentCloud:
         """

@@ -158,11 +158,12 @@ class HypothesisScore:
     """One verified hypothesis: its refined transform and its scores on the dense scans."""
 
     T_target_source: np.ndarray  # (4, 4) after the estimator's post-refinement
-    estimator_rank: int  # position among the estimator's hypotheses (0: its own choice)
+    rank: int  # position in its origin's list (estimator: 0 is its own choice)
     num_inliers: int  # correspondences with residual < estimator.inlier_threshold
     overlap: float  # share of sampled source points within overlap_distance of the target
     label_agreement: float  # share of the overlapping labeled points with compatible labels
     score: float  # combined score, see core/verification.py
+    origin: str = 'estimator'  # where the pose came from: 'estimator' or 'bev_search'
 
 
 @dataclass

@@ -52,7 +52,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 import time
-from typing import Any
 
 from mlsemreg_ros.core.config import EstimatorConfig, VerificationConfig
 from mlsemreg_ros.core.labels import LabelMap
@@ -261,6 +260,74 @@ def verify_hypotheses(
     start = time.perf_counter()
     transforms, ranks = candidate_hypotheses(estimate, src, dst, config, estimator)
     refined_ms = 1e3 * (time.perf_counter() - start)
+    result = score_hypotheses(
+        transforms, ranks, src, dst, source, target, config, estimator, labels
+    )
+    chosen = result.chosen
+    result.diagnostics.update(
+        {
+            'verification_hypotheses': len(result.hypotheses),
+            'verification_chosen_rank': int(ranks[chosen]),
+            'verification_switched': chosen != 0,
+            'verification_score': result.hypotheses[chosen].score,
+            'verification_refine_ms': refined_ms,
+        }
+    )
+    for i, h in enumerate(result.hypotheses):
+        result.diagnostics.update(
+            {
+                f'verification_h{i}_rank': h.rank,
+                f'verification_h{i}_inliers': h.num_inliers,
+                f'verification_h{i}_overlap': h.overlap,
+                f'verification_h{i}_label_agreement': h.label_agreement,
+                f'verification_h{i}_score': h.score,
+            }
+        )
+    return result
+
+
+def refine_starts(
+    starts: np.ndarray, src: np.ndarray, dst: np.ndarray, estimator: EstimatorConfig
+) -> np.ndarray:
+    """
+    SC2-PCR post-refinement of every ``(N, 4, 4)`` start on the correspondences near it.
+
+    Near: residual below ``_REFINE_SUPPORT x estimator.refine_threshold`` under the start
+    (as in :func:`candidate_hypotheses`). A start with fewer than three near
+    correspondences is returned as it is.
+    """
+    finite = np.isfinite(src).all(axis=1) & np.isfinite(dst).all(axis=1)
+    p, q = src[finite], dst[finite]
+    support = _REFINE_SUPPORT * estimator.refine_threshold
+    refined = starts.copy()
+    for i, start in enumerate(starts):  # one small least-squares problem per start
+        near = residuals(start, p, q) < support
+        if np.count_nonzero(near) >= 3:
+            refined[i], _ = post_refinement(
+                start, p[near], q[near], estimator.refine_threshold, estimator.refine_iterations
+            )
+    return refined
+
+
+def score_hypotheses(
+    transforms: np.ndarray,
+    ranks: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    source: PreparedScan,
+    target: PreparedScan,
+    config: VerificationConfig,
+    estimator: EstimatorConfig,
+    labels: LabelCompatibility,
+    origin: str = 'estimator',
+) -> VerificationResult:
+    """
+    Sparse inliers, dense overlap and label agreement of ``(N, 4, 4)`` poses; the choice.
+
+    ``ranks``: each pose's position in the list it came from (``origin``); index 0 is
+    kept unless another pose beats it by ``config.min_gain`` (:func:`choose`).
+    ``diagnostics`` gets ``verification_tree_ms``.
+    """
     finite = np.isfinite(src).all(axis=1) & np.isfinite(dst).all(axis=1)
     if finite.any():
         inliers = count_inliers(transforms, src[finite], dst[finite], estimator.inlier_threshold)
@@ -271,7 +338,6 @@ def verify_hypotheses(
     tree_ms = 1e3 * (time.perf_counter() - tick)
     overlap, agreement = dense_scores(transforms, source, tree, target.labels, labels, config)
     scores = combined_score(overlap, agreement, config)
-    chosen = choose(scores, config.min_gain)
     hypotheses = [
         HypothesisScore(
             transforms[i],
@@ -280,25 +346,10 @@ def verify_hypotheses(
             float(overlap[i]),
             float(agreement[i]),
             float(scores[i]),
+            origin,
         )
         for i in range(len(transforms))
     ]
-    diagnostics: dict[str, Any] = {
-        'verification_hypotheses': len(hypotheses),
-        'verification_chosen_rank': int(ranks[chosen]),
-        'verification_switched': chosen != 0,
-        'verification_score': float(scores[chosen]),
-        'verification_refine_ms': refined_ms,
-        'verification_tree_ms': tree_ms,
-    }
-    for i, h in enumerate(hypotheses):
-        diagnostics.update(
-            {
-                f'verification_h{i}_rank': h.estimator_rank,
-                f'verification_h{i}_inliers': h.num_inliers,
-                f'verification_h{i}_overlap': h.overlap,
-                f'verification_h{i}_label_agreement': h.label_agreement,
-                f'verification_h{i}_score': h.score,
-            }
-        )
-    return VerificationResult(hypotheses, chosen, diagnostics)
+    return VerificationResult(
+        hypotheses, choose(scores, config.min_gain), {'verification_tree_ms': tree_ms}
+    )

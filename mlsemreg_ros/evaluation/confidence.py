@@ -16,9 +16,10 @@
 The confidence study: the evidence of right and wrong registrations, side by side.
 
 Registers scan pairs of known outcome with the node's registration (own keypoints and
-FPFH, every ``confidence.*`` threshold off so all evidence is seen) and records what
-each registration offers as proof (core/confidence.py): sparse inliers and inlier ratio,
-dense overlap and label agreement of the chosen pose, the fine alignment's inlier share.
+FPFH, the configured thresholds, so a refused estimate goes on to the BEV search) and
+records what the returned pose offers as proof (core/confidence.py; computed whatever
+the thresholds): sparse inliers and inlier ratio, dense overlap and label agreement of
+the chosen pose, the fine alignment's inlier share.
 
 Cases (``kind``):
 
@@ -137,26 +138,19 @@ def measure(
     cases: list[Case], config: Any, bounds: EvaluationConfig | None = None
 ) -> list[dict[str, Any]]:
     """
-    Register every case with every threshold off; one row of evidence and outcome each.
+    Register every case; one row of the evidence of the returned pose and its outcome each.
 
-    ``accepted`` is whether ``config``'s thresholds accept the evidence.
+    The registration runs with ``config`` as it is, so a refused estimate goes on to the
+    BEV search (core/bev_search.py) and the row holds the pose finally returned; the
+    evidence is computed whatever the thresholds. ``accepted`` is whether ``config``'s
+    thresholds accept it (the pipeline's ``success``).
     """
     from mlsemreg_ros.core import confidence
     from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
     from mlsemreg_ros.core.pipeline import Registration
     from tqdm import tqdm
 
-    registration = Registration(
-        config.replace(
-            {
-                'confidence.min_inlier_ratio': 0.0,
-                'confidence.min_overlap': 0.0,
-                'confidence.min_label_agreement': 0.0,
-                'confidence.max_tilt': 180.0,
-                'estimator.min_inliers': 3,
-            }
-        )
-    )
+    registration = Registration(config)
     rows = []
     for case in tqdm(cases, desc='confidence', unit='pair', file=sys.stderr):
         result = registration.register_scans(*case.source, *case.target)

@@ -122,6 +122,9 @@ def summarize_pairs(metrics: list[Any], rows: list[dict[str, Any]]) -> dict[str,
     summary = summarize(metrics)
     stages = sorted({stage for row in rows for stage in row['time_ms']})
     # A stage absent from a pair (e.g. bmr_ss_ms in a GM-only fallback) took 0 ms there.
+    summary['accepted_pct'] = (
+        100.0 * sum(bool(r.get('accepted', True)) for r in rows) / len(rows) if rows else 0.0
+    )
     summary['time_ms'] = {
         stage: sum(r['time_ms'].get(stage, 0.0) for r in rows) / len(rows) for stage in stages
     }
@@ -160,6 +163,8 @@ def evaluate_directory(
         all_metrics.append(metrics)
         row = pair_row(pair.name, metrics, timings)
         row.update(
+            accepted=result.success,
+            bev_search=bool(result.diagnostics.get('bev_search_used', False)),
             mode=result.mode,
             estimator_inliers=result.num_inliers,
             message=result.message,

@@ -89,7 +89,8 @@ def print_table(table: ResultTable) -> None:
     rich_table = render(table)
     width = None
     if not out.is_terminal:
-        width = max(out.width, Measurement.get(out, out.options, rich_table).maximum)
+        unbounded = out.options.update(max_width=10_000)  # measure beyond the 80 columns
+        width = max(out.width, Measurement.get(out, unbounded, rich_table).maximum)
     out.print(rich_table, width=width, crop=False)
 
 
@@ -125,6 +126,7 @@ def pair_results_table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> R
             cell(r['rotation_error_deg'], 2),
             cell(r['translation_error_cm'], 1),
             'yes' if r['success'] else 'no',
+            _accepted(r),
             cell(r['time_ms']['total_ms'], 0),
         ]
         for r in rows
@@ -138,11 +140,20 @@ def pair_results_table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> R
         cell(summary['rotation_error_deg'], 2),
         cell(summary['translation_error_cm'], 1),
         f'RR {cell(summary["registration_recall_pct"], 1)}%',
+        f'{cell(summary.get("accepted_pct"), 0)}%',
         cell(summary['time_ms'].get('total_ms'), 0),
     ]
     return ResultTable(
-        ('pair', '#corr', 'IN', 'IR %', 'RE deg', 'TE cm', 'success', 'total ms'), lines, footer
+        ('pair', '#corr', 'IN', 'IR %', 'RE deg', 'TE cm', 'success', 'accepted', 'total ms'),
+        lines,
+        footer,
     )
+
+
+def _accepted(row: dict[str, Any]) -> str:
+    """Return the confidence verdict of a pair (core/confidence.py); ``+bev``: BEV search pose."""
+    verdict = 'yes' if row.get('accepted', True) else 'no'
+    return verdict + (' +bev' if row.get('bev_search') else '')
 
 
 def comparison_table(reports: dict[str, dict[str, Any]]) -> ResultTable:
