@@ -190,3 +190,12 @@ def test_the_search_finds_the_pose_the_correspondences_miss(street_far_apart):
     # random descriptors leave next to no sparse inliers: the evidence stays insufficient
     assert not result.success and 'inliers' in result.message
     assert 'bev_search pose' in result.message
+
+
+def test_weak_evidence_sends_an_accepted_pose_to_the_search_too(street_far_apart):
+    semantic = {'semantic.enabled': True, 'keypoints.count': 1000}
+    plain = _register(street_far_apart, **semantic)
+    assert plain.success and 'bev_search_ms' not in plain.timings_ms
+    weak = _register(street_far_apart, **semantic, **{'bev_search.weak_inliers': 100000})
+    assert 'bev_search_ms' in weak.timings_ms and weak.success
+    assert _errors(weak.transform, street_far_apart['truth'])[1] < 0.3

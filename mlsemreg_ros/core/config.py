@@ -465,8 +465,20 @@ class BevSearchConfig:
 
     enabled: bool = param(
         True,
-        "Search the scans when confidence.* refuses the estimator's (verified) choice; "
-        'needs verification.enabled. Costs ~0.2 s, and only on refused registrations.',
+        "Search the scans when confidence.* refuses the estimator's (verified) choice or "
+        'accepts it on weak evidence (bev_search.weak_inliers); a searched pose replaces '
+        'it when it scores higher on the dense scans. Needs verification.enabled. Costs '
+        '~0.15 s, only on such registrations.',
+    )
+    weak_inliers: int = param(
+        0,
+        'Also search when the pose is accepted on fewer sparse inliers than this (0: only '
+        'refused poses). On repetitive streets a slide along the street can pass every '
+        'threshold with 40-100 inliers of plain FPFH matches (semantic.enabled=false): 100 '
+        'catches most of them there, but ML-SemReg at 2000 keypoints has as few on right '
+        "poses, and the search then runs on a quarter of the node's global registrations.",
+        low=0,
+        high=100000,
     )
     classes: list[str] = param(
         ['building~fence', 'vegetation~trunk', 'pole~traffic-sign'],

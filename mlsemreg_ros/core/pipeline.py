@@ -261,20 +261,21 @@ class Registration:
                 transform, src_pts, dst_pts, verified, source, target
             )
         refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
-        # 2d. refused: search the scans themselves (core/bev_search.py)
-        if refused and verified is not None and cfg.bev_search.enabled:
+        # 2d. refused or weak: search the scans themselves (core/bev_search.py)
+        weak = evidence.num_inliers < cfg.bev_search.weak_inliers
+        if (refused or weak) and verified is not None and cfg.bev_search.enabled:
             with _timed(timings, 'bev_search_ms'):
                 searched = self._bev_search(
                     source, target, src_pts, dst_pts, verified, diagnostics
                 )
             if searched is not None:
+                why = f'refused: {refused}' if refused else f'{evidence.num_inliers} inliers'
                 verified, transform = searched, searched.T_target_source
                 inliers, evidence = self._evidence(
                     transform, src_pts, dst_pts, verified, source, target
                 )
-                estimator_refused = refused
                 refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
-                message = f"bev_search pose (the estimator's was refused: {estimator_refused})"
+                message = f"bev_search pose (the estimator's was {why})"
         diagnostics.update(evidence.as_diagnostics())
         success = not refused
         if refused:

@@ -165,6 +165,11 @@ def evaluate_directory(
         row.update(
             accepted=result.success,
             bev_search=bool(result.diagnostics.get('bev_search_used', False)),
+            evidence={
+                k.removeprefix('confidence_'): v
+                for k, v in result.diagnostics.items()
+                if k.startswith('confidence_')
+            },
             mode=result.mode,
             estimator_inliers=result.num_inliers,
             message=result.message,

@@ -63,11 +63,14 @@ def render(table: ResultTable) -> Any:
         title_justify='left',
     )
     for i, header in enumerate(table.headers):
+        footer = table.footer[i] if table.footer is not None else ''
+        widest = max([len(header), len(footer), *(len(row[i]) for row in table.rows)])
         out.add_column(
             header,
             justify='left' if i < table.left_columns else 'right',
             no_wrap=True,
-            footer=table.footer[i] if table.footer is not None else '',
+            footer=footer,
+            min_width=widest,  # never an ellipsis: the tables are read and parsed as text
         )
     for row in table.rows:
         out.add_row(*row)
