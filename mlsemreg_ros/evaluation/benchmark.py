@@ -25,8 +25,10 @@ pair (both clouds):
 - ``sc2pcr_ms``: the estimator (SC2-PCR by default);
 - ``verification_ms``: hypothesis verification on the dense scans (0 when
   ``verification.enabled`` is false), the target's KD-tree included;
+- ``bev_search_ms``: the BEV search (core/bev_search.py), which runs only when the
+  estimate is refused (e.g. too few inliers at few keypoints), else 0;
 - ``fine_ms``: the fine alignment of the pair (``fine.pair_method``, GICP by default,
-  on the prepared scans; their covariances included; 0 when off or not accepted);
+  on the prepared scans; their covariances included; 0 when off);
 - ``total_ms``: wall time of preparing both clouds and registering them;
 - ``total_parallel_ms``: the same with both clouds prepared concurrently
   (``Registration.prepare_scans``, as ``register_scans`` does).
@@ -53,6 +55,7 @@ STAGES = (
     'fpfh_ms',
     'sc2pcr_ms',
     'verification_ms',
+    'bev_search_ms',
     'fine_ms',
     'total_ms',
     'total_parallel_ms',
@@ -105,6 +108,7 @@ def stage_times(source: Any, target: Any, result: Any, total_ms: float) -> dict[
         'fpfh_ms': sum(t.get('fpfh_ms', 0.0) for t in prep),
         'sc2pcr_ms': reg.get('estimator_ms', 0.0),
         'verification_ms': reg.get('verification_ms', 0.0),
+        'bev_search_ms': reg.get('bev_search_ms', 0.0),
         'fine_ms': reg.get('fine_ms', 0.0),
         'total_ms': total_ms,
     }
@@ -169,6 +173,7 @@ def timing_table(rows: dict[str, dict[str, Any]]) -> ResultTable:
                 f'{row["fpfh_ms"]:.1f}',
                 f'{row["sc2pcr_ms"]:.1f}',
                 f'{row["verification_ms"]:.1f}',
+                f'{row.get("bev_search_ms", 0.0):.1f}',
                 f'{row.get("fine_ms", 0.0):.1f}',
                 f'{row["total_ms"]:.1f}',
                 f'{row["total_parallel_ms"]:.1f}',
@@ -185,6 +190,7 @@ def timing_table(rows: dict[str, dict[str, Any]]) -> ResultTable:
             'FPFH',
             'SC2-PCR',
             'verification',
+            'BEV search',
             'fine',
             'total',
             'total 2 threads',
