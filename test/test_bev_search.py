@@ -199,3 +199,15 @@ def test_weak_evidence_sends_an_accepted_pose_to_the_search_too(street_far_apart
     weak = _register(street_far_apart, **semantic, **{'bev_search.weak_inliers': 100000})
     assert 'bev_search_ms' in weak.timings_ms and weak.success
     assert _errors(weak.transform, street_far_apart['truth'])[1] < 0.3
+
+
+def test_labels_outside_the_map_are_not_searched(lookup):
+    points, labels = _l_shaped_yard()
+    odd = labels.copy()
+    odd[labels == POLE] = 1000  # out of the learning ids: must not become traffic-sign
+    odd[labels == VEGETATION] = -5
+    with_odd = bev_search.bev_hypotheses(points, odd, points, labels, lookup, **SEARCH)
+    walls_only = labels.copy()
+    walls_only[labels != BUILDING] = 9  # road: not searched
+    reference = bev_search.bev_hypotheses(points, walls_only, points, labels, lookup, **SEARCH)
+    np.testing.assert_allclose(with_odd[1], reference[1])

@@ -112,6 +112,13 @@ def _rasterise(
     return grids.reshape(count, num_channels, size, size)
 
 
+def _channels(labels: np.ndarray, lookup: np.ndarray) -> np.ndarray:
+    """Channel of every label; -1 for classes not searched and for ids outside the map."""
+    labels = np.asarray(labels, dtype=np.int64)
+    known = (labels >= 0) & (labels < lookup.size)
+    return np.where(known, lookup[np.where(known, labels, 0)], -1)
+
+
 def _thinned(
     xy: np.ndarray, channel: np.ndarray, cell_size: float
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -232,8 +239,8 @@ def bev_hypotheses(
     empty = np.zeros((0, 4, 4)), np.zeros(0)
     if num_channels == 0:
         return empty
-    source_channel = channel_lookup[np.clip(source_labels, 0, channel_lookup.size - 1)]
-    target_channel = channel_lookup[np.clip(target_labels, 0, channel_lookup.size - 1)]
+    source_channel = _channels(source_labels, channel_lookup)
+    target_channel = _channels(target_labels, channel_lookup)
     source_used, target_used = source_channel >= 0, target_channel >= 0
     if not source_used.any() or not target_used.any():
         return empty
