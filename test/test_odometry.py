@@ -67,7 +67,7 @@ class ScriptedRegistration:
         self.calls: list[tuple[int, int]] = []
         self.prepared = 0
 
-    def prepare(self, points: np.ndarray, labels: np.ndarray) -> Any:
+    def prepare(self, points: np.ndarray, labels: np.ndarray, lazy: bool = False) -> Any:
         self.prepared += 1
         if len(points) < 4:  # a degenerate scan
             return Tagged(int(points[0, 0]), points=points, keypoints=points)

@@ -192,7 +192,7 @@ class Odometry:
         if self.keyframe is not None:
             if any(getattr(old, s) != getattr(config, s) for s in _PREPARE_SECTIONS):
                 self.keyframe.prepared = self.registration.prepare(
-                    self.keyframe.points, self.keyframe.labels
+                    self.keyframe.points, self.keyframe.labels, lazy=True
                 )
             elif old.fine != config.fine:
                 self.keyframe.prepared.alignment_clouds.clear()  # rebuilt when needed
@@ -246,15 +246,18 @@ class Odometry:
             self._last_stamp = stamp_ns
         index = self._count
         self._count += 1
-        current = self.registration.prepare(points, labels)
+        # lazy: descriptors and signatures only if a global registration needs them
+        current = self.registration.prepare(points, labels, lazy=True)
         self._raw = (np.asarray(points), np.asarray(labels))  # kept if it becomes the keyframe
-        timings = {f'prepare.{k}': v for k, v in current.timings_ms.items()}
+        timings: dict[str, float] = {}
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
             refusal = self.keyframe_refusal(current)
             if refusal:
                 self._count = 0  # the next scan tries to start the odometry again
                 reason = '; '.join([*notes, f'no keyframe yet: {refusal}'])
-                step = self._rejected(index, stamp_ns, current, None, None, reason, timings)
+                step = self._rejected(
+                    index, stamp_ns, current, None, None, reason, _prepare_timings(current)
+                )
                 step.latency_ms = 1e3 * (time.perf_counter() - start)
                 return step
             self._start(index, stamp_ns, current, self.pose)
@@ -270,7 +273,7 @@ class Odometry:
                 True,
                 1e3 * (time.perf_counter() - start),
                 current,
-                timings,
+                _prepare_timings(current),
                 source='first',
                 reason='; '.join(notes),
                 covariance=self.covariance.copy(),
@@ -297,7 +300,7 @@ class Odometry:
         registered = (
             {} if result is None else {f'register.{k}': v for k, v in result.timings_ms.items()}
         )
-        step.timings_ms = {**timings, **registered, **step.timings_ms}
+        step.timings_ms = {**_prepare_timings(current), **timings, **registered, **step.timings_ms}
         step.latency_ms = 1e3 * (time.perf_counter() - start)
         return step
 
@@ -686,3 +689,8 @@ def sparse_inlier_covariance(result: RegistrationResult, inlier_threshold: float
         lever = float(np.sqrt(((inliers - inliers.mean(axis=0)) ** 2).sum(axis=1).mean()))
     sigma_r = sigma_t / max(lever, MIN_LEVER_ARM_M)
     return np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
+
+
+def _prepare_timings(scan: PreparedScan) -> dict[str, float]:
+    """Return the scan's preparation stages (lazy ones once computed) as ``prepare.*``."""
+    return {f'prepare.{k}': v for k, v in scan.timings_ms.items()}

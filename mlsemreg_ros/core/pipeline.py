@@ -105,6 +105,7 @@ class Registration:
         keypoints: np.ndarray | None = None,
         descriptors: np.ndarray | None = None,
         voxelize: bool = True,
+        lazy: bool = False,
     ) -> PreparedScan:
         """
         Prepare one scan: sanitize, learning ids, voxels, keypoints, descriptors, signatures.
@@ -116,6 +117,10 @@ class Registration:
         ``keypoints`` (M, 3) and ``descriptors`` (M, D) may be given (e.g. GEDI from a
         pair file); keypoints without descriptors get FPFH at their nearest scan point.
         Keypoints whose descriptor is non-finite or all-zero are dropped.
+
+        ``lazy=True`` stops after the keypoints: descriptors, Local-SS, landmarks and the
+        KD-tree are computed by :meth:`complete` when a registration first needs them (the
+        odometry tracks most scans without one). :meth:`register` completes its scans.
         """
         cfg, timings = self.config, {}
         with _timed(timings, 'labels_ms'):
@@ -145,14 +150,48 @@ class Registration:
                 keypoints = np.asarray(keypoints, dtype=np.float64).reshape(-1, 3)
                 tree = signatures.search_tree(points)
                 indices = tree.query(keypoints)[1].astype(np.int64)
+        prepared = PreparedScan(
+            points,
+            labels,
+            keypoints,
+            indices,
+            np.zeros((len(keypoints), 0), dtype=np.float32),
+            np.zeros((len(keypoints), self.label_map.num_classes), dtype=bool),
+            Landmarks.empty(),
+            timings,
+            {},
+            input_stats,
+        )
+        prepared.pending_features = lambda: self._describe(prepared, descriptors, tree)
+        if not lazy:
+            self.complete(prepared)
+        return prepared
+
+    def complete(self, scan: PreparedScan) -> PreparedScan:
+        """Compute what a ``lazy`` :meth:`prepare` left out (once; a no-op afterwards)."""
+        pending, scan.pending_features = scan.pending_features, None
+        if pending is not None:
+            pending()
+        return scan
+
+    def _describe(
+        self, scan: PreparedScan, descriptors: np.ndarray | None, keypoint_tree: Any
+    ) -> None:
+        """Descriptors | Local-SS, landmarks and the KD-tree of ``scan``, on two threads."""
+        cfg, timings = self.config, scan.timings_ms
+        points, labels, keypoints = scan.points, scan.labels, scan.keypoints
         stage = 'fpfh_ms' if descriptors is None else 'descriptors_ms'
 
         def describe() -> np.ndarray:
             with _timed(timings, stage):
-                found = _fpfh(points, indices, cfg) if descriptors is None else descriptors
+                found = (
+                    _fpfh(points, scan.keypoint_indices, cfg)
+                    if descriptors is None
+                    else descriptors
+                )
                 return np.asarray(found, dtype=np.float32)
 
-        def semantics() -> tuple[np.ndarray, Landmarks]:
+        def semantics_and_tree() -> tuple[np.ndarray, Landmarks, Any]:
             with _timed(timings, 'local_ss_ms'):
                 local_ss = signatures.local_semantic_signature(
                     points,
@@ -162,7 +201,7 @@ class Registration:
                     self.label_map.num_classes,
                     ignored=self._ignored_ids,
                     undefined=self._undefined_ids,
-                    points_tree=tree,
+                    points_tree=keypoint_tree,
                 )
             with _timed(timings, 'landmarks_ms'):
                 marks = landmarks.extract_landmarks(
@@ -172,12 +211,8 @@ class Registration:
                     cfg.semantic.cluster_radius,
                     cfg.semantic.cluster_min_points,
                 )
-            return local_ss, marks
-
-        def semantics_and_tree() -> tuple[np.ndarray, Landmarks, Any]:
-            local_ss, marks = semantics()
             with _timed(timings, 'points_tree_ms'):  # for the dense scores, as a target
-                tree = PreparedScan.build_points_tree(points)
+                tree = scan.kdtree or PreparedScan.build_points_tree(points)
             return local_ss, marks, tree
 
         # Descriptors | semantic signatures and the KD-tree: two threads. (small_gicp holds
@@ -186,21 +221,9 @@ class Registration:
             lambda task: task(), [describe, semantics_and_tree]
         )
         valid = features.valid_descriptor_mask(described)
-        keypoints, indices = keypoints[valid], indices[valid]
-        descriptors, local_ss = described[valid], local_ss[valid]
-        return PreparedScan(
-            points,
-            labels,
-            keypoints,
-            indices,
-            descriptors,
-            local_ss,
-            marks,
-            timings,
-            {},
-            input_stats,
-            tree,
-        )
+        scan.keypoints, scan.keypoint_indices = keypoints[valid], scan.keypoint_indices[valid]
+        scan.descriptors, scan.local_ss = described[valid], local_ss[valid]
+        scan.landmarks, scan.kdtree = marks, tree
 
     # ------------------------------------------------------------------------------
     def register(
@@ -213,6 +236,8 @@ class Registration:
         map instead of the target scan). The fine alignment refines a refused pose too (it
         is the best one found; ``success`` stays false).
         """
+        self.complete(source)
+        self.complete(target)
         cfg, timings = self.config, {}
         diagnostics: dict = {
             'source_keypoints': len(source.keypoints),

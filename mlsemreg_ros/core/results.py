@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, TYPE_CHECKING
 
@@ -69,6 +70,9 @@ class PreparedScan:
     input_stats: dict[str, Any] = field(default_factory=dict)
     #: KD-tree of ``points`` (built by :meth:`Registration.prepare`, or on first use)
     kdtree: cKDTree | None = field(default=None, repr=False, compare=False)
+    #: what a lazy :meth:`Registration.prepare` left out (descriptors, signatures, landmarks,
+    #: KD-tree); :meth:`Registration.complete` runs it once
+    pending_features: Callable[[], None] | None = field(default=None, repr=False, compare=False)
 
     def points_tree(self) -> cKDTree:
         """
