@@ -332,6 +332,9 @@ def test_failure_keeps_the_keyframe_and_does_not_move_the_odometry(
         assert all(r.successful for r in probe.set_parameters({'estimator.min_inliers': default}))
     assert status['level'] == 1 and 'registration failed' in status['message']
     assert 'estimator.min_inliers' in status['message']
+    # a refused estimate goes on to the BEV search, which is reported and refused too
+    assert float(status['stage.register.bev_search_ms']) > 0.0
+    assert int(status['bev_search_peaks']) > 0 and 'bev_search_score' in status
     assert probe.wait_for('transform', failed_stamp, 1.0) is None
     assert probe.wait_for('odometry', failed_stamp, 0.5) is None
     src_stamp, status = send(probe, scene.pts_src, scene.label_src)  # tries again
