@@ -211,3 +211,35 @@ def test_labels_outside_the_map_are_not_searched(lookup):
     walls_only[labels != BUILDING] = 9  # road: not searched
     reference = bev_search.bev_hypotheses(points, walls_only, points, labels, lookup, **SEARCH)
     np.testing.assert_allclose(with_odd[1], reference[1])
+
+
+@pytest.mark.parametrize('yaw', [37.0, 143.0, 290.0])
+def test_coarse_to_fine_finds_what_the_full_search_finds(lookup, yaw):
+    points, labels = _l_shaped_yard()
+    truth = motion(yaw, (4.0, -6.0, 0.0))
+    source = apply_transform(invert_transform(truth), points)
+    full, full_scores = bev_search.bev_hypotheses(
+        source, labels, points, labels, lookup, **SEARCH, coarse_factor=1
+    )
+    fast, fast_scores = bev_search.bev_hypotheses(
+        source, labels, points, labels, lookup, **SEARCH, coarse_factor=3, coarse_yaws=4
+    )
+    np.testing.assert_allclose(fast[0], full[0])
+    assert fast_scores[0] == pytest.approx(full_scores[0])
+
+
+def test_the_fine_yaws_lie_between_the_coarse_ones():
+    class Recorder:
+        def __init__(self) -> None:
+            self.calls: list[np.ndarray] = []
+
+        def peaks(self, yaws: np.ndarray, k: int) -> np.ndarray:
+            self.calls.append(yaws)
+            score = np.cos(np.radians(yaws - 100.0))  # best at 100 deg
+            return np.column_stack([score, yaws, np.zeros_like(yaws), np.zeros_like(yaws)])
+
+    recorder = Recorder()
+    bev_search.yaw_search(recorder, 2.0, 1, 3, 2)
+    coarse, fine = recorder.calls
+    np.testing.assert_allclose(coarse, np.arange(0.0, 360.0, 6.0))
+    np.testing.assert_allclose(fine, [94.0, 98.0, 100.0, 104.0])  # around 96 and 102

@@ -139,58 +139,96 @@ def rotations_z(yaw_deg: np.ndarray) -> np.ndarray:
     return transforms
 
 
-def correlation_peaks(
-    source_xy: np.ndarray,
-    source_channel: np.ndarray,
-    target_xy: np.ndarray,
-    target_channel: np.ndarray,
-    grid: BevGrid,
-    num_channels: int,
+class Correlator:
+    """
+    The target's grids in the frequency domain, correlated with the source at given yaws.
+
+    ``peaks(yaws, k)`` returns the best ``k`` translations of every yaw as ``(P, 4)`` rows
+    ``(score, yaw_deg, tx, ty)``; ``score`` is the summed per-channel cosine similarity of
+    the occupied cells (at most the number of channels). Only translations with
+    ``|t|_inf <= max_translation``.
+    """
+
+    def __init__(
+        self,
+        source_xy: np.ndarray,
+        source_channel: np.ndarray,
+        target_xy: np.ndarray,
+        target_channel: np.ndarray,
+        grid: BevGrid,
+        num_channels: int,
+    ) -> None:
+        """Rasterise and transform the target once."""
+        self.source_xy, self.source_channel = source_xy, source_channel
+        self.grid, self.num_channels = grid, num_channels
+        limit = grid.radius + grid.max_translation
+        target = occupancy(target_xy, target_channel, grid, num_channels, limit)
+        self.target_spectrum = fft.rfft2(target, workers=-1)
+        self.shift = np.fft.fftfreq(grid.size, d=1.0 / grid.size) * grid.cell_size  # metres
+        reachable = np.abs(self.shift) <= grid.max_translation
+        self.window = reachable[:, None] & reachable[None, :]
+
+    def peaks(self, yaws: np.ndarray, peaks_per_yaw: int) -> np.ndarray:
+        """Best ``peaks_per_yaw`` local maxima of the correlation at every yaw (deg)."""
+        grid, size = self.grid, self.grid.size
+        rows = [np.zeros((0, 4))]
+        for first in range(0, yaws.size, _YAW_CHUNK):
+            chunk = yaws[first:][:_YAW_CHUNK]
+            rotation = rotations_z(chunk)[:, :2, :2]
+            rotated = self.source_xy[None] @ rotation.transpose(0, 2, 1)  # (Y, n, 2)
+            source = _rasterise(rotated, self.source_channel, grid, self.num_channels, grid.radius)
+            spectrum = fft.rfft2(source, workers=-1)
+            np.conjugate(spectrum, out=spectrum)
+            spectrum *= self.target_spectrum[None]
+            correlation = fft.irfft2(spectrum.sum(axis=1), s=(size, size), workers=-1)
+            correlation[:, ~self.window] = -np.inf
+            local_max = ndimage.maximum_filter(correlation, size=(1, 3, 3), mode='wrap')
+            is_peak = (correlation == local_max) & np.isfinite(correlation)
+            for y in range(chunk.size):  # one small top-k per yaw
+                flat = np.flatnonzero(is_peak[y])
+                values = correlation[y].ravel()[flat]
+                best = flat[np.argsort(-values, kind='stable')[:peaks_per_yaw]]
+                u, v = np.unravel_index(best, (size, size))
+                rows.append(
+                    np.column_stack(
+                        [
+                            correlation[y][u, v],
+                            np.full(best.size, chunk[y]),
+                            self.shift[u],
+                            self.shift[v],
+                        ]
+                    )
+                )
+        return np.concatenate(rows)
+
+
+def yaw_search(
+    correlator: Correlator,
     yaw_step: float,
     peaks_per_yaw: int,
+    coarse_factor: int,
+    coarse_yaws: int,
 ) -> np.ndarray:
     """
-    Best translations of every yaw: ``(P, 4)`` rows ``(score, yaw_deg, tx, ty)``.
+    Peaks over 360 deg of yaw, coarse to fine.
 
-    ``score`` is the summed per-channel cosine similarity of the occupied cells (at most
-    the number of channels). Only translations with ``|t|_inf <= max_translation``.
+    With ``coarse_factor`` > 1 every ``coarse_factor x yaw_step`` is searched first, and
+    only around the ``coarse_yaws`` yaws with the best peaks the steps in between
+    (``yaw_step``); else every ``yaw_step``. Returns the pooled ``(score, yaw, tx, ty)``.
     """
-    size = grid.size
-    target = occupancy(
-        target_xy, target_channel, grid, num_channels, grid.radius + grid.max_translation
-    )
-    target_spectrum = fft.rfft2(target, workers=-1)
-    shift = np.fft.fftfreq(size, d=1.0 / size) * grid.cell_size  # cell index -> metres
-    reachable = np.abs(shift) <= grid.max_translation
-    window = reachable[:, None] & reachable[None, :]
-    yaws = np.arange(0.0, 360.0, yaw_step)
-    rows = []
-    for first in range(0, yaws.size, _YAW_CHUNK):
-        chunk = yaws[first:][:_YAW_CHUNK]
-        rotation = rotations_z(chunk)[:, :2, :2]
-        rotated = source_xy[None] @ rotation.transpose(0, 2, 1)  # (Y, n, 2)
-        source = _rasterise(rotated, source_channel, grid, num_channels, grid.radius)
-        spectrum = fft.rfft2(source, workers=-1)
-        np.conjugate(spectrum, out=spectrum)
-        spectrum *= target_spectrum[None]
-        cross = spectrum.sum(axis=1)
-        correlation = fft.irfft2(cross, s=(size, size), workers=-1)
-        correlation[:, ~window] = -np.inf
-        local_max = ndimage.maximum_filter(correlation, size=(1, 3, 3), mode='wrap')
-        is_peak = (correlation == local_max) & np.isfinite(correlation)
-        for y in range(chunk.size):  # one small top-k per yaw
-            flat = np.flatnonzero(is_peak[y])
-            if flat.size == 0:
-                continue
-            values = correlation[y].ravel()[flat]
-            best = flat[np.argsort(-values, kind='stable')[:peaks_per_yaw]]
-            u, v = np.unravel_index(best, (size, size))
-            rows.append(
-                np.column_stack(
-                    [correlation[y][u, v], np.full(best.size, chunk[y]), shift[u], shift[v]]
-                )
-            )
-    return np.concatenate(rows) if rows else np.zeros((0, 4))
+    if coarse_factor <= 1:
+        return correlator.peaks(np.arange(0.0, 360.0, yaw_step), peaks_per_yaw)
+    coarse_step = coarse_factor * yaw_step
+    coarse = correlator.peaks(np.arange(0.0, 360.0, coarse_step), peaks_per_yaw)
+    if coarse.size == 0:
+        return coarse
+    yaws, first = np.unique(coarse[:, 1], return_index=True)
+    best = np.maximum.reduceat(coarse[:, 0], first) if first.size else first
+    kept = yaws[np.argsort(-best, kind='stable')[:coarse_yaws]]
+    offsets = yaw_step * np.arange(1, (coarse_factor - 1) // 2 + 1)
+    around = np.concatenate([kept[:, None] - offsets, kept[:, None] + offsets], axis=1)
+    fine = np.unique(np.round(np.mod(around.ravel(), 360.0), 9))
+    return np.concatenate([coarse, correlator.peaks(fine, peaks_per_yaw)])
 
 
 def suppress(
@@ -225,6 +263,8 @@ def bev_hypotheses(
     hypotheses: int,
     nms_rotation: float,
     nms_translation: float,
+    coarse_factor: int = 1,
+    coarse_yaws: int = 12,
 ) -> tuple[np.ndarray, np.ndarray]:
     """
     ``z``-up pose hypotheses ``T_target_source`` of two labeled scans, best first.
@@ -248,16 +288,15 @@ def bev_hypotheses(
     source_xy, source_channel = _thinned(
         source_points[source_used, :2], source_channel[source_used], cell_size / 2.0
     )
-    peaks = correlation_peaks(
+    correlator = Correlator(
         source_xy,
         source_channel,
         target_points[target_used, :2],
         target_channel[target_used],
         grid,
         num_channels,
-        yaw_step,
-        peaks_per_yaw,
     )
+    peaks = yaw_search(correlator, yaw_step, peaks_per_yaw, coarse_factor, coarse_yaws)
     peaks = peaks[peaks[:, 0] > 0] if peaks.size else peaks
     if peaks.size == 0:
         return empty
@@ -309,6 +348,8 @@ def search_scans(
         hypotheses=search.hypotheses,
         nms_rotation=search.nms_rotation,
         nms_translation=search.nms_translation,
+        coarse_factor=search.coarse_factor,
+        coarse_yaws=search.coarse_yaws,
     )
     peaks_ms = 1e3 * (time.perf_counter() - tick)
     if len(peaks) == 0:

@@ -500,6 +500,21 @@ class BevSearchConfig:
         2.0, 'Yaw step of the search over 360 deg.', unit='deg', low=0.1, high=90.0
     )
     peaks_per_yaw: int = param(3, 'Best local correlation maxima kept per yaw.', low=1, high=100)
+    coarse_factor: int = param(
+        3,
+        'Coarse to fine: every coarse_factor x yaw_step is searched first, then the steps '
+        'in between only around the bev_search.coarse_yaws best coarse yaws (1: every '
+        'yaw_step; odd factors leave no step out).',
+        low=1,
+        high=30,
+    )
+    coarse_yaws: int = param(
+        12,
+        'Coarse yaws (by their best peak) searched again at yaw_step around them. On the '
+        'dev pairs the yaw nearest the truth ranked at most 6th of 60 coarse yaws.',
+        low=1,
+        high=3600,
+    )
     hypotheses: int = param(
         64,
         'Peaks (after suppression) refined and verified on the dense scans.',
