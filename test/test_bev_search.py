@@ -243,3 +243,9 @@ def test_the_fine_yaws_lie_between_the_coarse_ones():
     coarse, fine = recorder.calls
     np.testing.assert_allclose(coarse, np.arange(0.0, 360.0, 6.0))
     np.testing.assert_allclose(fine, [94.0, 98.0, 100.0, 104.0])  # around 96 and 102
+
+
+def test_a_search_grid_too_large_for_memory_is_refused():
+    with pytest.raises(ConfigError, match=r'bev_search: .* 1000 cells'):
+        RegistrationConfig().replace({'bev_search.max_translation': 450.0})
+    RegistrationConfig().replace({'bev_search.max_translation': 200.0})  # 500 cells: fine

@@ -203,6 +203,8 @@ def test_parameter_change_applies_from_the_next_frame(probe: NodeProbe, scene: A
         ('keypoints.count', 5, 'out of range'),
         ('estimator.k2', 40, 'estimator.k2=40 must not exceed estimator.k1=30'),
         ('semantic.ring_count', 256, 'receptive-field limit'),
+        ('bev_search.max_translation', 450.0, 'memory grows with its square'),
+        ('bev_search.classes', ['castle'], "unknown class 'castle'"),
         ('semantic.landmark_classes', ['pole', 'lamppost'], "unknown class 'lamppost'"),
         ('semantic.ignored_classes', ['pole'], 'both landmark and ignored'),
         ('keyframe.policy', 'sometimes', "is not one of ['every_frame', 'distance']"),

@@ -40,6 +40,9 @@ import yaml
 
 #: Receptive field of BMR-SS (ring_count * ring_width) must stay within this.
 MAX_RECEPTIVE_FIELD_M = 300.0
+#: Largest BEV search grid side in cells (a chunk of 12 yaws x 3 channels of 512^2 float32
+#: grids and their spectra is ~80 MB).
+MAX_BEV_CELLS = 512
 
 #: Top-level key of the node's parameter file (``config/params.yaml``).
 NODE_NAME = 'mlsemreg_node'
@@ -1057,6 +1060,14 @@ class RegistrationConfig(Settings):
             )
         if est.k2 > est.k1:
             errors.append(f'estimator.k2={est.k2} must not exceed estimator.k1={est.k1}')
+        bev = self.bev_search
+        cells = 2.0 * (bev.radius + bev.max_translation) / bev.cell_size
+        if cells > MAX_BEV_CELLS:
+            errors.append(
+                f'bev_search: 2 x (radius + max_translation) / cell_size = {cells:.0f} cells '
+                f'a side exceeds {MAX_BEV_CELLS} (memory grows with its square); raise '
+                'bev_search.cell_size or lower bev_search.radius / bev_search.max_translation'
+            )
         if self.features.min_range >= self.features.max_range:
             errors.append(
                 f'features.min_range={self.features.min_range:g} must be below '
