@@ -78,3 +78,18 @@ def test_tracked_scans_never_compute_descriptors():
     globally = [s for s in steps if s.result is not None]
     assert globally and all('prepare.fpfh_ms' in s.timings_ms for s in globally)
     assert abs(steps[-1].pose[0, 3] - 3.5) < 0.05  # and the odometry is still right
+
+
+def test_a_lazy_scan_is_freed_without_the_cyclic_collector(registration):
+    import gc
+    import weakref
+
+    pair = synthetic_pair(seed=0)
+    gc.disable()
+    try:
+        scan = registration.prepare(pair.pts_src, pair.label_src, lazy=True)
+        alive = weakref.ref(scan)
+        del scan  # never completed, as a tracked scan
+        assert alive() is None
+    finally:
+        gc.enable()

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+import functools
 import time
 from typing import Any
 
@@ -162,7 +163,9 @@ class Registration:
             {},
             input_stats,
         )
-        prepared.pending_features = lambda: self._describe(prepared, descriptors, tree)
+        # no reference to the scan itself: a lazy scan that is never completed is freed
+        # by reference counting, not only by the cyclic garbage collector
+        prepared.pending_features = functools.partial(self._describe, descriptors, tree)
         if not lazy:
             self.complete(prepared)
         return prepared
@@ -171,11 +174,11 @@ class Registration:
         """Compute what a ``lazy`` :meth:`prepare` left out (once; a no-op afterwards)."""
         pending, scan.pending_features = scan.pending_features, None
         if pending is not None:
-            pending()
+            pending(scan)
         return scan
 
     def _describe(
-        self, scan: PreparedScan, descriptors: np.ndarray | None, keypoint_tree: Any
+        self, descriptors: np.ndarray | None, keypoint_tree: Any, scan: PreparedScan
     ) -> None:
         """Descriptors | Local-SS, landmarks and the KD-tree of ``scan``, on two threads."""
         cfg, timings = self.config, scan.timings_ms

@@ -72,7 +72,9 @@ class PreparedScan:
     kdtree: cKDTree | None = field(default=None, repr=False, compare=False)
     #: what a lazy :meth:`Registration.prepare` left out (descriptors, signatures, landmarks,
     #: KD-tree); :meth:`Registration.complete` runs it once
-    pending_features: Callable[[], None] | None = field(default=None, repr=False, compare=False)
+    pending_features: Callable[[PreparedScan], None] | None = field(
+        default=None, repr=False, compare=False
+    )
 
     def points_tree(self) -> cKDTree:
         """
