@@ -26,17 +26,20 @@ slide. The scans themselves still hold the answer (dense overlap 0.44 at the tru
    group of ``classes`` (static structure: building~fence, vegetation~trunk, ...), cells of
    ``cell_size``; every channel is scaled to unit norm, so the correlation of two channels
    is the cosine similarity of their occupied cells;
-2. the source grids are rasterised for every yaw of ``0, yaw_step, ...`` (rotated points,
-   one ``bincount`` per chunk of yaws), and correlated with the target grids over every
-   translation at once by FFT (summed over channels in the frequency domain);
+2. the source grids are rasterised per yaw (rotated points, one array assignment per chunk
+   of yaws) and correlated with the target grids over every translation at once by FFT
+   (summed over channels in the frequency domain), coarse to fine (:func:`yaw_search`):
+   every ``coarse_factor x yaw_step`` first, then ``yaw_step`` around the
+   ``coarse_yaws`` best coarse yaws;
 3. every yaw's ``peaks_per_yaw`` best local maxima within ``max_translation`` are pooled,
    suppressed within ``nms_rotation`` / ``nms_translation`` of a better peak, and the best
    ``hypotheses`` become ``z``-up poses ``Rz(yaw), (tx, ty, 0)``.
 
 It assumes ``z``-up sensor frames and a mostly yaw motion (a ground vehicle); roll, pitch
 and height are left to the refinement that follows (core/verification.py). The cost does
-not depend on the keypoints: about ``(360 / yaw_step) x channels`` FFTs of
-``next_fast_len(2 (radius + max_translation) / cell_size)`` squared.
+not depend on the keypoints: about ``(360 / (coarse_factor x yaw_step) + coarse_yaws x
+(coarse_factor - 1)) x channels`` FFTs of ``next_fast_len(2 (radius + max_translation) /
+cell_size)`` squared.
 """
 
 from __future__ import annotations
