@@ -16,6 +16,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from mlsemreg_ros.core import bev_search
 from mlsemreg_ros.core.config import ConfigError, RegistrationConfig
 from mlsemreg_ros.core.labels import LabelMap
@@ -26,16 +28,7 @@ import numpy as np
 import pytest
 
 BUILDING, VEGETATION, POLE = 13, 15, 18
-SEARCH = {
-    'cell_size': 1.0,
-    'radius': 50.0,
-    'max_translation': 40.0,
-    'yaw_step': 2.0,
-    'peaks_per_yaw': 3,
-    'hypotheses': 16,
-    'nms_rotation': 4.0,
-    'nms_translation': 2.0,
-}
+SEARCH = replace(RegistrationConfig().bev_search, hypotheses=16)  # 1 m cells, 6 -> 2 deg
 
 
 @pytest.fixture(scope='module')
@@ -70,7 +63,7 @@ def _l_shaped_yard() -> tuple[np.ndarray, np.ndarray]:
 
 def test_a_scan_on_itself_peaks_at_the_identity_with_one_per_channel(lookup):
     points, labels = _l_shaped_yard()
-    poses, scores = bev_search.bev_hypotheses(points, labels, points, labels, lookup, **SEARCH)
+    poses, scores = bev_search.bev_hypotheses(points, labels, points, labels, lookup, SEARCH)
     re, te = _errors(poses[0], np.eye(4))
     assert re < 1e-9 and te < 1e-9
     # three channels, each a perfect cosine match of its occupied cells
@@ -82,32 +75,35 @@ def test_the_yard_moved_by_a_known_pose_is_found(lookup):
     points, labels = _l_shaped_yard()
     truth = motion(37.0, (6.0, -4.0, 0.3))  # T_target_source
     source = apply_transform(invert_transform(truth), points)
-    poses, _ = bev_search.bev_hypotheses(source, labels, points, labels, lookup, **SEARCH)
+    poses, _ = bev_search.bev_hypotheses(source, labels, points, labels, lookup, SEARCH)
     re, te = _errors(poses[0], truth)
     # a coarse pose for the refinement: within two yaw steps and two cells (z not searched)
     assert re <= 4.01 and te < 2.0 + 0.3
 
 
-def test_suppression_keeps_the_best_of_each_neighbourhood():
-    peaks = np.array(
+def test_peaks_near_a_better_one_are_suppressed_across_zero_yaw():
+    """The peaks go through the estimator's own distinct-pose rule (core/sc2pcr.py)."""
+    from mlsemreg_ros.core.sc2pcr import distinct_hypotheses
+
+    peaks = np.array(  # (score, yaw, tx, ty), best first
         [
-            [0.5, 10.0, 0.0, 5.0],  # near the best in yaw, not in translation: kept
-            [0.9, 12.0, 1.0, 0.0],  # best
+            [0.9, 12.0, 1.0, 0.0],
             [0.8, 359.0, 20.0, 0.0],  # far in translation: kept
             [0.7, 14.0, 1.5, 0.5],  # within 4 deg / 2 m of the best: dropped
             [0.6, 200.0, 1.0, 0.0],  # far in yaw: kept
+            [0.5, 10.0, 0.0, 5.0],  # near the best in yaw, not in translation: kept
             [0.4, 3.0, 21.0, 0.0],  # within 4 deg (across 0) / 2 m of the 0.8 peak: dropped
         ]
     )
-    kept = bev_search.suppress(peaks, 10, 4.0, 2.0)
-    np.testing.assert_array_equal(kept[:, 0], [0.9, 0.8, 0.6, 0.5])
-    assert len(bev_search.suppress(peaks, 2, 4.0, 2.0)) == 2
+    poses = bev_search.z_up_poses(peaks[:, 1], peaks[:, 2], peaks[:, 3])
+    np.testing.assert_array_equal(distinct_hypotheses(poses, 10, 4.0, 2.0), [0, 1, 3, 4])
+    assert len(distinct_hypotheses(poses, 2, 4.0, 2.0)) == 2
 
 
 def test_no_searched_class_gives_no_hypothesis(lookup):
     points, _ = _l_shaped_yard()
     road = np.full(len(points), 9, dtype=np.int32)
-    poses, scores = bev_search.bev_hypotheses(points, road, points, road, lookup, **SEARCH)
+    poses, scores = bev_search.bev_hypotheses(points, road, points, road, lookup, SEARCH)
     assert poses.shape == (0, 4, 4) and scores.shape == (0,)
 
 
@@ -129,16 +125,16 @@ def test_the_best_peak_follows_the_motion(lookup, yaw, tx, ty):
     points, labels = _l_shaped_yard()
     truth = motion(yaw, (tx, ty, 0.0))
     source = apply_transform(invert_transform(truth), points)
-    poses, _ = bev_search.bev_hypotheses(source, labels, points, labels, lookup, **SEARCH)
+    poses, _ = bev_search.bev_hypotheses(source, labels, points, labels, lookup, SEARCH)
     re, te = _errors(poses[0], truth)
     assert re <= 4.01 and te <= 2.0
 
 
 def test_translations_beyond_the_searched_range_are_never_proposed(lookup):
     points, labels = _l_shaped_yard()
-    search = {**SEARCH, 'max_translation': 5.0, 'hypotheses': 64}
+    search = replace(SEARCH, max_translation=5.0, hypotheses=64)
     source = apply_transform(invert_transform(motion(0.0, (30.0, 0.0, 0.0))), points)
-    poses, _ = bev_search.bev_hypotheses(source, labels, points, labels, lookup, **search)
+    poses, _ = bev_search.bev_hypotheses(source, labels, points, labels, lookup, search)
     assert np.all(np.abs(poses[:, :2, 3]) <= 5.0 + 1e-9)
 
 
@@ -206,10 +202,10 @@ def test_labels_outside_the_map_are_not_searched(lookup):
     odd = labels.copy()
     odd[labels == POLE] = 1000  # out of the learning ids: must not become traffic-sign
     odd[labels == VEGETATION] = -5
-    with_odd = bev_search.bev_hypotheses(points, odd, points, labels, lookup, **SEARCH)
+    with_odd = bev_search.bev_hypotheses(points, odd, points, labels, lookup, SEARCH)
     walls_only = labels.copy()
     walls_only[labels != BUILDING] = 9  # road: not searched
-    reference = bev_search.bev_hypotheses(points, walls_only, points, labels, lookup, **SEARCH)
+    reference = bev_search.bev_hypotheses(points, walls_only, points, labels, lookup, SEARCH)
     np.testing.assert_allclose(with_odd[1], reference[1])
 
 
@@ -219,10 +215,10 @@ def test_coarse_to_fine_finds_what_the_full_search_finds(lookup, yaw):
     truth = motion(yaw, (4.0, -6.0, 0.0))
     source = apply_transform(invert_transform(truth), points)
     full, full_scores = bev_search.bev_hypotheses(
-        source, labels, points, labels, lookup, **SEARCH, coarse_factor=1
+        source, labels, points, labels, lookup, replace(SEARCH, coarse_factor=1)
     )
     fast, fast_scores = bev_search.bev_hypotheses(
-        source, labels, points, labels, lookup, **SEARCH, coarse_factor=3, coarse_yaws=4
+        source, labels, points, labels, lookup, replace(SEARCH, coarse_factor=3, coarse_yaws=4)
     )
     np.testing.assert_allclose(fast[0], full[0])
     assert fast_scores[0] == pytest.approx(full_scores[0])

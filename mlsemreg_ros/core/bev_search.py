@@ -51,9 +51,11 @@ import time
 from mlsemreg_ros.core.config import BevSearchConfig, RegistrationConfig
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.core.results import PreparedScan, VerificationResult
+from mlsemreg_ros.core.sc2pcr import distinct_hypotheses
 from mlsemreg_ros.core.verification import LabelCompatibility, refine_starts, score_hypotheses
 import numpy as np
 from scipy import fft, ndimage
+from scipy.spatial.transform import Rotation
 
 #: Yaws rasterised and transformed together (bounds the memory of one chunk).
 _YAW_CHUNK = 12
@@ -132,13 +134,13 @@ def _thinned(
     return xy[first], channel[first]
 
 
-def rotations_z(yaw_deg: np.ndarray) -> np.ndarray:
-    """``(Y, 4, 4)`` rotations about ``z``."""
-    yaw = np.radians(yaw_deg)
-    transforms = np.tile(np.eye(4), (yaw.size, 1, 1))
-    transforms[:, 0, 0] = transforms[:, 1, 1] = np.cos(yaw)
-    transforms[:, 1, 0] = np.sin(yaw)
-    transforms[:, 0, 1] = -np.sin(yaw)
+def z_up_poses(yaw_deg: np.ndarray, tx: np.ndarray, ty: np.ndarray) -> np.ndarray:
+    """``(Y, 4, 4)`` poses ``Rz(yaw), (tx, ty, 0)``."""
+    transforms = np.tile(np.eye(4), (len(yaw_deg), 1, 1))
+    transforms[:, :3, :3] = Rotation.from_euler(
+        'z', np.reshape(yaw_deg, (-1, 1)), degrees=True
+    ).as_matrix()
+    transforms[:, 0, 3], transforms[:, 1, 3] = tx, ty
     return transforms
 
 
@@ -177,7 +179,9 @@ class Correlator:
         rows = [np.zeros((0, 4))]
         for first in range(0, yaws.size, _YAW_CHUNK):
             chunk = yaws[first:][:_YAW_CHUNK]
-            rotation = rotations_z(chunk)[:, :2, :2]
+            rotation = Rotation.from_euler('z', chunk[:, None], degrees=True).as_matrix()[
+                :, :2, :2
+            ]
             rotated = self.source_xy[None] @ rotation.transpose(0, 2, 1)  # (Y, n, 2)
             source = _rasterise(rotated, self.source_channel, grid, self.num_channels, grid.radius)
             spectrum = fft.rfft2(source, workers=-1)
@@ -234,46 +238,23 @@ def yaw_search(
     return np.concatenate([coarse, correlator.peaks(fine, peaks_per_yaw)])
 
 
-def suppress(
-    peaks: np.ndarray, limit: int, rotation_deg: float, translation_m: float
-) -> np.ndarray:
-    """Greedy non-maximum suppression of ``(score, yaw, tx, ty)`` rows, best first."""
-    order = np.argsort(-peaks[:, 0], kind='stable')
-    peaks = peaks[order]
-    available = np.ones(len(peaks), dtype=bool)
-    kept = []
-    while len(kept) < limit and available.any():
-        first = int(np.argmax(available))
-        kept.append(first)
-        yaw_gap = np.abs((peaks[:, 1] - peaks[first, 1] + 180.0) % 360.0 - 180.0)
-        near = np.hypot(peaks[:, 2] - peaks[first, 2], peaks[:, 3] - peaks[first, 3])
-        available &= ~((yaw_gap <= rotation_deg) & (near <= translation_m))
-    return peaks[kept]
-
-
 def bev_hypotheses(
     source_points: np.ndarray,
     source_labels: np.ndarray,
     target_points: np.ndarray,
     target_labels: np.ndarray,
     channel_lookup: np.ndarray,
-    *,
-    cell_size: float,
-    radius: float,
-    max_translation: float,
-    yaw_step: float,
-    peaks_per_yaw: int,
-    hypotheses: int,
-    nms_rotation: float,
-    nms_translation: float,
-    coarse_factor: int = 1,
-    coarse_yaws: int = 12,
+    config: BevSearchConfig,
 ) -> tuple[np.ndarray, np.ndarray]:
     """
     ``z``-up pose hypotheses ``T_target_source`` of two labeled scans, best first.
 
     - ``*_points``: ``(N, 3)`` sensor-frame points; ``*_labels``: ``(N,)`` learning ids.
     - ``channel_lookup``: :func:`channel_of_labels` (-1: class not searched).
+    - ``config``: the ``bev_search`` section (grid, yaws, peaks, suppression).
+
+    Peaks within ``nms_rotation`` and ``nms_translation`` of a better one are dropped by
+    :func:`~mlsemreg_ros.core.sc2pcr.distinct_hypotheses`, as the estimator's hypotheses.
 
     Returns ``(transforms (H, 4, 4), scores (H,))``; empty when a scan has no searched
     point.
@@ -287,9 +268,9 @@ def bev_hypotheses(
     source_used, target_used = source_channel >= 0, target_channel >= 0
     if not source_used.any() or not target_used.any():
         return empty
-    grid = BevGrid.make(cell_size, radius, max_translation)
+    grid = BevGrid.make(config.cell_size, config.radius, config.max_translation)
     source_xy, source_channel = _thinned(
-        source_points[source_used, :2], source_channel[source_used], cell_size / 2.0
+        source_points[source_used, :2], source_channel[source_used], config.cell_size / 2.0
     )
     correlator = Correlator(
         source_xy,
@@ -299,14 +280,22 @@ def bev_hypotheses(
         grid,
         num_channels,
     )
-    peaks = yaw_search(correlator, yaw_step, peaks_per_yaw, coarse_factor, coarse_yaws)
-    peaks = peaks[peaks[:, 0] > 0] if peaks.size else peaks
+    peaks = yaw_search(
+        correlator,
+        config.yaw_step,
+        config.peaks_per_yaw,
+        config.coarse_factor,
+        config.coarse_yaws,
+    )
+    peaks = peaks[peaks[:, 0] > 0]
     if peaks.size == 0:
         return empty
-    kept = suppress(peaks, hypotheses, nms_rotation, nms_translation)
-    transforms = rotations_z(kept[:, 1])
-    transforms[:, 0, 3], transforms[:, 1, 3] = kept[:, 2], kept[:, 3]
-    return transforms, kept[:, 0]
+    peaks = peaks[np.argsort(-peaks[:, 0], kind='stable')]
+    poses = z_up_poses(peaks[:, 1], peaks[:, 2], peaks[:, 3])
+    kept = distinct_hypotheses(
+        poses, config.hypotheses, config.nms_rotation, config.nms_translation
+    )
+    return poses[kept], peaks[kept, 0]
 
 
 def channel_lookup(label_map: LabelMap, config: BevSearchConfig) -> np.ndarray:
@@ -338,21 +327,7 @@ def search_scans(
     search = config.bev_search
     tick = time.perf_counter()
     peaks, peak_scores = bev_hypotheses(
-        source.points,
-        source.labels,
-        target.points,
-        target.labels,
-        lookup,
-        cell_size=search.cell_size,
-        radius=search.radius,
-        max_translation=search.max_translation,
-        yaw_step=search.yaw_step,
-        peaks_per_yaw=search.peaks_per_yaw,
-        hypotheses=search.hypotheses,
-        nms_rotation=search.nms_rotation,
-        nms_translation=search.nms_translation,
-        coarse_factor=search.coarse_factor,
-        coarse_yaws=search.coarse_yaws,
+        source.points, source.labels, target.points, target.labels, lookup, search
     )
     peaks_ms = 1e3 * (time.perf_counter() - tick)
     if len(peaks) == 0:
