@@ -98,6 +98,9 @@ def test_eval_pairs_writes_the_report(pair_dir, tmp_path, capsys, extra):
         assert set(row) >= PAIR_KEYS
         assert {'total_ms', 'estimator_ms'} <= set(row['time_ms'])
         assert 0 <= row['inlier_number'] <= row['n_correspondences']
+        # the confidence verdict beside the paper's geometric success, and its evidence
+        assert isinstance(row['accepted'], bool) and isinstance(row['bev_search'], bool)
+        assert {'num_inliers', 'overlap', 'label_agreement', 'tilt_deg'} <= set(row['evidence'])
     summary = report['summary']
     assert set(summary) >= SUMMARY_KEYS and summary['n_pairs'] == 2
     assert 'total_ms' in summary['time_ms']
@@ -109,6 +112,7 @@ def test_eval_pairs_writes_the_report(pair_dir, tmp_path, capsys, extra):
         assert all(p['n_correspondences'] <= 500 for p in report['pairs'])
     printed = capsys.readouterr().out
     assert '000001' in printed and 'mean' in printed and 'RR' in printed
+    assert 'accepted' in printed and '…' not in printed  # no cell cut short off a terminal
 
 
 def test_eval_pairs_registers_the_generated_pairs(pair_dir, tmp_path):
@@ -199,3 +203,16 @@ def test_config_precedence_yaml_then_flags_then_set(tmp_path):
     assert config.semantic.ring_width == 2.0 and config.estimator.kind == 'ransac'
     with pytest.raises(ValueError, match='KEY=VALUE'):
         eval_pairs.build_config(None, {}, ['semantic.top_k'])
+
+
+def test_tables_never_cut_a_cell_short_off_a_terminal(capsys):
+    """Wider than the 80 columns rich assumes off a terminal, with a footer wider than cells."""
+    from mlsemreg_ros.evaluation.tables import print_table, ResultTable
+
+    headers = [f'column {i}' for i in range(9)]
+    rows = [[f'seed0_0001_{i:04d}' for i in range(9)]] * 3
+    footer = ['mean'] + [f'RR 100.0% of {i}' for i in range(8)]
+    print_table(ResultTable(headers, rows, footer))
+    printed = capsys.readouterr().out
+    assert '…' not in printed
+    assert all(cell in printed for cell in rows[0] + footer)
