@@ -49,6 +49,8 @@ setup(
         'matplotlib',
         'typer>=0.29',
         'rich>=13',
+        'gtsam>=4.3',
+        'optuna>=4',
     ],
     zip_safe=True,
     maintainer='mlsemreg_ros maintainers',

@@ -16,18 +16,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
 from mlsemreg_ros.core.config import ConfigError, NODE_NAME, RegistrationConfig, split_params_yaml
 from mlsemreg_ros.evaluation.settings import EvaluationSettings
-from mlsemreg_ros.parameter_docs import (
-    MarkerError,
-    parameter_table_markdown,
-    params_yaml_text,
-    readme_block,
-    update_readme,
-)
+from mlsemreg_ros.parameter_docs import parameter_table_markdown, parameters_page, params_yaml_text
 from mlsemreg_ros.ros.node_config import all_parameter_fields, NodeConfig
 import pytest
 from ros_domains import domain_id
@@ -35,8 +30,8 @@ import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS = ROOT / 'config' / 'params.yaml'
-README = ROOT / 'README.md'
-REGENERATE = 'regenerate config/params.yaml and the README tables with: mlsemreg params'
+PARAMETERS_PAGE = ROOT / 'docs' / 'parameters.md'
+REGENERATE = 'regenerate config/params.yaml and docs/parameters.md with: mlsemreg params'
 DOMAIN_ID = domain_id('params_yaml')
 
 
@@ -80,23 +75,21 @@ def test_params_yaml_is_the_generated_text_comments_included() -> None:
     assert PARAMS.read_text() == params_yaml_text(), REGENERATE
 
 
-def test_readme_parameter_tables_are_the_generated_block() -> None:
-    text = README.read_text()
-    assert readme_block() in text, REGENERATE
-    assert update_readme(text) == text, REGENERATE
+def test_parameters_page_is_the_generated_text() -> None:
+    text = PARAMETERS_PAGE.read_text()
+    assert text == parameters_page(), REGENERATE
     for name, _, _ in all_parameter_fields() + EvaluationSettings.parameter_fields():
         assert f'| `{name}` |' in text, name
 
 
-def test_readme_block_replaces_only_what_lies_between_the_markers() -> None:
-    stale = (
-        'intro\n'
-        + readme_block().replace('| `qos.depth` | `5` |', '| `qos.depth` | `6` |')
-        + '\noutro\n'
-    )
-    assert update_readme(stale) == 'intro\n' + readme_block() + '\noutro\n'
-    with pytest.raises(MarkerError):
-        update_readme('no markers here')
+def test_parameters_page_follows_a_changed_description(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The page is rendered from the metadata, not kept by hand."""
+    import mlsemreg_ros.parameter_docs as docs
+
+    name, f, default = all_parameter_fields()[0]
+    changed = dataclasses.field(metadata={**f.metadata, 'description': 'a changed description'})
+    monkeypatch.setattr(docs, 'all_parameter_fields', lambda: [(name, changed, default)])
+    assert 'a changed description' in docs.parameters_page()
 
 
 def test_core_loader_reads_params_yaml() -> None:

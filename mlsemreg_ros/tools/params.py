@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-``mlsemreg params``: write ``config/params.yaml`` and the README's parameter tables.
+``mlsemreg params``: write ``config/params.yaml`` and ``docs/parameters.md``.
 
 Both are generated from the config metadata by :mod:`mlsemreg_ros.parameter_docs`;
 ``--check`` only reports whether they are up to date (exit 1 when not), for CI and hooks.
@@ -27,7 +27,7 @@ from typing import Annotated
 from mlsemreg_ros.tools.common import alias, CommandError
 import typer
 
-HELP = 'Write config/params.yaml and the README parameter tables from the config metadata.'
+HELP = 'Write config/params.yaml and docs/parameters.md from the config metadata.'
 
 
 def params(
@@ -35,24 +35,19 @@ def params(
         Path,
         typer.Option('--params-file', dir_okay=False, help='the node parameter file to write'),
     ] = Path('config/params.yaml'),
-    readme: Annotated[
+    doc: Annotated[
         Path,
-        typer.Option(
-            exists=True, dir_okay=False, help='the README whose generated block to update'
-        ),
-    ] = Path('README.md'),
+        typer.Option('--doc', dir_okay=False, help='the parameter reference page to write'),
+    ] = Path('docs/parameters.md'),
     check: Annotated[
         bool, typer.Option('--check', help='write nothing; exit 1 if a file is not up to date')
     ] = False,
 ) -> int:
-    """Regenerate config/params.yaml and the README parameter tables (alias mlsemreg-params)."""
+    """Regenerate config/params.yaml and docs/parameters.md (alias mlsemreg-params)."""
     from mlsemreg_ros.evaluation.tables import print_text
-    from mlsemreg_ros.parameter_docs import MarkerError, params_yaml_text, update_readme
+    from mlsemreg_ros.parameter_docs import parameters_page, params_yaml_text
 
-    try:
-        wanted = {params_file: params_yaml_text(), readme: update_readme(readme.read_text())}
-    except MarkerError as error:
-        raise CommandError(f'{readme}: {error}', 2) from None
+    wanted = {params_file: params_yaml_text(), doc: parameters_page()}
     stale = [
         path for path, text in wanted.items() if not path.exists() or path.read_text() != text
     ]
@@ -61,13 +56,13 @@ def params(
             raise CommandError(
                 'not up to date (run mlsemreg params): ' + ', '.join(map(str, stale))
             )
-        print_text(f'up to date: {params_file}, {readme}')
+        print_text(f'up to date: {params_file}, {doc}')
         return 0
     for path in stale:
         path.write_text(wanted[path])
         print_text(f'wrote {path}')
     if not stale:
-        print_text(f'up to date: {params_file}, {readme}')
+        print_text(f'up to date: {params_file}, {doc}')
     return 0
 
 
