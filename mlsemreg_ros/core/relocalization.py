@@ -1,0 +1,138 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Relocalization without an initial guess: place recognition, then registration (docs/maps.md).
+
+For a query scan (sensor frame, labeled):
+
+1. its semantic scan context picks the candidate keyframes of the store
+   (:meth:`mlsemreg_ros.core.place_recognition.PlaceIndex.shortlist`: KD-tree on ring keys,
+   re-ranked over every yaw; at most ``map.candidates``, whatever the map size);
+2. the query is registered onto each candidate with the full pipeline (ML-SemReg +
+   SC2-PCR + verification + confidence + fine alignment), no initial guess;
+3. a registration the confidence rule accepts (``RegistrationResult.success``) gives
+   ``T_map_sensor = T_map_keyframe @ T_keyframe_query``. With
+   ``map.stop_at_first_accepted`` the first accepted candidate (best scan context first)
+   is the answer; else the accepted one with the most sparse inliers.
+
+No accepted candidate: the query is refused (``found`` false) and no pose is given.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+import time
+
+from mlsemreg_ros.core.keyframe_store import KeyframeStore
+from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
+import numpy as np
+
+
+@dataclass
+class CandidateTrial:
+    """One candidate keyframe and what its registration said."""
+
+    keyframe_id: int
+    similarity: float
+    accepted: bool
+    inliers: int
+    message: str
+    time_ms: float
+
+
+@dataclass
+class Relocalization:
+    """The answer to one query."""
+
+    found: bool  # an accepted registration gave T_map_sensor
+    T_map_sensor: np.ndarray | None  # (4, 4)
+    keyframe_id: int  # the keyframe it was registered onto (-1: none)
+    trials: list[CandidateTrial] = field(default_factory=list)
+    result: RegistrationResult | None = None  # the accepted registration
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def time_ms(self) -> float:
+        """Total wall time."""
+        return float(self.timings_ms.get('total_ms', 0.0))
+
+
+class Relocalizer:
+    """Relocalizes scans against a keyframe store with a registration."""
+
+    def __init__(self, registration: Registration, store: KeyframeStore) -> None:
+        """Use ``registration`` (its config) and the keyframes of ``store``."""
+        self.registration = registration
+        self.store = store
+
+    def relocalize(
+        self,
+        points: np.ndarray,
+        labels: np.ndarray,
+        *,
+        prepared: PreparedScan | None = None,
+        allowed: set[int] | None = None,
+    ) -> Relocalization:
+        """
+        Find ``T_map_sensor`` of a scan (points (N, 3), labels (N,)) without an initial guess.
+
+        ``prepared``: the scan as already prepared by the same registration (saves it).
+        ``allowed``: keyframe ids that may be candidates (None: all).
+        """
+        start = time.perf_counter()
+        timings: dict[str, float] = {}
+        cfg = self.store.config.map
+        if prepared is None:
+            prepared = self.registration.prepare(points, labels)
+        timings['prepare_ms'] = 1e3 * (time.perf_counter() - start)
+        tic = time.perf_counter()
+        # the descriptor is computed on the prepared scan (sanitized, learning ids, voxels)
+        query = self.store.describe(prepared.points, prepared.labels)
+        index, ids = self.store.place_index()
+        mask = None if allowed is None else np.array([i in allowed for i in ids], dtype=bool)
+        shortlist = index.shortlist(query, cfg, mask)
+        timings['place_recognition_ms'] = 1e3 * (time.perf_counter() - tic)
+        trials: list[CandidateTrial] = []
+        best: tuple[int, RegistrationResult] | None = None
+        tic = time.perf_counter()
+        for candidate in shortlist:
+            keyframe_id = ids[candidate.index]
+            began = time.perf_counter()
+            target = self.store.prepared(keyframe_id, self.registration)
+            result = self.registration.register(prepared, target)
+            accepted = bool(result.success) and bool(np.all(np.isfinite(result.transform)))
+            inliers = int(np.count_nonzero(result.inlier_mask))
+            trials.append(
+                CandidateTrial(
+                    keyframe_id,
+                    candidate.similarity,
+                    accepted,
+                    inliers,
+                    result.message,
+                    1e3 * (time.perf_counter() - began),
+                )
+            )
+            if accepted and (best is None or inliers > int(np.count_nonzero(best[1].inlier_mask))):
+                best = (keyframe_id, result)
+                if cfg.stop_at_first_accepted:
+                    break
+        timings['registration_ms'] = 1e3 * (time.perf_counter() - tic)
+        timings['total_ms'] = 1e3 * (time.perf_counter() - start)
+        if best is None:
+            return Relocalization(False, None, -1, trials, None, timings)
+        keyframe_id, result = best
+        T_map_sensor = self.store[keyframe_id].T_map_keyframe @ result.transform
+        return Relocalization(True, T_map_sensor, keyframe_id, trials, result, timings)
