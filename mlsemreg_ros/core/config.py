@@ -977,6 +977,18 @@ class MapConfig:
         low=0.0,
         high=1e6,
     )
+    loop_candidates: int = param(
+        2,
+        'Loop candidates registered per new keyframe (best scan context first).',
+        low=1,
+        high=100,
+    )
+    loop_min_similarity: float = param(
+        0.4,
+        'A loop candidate is registered only if its scan context similarity reaches this.',
+        low=0.0,
+        high=1.0,
+    )
     odometry_sigma_translation: float = param(
         0.05,
         'Pose graph: standard deviation of an odometry edge per metre travelled.',

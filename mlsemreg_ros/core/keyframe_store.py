@@ -74,9 +74,7 @@ class KeyframeStore:
     ) -> None:
         """Store for ``config`` (its ``map`` and ``bev_search`` sections)."""
         self.label_map = label_map if label_map is not None else LabelMap.load()
-        self._keyframes: collections.OrderedDict[int, StoredKeyframe] = (
-            collections.OrderedDict()
-        )
+        self._keyframes: collections.OrderedDict[int, StoredKeyframe] = collections.OrderedDict()
         self._prepared: collections.OrderedDict[int, PreparedScan] = collections.OrderedDict()
         self._index: PlaceIndex | None = None
         self._index_ids: list[int] = []
@@ -103,7 +101,9 @@ class KeyframeStore:
                 self._bytes -= keyframe.descriptor.nbytes if keyframe.descriptor else 0
                 keyframe.descriptor = None
             self._index = None
-        if any(getattr(old, s) != getattr(config, s) for s in ('semantic', 'features', 'keypoints')):
+        if any(
+            getattr(old, s) != getattr(config, s) for s in ('semantic', 'features', 'keypoints')
+        ):
             self._prepared.clear()
         self._enforce_bounds()
 
@@ -260,5 +260,5 @@ class KeyframeStore:
         positions = np.array([self._keyframes[i].position for i in self._keyframes])
         all_ids = list(self._keyframes)
         distance, _ = cKDTree(positions).query(positions, k=2)
-        gap = dict(zip(all_ids, distance[:, 1]))
+        gap = dict(zip(all_ids, distance[:, 1], strict=False))
         return min(ids, key=lambda i: gap[i])

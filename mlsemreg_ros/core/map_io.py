@@ -166,7 +166,7 @@ def load_map(path: str | Path) -> MapData:
         )
     frame_id = header.get('frame_id', 'map')
     if not isinstance(frame_id, str) or not frame_id or frame_id.startswith('/'):
-        raise MapError(f"{header_file}: frame_id must be a tf2 frame name, got {frame_id!r}")
+        raise MapError(f'{header_file}: frame_id must be a tf2 frame name, got {frame_id!r}')
     names = _keyframe_names(header_file, header.get('keyframes'))
     config = None
     if header.get('registration') is not None:
@@ -181,8 +181,7 @@ def load_map(path: str | Path) -> MapData:
 def _keyframe_names(header_file: Path, keyframes: Any) -> list[str]:
     if isinstance(keyframes, bool) or not isinstance(keyframes, int | list):
         raise MapError(
-            f'{header_file}: keyframes must be a count or a list of file names, got '
-            f'{keyframes!r}'
+            f'{header_file}: keyframes must be a count or a list of file names, got {keyframes!r}'
         )
     if isinstance(keyframes, int):
         if keyframes < 0:

@@ -126,9 +126,7 @@ class PlaceIndex:
         """``descriptors`` and ``positions`` (K, 3) of the keyframes (map frame)."""
         self.positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         if len(descriptors) != len(self.positions):
-            raise ValueError(
-                f'{len(descriptors)} descriptors but {len(self.positions)} positions'
-            )
+            raise ValueError(f'{len(descriptors)} descriptors but {len(self.positions)} positions')
         self.contexts = (
             np.stack([d.context for d in descriptors]) if descriptors else np.zeros((0, 1, 1, 1))
         )

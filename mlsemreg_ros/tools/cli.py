@@ -37,9 +37,11 @@ from mlsemreg_ros.tools import (
     kitti_to_bag,
     params,
     play,
+    relocalize,
     simulate,
     soak,
 )
+from mlsemreg_ros.tools import map as map_tool
 from mlsemreg_ros.tools.common import run
 import typer
 
@@ -141,6 +143,7 @@ for module, function, name, panel in (
     (confidence, confidence.confidence, 'confidence', EVALUATION),
     (demo, demo.demo, 'demo', EVALUATION),
     (soak, soak.soak, 'soak', EVALUATION),
+    (relocalize, relocalize.relocalize, 'relocalize', EVALUATION),
     (simulate, simulate.simulate, 'simulate', DATA),
     (kitti_to_bag, kitti_to_bag.kitti_to_bag, 'kitti-to-bag', DATA),
     (cut_pairs, cut_pairs.cut_pairs, 'cut-pairs', DATA),
@@ -148,6 +151,7 @@ for module, function, name, panel in (
     (params, params.params, 'params', MAINTENANCE),
 ):
     app.command(name, help=module.HELP, rich_help_panel=panel)(function)
+app.add_typer(map_tool.app, name='map', help=map_tool.HELP, rich_help_panel=DATA)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,328 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+``mlsemreg map``: build keyframe maps from bags and write relocalization queries (docs/maps.md).
+
+- ``mlsemreg map build BAG MAP [--poses odometry|ground-truth]``: keyframes every
+  ``map.keyframe_distance``; with odometry poses the loops are closed (``map.loop_closure``)
+  and the ATE with and without the loop closures is printed when the bag has ground truth;
+- ``mlsemreg map queries BAG OUT --every K``: every K-th scan as a query file with its
+  ground truth (``T_map_scan``: the bag's ground-truth frame);
+- ``mlsemreg map sim-queries OUT --drive reverse|other``: scans of a second simulated drive
+  through the world of ``mlsemreg simulate --seed S`` (the opposite direction in the other
+  lane, or a route of another seed kept where it is far from the first drive).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+import sys
+from typing import Annotated, Any, Literal
+
+from mlsemreg_ros.tools.common import (
+    CommandError,
+    ConfigOption,
+    ForceOption,
+    JsonOption,
+    QuietOption,
+    replace_output,
+    SetOption,
+    settings,
+)
+import typer
+
+HELP = 'Keyframe maps: build one from a bag, write relocalization queries.'
+BUILD_HELP = 'Build a map folder (docs/maps.md) from a labeled bag.'
+QUERIES_HELP = 'Write every K-th scan of a bag (with ground truth) as relocalization queries.'
+SIM_QUERIES_HELP = 'Write relocalization queries from a second drive through a simulated world.'
+
+app = typer.Typer(
+    name='map',
+    no_args_is_help=True,
+    add_completion=False,
+    rich_markup_mode='rich',
+    context_settings={'help_option_names': ['-h', '--help']},
+    help=HELP,
+)
+
+
+@app.command('build', help=BUILD_HELP)
+def build(
+    bag: Annotated[
+        Path, typer.Argument(help='rosbag2 folder (or KITTI sequence) of labeled scans')
+    ],
+    out: Annotated[Path, typer.Argument(help='map folder to write')],
+    poses: Annotated[
+        Literal['odometry', 'ground-truth'],
+        typer.Option(help='keyframe poses: the odometry (with loop closure) or the ground truth'),
+    ] = 'odometry',
+    max_frames: Annotated[
+        int | None, typer.Option(min=1, help='read at most this many scans')
+    ] = None,
+    frame_id: Annotated[str, typer.Option(help='frame of the map')] = 'map',
+    config: ConfigOption = None,
+    overrides: SetOption = None,
+    json_path: JsonOption = None,
+    force: ForceOption = False,
+    quiet: QuietOption = False,
+) -> int:
+    """Build a map folder from a bag."""
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.map_io import MapError, save_map
+    from mlsemreg_ros.datasets.factory import open_scan_source
+    from mlsemreg_ros.datasets.source import SourceError
+    from mlsemreg_ros.evaluation.tables import print_text
+
+    (core,) = settings((RegistrationConfig,), config, overrides)
+    replace_output(out, force)
+    try:
+        source = open_scan_source(bag)
+    except (SourceError, OSError, ValueError) as error:
+        raise CommandError(f'cannot read {bag}: {error}') from None
+    try:
+        built = build_map(source, core, poses, max_frames, progress=not quiet)
+    finally:
+        source.close()
+    if len(built['mapper'].store) == 0:
+        raise CommandError(
+            f'{bag}: no keyframe (no labeled scan, or none with ground truth for '
+            '--poses ground-truth)'
+        )
+    try:
+        save_map(out, built['mapper'].store, frame_id, core)
+    except MapError as error:
+        raise CommandError(str(error)) from None
+    summary = built['summary']
+    print_text(
+        f'wrote {summary["keyframes"]} keyframes ({summary["memory_mb"]:.1f} MB, '
+        f'{summary["bytes_per_keyframe"] / 1e3:.0f} kB each) from {summary["scans"]} scans '
+        f'to {out}; poses: {poses}'
+    )
+    if poses == 'odometry':
+        print_text(
+            f'odometry: {summary["accepted"]}/{summary["scans"]} scans accepted; loops '
+            f'closed: {summary["loops"]} (tried on {summary["loop_trials"]} keyframes)'
+        )
+    if 'ate_m' in summary:
+        print_text(
+            f'ATE of the keyframes: {summary["ate_m"]:.3f} m with the loop closures, '
+            f'{summary["ate_odometry_m"]:.3f} m without; loops on revisits: '
+            f'{summary["loops_true"]} right, {summary["loops_wrong"]} wrong, of '
+            f'{summary["revisits"]} keyframes that revisit a place'
+        )
+    if json_path is not None:
+        json_path.write_text(json.dumps(summary, indent=2) + '\n')
+    return 0
+
+
+def build_map(
+    source: Any,
+    config: Any,
+    poses: str,
+    max_frames: int | None = None,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Map a scan source; returns the mapper and a summary (keyframes, loops, ATE)."""
+    from mlsemreg_ros.core.mapping import Mapper
+    from mlsemreg_ros.core.metrics import ate_rmse
+    from mlsemreg_ros.core.odometry import Odometry
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.core.rigid import invert_transform
+    import numpy as np
+    from tqdm import tqdm
+
+    registration = Registration(config)
+    mapper = Mapper(registration)
+    if poses == 'ground-truth':
+        mapper.store.config = config.replace({'map.loop_closure': False})
+    odometry = Odometry(registration) if poses == 'odometry' else None
+    truth: dict[int, np.ndarray] = {}  # keyframe id -> ground truth
+    scans = accepted = trials = 0
+    total = len(source) if max_frames is None else min(len(source), max_frames)
+    for scan in tqdm(
+        source.scans(max_frames=max_frames),
+        total=total,
+        desc='map',
+        unit='scan',
+        file=sys.stderr,
+        disable=not progress,
+    ):
+        if scan.labels is None:
+            continue
+        scans += 1
+        if odometry is None:
+            if scan.pose is None:
+                continue
+            step = mapper.add(scan.xyz, scan.labels, scan.pose, scan.stamp_ns)
+        else:
+            moved = odometry.process(scan.xyz, scan.labels, scan.stamp_ns)
+            if not moved.accepted:
+                continue
+            accepted += 1
+            step = mapper.add(
+                scan.xyz, scan.labels, moved.pose, scan.stamp_ns, prepared=moved.prepared
+            )
+        trials += bool(step.tried)
+        if step.keyframe is not None and scan.pose is not None:
+            truth[step.keyframe.id] = np.asarray(scan.pose)
+    store = mapper.store
+    summary: dict[str, Any] = {
+        'scans': scans,
+        'accepted': accepted if odometry is not None else scans,
+        'keyframes': len(store),
+        'memory_mb': store.memory_bytes / 1e6,
+        'bytes_per_keyframe': store.memory_bytes / max(len(store), 1),
+        'loops': len(mapper.loops),
+        'loop_trials': trials,
+    }
+    ids = [i for i in store.ids if i in truth]
+    if odometry is not None and len(ids) >= 2:
+        gt = np.stack([truth[i] for i in ids])
+        odom = mapper.keyframe_odometry()
+        summary['ate_m'] = ate_rmse(np.stack([store[i].T_map_keyframe for i in ids]), gt)
+        summary['ate_odometry_m'] = ate_rmse(np.stack([odom[i] for i in ids]), gt)
+        right = wrong = 0
+        for loop in mapper.loops:
+            true_motion = invert_transform(truth[loop.match]) @ truth[loop.current]
+            error = invert_transform(true_motion) @ loop.T_match_current
+            ok = (
+                np.linalg.norm(error[:3, 3]) <= 0.6
+                and np.degrees(np.arccos(np.clip((np.trace(error[:3, :3]) - 1) / 2, -1, 1))) <= 5.0
+            )
+            right, wrong = right + ok, wrong + (not ok)
+        summary['loops_true'], summary['loops_wrong'] = right, wrong
+        summary['revisits'] = count_revisits(gt, config.map)
+    return {'mapper': mapper, 'summary': summary}
+
+
+def count_revisits(gt: Any, map_config: Any) -> int:
+    """Keyframes within 5 m of a keyframe left ``map.loop_min_travel`` metres of travel ago."""
+    import numpy as np
+
+    positions = gt[:, :3, 3]
+    travel = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
+    count = 0
+    for i in range(len(positions)):
+        earlier = travel[i] - travel[:i] >= map_config.loop_min_travel
+        near = np.linalg.norm(positions[:i] - positions[i], axis=1) <= 5.0
+        count += bool(np.any(earlier & near))
+    return count
+
+
+def _write_query(path: Path, points: Any, labels: Any, pose: Any, stamp_ns: int) -> None:
+    import numpy as np
+
+    extra = {} if pose is None else {'T_map_scan': np.asarray(pose, dtype=np.float64)}
+    np.savez_compressed(
+        path,
+        points=np.asarray(points, dtype=np.float32),
+        labels=np.asarray(labels).astype(np.uint32),
+        stamp_ns=np.int64(stamp_ns),
+        **extra,
+    )
+
+
+@app.command('queries', help=QUERIES_HELP)
+def queries(
+    bag: Annotated[
+        Path, typer.Argument(help='rosbag2 folder (or KITTI sequence) of labeled scans')
+    ],
+    out: Annotated[Path, typer.Argument(help='folder of query files to write')],
+    every: Annotated[int, typer.Option(min=1, help='write every K-th scan')] = 5,
+    start: Annotated[int, typer.Option(min=0, help='first scan written')] = 0,
+    force: ForceOption = False,
+) -> int:
+    """Write every K-th scan of a bag as a query file."""
+    from mlsemreg_ros.datasets.factory import open_scan_source
+    from mlsemreg_ros.datasets.source import SourceError
+    from mlsemreg_ros.evaluation.tables import print_text
+
+    replace_output(out, force)
+    try:
+        source = open_scan_source(bag)
+    except (SourceError, OSError, ValueError) as error:
+        raise CommandError(f'cannot read {bag}: {error}') from None
+    out.mkdir(parents=True)
+    written = 0
+    try:
+        for scan in source.scans():
+            if scan.index < start or (scan.index - start) % every or scan.labels is None:
+                continue
+            _write_query(
+                out / f'{scan.index:06d}.npz', scan.xyz, scan.labels, scan.pose, scan.stamp_ns
+            )
+            written += 1
+    finally:
+        source.close()
+    print_text(f'wrote {written} queries to {out}')
+    return 0
+
+
+@app.command('sim-queries', help=SIM_QUERIES_HELP)
+def sim_queries(
+    out: Annotated[Path, typer.Argument(help='folder of query files to write')],
+    seed: Annotated[
+        int, typer.Option(min=0, help='seed of the mapped drive (mlsemreg simulate --seed)')
+    ] = 0,
+    frames: Annotated[int, typer.Option(min=2, help='frames of the mapped drive')] = 200,
+    drive: Annotated[
+        Literal['reverse', 'other'],
+        typer.Option(
+            help='reverse: the same streets backwards in the other lane; other: a route '
+            'of --route-seed'
+        ),
+    ] = 'reverse',
+    every: Annotated[int, typer.Option(min=1, help='write every K-th scan')] = 5,
+    lane_change: Annotated[
+        float, typer.Option(help='reverse: lateral shift to the left, m')
+    ] = 3.6,
+    start_offset: Annotated[
+        float, typer.Option(min=0.0, help='reverse: metres skipped at the start')
+    ] = 0.5,
+    route_seed: Annotated[int, typer.Option(min=0, help='other: seed of the route')] = 7,
+    route_frames: Annotated[int, typer.Option(min=2, help='other: frames of the route')] = 300,
+    min_distance: Annotated[
+        float,
+        typer.Option(min=0.0, help='other: keep scans at least this far from the mapped drive, m'),
+    ] = 80.0,
+    noise_seed: Annotated[int, typer.Option(min=0, help='seed of the sensor noise')] = 1000,
+    force: ForceOption = False,
+) -> int:
+    """Write relocalization queries from a second simulated drive."""
+    from mlsemreg_ros.evaluation.tables import print_text
+    from mlsemreg_ros.simulation.revisit import other_drive, render_queries, reverse_drive
+    from mlsemreg_ros.simulation.sequence import SimulationConfig
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    replace_output(out, force)
+    config = SimulationConfig(seed=seed, frames=frames)
+    if drive == 'reverse':
+        sim, world_poses = reverse_drive(config, lane_change, start_offset, noise_seed)
+        indices = np.arange(0, len(world_poses), every)
+    else:
+        sim, world_poses = other_drive(config, route_seed, route_frames)
+        mapped = sim.world_poses[:, :2, 3]
+        distance = cKDTree(mapped).query(world_poses[:, :2, 3])[0]
+        indices = np.arange(0, len(world_poses), every)
+        indices = indices[distance[indices] >= min_distance]
+    out.mkdir(parents=True)
+    for query in render_queries(sim, world_poses, indices, noise_seed):
+        _write_query(
+            out / f'{query.index:06d}.npz', query.points, query.labels, query.T_map_scan, 0
+        )
+    print_text(f'wrote {len(indices)} queries ({drive} drive) to {out}')
+    return 0
