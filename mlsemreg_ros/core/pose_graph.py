@@ -19,8 +19,11 @@ Nodes are keyframes (``T_map_keyframe``); edges are the odometry between consecu
 keyframes and the verified loop closures (``T_a_b`` from a registration the confidence
 rule accepted). The first keyframe is fixed by a tight prior. Odometry edges get standard
 deviations proportional to the distance travelled (``map.odometry_sigma_*`` per metre,
-at least 0.1 m worth); loop edges ``map.loop_sigma_*`` behind a Huber kernel, so one
-poor loop cannot drag the whole trajectory. The solver is GTSAM's Levenberg-Marquardt.
+at least 0.1 m worth); loop edges ``map.loop_sigma_*`` (Gaussian: a loop edge is only
+added after the confidence rule accepted its registration and its pose lay within
+``map.loop_search_radius`` of the drifting one, core/mapping.py; a robust kernel would
+let the odometry keep part of the drift it is meant to remove). The solver is GTSAM's
+Levenberg-Marquardt.
 """
 
 from __future__ import annotations
@@ -103,10 +106,7 @@ class PoseGraph:
                 cfg.odometry_sigma_translation * travel,
             )
             graph.add(gtsam.BetweenFactorPose3(a, b, gtsam.Pose3(T_a_b), noise))
-        loop_noise = gtsam.noiseModel.Robust.Create(
-            gtsam.noiseModel.mEstimator.Huber.Create(1.345),
-            _noise(np.radians(cfg.loop_sigma_rotation), cfg.loop_sigma_translation),
-        )
+        loop_noise = _noise(np.radians(cfg.loop_sigma_rotation), cfg.loop_sigma_translation)
         for loop in self.loops:
             graph.add(
                 gtsam.BetweenFactorPose3(loop.a, loop.b, gtsam.Pose3(loop.T_a_b), loop_noise)

@@ -326,3 +326,55 @@ def sim_queries(
         )
     print_text(f'wrote {len(indices)} queries ({drive} drive) to {out}')
     return 0
+
+
+@app.command(
+    'pair-chain',
+    help='Split a chain of pair files into a map (even frames) and queries (odd frames).',
+)
+def pair_chain(
+    pairs: Annotated[Path, typer.Argument(help='folder of chained pair files (.npz)')],
+    out_map: Annotated[Path, typer.Argument(help='map folder to write (even frames)')],
+    out_queries: Annotated[Path, typer.Argument(help='query folder to write (odd frames)')],
+    force: ForceOption = False,
+) -> int:
+    """Map of the even frames of a pair chain, queries of the odd ones (docs/maps.md)."""
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.labels import LabelMap
+    from mlsemreg_ros.datasets.pair_chain import chain_frames
+    from mlsemreg_ros.evaluation.tables import print_text
+
+    files = sorted(pairs.glob('*.npz'))
+    if not files:
+        raise CommandError(f'{pairs}: no pair files')
+    try:
+        frames = chain_frames(files)
+    except (OSError, KeyError, ValueError) as error:
+        raise CommandError(f'{pairs}: {error}') from None
+    replace_output(out_map, force)
+    replace_output(out_queries, force)
+    write_pair_chain(frames, out_map, out_queries, RegistrationConfig(), LabelMap.load())
+    print_text(
+        f'wrote {len(frames[::2])} keyframes to {out_map} and {len(frames[1::2])} queries '
+        f'to {out_queries}'
+    )
+    return 0
+
+
+def write_pair_chain(
+    frames: list, out_map: Path, out_queries: Path, config: Any, label_map: Any
+) -> None:
+    """Even frames as map keyframes (at their chained poses), odd frames as queries."""
+    from mlsemreg_ros.core.keyframe_store import KeyframeStore
+    from mlsemreg_ros.core.map_io import save_map
+
+    store = KeyframeStore(config.replace({'map.max_keyframes': 10**6}), label_map)
+    for frame in frames[::2]:
+        store.add(frame.points, label_map.to_learning(frame.labels), frame.T_0_frame)
+    save_map(out_map, store, 'map', config)
+    out_queries.mkdir(parents=True)
+    for number, frame in enumerate(frames):
+        if number % 2:
+            _write_query(
+                out_queries / f'{number:06d}.npz', frame.points, frame.labels, frame.T_0_frame, 0
+            )
