@@ -155,7 +155,7 @@ class LiveParameters:
         core_values = {k: v for k, v in values.items() if k not in node_keys}
         if core_values:
             core = core.replace(core_values)
-            Registration(core, self._label_map)  # resolves class names; ConfigError if unknown
+            Registration.check(core, self._label_map)  # class names known; no side effects
         if node_values:
             node_cfg = node_cfg.replace(node_values)
         return core, node_cfg
