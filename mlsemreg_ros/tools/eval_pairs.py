@@ -146,13 +146,8 @@ def eval_pairs(
     """Register every pair file of DIR and print the paper metrics (alias mlsemreg-eval-pairs)."""
     from mlsemreg_ros.core.config import ConfigError
     from mlsemreg_ros.evaluation import tables
-    from mlsemreg_ros.evaluation.baselines import BaselineUnavailable
-    from mlsemreg_ros.evaluation.pairs import (
-        EvalError,
-        evaluate_directory,
-        method_label,
-        run_baselines,
-    )
+    from mlsemreg_ros.evaluation.baselines import BaselineUnavailable, run_baselines
+    from mlsemreg_ros.evaluation.pairs import EvalError, evaluate_directory, method_label
     from mlsemreg_ros.evaluation.reports import write_json
 
     flags: dict[str, Any] = {}
