@@ -194,15 +194,3 @@ class LiveParameters:
             'parameters changed (from the next frame on): '
             + ', '.join(f'{k}={v!r}' for k, v in values.items())
         )
-
-
-def nested_defaults() -> dict[str, Any]:
-    """Every parameter's default as the nested mapping of ``config/params.yaml``."""
-    out: dict[str, Any] = {}
-    for name, _, default in all_parameter_fields():
-        *sections, leaf = name.split('.')
-        level = out
-        for section in sections:
-            level = level.setdefault(section, {})
-        level[leaf] = default
-    return out

@@ -32,6 +32,7 @@ from typing import Annotated, Any, Literal
 from mlsemreg_ros.tools.common import (
     alias,
     CommandError,
+    config_choices,
     ConfigOption,
     JsonOption,
     NoProgressOption,
@@ -86,6 +87,10 @@ def build_config(config_path: Path | None, flags: dict[str, Any], overrides: lis
     return apply_overrides(config.replace(flags) if flags else config, overrides)
 
 
+MatcherKind = config_choices('matcher.kind')
+EstimatorKind = config_choices('estimator.kind')
+
+
 def eval_pairs(
     directory: Annotated[
         Path,
@@ -99,7 +104,7 @@ def eval_pairs(
         ),
     ] = 'gedi',
     matcher: Annotated[
-        Literal['nn', 'mnn'] | None, typer.Option(help='matcher.kind', rich_help_panel=PARAMETERS)
+        MatcherKind | None, typer.Option(help='matcher.kind', rich_help_panel=PARAMETERS)
     ] = None,
     no_semantic: Annotated[
         bool,
@@ -110,7 +115,7 @@ def eval_pairs(
         ),
     ] = False,
     estimator: Annotated[
-        Literal['sc2pcr', 'ransac'] | None,
+        EstimatorKind | None,
         typer.Option(help='estimator.kind', rich_help_panel=PARAMETERS),
     ] = None,
     no_refine: Annotated[
