@@ -227,6 +227,22 @@ def test_invalid_parameter_changes_are_rejected(
     assert node._params.snapshot() == core_before
 
 
+def test_a_rejected_change_leaves_the_process_thread_count(ros: Any) -> None:
+    """Checking a change must not apply any of it: threads with an unknown class is refused."""
+    from mlsemreg_ros.core import threads
+    from rclpy.parameter import Parameter
+
+    node, _ = ros
+    before = threads.workers()
+    change = [
+        Parameter('threads', value=before + 1),
+        Parameter('semantic.landmark_classes', value=['pole', 'lamppost']),
+    ]
+    result = node._params._validate(change)
+    assert not result.successful and "unknown class 'lamppost'" in result.reason
+    assert threads.workers() == before
+
+
 def test_malformed_input_is_skipped_and_the_node_keeps_working(
     probe: NodeProbe, scene: Any
 ) -> None:

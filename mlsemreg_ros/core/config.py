@@ -1015,21 +1015,6 @@ class MapConfig:
     )
 
 
-SECTIONS: dict[str, type] = {
-    'semantic': SemanticConfig,
-    'features': FeatureConfig,
-    'keypoints': KeypointConfig,
-    'matcher': MatcherConfig,
-    'estimator': EstimatorConfig,
-    'verification': VerificationConfig,
-    'confidence': ConfidenceConfig,
-    'fine': FineAlignmentConfig,
-    'local_map': LocalMapConfig,
-    'keyframe': KeyframeConfig,
-    'odometry': OdometryConfig,
-    'map': MapConfig,
-}
-
 #: Parameters that existed once, with what replaced them (reported when they are set).
 REMOVED: dict[str, str] = {
     'refine.icp': 'replaced by fine.method (small_gicp GICP/VGICP; off disables it)',

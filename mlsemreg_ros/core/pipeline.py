@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 import functools
 import time
 from typing import Any
@@ -56,8 +57,35 @@ from mlsemreg_ros.core.results import (
 from mlsemreg_ros.core.rigid import rotation_angle_deg
 from mlsemreg_ros.core.scan_input import sanitize_scan_for
 from mlsemreg_ros.core.threads import LazyPool
-from mlsemreg_ros.core.verification import dense_scores, label_compatibility, verify_hypotheses
+from mlsemreg_ros.core.verification import (
+    dense_scores,
+    label_compatibility,
+    LabelCompatibility,
+    verify_hypotheses,
+)
 import numpy as np
+
+
+@dataclass(frozen=True)
+class _ResolvedClasses:
+    """A config's class names resolved to label ids once (unknown names raise ConfigError)."""
+
+    landmark_ids: np.ndarray
+    ignored_ids: np.ndarray
+    undefined_ids: np.ndarray
+    label_compatibility: LabelCompatibility
+    bev_channels: np.ndarray
+
+    @classmethod
+    def of(cls, config: RegistrationConfig, label_map: LabelMap) -> _ResolvedClasses:
+        sem = config.semantic
+        return cls(
+            label_map.ids_of(sem.landmark_classes),
+            label_map.ids_of(sem.ignored_classes),
+            label_map.ids_of(sem.undefined_classes),
+            label_compatibility(label_map, config.verification),
+            bev_search.channel_lookup(label_map, config.bev_search),
+        )
 
 
 @contextmanager
@@ -87,15 +115,19 @@ class Registration:
 
     @config.setter
     def config(self, config: RegistrationConfig) -> None:
-        sem = config.semantic
-        threads.configure(config.threads)
-        # Resolve class names once; unknown names raise ConfigError here.
-        self._landmark_ids = self.label_map.ids_of(sem.landmark_classes)
-        self._ignored_ids = self.label_map.ids_of(sem.ignored_classes)
-        self._undefined_ids = self.label_map.ids_of(sem.undefined_classes)
-        self._label_compatibility = label_compatibility(self.label_map, config.verification)
-        self._bev_channels = bev_search.channel_lookup(self.label_map, config.bev_search)
+        resolved = _ResolvedClasses.of(config, self.label_map)  # ConfigError if unknown
+        threads.configure(config.threads)  # process-wide: only once the config is valid
+        self._landmark_ids = resolved.landmark_ids
+        self._ignored_ids = resolved.ignored_ids
+        self._undefined_ids = resolved.undefined_ids
+        self._label_compatibility = resolved.label_compatibility
+        self._bev_channels = resolved.bev_channels
         self._config = config
+
+    @staticmethod
+    def check(config: RegistrationConfig, label_map: LabelMap) -> None:
+        """Raise ConfigError if ``config`` names a class ``label_map`` lacks; no side effects."""
+        _ResolvedClasses.of(config, label_map)
 
     # ------------------------------------------------------------------------------
     def prepare(

@@ -66,6 +66,7 @@ from mlsemreg_ros.core.odometry import OdometryStep
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
+from mlsemreg_ros.core.warm_up import warm_up
 from mlsemreg_ros.ros import messages
 from mlsemreg_ros.ros.markers import correspondence_markers
 from mlsemreg_ros.ros.node_config import NodeConfig
@@ -202,7 +203,7 @@ class MlSemRegNode(Node):
             )
         if config.node.keep_freed_memory:
             kernels.keep_freed_memory()
-        warm = kernels.warm_up()  # compile or load the numba kernels before the first scan
+        warm = warm_up()  # compile or load the numba kernels before the first scan
         self._startup_ms = {
             'kernels_ms': warm.get('total_ms', 0.0),
             'node_ms': 1e3 * (time.perf_counter() - started),
