@@ -872,7 +872,7 @@ class MapConfig:
 
     load_path: str = param(
         '',
-        "Map folder loaded at startup (docs/maps.md); the node starts unlocalized and "
+        'Map folder loaded at startup (docs/maps.md); the node starts unlocalized and '
         "relocalizes against it ('': no map).",
     )
     save_path: str = param(
@@ -881,8 +881,7 @@ class MapConfig:
     frame_id: str = param('map', 'Frame of the map (parent of odom_frame in TF).')
     max_keyframes: int = param(
         5000,
-        'Most keyframes kept; beyond it the most redundant one (closest to another) is '
-        'dropped.',
+        'Most keyframes kept; beyond it the most redundant one (closest to another) is dropped.',
         low=1,
         high=10000000,
     )
@@ -957,6 +956,14 @@ class MapConfig:
         'keyframes instead of waiting for keyframe.max_failures (0: never).',
         low=0,
         high=100000,
+    )
+    track_distance: float = param(
+        10.0,
+        'Localized on a loaded map: every this many metres travelled the scan is '
+        'registered onto the nearby map keyframes to correct map -> odom (0: never).',
+        unit='m',
+        low=0.0,
+        high=1e6,
     )
     loop_closure: bool = param(
         True, 'Close loops while mapping: revisits found by place recognition, verified.'

@@ -102,9 +102,9 @@ class Mapper:
         keyframe = self.store.add(
             prepared.points, prepared.labels, T_map_sensor, stamp_ns, prepared=prepared
         )
-        relative = None
-        if previous is not None and previous.id in self._odom:
-            relative = invert_transform(self._odom[previous.id]) @ T_odom_sensor
+        relative = None  # the odometry edge, from the map poses (T_map_odom is rigid)
+        if previous is not None:
+            relative = invert_transform(previous.T_map_keyframe) @ T_map_sensor
         self.graph.add_keyframe(keyframe.id, T_map_sensor, relative)
         self._odom[keyframe.id] = T_odom_sensor.copy()
         self._travel[keyframe.id] = self._travelled
@@ -155,6 +155,16 @@ class Mapper:
             self.loops.append(loop)
             step.loop = loop
             return
+
+    def rebase(self, T_map_odom: np.ndarray) -> None:
+        """
+        The odometry restarted in a new odom frame whose place in the map is ``T_map_odom``.
+
+        (Found by relocalizing against the store; the next keyframe's edge joins the map
+        poses, so the graph stays connected.)
+        """
+        self.T_map_odom = np.asarray(T_map_odom, dtype=np.float64).copy()
+        self._last_odom = None
 
     def keyframe_odometry(self) -> dict[int, np.ndarray]:
         """``T_odom_keyframe`` of every keyframe (the poses before any loop closure)."""

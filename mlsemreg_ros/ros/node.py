@@ -68,6 +68,7 @@ from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.core.warm_up import warm_up
 from mlsemreg_ros.ros import messages
+from mlsemreg_ros.ros.map_services import MapServices
 from mlsemreg_ros.ros.markers import correspondence_markers
 from mlsemreg_ros.ros.node_config import NodeConfig
 from mlsemreg_ros.ros.parameters import ConfigSnapshot, LiveParameters
@@ -197,6 +198,7 @@ class MlSemRegNode(Node):
         self.create_subscription(PointCloud2, 'points', self._on_points, qos)
         self.create_service(Trigger, 'mlsemreg/reset', self._on_reset)
         self._tf = TransformBroadcaster(self) if TransformBroadcaster is not None else None
+        self._map = MapServices(self, self._odometry, config, self._tf)  # ros/map_services.py
         if self._tf is None:
             self.get_logger().info(
                 'tf2_ros is not importable: no TF output (mlsemreg/odometry carries the same pose)'
@@ -276,6 +278,8 @@ class MlSemRegNode(Node):
             latency_ms = (
                 self._publish_step(scan, step, config) if step.accepted and not reset else None
             )
+        if not reset:  # map -> odom, relocalization, mapping (ros/map_services.py)
+            self._map.after_step(scan, step, config)
         if reset:
             self._count('frames_dropped_by_reset')
             self._publish_diagnostics(
