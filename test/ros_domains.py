@@ -26,5 +26,7 @@ MODULES = ('node', 'colcon', 'params_yaml', 'demo', 'play', 'soak', 'map_node')
 
 def domain_id(module: str) -> int:
     """Return the ROS_DOMAIN_ID of a test module (0..232 is valid for Fast DDS)."""
-    base = int(os.environ.get('MLSEMREG_TEST_DOMAIN_BASE', 100 + (os.getpid() % 18) * len(MODULES)))
+    base = int(
+        os.environ.get('MLSEMREG_TEST_DOMAIN_BASE', 100 + (os.getpid() % 18) * len(MODULES))
+    )
     return base + MODULES.index(module)
