@@ -287,3 +287,42 @@ def test_real_dev_chain_odd_frames_relocalize_against_the_even_frames(tmp_path: 
             right, wrong = right + ok, wrong + (not ok)
     assert wrong == 0
     assert right >= 2  # measured: 5 of 5 (docs/maps.md)
+
+
+@pytest.mark.slow
+def test_the_mapper_closes_a_loop_on_a_drifting_out_and_back_drive() -> None:
+    """Out along the street and back: the drift is found and removed by a verified loop."""
+    from mlsemreg_ros.core.mapping import Mapper
+
+    config = RegistrationConfig().replace(
+        {
+            'map.keyframe_distance': 9.0,
+            'map.loop_min_travel': 45.0,
+            'map.loop_candidates': 1,
+            'map.loop_search_radius': 30.0,
+        }
+    )
+    world, labels = street_scene(seed=STREET_SEED)
+    xs = [*np.arange(-20.0, 21.0, 10.0), *np.arange(20.0, -21.0, -10.0)[1:]]
+    truth = [
+        motion(0.0 if i < 5 else 180.0, (x, 0.0 if i < 5 else -2.0, 0.0)) for i, x in enumerate(xs)
+    ]
+    registration = Registration(config)
+    mapper = Mapper(registration)
+    odometry = truth[0].copy()
+    drift = motion(0.8, (0.15, 0.05, 0.0))  # per keyframe step: 0.8 deg, 16 cm too much
+    for k, pose in enumerate(truth):
+        if k:
+            odometry = odometry @ invert_transform(truth[k - 1]) @ pose @ drift
+        points, scan_labels = scan_at(world, labels, pose, seed=300 + k, max_points=15000)
+        mapper.add(points, scan_labels, odometry, k)
+    assert len(mapper.store) == len(truth)
+    assert mapper.loops, 'no loop closed'
+    ids = mapper.store.ids
+    before = np.linalg.norm(odometry[:3, 3] - truth[-1][:3, 3])
+    after = np.linalg.norm(mapper.store[ids[-1]].T_map_keyframe[:3, 3] - truth[-1][:3, 3])
+    assert before > 2.0
+    assert after < 0.5 * before and after < 0.6
+    for loop in mapper.loops:  # every loop edge is the true relative motion
+        true = invert_transform(truth[ids.index(loop.match)]) @ truth[ids.index(loop.current)]
+        assert np.linalg.norm((invert_transform(true) @ loop.T_match_current)[:3, 3]) < 0.3
