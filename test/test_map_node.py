@@ -48,7 +48,7 @@ def _matrix(transform: Any) -> np.ndarray:
 
 @pytest.fixture(scope='module')
 def map_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A map of the synthetic street: five keyframes 15 m apart."""
+    """Write a map of the synthetic street: five keyframes 15 m apart."""
     store = KeyframeStore(RegistrationConfig())
     world, labels = street_scene(seed=STREET_SEED)
     for k, x in enumerate((-30.0, -15.0, 0.0, 15.0, 30.0)):

@@ -37,7 +37,7 @@ KEYFRAME_X = (-30.0, -15.0, 0.0, 15.0, 30.0)
 
 
 def _store(config: RegistrationConfig | None = None) -> KeyframeStore:
-    """A store with keyframes along the synthetic street (raw-free learning ids)."""
+    """Return a store with keyframes along the synthetic street (learning ids)."""
     store = KeyframeStore(config or RegistrationConfig())
     world, labels = street_scene(seed=STREET_SEED)
     for k, x in enumerate(KEYFRAME_X):

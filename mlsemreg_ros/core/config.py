@@ -1184,7 +1184,7 @@ class RegistrationConfig(Settings):
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
     keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
-    map: MapConfig = field(default_factory=MapConfig)
+    map: MapConfig = field(default_factory=MapConfig)  # noqa: A003, RUF100 (the section name)
 
     REMOVED: ClassVar[dict[str, str]] = REMOVED
 

@@ -47,7 +47,7 @@ from scipy.spatial import cKDTree
 class StoredKeyframe:
     """One map keyframe: its labeled scan (sensor frame), its pose in the map and its stamp."""
 
-    id: int  # unique in its store, increasing in insertion order
+    keyframe_id: int  # unique in its store, increasing in insertion order
     points: np.ndarray  # (N, 3) float32, sensor frame, voxelized
     labels: np.ndarray  # (N,) uint32 learning ids
     T_map_keyframe: np.ndarray  # (4, 4) float64
@@ -62,7 +62,7 @@ class StoredKeyframe:
 
     @property
     def position(self) -> np.ndarray:
-        """Sensor position (3,) in the map frame."""
+        """Return the sensor position in the map frame, shape (3,)."""
         return self.T_map_keyframe[:3, 3]
 
 
@@ -129,7 +129,7 @@ class KeyframeStore:
 
     @property
     def last(self) -> StoredKeyframe | None:
-        """The keyframe added last (None when empty)."""
+        """Return the keyframe added last, or None when empty."""
         return next(reversed(self._keyframes.values())) if self._keyframes else None
 
     def is_new_keyframe(self, T_map_sensor: np.ndarray) -> bool:
@@ -205,7 +205,7 @@ class KeyframeStore:
 
     # -- derived data ----------------------------------------------------------------
     def descriptor(self, keyframe_id: int) -> PlaceDescriptor:
-        """The keyframe's place descriptor (computed once per configuration)."""
+        """Return the keyframe's place descriptor, computed once per configuration."""
         keyframe = self._keyframes[keyframe_id]
         if keyframe.descriptor is None:
             keyframe.descriptor = self.describe(keyframe.points, keyframe.labels)
@@ -217,7 +217,7 @@ class KeyframeStore:
         return describe(points, labels, self._channels, self.config.map)
 
     def place_index(self) -> tuple[PlaceIndex, list[int]]:
-        """The place index over every keyframe and the keyframe id of each of its rows."""
+        """Return the place index of every keyframe and the keyframe id of each row."""
         if self._index is None:
             ids = self.ids
             descriptors = [self.descriptor(i) for i in ids]
@@ -226,7 +226,7 @@ class KeyframeStore:
         return self._index, self._index_ids
 
     def prepared(self, keyframe_id: int, registration: object) -> PreparedScan:
-        """The keyframe's prepared scan for ``registration`` (LRU-cached, lazy)."""
+        """Return the keyframe's prepared scan for ``registration`` (LRU-cached, lazy)."""
         if keyframe_id in self._prepared:
             self._prepared.move_to_end(keyframe_id)
             return self._prepared[keyframe_id]

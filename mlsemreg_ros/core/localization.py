@@ -88,7 +88,7 @@ class MapLocalization:
 
     @property
     def T_map_odom(self) -> np.ndarray | None:
-        """The odom frame in the map (None while unlocalized)."""
+        """Return the odom frame in the map (None while unlocalized)."""
         if not self.localized:
             return None
         if self.mapper is not None:
@@ -100,7 +100,7 @@ class MapLocalization:
         self._relocalize_requested = True
 
     def reset(self) -> None:
-        """The odometry restarted at identity: the old ``T_map_odom`` no longer holds."""
+        """Forget ``T_map_odom``: the odometry restarted at identity."""
         self.localized = False  # mapping: relocalized against its own keyframes
         self._failures = 0
         self._last_position = None
@@ -180,7 +180,7 @@ class MapLocalization:
         predicted = self._T_map_odom @ step.pose
         radius = cfg.loop_search_radius
         nearby = {
-            k.id
+            k.keyframe_id
             for k in self.store
             if radius <= 0 or np.linalg.norm(k.position - predicted[:3, 3]) <= radius
         }

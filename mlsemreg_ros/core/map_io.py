@@ -76,7 +76,7 @@ class MapData:
         self, config: RegistrationConfig | None = None, label_map: LabelMap | None = None
     ) -> KeyframeStore:
         """
-        A keyframe store of these keyframes, labels converted to learning ids.
+        Return a keyframe store of these keyframes, labels converted to learning ids.
 
         ``config``: the store's config (default: the map's own, else the defaults). The
         store's bounds apply: a map larger than ``map.max_keyframes`` loses keyframes.

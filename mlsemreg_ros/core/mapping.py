@@ -105,9 +105,9 @@ class Mapper:
         relative = None  # the odometry edge, from the map poses (T_map_odom is rigid)
         if previous is not None:
             relative = invert_transform(previous.T_map_keyframe) @ T_map_sensor
-        self.graph.add_keyframe(keyframe.id, T_map_sensor, relative)
-        self._odom[keyframe.id] = T_odom_sensor.copy()
-        self._travel[keyframe.id] = self._travelled
+        self.graph.add_keyframe(keyframe.keyframe_id, T_map_sensor, relative)
+        self._odom[keyframe.keyframe_id] = T_odom_sensor.copy()
+        self._travel[keyframe.keyframe_id] = self._travelled
         step = MapperStep(keyframe)
         if self.store.config.map.loop_closure:
             self._close_loop(keyframe, prepared, step)
@@ -119,10 +119,11 @@ class Mapper:
         cfg = self.store.config.map
         here = keyframe.position
         allowed = {
-            k.id
+            k.keyframe_id
             for k in self.store
-            if k.id != keyframe.id
-            and self._travelled - self._travel.get(k.id, self._travelled) >= cfg.loop_min_travel
+            if k.keyframe_id != keyframe.keyframe_id
+            and self._travelled - self._travel.get(k.keyframe_id, self._travelled)
+            >= cfg.loop_min_travel
             and (
                 cfg.loop_search_radius <= 0
                 or np.linalg.norm(k.position - here) <= cfg.loop_search_radius
@@ -147,18 +148,20 @@ class Mapper:
             moved = float(np.linalg.norm(T_map_current[:3, 3] - here))
             if cfg.loop_search_radius > 0 and moved > cfg.loop_search_radius:
                 continue
-            self.graph.add_loop(match, keyframe.id, result.transform)
+            self.graph.add_loop(match, keyframe.keyframe_id, result.transform)
             optimized = self.graph.optimize()
             self.store.set_poses(optimized)
-            self.T_map_odom = optimized[keyframe.id] @ invert_transform(self._odom[keyframe.id])
-            loop = LoopClosure(keyframe.id, match, result.transform.copy(), moved)
+            self.T_map_odom = optimized[keyframe.keyframe_id] @ invert_transform(
+                self._odom[keyframe.keyframe_id]
+            )
+            loop = LoopClosure(keyframe.keyframe_id, match, result.transform.copy(), moved)
             self.loops.append(loop)
             step.loop = loop
             return
 
     def rebase(self, T_map_odom: np.ndarray) -> None:
         """
-        The odometry restarted in a new odom frame whose place in the map is ``T_map_odom``.
+        Continue in a new odom frame whose place in the map is ``T_map_odom``.
 
         (Found by relocalizing against the store; the next keyframe's edge joins the map
         poses, so the graph stays connected.)

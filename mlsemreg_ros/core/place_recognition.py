@@ -143,7 +143,7 @@ class PlaceIndex:
         allowed: np.ndarray | None = None,
     ) -> list[Candidate]:
         """
-        The best ``config.candidates`` keyframes for ``query`` (module docstring).
+        Return the best ``config.candidates`` keyframes for ``query`` (module docstring).
 
         ``allowed``: optional (K,) bool mask of the keyframes that may be returned (loop
         closure leaves out the recent ones); the KD-tree is then asked for more

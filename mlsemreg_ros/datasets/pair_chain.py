@@ -44,7 +44,7 @@ class ChainFrame:
 
 
 def chain_frames(files: list[Path]) -> list[ChainFrame]:
-    """The frames (len(files) + 1) of a chain of pair files, in order; ValueError if broken."""
+    """Return the len(files) + 1 frames of a chain of pair files; ValueError if broken."""
     frames: list[ChainFrame] = []
     pose = np.eye(4)
     previous_dst = None

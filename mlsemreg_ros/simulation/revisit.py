@@ -47,7 +47,7 @@ class QueryScan:
 
 
 def clip_path(path: Path2D, length: float) -> Path2D:
-    """The first ``length`` metres of ``path``."""
+    """Return the first ``length`` metres of ``path``."""
     ends = np.cumsum(path.lengths)
     count = int(np.searchsorted(ends, length)) + 1
     lengths = path.lengths[:count].copy()
@@ -56,7 +56,7 @@ def clip_path(path: Path2D, length: float) -> Path2D:
 
 
 def reversed_path(path: Path2D, shift_right: float) -> Path2D:
-    """``path`` driven backwards, every piece moved ``shift_right`` metres to the new right."""
+    """Return ``path`` driven backwards, moved ``shift_right`` metres to the new right."""
     starts, headings, lengths, curvatures = [], [], [], []
     for start, heading, length, k in zip(
         path.starts[::-1],
@@ -99,7 +99,7 @@ def reverse_drive(
     start_offset: float = 0.5,
     noise_seed: int = 1000,
 ) -> tuple[Simulation, np.ndarray]:
-    """The first drive's simulation and the world poses (F, 4, 4) of the reverse drive."""
+    """Return the first drive's simulation and the world poses (F, 4, 4) driven back."""
     sim = Simulation(config)
     driven = _driven_length(sim)
     path = reversed_path(clip_path(sim.path, driven), lane_change)
@@ -118,7 +118,7 @@ def reverse_drive(
 
 
 def clip_path_from(path: Path2D, offset: float) -> Path2D:
-    """``path`` without its first ``offset`` metres."""
+    """Return ``path`` without its first ``offset`` metres."""
     if offset <= 0:
         return path
     ends = np.cumsum(path.lengths)
@@ -135,7 +135,7 @@ def clip_path_from(path: Path2D, offset: float) -> Path2D:
 def other_drive(
     config: SimulationConfig, route_seed: int, frames: int
 ) -> tuple[Simulation, np.ndarray]:
-    """The first drive's simulation, rebuilt around a route of ``route_seed``; its poses."""
+    """Return the first drive's simulation around a ``route_seed`` route, and its poses."""
     sim = Simulation(config)
     length = max(frames - 1, 1) * config.step + 60.0
     path = plan_route(sim.grid, length, np.random.default_rng([route_seed, 3]), config.trajectory)
@@ -165,7 +165,7 @@ def other_drive(
 def render_queries(
     sim: Simulation, world_poses: np.ndarray, indices: np.ndarray, noise_seed: int
 ) -> Iterator[QueryScan]:
-    """Scans of ``sim``'s world at ``world_poses[indices]``, poses in the map frame."""
+    """Render ``sim``'s world at ``world_poses[indices]``, poses in the map frame."""
     origin_inv = np.linalg.inv(sim.world_poses[0])
     for index in np.asarray(indices, dtype=np.int64):
         scan = sim.lidar.scan(

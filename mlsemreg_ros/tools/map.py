@@ -177,7 +177,7 @@ def build_map(
             )
         trials += bool(step.tried)
         if step.keyframe is not None and scan.pose is not None:
-            truth[step.keyframe.id] = np.asarray(scan.pose)
+            truth[step.keyframe.keyframe_id] = np.asarray(scan.pose)
     store = mapper.store
     summary: dict[str, Any] = {
         'scans': scans,

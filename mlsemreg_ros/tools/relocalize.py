@@ -202,7 +202,7 @@ def score(name: str, found: Any, truth: Any) -> dict[str, Any]:
 
 
 def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
-    """queries, recall_pct, accepted, wrong_accepted, refused, time percentiles."""
+    """Summarize: queries, recall_pct, accepted, wrong_accepted, refused, times."""
     import numpy as np
 
     times = np.array([r['time_ms'] for r in records])
