@@ -16,9 +16,10 @@
 The repository stands alone: it cites only its own documentation, and its links resolve.
 
 - No tracked file cites a design or style note, or a folder, outside the repository
-  (``DESIGN.md``, ``STYLE.md``, ``../shared``, a machine's ``/work/`` tree). Reading the
-  real dev pairs from ``../shared/data`` is allowed: that is data, found by
-  ``test/dev_pairs.py`` and skipped when absent, not a reference a reader must follow.
+  (``DESIGN.md``, ``STYLE.md``, ``../shared``). Reading the real dev pairs from
+  ``../shared/data`` is allowed: that is data, found by ``test/dev_pairs.py`` and skipped
+  when absent, not a reference a reader must follow. The front page names no path of the
+  machine the package was developed on either.
 - Every relative link of ``README.md`` and ``docs/*.md`` points to a file of the
   repository, and every ``#anchor`` into one of these pages names one of its headings.
 """
@@ -48,7 +49,9 @@ PENDING_PAGES = frozenset(
 )
 
 #: Citations of files outside the repository (the data folder ``../shared/data`` is exempt).
-OUTSIDE = re.compile(r'DESIGN\.md|STYLE\.md|\bDESIGN\b|\.\./shared(?!/data\b)|/work/')
+OUTSIDE = re.compile(r'DESIGN\.md|STYLE\.md|\bDESIGN\b|\.\./shared(?!/data\b)')
+#: A development machine's folders, which the README must not name.
+MACHINE_PATH = re.compile(r'(?<![\w.])/work/')
 #: Inline links and images ``[text](target)``; reference definitions ``[id]: target``.
 LINK = re.compile(
     r'!?\[[^\]]*\]\(\s*<?([^)\s>]+)>?(?:\s+"[^"]*")?\s*\)'  # [text](target), ![alt](target)
@@ -106,7 +109,6 @@ def test_the_pattern_finds_outside_citations_and_spares_data_paths() -> None:
     assert outside_citations('RE/TE means over successful pairs (DESIGN §4)')
     assert outside_citations('undefined labels (cf. DESIGN pitfalls)')
     assert outside_citations('the paper ../shared/paper/ml-semreg.tex')
-    assert outside_citations('mlsemreg simulate /work/sim/seed0')
     assert not outside_citations('mlsemreg eval-pairs ../shared/data/kitti_pairs_dev')
     assert not outside_citations("ROOT.parent / 'shared' / 'data' / 'kitti_pairs_dev'")
     assert not outside_citations('the design decisions (docs/architecture.md)')
@@ -131,6 +133,12 @@ def test_no_tracked_file_cites_a_file_outside_the_repository() -> None:
             continue
         offenders += [f'{path.relative_to(ROOT)}: {line}' for line in outside_citations(text)]
     assert not offenders, 'cite docs/... instead:\n' + '\n'.join(offenders)
+
+
+def test_the_readme_names_no_machine_path() -> None:
+    assert MACHINE_PATH.search('mlsemreg simulate /work/sim/seed0')
+    lines = (ROOT / 'README.md').read_text(encoding='utf-8').splitlines()
+    assert not [line for line in lines if MACHINE_PATH.search(line)]
 
 
 def test_the_readme_states_the_ci_test_command() -> None:
