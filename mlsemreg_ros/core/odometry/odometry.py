@@ -61,7 +61,7 @@ import time
 
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.fine_alignment import alignment_cloud, Candidate
-from mlsemreg_ros.core.odometry import decision
+from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (
     is_new_keyframe,
@@ -228,7 +228,7 @@ class Odometry:
         """Predict, then track or register globally, and decide."""
         cfg, keyframe = self.config, self.keyframe
         if cfg.fine.method == 'off':
-            return decision.chain(self.global_registration(current, keyframe), cfg)
+            return chain(self.global_registration(current, keyframe), cfg)
         prediction = (
             self.motion_model.predict(stamp_ns) if cfg.odometry.constant_velocity else None
         )
@@ -243,7 +243,7 @@ class Odometry:
             cloud = alignment_cloud(current, cfg.fine)
             return self.tracker.candidate('global', T_initial, cloud, cfg)
 
-        chosen = decision.decide(estimate, predicted, refine, cfg)
+        chosen = decide(estimate, predicted, refine, cfg)
         chosen.reason = '; '.join(
             r for r in (f'registered globally: {why_global}', chosen.reason) if r
         )
