@@ -129,7 +129,7 @@ def test_registers_a_pair_with_the_right_frames_and_stamps(defaults: NodeProbe) 
     directory = dev_pairs_dir()
     if directory.is_dir() and list_pairs(directory):
         pair = load_pair(list_pairs(directory)[0])
-    else:  # ../shared absent: the synthetic street
+    else:  # no dev pairs: the synthetic street
         pair = synthetic_pair(seed=1)
     dst_stamp, src_stamp, status = send_pair(probe, pair)
     assert status['level'] == 0, status['message']

@@ -43,9 +43,10 @@ from mlsemreg_ros.core import (
     signatures,
     threads,
 )
-from mlsemreg_ros.core.alignment import align_pair, Alignment, AlignmentCloud
+from mlsemreg_ros.core.alignment import align_pair
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import estimate
+from mlsemreg_ros.core.fine_alignment import alignment_cloud, refinement_refusal, RefinementBounds
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.core.results import (
     Correspondences,
@@ -54,7 +55,6 @@ from mlsemreg_ros.core.results import (
     RegistrationResult,
     VerificationResult,
 )
-from mlsemreg_ros.core.rigid import rotation_angle_deg
 from mlsemreg_ros.core.scan_input import sanitize_scan_for
 from mlsemreg_ros.core.threads import LazyPool
 from mlsemreg_ros.core.verification import (
@@ -345,13 +345,13 @@ class Registration:
         if refine and np.all(np.isfinite(transform)) and cfg.fine.pair_method != 'off':
             with _timed(timings, 'fine_ms'):
                 alignment = align_pair(
-                    self.alignment_cloud(source, pair=True),
-                    self.alignment_cloud(target, pair=True),
+                    alignment_cloud(source, cfg.fine, pair=True),
+                    alignment_cloud(target, cfg.fine, pair=True),
                     transform,
                     cfg.fine,
                     cfg.fine.pair_method,
                 )
-            refused = self.refinement_refusal(alignment)
+            refused = refinement_refusal(alignment, RefinementBounds.of(cfg.odometry))
             diagnostics.update(
                 fine_inlier_fraction=alignment.inlier_fraction,
                 fine_iterations=alignment.iterations,
@@ -437,51 +437,6 @@ class Registration:
         )
         diagnostics['bev_search_used'] = won
         return searched if won else None
-
-    def alignment_cloud(self, scan: PreparedScan, pair: bool = False) -> AlignmentCloud:
-        """
-        Return the scan's fine-alignment cloud (built once, then cached on the scan).
-
-        Odometry: downsampled to ``fine.downsampling_resolution``, ``fine.num_neighbors``
-        (made by :meth:`prepare`). Pairs (``pair=True``): the prepared scan as it is,
-        ``fine.pair_num_neighbors``.
-        """
-        fine = self.config.fine
-        key = (
-            (0.0, fine.pair_num_neighbors)
-            if pair
-            else (fine.downsampling_resolution, fine.num_neighbors)
-        )
-        if key not in scan.alignment_clouds:
-            scan.alignment_clouds[key] = AlignmentCloud.build(scan.points, *key)
-        return scan.alignment_clouds[key]
-
-    def refinement_refusal(self, alignment: Alignment) -> str:
-        """
-        Why a fine alignment's result is not trusted ('' if it is).
-
-        It must keep ``odometry.min_inlier_fraction`` of the scan as inliers and move its
-        initial guess by at most the ``odometry.max_correction_*`` bounds: a refinement
-        that runs away or converges with little overlap is refused, not believed.
-        """
-        bounds = self.config.odometry
-        moved = alignment.correction
-        shift, turn = float(np.linalg.norm(moved[:3, 3])), rotation_angle_deg(moved)
-        if not np.all(np.isfinite(alignment.T_target_source)):
-            return 'non-finite fine alignment'
-        if alignment.inlier_fraction < bounds.min_inlier_fraction:
-            return (
-                f'fine alignment kept {alignment.inlier_fraction:.2f} of the scan as '
-                f'inliers < odometry.min_inlier_fraction={bounds.min_inlier_fraction:g}'
-            )
-        if shift > bounds.max_correction_translation or turn > bounds.max_correction_rotation:
-            return (
-                f'fine alignment moved its guess by {shift:.2f} m / {turn:.2f} deg, more '
-                f'than odometry.max_correction_translation/rotation='
-                f'{bounds.max_correction_translation:g} m / '
-                f'{bounds.max_correction_rotation:g} deg'
-            )
-        return ''
 
     def prepare_scans(self, *scans: dict[str, Any]) -> list[PreparedScan]:
         """

@@ -15,7 +15,7 @@
 """
 ``mlsemreg_node``: labeled PointCloud2 in; transform, odometry, path and markers out.
 
-Interface (DESIGN.md section 5; names are part of the contract):
+Interface (docs/ros_interface.md; names are part of the contract):
 
 - subscribes ``points`` (sensor_msgs/PointCloud2 with x, y, z and a label field);
 - publishes ``mlsemreg/transform`` (TransformStamped ``T_keyframe_current``,
@@ -27,7 +27,7 @@ Interface (DESIGN.md section 5; names are part of the contract):
 - broadcasts TF ``odom_frame -> base_frame`` when tf2_ros is importable;
 - serves ``mlsemreg/reset`` (std_srvs/Trigger): drop the keyframe, restart at identity.
 
-Per frame (STYLE.md item 1): convert the message -> call the core -> publish.
+Per frame (docs/architecture.md, core vs glue): convert the message -> call the core -> publish.
 The subscription callback only converts and hands the scan to a worker thread
 through a latest-only slot (a scan still waiting when a newer one arrives is
 dropped and counted), so a slow registration never blocks the executor. The
