@@ -326,3 +326,19 @@ def test_the_mapper_closes_a_loop_on_a_drifting_out_and_back_drive() -> None:
     for loop in mapper.loops:  # every loop edge is the true relative motion
         true = invert_transform(truth[ids.index(loop.match)]) @ truth[ids.index(loop.current)]
         assert np.linalg.norm((invert_transform(true) @ loop.T_match_current)[:3, 3]) < 0.3
+
+
+def test_copies_of_one_place_do_not_crowd_other_places_out_of_the_shortlist(
+    street_store: KeyframeStore,
+) -> None:
+    config = street_store.config.replace(
+        {'map.descriptor_candidates': 4, 'map.candidates': 3, 'map.max_keyframes': 1000}
+    )
+    store = KeyframeStore(config, street_store.label_map)
+    for _ in range(13):  # 13 copies of each keyframe, at the same pose
+        for keyframe in street_store:
+            store.add(keyframe.points, keyframe.labels, keyframe.T_map_keyframe)
+    index, ids = store.place_index()
+    shortlist = index.shortlist(store.descriptor(ids[2]), config.map)
+    places = {tuple(np.round(store[ids[c.index]].position, 3)) for c in shortlist}
+    assert len(shortlist) == 3 and len(places) == 3

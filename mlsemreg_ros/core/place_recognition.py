@@ -147,23 +147,37 @@ class PlaceIndex:
 
         ``allowed``: optional (K,) bool mask of the keyframes that may be returned (loop
         closure leaves out the recent ones); the KD-tree is then asked for more
-        neighbours so that the shortlist is still ``descriptor_candidates`` long.
+        neighbours so that the shortlist is still ``descriptor_candidates`` long. When the
+        shortlist holds fewer than ``candidates`` places at least ``candidate_separation``
+        apart (many keyframes of one place), it is doubled until it does or holds every
+        keyframe.
         """
         if self.tree is None:
             return []
         count = len(self)
-        wanted = min(config.descriptor_candidates, count)
+        excluded = 0
         if allowed is not None:
             allowed = np.asarray(allowed, dtype=bool)
             if not allowed.any():
                 return []
-            # enough neighbours that `wanted` allowed ones are among them (at most all)
-            wanted = min(count, wanted + int(count - allowed.sum()))
-        _, neighbours = self.tree.query(query.ring_key, k=wanted)
-        neighbours = np.atleast_1d(neighbours)
-        neighbours = neighbours[neighbours < count]
-        if allowed is not None:
-            neighbours = neighbours[allowed[neighbours]][: config.descriptor_candidates]
+            excluded = int(count - allowed.sum())
+        pool = min(config.descriptor_candidates, count)
+        while True:
+            # enough neighbours that `pool` allowed ones are among them (at most all)
+            _, neighbours = self.tree.query(query.ring_key, k=min(count, pool + excluded))
+            neighbours = np.atleast_1d(neighbours)
+            neighbours = neighbours[neighbours < count]
+            if allowed is not None:
+                neighbours = neighbours[allowed[neighbours]][:pool]
+            chosen = self._spread(query, neighbours, config)
+            if len(chosen) >= config.candidates or pool + excluded >= count:
+                return chosen
+            pool *= 2
+
+    def _spread(
+        self, query: PlaceDescriptor, neighbours: np.ndarray, config: MapConfig
+    ) -> list[Candidate]:
+        """Re-rank ``neighbours`` by scan context; keep the best ones that lie apart."""
         similarity, yaw = context_similarity(query, self.contexts[neighbours])
         order = np.argsort(-similarity, kind='stable')
         chosen: list[Candidate] = []
