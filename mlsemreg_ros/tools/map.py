@@ -195,16 +195,28 @@ def build_map(
         summary['ate_m'] = ate_rmse(np.stack([store[i].T_map_keyframe for i in ids]), gt)
         summary['ate_odometry_m'] = ate_rmse(np.stack([odom[i] for i in ids]), gt)
         right = wrong = 0
+        loops = []
         for loop in mapper.loops:
             true_motion = invert_transform(truth[loop.match]) @ truth[loop.current]
             error = invert_transform(true_motion) @ loop.T_match_current
-            ok = (
-                np.linalg.norm(error[:3, 3]) <= 0.6
-                and np.degrees(np.arccos(np.clip((np.trace(error[:3, :3]) - 1) / 2, -1, 1))) <= 5.0
+            te = float(np.linalg.norm(error[:3, 3]))
+            re = float(np.degrees(np.arccos(np.clip((np.trace(error[:3, :3]) - 1) / 2, -1, 1))))
+            ok = te <= 0.6 and re <= 5.0
+            right, wrong = right + int(ok), wrong + int(not ok)
+            distance = float(np.linalg.norm(true_motion[:3, 3]))
+            loops.append(
+                {
+                    'current': int(loop.current),
+                    'match': int(loop.match),
+                    'distance_m': distance,
+                    'te_m': te,
+                    're_deg': re,
+                    'right': bool(ok),
+                }
             )
-            right, wrong = right + ok, wrong + (not ok)
+        summary['loop_edges'] = loops
         summary['loops_true'], summary['loops_wrong'] = right, wrong
-        summary['revisits'] = count_revisits(gt, config.map)
+        summary['revisits'] = int(count_revisits(gt, config.map))
     return {'mapper': mapper, 'summary': summary}
 
 
