@@ -26,6 +26,9 @@ Interface (docs/ros_interface.md; names are part of the contract):
   throttled, only while subscribed) and ``/diagnostics``;
 - broadcasts TF ``odom_frame -> base_frame`` when tf2_ros is importable;
 - serves ``mlsemreg/reset`` (std_srvs/Trigger): drop the keyframe, restart at identity.
+- the map (``ros/map_services.py``, docs/maps.md): publishes ``mlsemreg/map_pose`` and TF
+  ``map -> odom``, ``mlsemreg/map_path``; serves ``mlsemreg/relocalize`` and
+  ``mlsemreg/save_map``; with ``map.load_path`` it starts unlocalized and relocalizes.
 
 Per frame (docs/architecture.md, core vs glue): convert the message -> call the core -> publish.
 The subscription callback only converts and hands the scan to a worker thread
