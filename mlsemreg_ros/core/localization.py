@@ -100,8 +100,17 @@ class MapLocalization:
         self._relocalize_requested = True
 
     def reset(self) -> None:
-        """Forget ``T_map_odom``: the odometry restarted at identity."""
-        self.localized = False  # mapping: relocalized against its own keyframes
+        """
+        Forget ``T_map_odom``: the odometry restarted at identity.
+
+        Localization: unlocalized until a scan relocalizes. Mapping: a new, empty map.
+        """
+        if self.mode == 'mapping':  # a new map from the restarted odometry
+            self.mapper = Mapper(self.registration)
+            self.store = self.mapper.store
+            self.relocalizer = Relocalizer(self.registration, self.store)
+        else:
+            self.localized = False
         self._failures = 0
         self._last_position = None
 
