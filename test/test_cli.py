@@ -34,6 +34,7 @@ SUBCOMMANDS = (
     'demo',
     'params',
     'cut-pairs',
+    'tune',
 )
 
 

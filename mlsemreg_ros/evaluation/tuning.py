@@ -248,7 +248,7 @@ def parse_space_item(item: str) -> Dimension:
 
 
 def build_space(objective: str, items: Sequence[str] = ()) -> list[Dimension]:
-    """The default space of ``objective``, then every ``--space`` item narrows or adds one."""
+    """Build the default space of ``objective``; each ``--space`` item narrows or adds one."""
     space = {
         key: default_dimension(key, entry) for key, entry in DEFAULT_SPACES[objective].items()
     }
@@ -426,7 +426,7 @@ class TuneTask:
 
 def run_trial(trial: Any, task: TuneTask) -> tuple[float, float]:
     """
-    The objective of every worker: suggest, validate (prune when invalid), evaluate.
+    Run one trial (the objective of every worker): suggest, validate (prune), evaluate.
 
     The suggestion is applied to the starting configuration by the config's own
     validation; a ConfigError prunes the trial (``optuna.TrialPruned``) and records the
@@ -449,7 +449,7 @@ def run_trial(trial: Any, task: TuneTask) -> tuple[float, float]:
 
 def open_storage(url: str) -> Any:
     """
-    An Optuna storage from ``url``.
+    Open the Optuna storage of ``url``.
 
     ``journal:PATH`` or a path ending in ``.log``/``.journal``: a journal file
     (``JournalStorage`` with ``JournalFileBackend``); anything else is a database URL
@@ -470,7 +470,7 @@ def open_storage(url: str) -> Any:
 
 
 def default_storage(out: Path) -> str:
-    """The default storage: a SQLite file beside the output (``params.yaml`` -> ``params.db``)."""
+    """Return the default storage: a SQLite file beside the output (``x.yaml`` -> ``x.db``)."""
     return f'sqlite:///{out.with_suffix(".db").resolve()}'
 
 
@@ -510,7 +510,9 @@ def open_study(task: TuneTask, seed_offset: int = 0) -> Any:
     record = _space_record(task)
     stored = study.user_attrs.get('search')
     if stored is None:
-        study.set_metric_names(list(names))
+        with warnings.catch_warnings():
+            warnings.simplefilter('ignore')  # set_metric_names is marked experimental
+            study.set_metric_names(list(names))
         study.set_user_attr('search', record)
         start = {d.key: task.base.get(d.key, _default(d.key)) for d in task.space}
         if all(d.contains(start[d.key]) for d in task.space):
@@ -618,7 +620,7 @@ def run_study(
 
 # -- results -------------------------------------------------------------------------
 def completed(study: Any) -> list[Any]:
-    """The study's completed trials."""
+    """Return the study's completed trials."""
     import optuna
 
     return study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.COMPLETE,))
@@ -626,8 +628,9 @@ def completed(study: Any) -> list[Any]:
 
 def chosen_trial(study: Any) -> Any | None:
     """
-    The trial written to the parameter file: on the Pareto front, the lowest accuracy loss,
-    ties broken by the lower time (None when no trial completed).
+    Pick the trial written to the parameter file (None when no trial completed).
+
+    The rule: on the Pareto front, the lowest accuracy loss; ties broken by the lower time.
     """
     front = study.best_trials if completed(study) else []
     return min(front, key=lambda t: (t.values[0], t.values[1]), default=None)

@@ -169,7 +169,7 @@ def tune(
 
 
 def _start(core: Any) -> dict[str, Any]:
-    """The starting point as flat values that differ from the defaults (what --set gave)."""
+    """Return the starting point: the flat values that differ from the defaults."""
     from mlsemreg_ros.core.config import RegistrationConfig
 
     defaults = RegistrationConfig().to_flat_dict()
