@@ -150,8 +150,13 @@ def test_pairs_scores_rank_rr_first_and_penalize_wrong_poses() -> None:
         _report([_row(True, True, 0, 0)] * 9 + [_row(False, False)]), bounds
     )
     assert worst_errors.accuracy_loss < one_missed.accuracy_loss  # one more success wins
-    refused = tuning.pairs_scores(_report([_row(True, False)] * 10), bounds)
-    assert all_right.accuracy_loss < refused.accuracy_loss < one_missed.accuracy_loss
+    one_refused = tuning.pairs_scores(
+        _report([_row(True, True)] * 9 + [_row(True, False)]), bounds
+    )
+    assert all_right.accuracy_loss < one_refused.accuracy_loss < one_missed.accuracy_loss
+    assert one_refused.attrs['refused_right'] == 1
+    all_refused = tuning.pairs_scores(_report([_row(True, False)] * 10), bounds)
+    assert all_refused.accuracy_loss > one_missed.accuracy_loss  # publishing nothing is bad
     wrong = tuning.pairs_scores(_report([_row(True, True)] * 9 + [_row(False, True)]), bounds)
     assert wrong.attrs['wrong_poses'] == 1
     none_right = tuning.pairs_scores(_report([_row(False, False)] * 10), bounds)
@@ -354,3 +359,27 @@ def test_tune_errors_are_clear(pair_dir: Path, tmp_path: Path, capsys: Any) -> N
     assert cli.main(['tune', str(pair_dir), '--trials', '2', '--quiet', '--out', out, *bad]) == 1
     assert 'no trial completed' in capsys.readouterr().err
     assert not Path(out).exists()
+
+
+@pytest.mark.slow  # a simulated bag, KISS-ICP once and one trial of the odometry
+def test_tune_on_a_bag_measures_kiss_icp_once(tmp_path: Path) -> None:
+    from mlsemreg_ros.tools import cli, simulate
+
+    bag = tmp_path / 'sim'
+    args = [str(bag), '--frames', '3', '--seed', '5', '--azimuth-steps', '1024', '--quiet']
+    assert simulate.main(args) == 0
+    out = tmp_path / 'bag.yaml'
+    storage = f'journal:{tmp_path / "bag.log"}'
+    args = ['tune', str(bag), '--objective', 'bag', '--stride', '2', '--trials', '1']
+    args += ['--set', 'keypoints.count=800', '--space', 'keypoints.count=500:1000']
+    args += ['--storage', storage, '--out', str(out), '--quiet']
+    assert cli.main(args) == 0
+    study = optuna.load_study(study_name='mlsemreg', storage=tuning.open_storage(storage))
+    assert study.user_attrs['kiss_latency_ms_p50'] > 0
+    (trial,) = study.get_trials()
+    assert trial.user_attrs['start'] and trial.params['keypoints.count'] == 800
+    assert {'t_err_pct', 'wrong_poses', 'latency_ms_p50'} <= set(trial.user_attrs)
+    assert trial.values[1] == pytest.approx(
+        trial.user_attrs['latency_ms_p50'] / study.user_attrs['kiss_latency_ms_p50']
+    )
+    assert RegistrationConfig.from_yaml(out).keypoints.count == 800

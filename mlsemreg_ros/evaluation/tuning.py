@@ -50,6 +50,9 @@ from mlsemreg_ros.evaluation.settings import EvaluationConfig
 #: Accuracy loss of one wrong accepted pose (accepted, but outside the success bounds):
 #: more than losing the whole registration recall (100 percentage points).
 WRONG_POSE_PENALTY = 100.0
+#: Accuracy loss of a right pose that the confidence test refuses, as a share of a missed
+#: pair (the node does not publish it, but it does not publish a wrong pose either).
+REFUSED_COST = 0.5
 #: A numeric range is searched on a log scale when high / low reaches this (two decades).
 LOG_SCALE_RATIO = 100.0
 #: Names of the two objectives, by ``--objective``.
@@ -280,14 +283,15 @@ class Evaluator(Protocol):
 
 def pairs_scores(report: dict[str, Any], bounds: EvaluationConfig) -> TrialScores:
     """
-    Scores of an eval-pairs report: RR first, then wrong and refused poses, then RE/TE.
+    Scores of an eval-pairs report: RR first, then refused right poses, then RE/TE.
 
-    ``loss = (100 - RR) + WRONG_POSE_PENALTY x wrong + 0.5 x refused + 0.5 x error`` with
-    ``wrong`` the accepted pairs outside the success bounds, ``refused`` the share of the
-    successful pairs that the confidence test refused and ``error`` the mean of
-    ``(RE / max RE + TE / max TE) / 2`` over the successful pairs (both shares <= 1, so
-    with up to 100 pairs one more successful pair always wins). Time: mean ms per pair
-    (both clouds prepared and registered).
+    ``loss = (100 - RR) + REFUSED_COST x 100 / n x refused + WRONG_POSE_PENALTY x wrong
+    + 0.5 x error`` over ``n`` pairs: a missed pair costs ``100 / n``; a right pose that
+    the confidence test refuses (the node would not publish it) costs half of that; an
+    accepted pose outside the success bounds costs :data:`WRONG_POSE_PENALTY`; ``error``,
+    the mean of ``(RE / max RE + TE / max TE) / 2`` over the successful pairs (<= 1),
+    breaks the remaining ties (with up to 100 pairs it never outweighs a pair). Time: mean
+    ms per pair (both clouds prepared and registered).
     """
     rows, summary = report['pairs'], report['summary']
     rr = float(summary['registration_recall_pct'] or 0.0)
@@ -302,8 +306,8 @@ def pairs_scores(report: dict[str, Any], bounds: EvaluationConfig) -> TrialScore
             0.5 * (r['rotation_error_deg'] / max_re + r['translation_error_cm'] / max_te)
             for r in ok
         ) / len(ok)
-    loss = (100.0 - rr) + WRONG_POSE_PENALTY * wrong + 0.5 * refused / max(len(ok), 1)
-    loss += 0.5 * min(error, 1.0)
+    loss = (100.0 - rr) + REFUSED_COST * 100.0 / max(len(rows), 1) * refused
+    loss += WRONG_POSE_PENALTY * wrong + 0.5 * min(error, 1.0)
     time_ms = float(summary['time_ms'].get('total_ms', 0.0))
     attrs = {
         'rr_pct': rr,
@@ -489,36 +493,43 @@ def _space_record(task: TuneTask) -> dict[str, Any]:
     }
 
 
-def open_study(task: TuneTask, seed_offset: int = 0) -> Any:
+def open_study(task: TuneTask, seed_offset: int = 0, wait_s: float = 60.0) -> Any:
     """
     Create the study, or load it to resume or join it (ConfigError if it is another search).
 
-    A new study records its objective, space and starting point as user attributes, and
-    its first trial is the starting point (when it lies in the space): trial 0 measures
-    the start.
+    The process that creates the study records its objective, space and starting point as
+    user attributes and enqueues the starting point (when it lies in the space): trial 0
+    measures the start. A process that joins a study being created waits up to ``wait_s``
+    for that record.
     """
     import optuna
 
-    names = OBJECTIVE_NAMES[task.evaluator.objective]
-    study = optuna.create_study(
-        storage=open_storage(task.storage),
-        study_name=task.study_name,
-        directions=['minimize', 'minimize'],
-        sampler=make_sampler(task.seed + seed_offset),
-        load_if_exists=True,
-    )
+    storage = open_storage(task.storage)
+    sampler = make_sampler(task.seed + seed_offset)
     record = _space_record(task)
-    stored = study.user_attrs.get('search')
-    if stored is None:
+    try:
+        study = optuna.create_study(
+            storage=storage,
+            study_name=task.study_name,
+            directions=['minimize', 'minimize'],
+            sampler=sampler,
+        )
+    except optuna.exceptions.DuplicatedStudyError:
+        study = optuna.load_study(study_name=task.study_name, storage=storage, sampler=sampler)
+    else:
         with warnings.catch_warnings():
             warnings.simplefilter('ignore')  # set_metric_names is marked experimental
-            study.set_metric_names(list(names))
-        study.set_user_attr('search', record)
+            study.set_metric_names(list(OBJECTIVE_NAMES[task.evaluator.objective]))
         start = {d.key: task.base.get(d.key, _default(d.key)) for d in task.space}
         if all(d.contains(start[d.key]) for d in task.space):
             study.enqueue_trial(start, user_attrs={'start': True})
-    elif stored != record:
-        changed = [k for k in record if stored.get(k) != record[k]]
+        study.set_user_attr('search', record)
+        return study
+    deadline = time.monotonic() + wait_s
+    while (stored := study.user_attrs.get('search')) is None and time.monotonic() < deadline:
+        time.sleep(0.5)  # created a moment ago by another process
+    if stored != record:
+        changed = [k for k in record if (stored or {}).get(k) != record[k]]
         raise ConfigError(
             f'study {task.study_name!r} in {task.storage} was created with another '
             f'{", ".join(changed)}; give the same DATA, --objective, --space, --config and '

@@ -152,14 +152,14 @@ def tune(
     url = storage or tuning.default_storage(out)
     task = tuning.TuneTask(url, study, evaluator, dims, _start(core), seed)
     try:
-        tuning.open_study(task)
+        before = tuning.open_study(task).get_trials(deepcopy=False)
     except ConfigError as error:
         raise CommandError(str(error), 2) from None
     if objective == 'bag':
         _measure_kiss_icp(task, quiet)
     tables.print_text(f'study {study!r} in {url}; searched:')
     tables.print_table(_space_table(dims, core))
-    progress = _Progress(trials, quiet)
+    progress = _Progress(trials, quiet, sum(t.state.is_finished() for t in before))
     with progress:
         try:
             result = tuning.run_study(task, trials, timeout, workers, progress.update)
@@ -216,7 +216,7 @@ def _space_table(dims: list[Any], core: Any) -> Any:
 class _Progress:
     """A rich progress bar of the study's finished trials (all workers), best loss so far."""
 
-    def __init__(self, total: int | None, quiet: bool) -> None:
+    def __init__(self, total: int | None, quiet: bool, finished_before: int) -> None:
         from mlsemreg_ros.evaluation.tables import console
         from rich.progress import (
             BarColumn,
@@ -236,7 +236,7 @@ class _Progress:
             disable=quiet,
         )
         self._task = self._progress.add_task('trials', total=total, status='')
-        self._first: int | None = None
+        self._before = finished_before
 
     def __enter__(self) -> _Progress:
         self._progress.__enter__()
@@ -248,15 +248,13 @@ class _Progress:
     def update(self, trials: list[Any]) -> None:
         """Show the trials finished in this run and the best accuracy loss of the study."""
         finished = [t for t in trials if t.state.is_finished()]
-        if self._first is None:
-            self._first = len(finished) - (1 if finished else 0)
         done = [t for t in finished if t.values]
         best = min((t.values[0] for t in done), default=None)
         pruned = sum(t.state.name == 'PRUNED' for t in finished)
         status = f'best loss {best:.3f}' if best is not None else ''
         self._progress.update(
             self._task,
-            completed=max(len(finished) - self._first, 0),
+            completed=max(len(finished) - self._before, 0),
             status=f'{status}  pruned {pruned}',
         )
 
@@ -309,37 +307,40 @@ def _report(study: Any, task: Any, out: Path, node_values: dict[str, Any]) -> in
     return 0
 
 
+#: Columns of the Pareto table after the objectives: (header, user attribute, digits).
+_COLUMNS = {
+    'pairs': (
+        ('RR %', 'rr_pct', 1),
+        ('wrong', 'wrong_poses', 0),
+        ('refused', 'refused_right', 0),
+        ('RE deg', 're_deg', 2),
+        ('TE cm', 'te_cm', 1),
+    ),
+    'bag': (
+        ('t_err %', 't_err_pct', 3),
+        ('wrong', 'wrong_poses', 0),
+        ('RR %', 'rr_pct', 1),
+        ('latency ms', 'latency_ms_p50', 1),
+    ),
+}
+
+
 def _pareto_table(study: Any, chosen: Any) -> Any:
     from mlsemreg_ros.evaluation.tables import cell, ResultTable
 
     names = study.metric_names or ['loss', 'time']
+    columns = _COLUMNS[study.user_attrs.get('search', {}).get('objective', 'pairs')]
     front = sorted(study.best_trials, key=lambda t: tuple(t.values)) if chosen else []
-    rows = []
-    for t in front:
-        a = t.user_attrs
-        rows.append(
-            [
-                f'{t.number}{" *" if t.number == chosen.number else ""}',
-                cell(t.values[0]),
-                cell(t.values[1], 2),
-                cell(a.get('rr_pct'), 1),
-                cell(a.get('wrong_poses')),
-                cell(a.get('refused_right', a.get('t_err_pct'))),
-                cell(a.get('re_deg', a.get('latency_ms_p50')), 2),
-                cell(a.get('te_cm'), 1),
-            ]
-        )
-    pairs = study.user_attrs.get('search', {}).get('objective', 'pairs') == 'pairs'
-    headers = (
-        'trial',
-        names[0],
-        names[1],
-        'RR %',
-        'wrong',
-        'refused' if pairs else 't_err %',
-        'RE deg' if pairs else 'latency ms',
-        'TE cm',
-    )
+    rows = [
+        [
+            f'{t.number}{" *" if t.number == chosen.number else ""}',
+            cell(t.values[0]),
+            cell(t.values[1], 2),
+            *(cell(t.user_attrs.get(attr), digits) for _, attr, digits in columns),
+        ]
+        for t in front
+    ]
+    headers = ('trial', *names, *(header for header, _, _ in columns))
     return ResultTable(headers, rows, title='Pareto front (* written)')
 
 
