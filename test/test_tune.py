@@ -87,6 +87,12 @@ def test_default_space_comes_from_the_metadata() -> None:
     assert bag == set(tuning.PAIRS_SPACE) | {'keypoints.count'}
 
 
+def test_the_default_space_is_documented() -> None:
+    page = (Path(__file__).resolve().parents[1] / 'docs' / 'tuning.md').read_text()
+    for key in tuning.BAG_SPACE:
+        assert f'| `{key}`' in page, key
+
+
 def _patch_meta(monkeypatch: pytest.MonkeyPatch, key: str, **changes: Any) -> None:
     f = RegistrationConfig.field_of(key)
     monkeypatch.setattr(f, 'metadata', MappingProxyType({**f.metadata, **changes}))

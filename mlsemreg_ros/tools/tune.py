@@ -74,7 +74,9 @@ def tune(
     trials: Annotated[
         int | None,
         typer.Option(
-            min=1, help='trials to run now, shared by the workers', rich_help_panel=STUDY
+            min=0,
+            help='trials to run now, shared by the workers (0: only write the result)',
+            rich_help_panel=STUDY,
         ),
     ] = 40,
     timeout: Annotated[
