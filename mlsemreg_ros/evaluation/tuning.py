@@ -50,8 +50,8 @@ from mlsemreg_ros.evaluation.settings import EvaluationConfig
 #: Accuracy loss of one wrong accepted pose (accepted, but outside the success bounds):
 #: more than losing the whole registration recall (100 percentage points).
 WRONG_POSE_PENALTY = 100.0
-#: Accuracy loss of a right pose that the confidence test refuses, as a share of a missed
-#: pair (the node does not publish it, but it does not publish a wrong pose either).
+#: Accuracy loss of refusing every right pose (the confidence test; the node would not
+#: publish them): below one missed pair, so RR comes first.
 REFUSED_COST = 0.5
 #: A numeric range is searched on a log scale when high / low reaches this (two decades).
 LOG_SCALE_RATIO = 100.0
@@ -283,15 +283,16 @@ class Evaluator(Protocol):
 
 def pairs_scores(report: dict[str, Any], bounds: EvaluationConfig) -> TrialScores:
     """
-    Scores of an eval-pairs report: RR first, then refused right poses, then RE/TE.
+    Scores of an eval-pairs report: RR first, then refused right poses and RE/TE.
 
-    ``loss = (100 - RR) + REFUSED_COST x 100 / n x refused + WRONG_POSE_PENALTY x wrong
-    + 0.5 x error`` over ``n`` pairs: a missed pair costs ``100 / n``; a right pose that
-    the confidence test refuses (the node would not publish it) costs half of that; an
-    accepted pose outside the success bounds costs :data:`WRONG_POSE_PENALTY`; ``error``,
-    the mean of ``(RE / max RE + TE / max TE) / 2`` over the successful pairs (<= 1),
-    breaks the remaining ties (with up to 100 pairs it never outweighs a pair). Time: mean
-    ms per pair (both clouds prepared and registered).
+    ``loss = (100 - RR) + WRONG_POSE_PENALTY x wrong + REFUSED_COST x refused / n
+    + 0.5 x error`` over ``n`` pairs: a missed pair costs ``100 / n``; an accepted pose
+    outside the success bounds costs :data:`WRONG_POSE_PENALTY`; ``refused`` counts the
+    successful pairs that the confidence test refused (the node would not publish them)
+    and ``error`` is the mean of ``(RE / max RE + TE / max TE) / 2`` over the successful
+    pairs (<= 1). The last two terms stay below 1, so with up to 100 pairs one more
+    successful pair always wins. Time: mean ms per pair (both clouds prepared and
+    registered).
     """
     rows, summary = report['pairs'], report['summary']
     rr = float(summary['registration_recall_pct'] or 0.0)
@@ -306,8 +307,8 @@ def pairs_scores(report: dict[str, Any], bounds: EvaluationConfig) -> TrialScore
             0.5 * (r['rotation_error_deg'] / max_re + r['translation_error_cm'] / max_te)
             for r in ok
         ) / len(ok)
-    loss = (100.0 - rr) + REFUSED_COST * 100.0 / max(len(rows), 1) * refused
-    loss += WRONG_POSE_PENALTY * wrong + 0.5 * min(error, 1.0)
+    loss = (100.0 - rr) + WRONG_POSE_PENALTY * wrong + REFUSED_COST * refused / max(len(rows), 1)
+    loss += 0.5 * min(error, 1.0)
     time_ms = float(summary['time_ms'].get('total_ms', 0.0))
     attrs = {
         'rr_pct': rr,

@@ -145,7 +145,10 @@ def tune(
     warnings.filterwarnings('ignore', message='.*is experimental')
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     core, evaluation = settings((RegistrationConfig, EvaluationSettings), config, overrides)
-    node_values = NodeConfig.from_file(config).to_flat_dict() if config is not None else {}
+    try:
+        node_values = NodeConfig.from_file(config).to_flat_dict() if config is not None else {}
+    except ConfigError as error:
+        raise CommandError(f'configuration error: {error}', 2) from None
     try:
         dims = tuning.build_space(objective, list(space or []))
     except ConfigError as error:
