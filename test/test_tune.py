@@ -226,9 +226,11 @@ def test_two_workers_split_the_trials_of_one_study(tmp_path: Path, kind: str) ->
     assert all(t.state == optuna.trial.TrialState.COMPLETE for t in trials)
     calls = (tmp_path / 'calls.log').read_text().splitlines()
     assert len(calls) == 8  # every trial evaluated exactly once
-    pids = {t.user_attrs['pid'] for t in trials}
+    (start,) = [t for t in trials if t.user_attrs.get('start')]
+    assert start.number == 0 and start.user_attrs['pid'] == os.getpid()  # run before workers
+    pids = {t.user_attrs['pid'] for t in trials[1:]}
     assert len(pids) == 2 and os.getpid() not in pids  # both worker processes took trials
-    assert {line.split()[0] for line in calls} == {str(p) for p in pids}
+    assert {line.split()[0] for line in calls[1:]} == {str(p) for p in pids}
     assert tuning.split_trials(7, 2) == [4, 3] and tuning.split_trials(None, 2) == [None] * 2
 
 

@@ -582,8 +582,9 @@ def run_study(
 
     Each worker is a spawned process calling :func:`worker` (``study.optimize`` on the
     shared storage); the trials are split among them so none is lost or run twice. With
-    one worker the trials run in this process. ``on_progress`` gets the study's trials
-    after every finished trial (one worker) or every ``poll_s`` (several).
+    one worker the trials run in this process, and so does an enqueued start before the
+    workers begin. ``on_progress`` gets the study's trials after every trial run here
+    and every ``poll_s`` while the workers run.
     """
     import multiprocessing
 
@@ -591,21 +592,31 @@ def run_study(
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     study = open_study(task)
-    if workers <= 1:
 
-        def callback(study_: Any, _: Any) -> None:
-            if on_progress is not None:
-                on_progress(study_.get_trials(deepcopy=False))
+    def callback(study_: Any, _: Any) -> None:
+        if on_progress is not None:
+            on_progress(study_.get_trials(deepcopy=False))
 
+    def optimize_here(n_trials: int | None) -> None:
         study.optimize(
             lambda trial: run_trial(trial, task),
-            n_trials=trials,
+            n_trials=n_trials,
             timeout=timeout,
             catch=(Exception,),
             callbacks=[callback],
             gc_after_trial=True,
         )
+
+    if workers <= 1:
+        optimize_here(trials)
         return study
+    # The enqueued start runs here first: two SQLite workers could both pop a waiting
+    # trial (SQLite has no row locks), and one would then tell a finished trial.
+    waiting = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.WAITING,))
+    if waiting and (trials is None or trials > 0):
+        first = len(waiting) if trials is None else min(len(waiting), trials)
+        optimize_here(first)
+        trials = None if trials is None else trials - first
     context = multiprocessing.get_context('spawn')
     processes = [
         context.Process(target=worker, args=(task, n, timeout, i), name=f'tune-worker-{i}')
@@ -625,6 +636,9 @@ def run_study(
     failed = [p.name for p in processes if p.exitcode != 0]
     if failed:
         raise RuntimeError(f'tuning workers exited with an error: {", ".join(failed)}')
+    study = optuna.load_study(  # a fresh view of every worker's trials
+        study_name=task.study_name, storage=open_storage(task.storage), sampler=study.sampler
+    )
     if on_progress is not None:
         on_progress(study.get_trials(deepcopy=False))
     return study
