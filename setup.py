@@ -74,6 +74,7 @@ setup(
             'mlsemreg-soak = mlsemreg_ros.tools.soak:main',
             'mlsemreg-cut-pairs = mlsemreg_ros.tools.cut_pairs:main',
             'mlsemreg-params = mlsemreg_ros.tools.params:main',
+            'mlsemreg-tune = mlsemreg_ros.tools.tune:main',
         ],
     },
 )

@@ -39,6 +39,7 @@ from mlsemreg_ros.tools import (
     play,
     simulate,
     soak,
+    tune,
 )
 from mlsemreg_ros.tools.common import run
 import typer
@@ -60,6 +61,7 @@ OPTIONAL = {
     'rclpy': 'the node, play, demo and bench-node (ROS 2 Jazzy)',
     'kiss_icp': 'eval-bag --baseline kiss-icp',
     'kiss_matcher': 'eval-pairs --baseline kiss-matcher',
+    'optuna': 'tune',
 }
 
 app = typer.Typer(
@@ -141,6 +143,7 @@ for module, function, name, panel in (
     (confidence, confidence.confidence, 'confidence', EVALUATION),
     (demo, demo.demo, 'demo', EVALUATION),
     (soak, soak.soak, 'soak', EVALUATION),
+    (tune, tune.tune, 'tune', EVALUATION),
     (simulate, simulate.simulate, 'simulate', DATA),
     (kitti_to_bag, kitti_to_bag.kitti_to_bag, 'kitti-to-bag', DATA),
     (cut_pairs, cut_pairs.cut_pairs, 'cut-pairs', DATA),
