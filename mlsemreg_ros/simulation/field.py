@@ -181,9 +181,10 @@ class FieldSimulation:
         return stops, dwell
 
     def _loop_frames(self) -> int:
-        """Frames until the loop route is back at its start (a few sweeps past it)."""
+        """Frames until the loop route is back at the first sweep's place (and 5 more)."""
         assert self.loop_length is not None
-        t_back = float(self.drive.time_at_arc_length(np.array([self.loop_length]))[0])
+        first = float(self.drive.arc_length(np.array([self.config.lead_in]))[0])
+        t_back = float(self.drive.time_at_arc_length(np.array([first + self.loop_length]))[0])
         return int(np.ceil((t_back - self.config.lead_in) / self.model.period)) + 5
 
     def __len__(self) -> int:

@@ -25,7 +25,8 @@ every column of a sweep and at the IMU rate, so the drive is a function of time:
 - the arc length ``s(t)`` interpolates the (time, arc length) knots of that
   profile monotonically (PCHIP), so speed is continuous and never negative;
 - the pose at ``s`` is the clean one (lane wobble, pitch, roll, bounce with the
-  same seeded phases).
+  same seeded phases), except that the lane wobble fades out near turns so that
+  speed and acceleration stay continuous where the curvature steps.
 
 IMU and wheel odometry are derived from this function (:mod:`.inertial`), so they
 agree with the ground truth by construction.
@@ -124,6 +125,10 @@ def speed_profile(
     return knots_t[order], knots_s[order]
 
 
+#: Distance over which the lane wobble fades out before and after a turn, metres.
+WOBBLE_FADE_M = 10.0
+
+
 class ContinuousDrive:
     """
     The sensor pose ``T_world_sensor`` at any time of a drive along a planned path.
@@ -165,6 +170,28 @@ class ContinuousDrive:
         first = np.unique(arc, return_index=True)[1]
         return np.interp(np.asarray(s, dtype=np.float64), arc[first], times[first])
 
+    def _wobble_window(self, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Weight (n,) of the lane wobble and its slope d/ds: 0 in turns, 1 from 10 m away.
+
+        An offset from a path whose curvature steps would make the speed jump
+        (by the factor ``1 - curvature * offset``); fading the wobble out before a
+        turn keeps speed and acceleration continuous (the clean simulator keeps it).
+        """
+        ends = np.cumsum(self.path.lengths)
+        turns = self.path.curvatures != 0.0
+        if not turns.any():
+            return np.ones_like(s), np.zeros_like(s)
+        a0, a1 = (ends - self.path.lengths)[turns], ends[turns]
+        outside = np.maximum(a0[None] - s[:, None], s[:, None] - a1[None])  # (n, A)
+        nearest = np.argmin(outside, axis=1)
+        distance = np.maximum(outside[np.arange(s.size), nearest], 0.0)
+        side = np.where(s < a0[nearest], -1.0, 1.0)  # d distance / d s
+        u = np.clip(distance / WOBBLE_FADE_M, 0.0, 1.0)
+        weight = u * u * (3.0 - 2.0 * u)  # smoothstep
+        slope = np.where(u < 1.0, 6.0 * u * (1.0 - u) / WOBBLE_FADE_M, 0.0) * side
+        return weight, np.where(distance > 0.0, slope, 0.0)
+
     def poses(self, t: np.ndarray) -> np.ndarray:
         """World poses (n, 4, 4) ``T_world_sensor`` at times ``t`` (n,) seconds."""
         cfg = self.config
@@ -172,10 +199,15 @@ class ContinuousDrive:
         xy, yaw = self.path.sample(s)
         phase = self.phases
         wavelength = 2.0 * np.pi / 70.0
-        wobble = cfg.wobble * np.sin(wavelength * s + phase[0])
+        window, window_slope = self._wobble_window(s)
+        wave = np.sin(wavelength * s + phase[0])
+        wobble = cfg.wobble * window * wave
         normal = np.stack([-np.sin(yaw), np.cos(yaw)], axis=1)
         xy = xy + wobble[:, None] * normal
-        yaw = yaw + np.arctan(cfg.wobble * wavelength * np.cos(wavelength * s + phase[0]))
+        slope = cfg.wobble * (
+            window * wavelength * np.cos(wavelength * s + phase[0]) + window_slope * wave
+        )
+        yaw = yaw + np.arctan(slope)
         pitch = np.radians(cfg.pitch_deg) * np.sin(2.0 * np.pi * s / 23.0 + phase[1])
         roll = np.radians(cfg.roll_deg) * np.sin(2.0 * np.pi * s / 17.0 + phase[2])
         z = self.mount_height + cfg.bounce * np.sin(2.0 * np.pi * s / 5.3 + phase[3])
