@@ -119,24 +119,25 @@ class FieldLidar:
         tensor = o3d.core.Tensor(rays)
         hits = self._scene.cast_rays(tensor)
         t_hit = hits['t_hit'].numpy()
-        triangle = hits['primitive_ids'].numpy().astype(np.int64)
-        normals = hits['primitive_normals'].numpy()
-        source_dynamic = np.zeros(t_hit.shape[0], dtype=bool)
+        dyn = None
         if dynamic is not None and not dynamic.empty:
             dyn = _scene(dynamic.vertices, dynamic.triangles).cast_rays(tensor)
-            t_dyn = dyn['t_hit'].numpy()
-            source_dynamic = t_dyn < t_hit
-            t_hit = np.where(source_dynamic, t_dyn, t_hit)
-            triangle = np.where(source_dynamic, dyn['primitive_ids'].numpy(), triangle)
-            normals = np.where(source_dynamic[:, None], dyn['primitive_normals'].numpy(), normals)
+            t_hit = np.minimum(t_hit, dyn['t_hit'].numpy())
         keep = np.isfinite(t_hit) & (t_hit >= model.min_range) & (t_hit <= model.max_range)
         keep &= rng.random(t_hit.shape[0]) >= model.dropout
         index = np.flatnonzero(keep)
-        tri, from_dyn = triangle[index], source_dynamic[index]
-        labels = self.static.labels[np.where(from_dyn, 0, tri)]
-        instances = self.static.instances[np.where(from_dyn, 0, tri)]
+        tri = hits['primitive_ids'].numpy()[index].astype(np.int64)
+        normals = hits['primitive_normals'].numpy()[index]
+        from_dyn = np.zeros(index.size, dtype=bool)
+        if dyn is not None:
+            from_dyn = dyn['t_hit'].numpy()[index] <= t_hit[index]
+            tri[from_dyn] = dyn['primitive_ids'].numpy()[index[from_dyn]]
+            normals[from_dyn] = dyn['primitive_normals'].numpy()[index[from_dyn]]
+        static_tri = np.where(from_dyn, 0, tri)
+        labels = self.static.labels[static_tri]
+        instances = self.static.instances[static_tri]
         moving = np.zeros(index.size, dtype=bool)
-        if dynamic is not None and not dynamic.empty and from_dyn.any():
+        if dyn is not None and from_dyn.any():
             dyn_tri = tri[from_dyn]
             labels[from_dyn] = dynamic.labels[dyn_tri]
             instances[from_dyn] = dynamic.instances[dyn_tri]
@@ -146,7 +147,7 @@ class FieldLidar:
         local_flat = local.reshape(-1, 3)[index]
         points = (local_flat * distance[:, None]).astype(np.float32)
         world_points = rays[index, :3].astype(np.float64) + rays[index, 3:] * true_range[:, None]
-        cos_incidence = np.abs(np.sum(normals[index] * rays[index, 3:], axis=1))
+        cos_incidence = np.abs(np.sum(normals * rays[index, 3:], axis=1))
         intensity = REFLECTIVITY[labels] * (0.35 + 0.65 * cos_incidence)
         intensity *= np.exp(-distance / 250.0)
         intensity += rng.normal(0.0, model.intensity_noise, index.size)
