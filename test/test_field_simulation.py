@@ -100,7 +100,7 @@ class _ConstantVelocity:
 
 
 def _wall(x: float) -> LabeledMesh:
-    """A wall across the road at ``x`` (plane x = const, y in +-60 m, z in 0..12 m)."""
+    """Build a wall across the road at ``x`` (y in +-60 m, z in 0..12 m)."""
     vertices = np.array([[x, -60, 0], [x, 60, 0], [x, 60, 12], [x, -60, 12]], np.float32)
     triangles = np.array([[0, 1, 2], [0, 2, 3]], np.uint32)
     return LabeledMesh(vertices, triangles, np.full(2, 13, np.int32), np.zeros(2, np.uint32),
@@ -248,7 +248,6 @@ def test_aggressive_profile_brakes_stops_and_turns_hard() -> None:
     assert accel < 4.0 and slowest > 3.0
 
 
-@pytest.mark.slow
 def test_loop_route_returns_to_its_start_and_revisits_streets_both_ways() -> None:
     sim = FieldSimulation(
         FieldConfig(seed=0, frames=0, route='loop', moving_objects=False, network_labels=False)

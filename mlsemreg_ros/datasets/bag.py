@@ -244,7 +244,7 @@ class BagWriter:
 
 
 def _append_fields(msg: Any, columns: dict[str, np.ndarray], field_cls: type) -> Any:
-    """A copy of the unorganized cloud ``msg`` with (N,) ``columns`` appended as fields."""
+    """Copy the unorganized cloud ``msg`` with (N,) ``columns`` appended as fields."""
     from mlsemreg_ros.codec.pointcloud2 import DATATYPE_BY_NAME
 
     n = int(msg.width) * int(msg.height)

@@ -182,13 +182,13 @@ class Actors:
         return cls(actors, shapes, departing, moving_ids)
 
     def summary(self) -> dict:
-        """Counts for simulation.yaml."""
+        """Count the actors and leaving cars (for simulation.yaml)."""
         counts = {k: sum(a.kind == k for a in self.actors) for k in self.shapes}
         return {'moving': counts, 'parked_cars_leaving': len(self.departing)}
 
     # -- meshes ---------------------------------------------------------------------------
     def static_mesh(self, world: LabeledMesh) -> LabeledMesh:
-        """The world without the departing parked cars (kept aside for :meth:`dynamic_mesh`)."""
+        """Return the world without the leaving parked cars (kept for :meth:`dynamic_mesh`)."""
         ids = np.fromiter(self.departing, dtype=np.uint32)
         leaving = np.isin(world.instances, ids)
         self._parked = _subset(world, leaving)

@@ -77,6 +77,7 @@ class FieldConfig:
     speed: float | None = None  # cruise speed m/s on straights (None: the profile's)
     moving_objects: bool = True
     network_labels: bool = True
+    network: str = 'rangenet++'  # whose per-class IoU the label model follows
     lead_in: float = 1.0  # seconds driven before the first sweep
     imu_lead: float = 0.5  # IMU and wheel samples start this long before the first sweep
     start_time_ns: int = START_TIME_NS
@@ -93,6 +94,10 @@ class FieldConfig:
             raise ValueError(f'unknown route {self.route!r}; use one of {list(ROUTES)}')
         if self.frames < 0 or (self.frames == 0 and self.route != 'loop'):
             raise ValueError(f'frames must be >= 1 (0 only with route loop), got {self.frames}')
+        from mlsemreg_ros.simulation.network_labels import IOU_PERCENT
+
+        if self.network not in IOU_PERCENT:
+            raise ValueError(f'unknown network {self.network!r}; use one of {sorted(IOU_PERCENT)}')
         if self.speed is not None and not 0.5 <= self.speed <= 40.0:
             raise ValueError(f'speed must lie in [0.5, 40] m/s, got {self.speed}')
 
@@ -160,7 +165,7 @@ class FieldSimulation:
         if cfg.network_labels:
             from mlsemreg_ros.simulation.network_labels import NetworkLabelModel
 
-            self.label_model = NetworkLabelModel(self.label_map, cfg.seed)
+            self.label_model = NetworkLabelModel(self.label_map, cfg.seed, cfg.network)
         t0, t1 = self.sweep_starts[0] - cfg.imu_lead, self.sweep_starts[-1] + period
         self.imu: ImuSamples = simulate_imu(
             self.drive, t0, t1, cfg.imu, np.random.default_rng([cfg.seed, 30])

@@ -58,7 +58,7 @@ class FieldReport:
 
 
 def _cloud_fields(sim: FieldSimulation, frame) -> dict[str, np.ndarray]:
-    """The extra point fields of one sweep (after x, y, z, intensity, label)."""
+    """Return the extra point fields of one sweep (after x, y, z, intensity, label)."""
     scan = frame.scan
     _, truth = sim.raw_labels(frame)
     fields = {'time': scan.times.astype(np.float32), 'label_gt': truth}

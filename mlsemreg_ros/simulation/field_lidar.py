@@ -93,7 +93,7 @@ class FieldLidar:
         self._cos_el, self._sin_el = np.cos(el), np.sin(el)
 
     def local_directions(self, azimuths: np.ndarray) -> np.ndarray:
-        """Unit directions (C, B, 3) in the sensor frame of each column's instant."""
+        """Return unit directions (C, B, 3) in the sensor frame of each column's instant."""
         ca, sa = np.cos(azimuths)[:, None], np.sin(azimuths)[:, None]
         ce, se = self._cos_el[None, :], self._sin_el[None, :]
         return np.stack([ce * ca, ce * sa, np.broadcast_to(se, (azimuths.size, se.size))], axis=-1)
@@ -105,7 +105,7 @@ class FieldLidar:
         rng: np.random.Generator,
         dynamic: LabeledMesh | None = None,
     ) -> FieldScan:
-        """The sweep starting at drive time ``t0``; noise from ``rng``."""
+        """Cast the sweep starting at drive time ``t0``; noise from ``rng``."""
         model = self.model
         offset = rng.uniform(0.0, 1.0)
         column_time = model.column_times(offset)

@@ -56,7 +56,7 @@ class MotionProfile:
     stop_dwell: tuple[float, float] = (0.0, 0.0)  # standing time at a stop
 
     def trajectory_config(self, base: TrajectoryConfig | None = None) -> TrajectoryConfig:
-        """The route and motion parameters of the clean simulator with this profile's values."""
+        """Return the clean route and motion parameters with this profile's values."""
         return replace(
             base if base is not None else TrajectoryConfig(),
             max_lateral_accel=self.max_lateral_accel,
@@ -78,7 +78,7 @@ PROFILES: dict[str, MotionProfile] = {p.name: p for p in (NORMAL, AGGRESSIVE)}
 
 
 def motion_profile(name: str) -> MotionProfile:
-    """The profile called ``name``; ValueError naming the known ones otherwise."""
+    """Return the profile called ``name``; ValueError naming the known ones otherwise."""
     try:
         return PROFILES[name]
     except KeyError:
@@ -193,7 +193,7 @@ class ContinuousDrive:
         return weight, np.where(distance > 0.0, slope, 0.0)
 
     def poses(self, t: np.ndarray) -> np.ndarray:
-        """World poses (n, 4, 4) ``T_world_sensor`` at times ``t`` (n,) seconds."""
+        """Return the world poses ``T_world_sensor`` (n, 4, 4) at times ``t`` (n,), seconds."""
         cfg = self.config
         s = self.arc_length(np.atleast_1d(t))
         xy, yaw = self.path.sample(s)

@@ -159,7 +159,7 @@ class NetworkLabelModel:
             self.cell[label_map.id_of(name)] = size
 
     def _target(self, labels: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """The wrong class drawn by ``u`` (n,) in [0, 1) from each label's confusions."""
+        """Draw the wrong class by ``u`` (n,) in [0, 1) from each label's confusions."""
         cumulative = self._cumulative[labels]
         return np.minimum((cumulative < u[:, None]).sum(axis=1), cumulative.shape[1] - 1)
 

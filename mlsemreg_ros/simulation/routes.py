@@ -113,7 +113,7 @@ def plan_turns(
 def plan_loop(
     grid: StreetGrid, rng: np.random.Generator, config: TrajectoryConfig, tail: float = 60.0
 ) -> tuple[Path2D, float]:
-    """The :data:`LOOP_TURNS` route from the intersection near the origin that is shortest."""
+    """Plan the shortest :data:`LOOP_TURNS` route from an intersection near the origin."""
     best = None
     fraction = float(rng.uniform(0.35, 0.65))
     for di in range(-2, 3):

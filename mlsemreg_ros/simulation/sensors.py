@@ -55,7 +55,7 @@ class SensorModel:
 
     @property
     def beams(self) -> int:
-        """Return the number of beams (rings)."""
+        """Return the number of beams, i.e. rings."""
         return len(self.elevations_deg)
 
     def column_azimuths(self, offset: float) -> np.ndarray:
@@ -100,7 +100,7 @@ SENSORS: dict[str, SensorModel] = {m.name: m for m in (HDL64, VLP16, OS128)}
 
 
 def sensor_model(name: str) -> SensorModel:
-    """The model called ``name``; ValueError naming the known ones otherwise."""
+    """Return the model called ``name``; ValueError naming the known ones otherwise."""
     try:
         return SENSORS[name]
     except KeyError:

@@ -149,6 +149,14 @@ def simulate(
             rich_help_panel=FIELD,
         ),
     ] = True,
+    network: Annotated[
+        str,
+        typer.Option(
+            help='whose per-class IoU the label model follows: rangenet++ or salsanext '
+            '(field mode)',
+            rich_help_panel=FIELD,
+        ),
+    ] = 'rangenet++',
     points_topic: PointsTopicOption = POINTS_TOPIC,
     gt_topic: GtTopicOption = GT_TOPIC,
     frame_id: FrameIdOption = SENSOR_FRAME,
@@ -222,6 +230,7 @@ def _simulate_field(
     speed: float | None,
     moving_objects: bool,
     network_labels: bool,
+    network: str,
     layout: BagLayout,
     force: bool,
     quiet: bool,
@@ -240,6 +249,7 @@ def _simulate_field(
         speed=speed,
         moving_objects=moving_objects,
         network_labels=network_labels,
+        network=network,
     )
     try:
         config.validate()
