@@ -215,11 +215,21 @@ def test_wheel_speed_has_the_configured_scale_error(field_sim: FieldSimulation) 
 def test_sensor_models_have_their_beams_and_range(name: str) -> None:
     model = SENSORS[name]
     assert model.beams == {'hdl64': 64, 'vlp16': 16, 'os128': 128}[name]
-    world = _wall(30.0)
+    # A box room around the sensor (30 m walls, 40 m high, with a floor): every beam hits.
+    vertices = np.array(
+        [[x, y, z] for z in (0.0, 40.0) for x, y in ((-30, -30), (30, -30), (30, 30), (-30, 30))],
+        np.float32,
+    )
+    faces = [[0, 1, 5], [0, 5, 4], [1, 2, 6], [1, 6, 5], [2, 3, 7], [2, 7, 6], [3, 0, 4],
+             [3, 4, 7], [0, 2, 1], [0, 3, 2]]  # fmt: skip
+    n = len(faces)
+    world = LabeledMesh(vertices, np.array(faces, np.uint32), np.full(n, 13, np.int32),
+                        np.zeros(n, np.uint32), np.zeros(n, bool))  # fmt: skip
     lidar = FieldLidar(world, model)
     scan = lidar.sweep(_ConstantVelocity(0.0), 0.0, np.random.default_rng(1))
-    rings = np.unique(scan.ring)
-    assert rings.max() < model.beams
+    np.testing.assert_array_equal(np.unique(scan.ring), np.arange(model.beams))
+    assert len(scan) == pytest.approx(model.beams * model.columns * (1 - model.dropout), rel=0.02)
+    assert np.linalg.norm(scan.points, axis=1).max() <= model.max_range
     elevation = np.degrees(np.arctan2(scan.points[:, 2], np.hypot(*scan.points[:, :2].T)))
     assert elevation.max() <= max(model.elevations_deg) + 0.5
     assert elevation.min() >= min(model.elevations_deg) - 0.5
