@@ -43,6 +43,9 @@ give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in
   ``confidence.min_distinctive_fraction`` of those that land in the target's view (the
   others contradict the pose) and at least ``confidence.distinctive_gain`` times the
   share of distinctive points that any close rival lines up;
+- **not contradicted**: a pose that puts at least ``confidence.contradicting_objects``
+  distinctive source objects in the target's view and lines up none of them is refused
+  (a flip of a symmetric street, a slide: their poles land beside the target's);
 - **well constrained** (after the fine alignment, :func:`localizability`): the
   alignment's Gauss-Newton Hessian constrains every translation direction (Zhang et al.
   2016, "On degeneracy of optimization-based state estimation problems"); a weak
@@ -147,6 +150,13 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
     if not evidence.tilt_deg <= config.max_tilt:  # NaN fails too
         reasons.append(
             f'tilt {evidence.tilt_deg:.1f} deg > confidence.max_tilt={config.max_tilt:g} deg'
+        )
+    contradicted = config.contradicting_objects > 0 and evidence.distinctive_objects == 0
+    if contradicted and evidence.distinctive_in_view >= config.contradicting_objects:
+        reasons.append(
+            f'contradicted: {evidence.distinctive_in_view} distinctive objects land in the '
+            'target view, none on distinctive target points (confidence.contradicting_objects='
+            f'{config.contradicting_objects})'
         )
     ambiguous = evidence.ambiguity(config)
     if ambiguous:

@@ -538,6 +538,23 @@ class BevSearchConfig:
     nms_translation: float = param(
         2.0, 'Translation bound of the peak suppression.', unit='m', low=0.0, high=100.0
     )
+    guided_peaks: int = param(
+        3,
+        'When the best pose is still refused after the search: the keypoints are matched '
+        'again around this many best searched poses (only within bev_search.guided_radius '
+        'of where the pose puts them, compatible labels), and the estimator runs again on '
+        'each set (core/guided.py; 0: off).',
+        low=0,
+        high=64,
+    )
+    guided_radius: float = param(
+        2.0,
+        'Guided re-matching: a source keypoint is matched only among the target keypoints '
+        'within this distance of where the searched pose puts it.',
+        unit='m',
+        low=0.1,
+        high=20.0,
+    )
 
     def __post_init__(self) -> None:
         """Reject an empty channel list or an empty class name."""
@@ -643,6 +660,14 @@ class ConfidenceConfig:
         'the truth).',
         low=0.0,
         high=1.0,
+    )
+    contradicting_objects: int = param(
+        3,
+        'A pose that puts at least this many distinctive source objects in the target view '
+        '(within 1 m of a target point) and lines up none of them is refused (dev pairs: '
+        'every right pose at 20 m lines up one at least; 0: off).',
+        low=0,
+        high=1000,
     )
     distinctive_gain: float = param(
         2.0,

@@ -46,6 +46,7 @@ from mlsemreg_ros.core import (
 from mlsemreg_ros.core.alignment import align_pair, Alignment, AlignmentCloud
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import estimate
+from mlsemreg_ros.core.guided import guided_correspondences
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.core.results import (
     Correspondences,
@@ -307,9 +308,12 @@ class Registration:
                 transform, src_pts, dst_pts, pool, chosen, source, target
             )
         refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
-        # 2d. refused or weak: search the scans themselves (core/bev_search.py)
+        # 2d. refused or weak: search the scans themselves (core/bev_search.py); 2e. still
+        # refused: match again around the best peaks (core/guided.py). Every new candidate
+        # joins the pool, the choice and the rivals.
         weak = evidence.num_inliers < cfg.bev_search.weak_inliers
         if (refused or weak) and verified is not None and cfg.bev_search.enabled:
+            first = f'refused: {refused}' if refused else f'{evidence.num_inliers} inliers'
             with _timed(timings, 'bev_search_ms'):
                 searched = bev_search.search_scans(
                     source,
@@ -320,26 +324,30 @@ class Registration:
                     self._label_compatibility,
                     self._bev_channels,
                 )
+            diagnostics['bev_search_used'] = False
+            stages = []
             if searched is not None:
                 diagnostics.update(searched.diagnostics)
+                stages.append(searched)
+            for found in stages:
                 with _timed(timings, 'confidence_ms'):
-                    pool = pool.extended(searched, measure)
-                    previous, chosen = chosen, pool.decide(chosen, cfg)
-                    diagnostics['bev_search_used'] = pool.origin(chosen) == 'bev_search'
-                    if chosen != previous:
-                        why = (
-                            f'refused: {refused}' if refused else f'{evidence.num_inliers} inliers'
-                        )
-                        transform = pool.hypotheses[chosen].T_target_source
-                        inliers, evidence = self._evidence(
-                            transform, src_pts, dst_pts, pool, chosen, source, target
-                        )
-                        refused = confidence.refusal(
-                            evidence, cfg.confidence, cfg.estimator.min_inliers
-                        )
-                        message = f"{pool.origin(chosen)} pose (the estimator's was {why})"
-            else:
-                diagnostics['bev_search_used'] = False
+                    pool = pool.extended(found, measure)
+                    chosen = pool.decide(chosen, cfg)
+                    transform = pool.hypotheses[chosen].T_target_source
+                    inliers, evidence = self._evidence(
+                        transform, src_pts, dst_pts, pool, chosen, source, target
+                    )
+                refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
+                if refused and found is searched and cfg.bev_search.guided_peaks > 0:
+                    with _timed(timings, 'guided_ms'):
+                        guided = self._guided(source, target, searched, diagnostics)
+                    if guided is not None:
+                        stages.append(guided)
+            origin = pool.origin(chosen)
+            diagnostics['bev_search_used'] = origin == 'bev_search'
+            diagnostics['chosen_origin'] = origin
+            if origin != 'estimator':
+                message = f"{origin} pose (the estimator's was {first})"
         diagnostics.update(evidence.as_diagnostics())
         success = not refused
         if refused:
@@ -516,6 +524,58 @@ class Registration:
             np.asarray(transform, dtype=np.float64), src, dst, pool, None, source, target
         )
         return evidence, confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
+
+    def _guided(
+        self,
+        source: PreparedScan,
+        target: PreparedScan,
+        searched: VerificationResult,
+        diagnostics: dict[str, Any],
+    ) -> VerificationResult | None:
+        """
+        Guided re-matching around the ``bev_search.guided_peaks`` best searched poses.
+
+        For each, correspondences only within ``bev_search.guided_radius`` of where the pose
+        puts a source keypoint (compatible labels), then the estimator and the verification
+        again (core/guided.py). Returns their verified hypotheses (origin ``'guided'``),
+        None when no peak gave three correspondences. Adds ``guided_*`` diagnostics.
+        """
+        cfg = self.config
+        scores = np.array([h.score for h in searched.hypotheses])
+        peaks = np.argsort(-scores, kind='stable')[: cfg.bev_search.guided_peaks]
+        found: list[HypothesisScore] = []
+        counts = []
+        for peak in peaks:
+            corr = guided_correspondences(
+                source,
+                target,
+                searched.hypotheses[peak].T_target_source,
+                cfg.bev_search.guided_radius,
+                self._label_compatibility,
+            )
+            counts.append(len(corr))
+            if len(corr) < 3:
+                continue
+            p, q = source.keypoints[corr.source], target.keypoints[corr.target]
+            estimated = estimate(p, q, cfg.estimator)
+            verified = verify_hypotheses(
+                estimated,
+                p,
+                q,
+                source,
+                target,
+                cfg.verification,
+                cfg.estimator,
+                self._label_compatibility,
+            )
+            found += [dataclasses.replace(h, origin='guided') for h in verified.hypotheses]
+        diagnostics['guided_peaks'] = len(peaks)
+        diagnostics['guided_correspondences'] = int(np.sum(counts)) if counts else 0
+        if not found:
+            return None
+        best = max(found, key=lambda h: h.score)
+        diagnostics['guided_best_score'] = best.score
+        return VerificationResult(found, 0)
 
     def _distinctive_of(
         self, transforms: np.ndarray, source: PreparedScan, target: PreparedScan
