@@ -143,3 +143,22 @@ def test_dev_pairs_compose_to_40_and_60_m_with_overlap_at_the_truth():
             moved = pair.pts_src @ pair.trans_gt[:3, :3].T + pair.trans_gt[:3, 3]
             distance, _ = cKDTree(pair.pts_dst).query(moved, distance_upper_bound=0.6)
             assert np.isfinite(distance).mean() > 0.02, pair.name  # truth: real overlap
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize('reverse', [False, True])
+def test_dev_pairs_40_m_apart_register_and_accept_no_wrong_pose(reverse):
+    """GEDI, defaults, the 9 composed pairs ~40 m apart: thresholds of docs/hard_pairs.md."""
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.evaluation.pairs import run_pair
+    from mlsemreg_ros.evaluation.settings import EvaluationConfig
+
+    pairs = chain_pairs([load_pair(p) for p in dev_pair_files()], 2, reverse=reverse)
+    registration, bounds = Registration(), EvaluationConfig()
+    right = wrong_accepted = 0
+    for pair in pairs:
+        result, metrics, _ = run_pair(registration, pair, 'gedi', bounds)
+        right += bool(metrics.success)
+        wrong_accepted += bool(result.success and not metrics.success)
+    assert wrong_accepted == 0
+    assert right >= 5, f'{right} of {len(pairs)} right'  # measured 6 of 9 (forward)

@@ -41,8 +41,8 @@ give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in
   objects of ``confidence.distinctive_classes`` (poles, signs, trunks: things that pin a
   place down) of the source on such target points, at least
   ``confidence.min_distinctive_fraction`` of those that land in the target's view (the
-  others contradict the pose) and at least ``confidence.distinctive_gain`` times the
-  share of distinctive points that any close rival lines up;
+  others contradict the pose) and either more objects than any close rival or at least
+  ``confidence.distinctive_gain`` times the share of distinctive points it lines up;
 - **not contradicted**: a pose that puts at least ``confidence.contradicting_objects``
   distinctive source objects in the target's view and lines up none of them is refused
   (a flip of a symmetric street, a slide: their poles land beside the target's);
@@ -82,6 +82,7 @@ class Evidence:
     rival_score: float = 0.0  # best score of a rival pose (0: no rival scored)
     rival_distinctive_overlap: float = 0.0  # largest distinctive share of a close rival
     rival: str = ''  # what the best rival is (e.g. 'zero motion', 'slide 5 m', 'bev_search')
+    rival_distinctive_objects: int = 0  # most distinctive objects a close rival lines up
 
     @property
     def inlier_ratio(self) -> float:
@@ -105,8 +106,11 @@ class Evidence:
             self.distinctive_objects >= config.min_distinctive_objects
             and self.distinctive_objects
             >= config.min_distinctive_fraction * self.distinctive_in_view
-            and self.distinctive_overlap
-            >= config.distinctive_gain * self.rival_distinctive_overlap
+            and (
+                self.distinctive_overlap
+                >= config.distinctive_gain * self.rival_distinctive_overlap
+                or self.distinctive_objects > self.rival_distinctive_objects
+            )
         )
         if decided:
             return ''

@@ -459,14 +459,16 @@ class Registration:
         rival_T = np.concatenate([pool.transforms(), np.concatenate(extra)])
         rival_scores = np.concatenate([pool.scores(), scores])
         rival_shares = np.concatenate([pool.shares, shares])
+        rival_points = np.concatenate([pool.points, points])
         names = [pool.origin(i) for i in range(len(pool.hypotheses))] + extra_names
         distinct = ~same_pose(transform, rival_T, conf.rival_rotation, conf.rival_translation)
-        rival_score, rival_share, rival = 0.0, 0.0, ''
+        rival_score, rival_share, rival, rival_objects = 0.0, 0.0, '', 0
         if distinct.any():
             best = int(np.argmax(np.where(distinct, rival_scores, -np.inf)))
             rival_score, rival = float(rival_scores[best]), names[best]
             close = distinct & (rival_scores >= (1.0 - conf.ambiguity_margin) * own[2])
             rival_share = float(rival_shares[close].max()) if close.any() else 0.0
+            rival_objects = int(rival_points[close].max()) if close.any() else 0
         return inliers, confidence.Evidence(
             int(inliers.sum()),
             len(src_pts),
@@ -480,6 +482,7 @@ class Registration:
             rival_score,
             rival_share,
             rival,
+            rival_objects,
         )
 
     def judge(
@@ -784,11 +787,13 @@ class _Pool:
         The candidate to keep: the best score, then the distinctive structure decides.
 
         ``incumbent`` is kept unless another scores more than ``verification.min_gain``
-        higher. Then any candidate scoring at least ``1 - confidence.decide_margin`` of
-        the winner, lining up ``confidence.min_distinctive_objects`` and
-        ``confidence.distinctive_gain`` times the winner's distinctive share, replaces
-        it (the one with the largest share): at 40 m the zero-motion slide overlaps more
-        than the truth, but lines up none of its poles (docs/hard_pairs.md).
+        higher. Then, among the candidates scoring at least ``1 - confidence.decide_margin``
+        of the winner, those that are *decided* (at least ``confidence.min_distinctive_objects``
+        distinctive objects lined up, and ``confidence.min_distinctive_fraction`` of those in
+        the target view) replace an undecided winner, and one that lines up more objects
+        replaces a decided winner (most objects first, then the best score): at 40 m the
+        zero-motion slide overlaps more than the truth, but lines up none of its poles
+        (docs/hard_pairs.md).
         """
         conf, scores = config.confidence, self.scores()
         best = int(np.argmax(scores))
@@ -797,13 +802,17 @@ class _Pool:
             if scores[best] > scores[incumbent] * (1.0 + config.verification.min_gain)
             else incumbent
         )
-        eligible = (
-            (scores >= (1.0 - conf.decide_margin) * scores[winner])
-            & (self.points >= conf.min_distinctive_objects)
-            & (self.points >= conf.min_distinctive_fraction * self.views)
-            & (self.shares >= conf.distinctive_gain * self.shares[winner])
-            & (self.shares > self.shares[winner])
+        decided = (self.points >= conf.min_distinctive_objects) & (
+            self.points >= conf.min_distinctive_fraction * self.views
         )
-        if eligible.any():
-            winner = int(np.argmax(np.where(eligible, self.shares, -np.inf)))
+        eligible = decided & (scores >= (1.0 - conf.decide_margin) * scores[winner])
+        if eligible.any() and not decided[winner]:
+            # the most distinctive objects lined up, then the best score
+            key = np.where(eligible, self.points + scores / (scores.max() + 1.0), -np.inf)
+            winner = int(np.argmax(key))
+        elif eligible.any():
+            better = eligible & (self.points > self.points[winner])
+            if better.any():
+                key = np.where(better, self.points + scores / (scores.max() + 1.0), -np.inf)
+                winner = int(np.argmax(key))
         return winner
