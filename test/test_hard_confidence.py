@@ -35,7 +35,7 @@ def _grid(x: np.ndarray, other: np.ndarray) -> np.ndarray:
 
 
 def _street(poles: bool, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """A straight street along x: road, sidewalks, facades with recesses every 8 m, poles."""
+    """Build a straight street along x: road, sidewalks, facades recessed every 8 m, poles."""
     x = np.arange(-60.0, 100.0 + 1e-9, GRID)
     parts, names = [], []
     road = _grid(x, np.arange(-6.0, 6.0 + 1e-9, GRID))
@@ -134,7 +134,7 @@ def test_ambiguity_needs_a_close_rival_and_is_decided_by_distinctive_objects() -
     config = ConfidenceConfig(
         ambiguity_margin=0.3, min_distinctive_objects=2, distinctive_gain=2.0
     )
-    base = dict(num_inliers=100, correspondences=2000, overlap=0.4, label_agreement=0.9)
+    base = {'num_inliers': 100, 'correspondences': 2000, 'overlap': 0.4, 'label_agreement': 0.9}
     far = confidence.Evidence(**base, tilt_deg=0.0, score=0.3, rival_score=0.1, rival='x')
     assert far.ambiguity(config) == ''  # rival far below
     close = confidence.Evidence(**base, tilt_deg=0.0, score=0.3, rival_score=0.25, rival='x')

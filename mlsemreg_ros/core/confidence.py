@@ -170,8 +170,10 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
 
 def slid_poses(transform: np.ndarray, distance: float, directions: int = 8) -> np.ndarray:
     """
-    ``(directions, 4, 4)``: ``transform`` moved by ``distance`` along evenly spread
-    horizontal directions of the target frame (the rivals of a pose on a straight street).
+    Move ``transform`` by ``distance`` along evenly spread horizontal directions.
+
+    Returns ``(directions, 4, 4)`` poses, directions in the target frame: the rivals of a
+    pose on a straight street.
     """
     angles = np.arange(directions) * (2.0 * np.pi / directions)
     poses = np.repeat(np.asarray(transform, dtype=np.float64)[None], directions, axis=0)

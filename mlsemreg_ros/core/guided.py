@@ -40,8 +40,10 @@ def guided_correspondences(
     labels: LabelCompatibility | None = None,
 ) -> Correspondences:
     """
-    For every source keypoint, its nearest target keypoint in descriptor space among those
-    within ``radius`` (m) of where ``T_target_source`` puts it.
+    Match every source keypoint only near where ``T_target_source`` puts it.
+
+    Its correspondence is the nearest target keypoint in descriptor space among those
+    within ``radius`` (m) of that place.
 
     ``labels``: when given, only keypoints whose labels (of their scan points) are equal or
     compatible are matched. Source keypoints without a candidate get no correspondence.

@@ -495,7 +495,7 @@ class Registration:
         target_points: np.ndarray | None = None,
     ) -> tuple[confidence.Evidence, str]:
         """
-        The confidence verdict of one given pose: ``(evidence, refusal)`` ('' = accepted).
+        Judge one given pose by the confidence rule: ``(evidence, refusal)`` ('' = accepted).
 
         ``transform`` faces the same rule as a registration's choice: its rivals are the
         zero motion, its slides and the given ``rivals`` ``(R, 4, 4)`` (scored like the
@@ -736,7 +736,7 @@ class _Pool:
 
     @classmethod
     def of(cls, verified: VerificationResult | None, measure: Any) -> _Pool:
-        """The verification's candidates (an empty pool without verification)."""
+        """Pool the verification's candidates (an empty pool without verification)."""
         if verified is None:
             return cls([], np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
         pool = cls(
@@ -754,7 +754,7 @@ class _Pool:
 
     def extended(self, result: VerificationResult, measure: Any) -> _Pool:
         """
-        This pool and ``result``'s hypotheses.
+        Return this pool with ``result``'s hypotheses added.
 
         ``measure(transforms)`` gives their distinctive ``(shares, objects, in_view)``.
         """
@@ -784,7 +784,7 @@ class _Pool:
 
     def decide(self, incumbent: int, config: RegistrationConfig) -> int:
         """
-        The candidate to keep: the best score, then the distinctive structure decides.
+        Return the candidate to keep: the best score, then the distinctive structure decides.
 
         ``incumbent`` is kept unless another scores more than ``verification.min_gain``
         higher. Then, among the candidates scoring at least ``1 - confidence.decide_margin``

@@ -213,7 +213,7 @@ def compose_chain(pairs: list[Pair], name: str | None = None) -> Pair:
 
 
 def reversed_pair(pair: Pair, name: str | None = None) -> Pair:
-    """The same two scans the other way round: target as source, ``inverse(trans_gt)``."""
+    """Return the same two scans the other way round: target as source, ``inv(trans_gt)``."""
     return Pair(
         name=name or f'{pair.name}_rev',
         pts_src=pair.pts_dst,
@@ -241,7 +241,7 @@ def chain_pairs(pairs: list[Pair], apart: int, reverse: bool = False) -> list[Pa
         raise ValueError(f'apart must be at least 1, got {apart}')
     out = []
     for k in range(len(pairs) - apart + 1):
-        window = pairs[k : k + apart]
+        window = pairs[k:][:apart]
         pair = compose_chain(window, f'{window[0].name}_{window[-1].name}')
         out.append(reversed_pair(pair) if reverse else pair)
     return out
