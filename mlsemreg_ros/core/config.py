@@ -657,7 +657,7 @@ class ConfidenceConfig:
         0.5,
         'Share of the distinctive source objects in the target view (within 1 m of a target '
         'point) that the chosen pose must line up to decide between close rivals: a slide '
-        'puts poles beside the target poles (dev pairs: <= 0.2 at the zero motion, >= 0.55 at '
+        'puts poles beside the target poles (dev pairs: <= 0.2 at the zero motion, >= 0.5 at '
         'the truth).',
         low=0.0,
         high=1.0,

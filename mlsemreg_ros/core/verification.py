@@ -362,6 +362,8 @@ DISTINCTIVE_OBJECT_RADIUS = 1.0
 DISTINCTIVE_OBJECT_MIN_POINTS = 3
 #: An object lines up when at least this share of its points lies on distinctive target points.
 DISTINCTIVE_OBJECT_SHARE = 0.3
+#: At most this many distinctive source points are scored (a seeded subset of them).
+DISTINCTIVE_MAX_POINTS = 600
 #: An object is in the target's view when one of its points has a target point this close (m):
 #: a pole moved onto the sidewalk by a wrong pose has its foot on it.
 DISTINCTIVE_VIEW_DISTANCE = 1.0
@@ -401,6 +403,11 @@ def distinctive_scores(
         return scan.points[known & distinctive[np.where(known, labels, 0)]]
 
     source_points, target_points = marked(source), marked(target)
+    if len(source_points) > DISTINCTIVE_MAX_POINTS:  # seeded subset: the cost stays bounded
+        rows = np.random.default_rng(0).choice(
+            len(source_points), DISTINCTIVE_MAX_POINTS, replace=False
+        )
+        source_points = source_points[np.sort(rows)]
     if count == 0 or len(source_points) == 0 or len(target_points) == 0:
         return empty
     moved = source_points @ transforms[:, :3, :3].transpose(0, 2, 1) + transforms[:, None, :3, 3]
