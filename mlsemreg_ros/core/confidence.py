@@ -44,7 +44,8 @@ give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in
   others contradict the pose) and either more objects than any close rival or at least
   ``confidence.distinctive_gain`` times the share of distinctive points it lines up;
 - **not contradicted**: a pose that puts at least ``confidence.contradicting_objects``
-  distinctive source objects in the target's view and lines up none of them is refused
+  distinctive source objects in the target's view and lines up fewer than
+  ``confidence.contradicted_fraction`` of them is refused
   (a flip of a symmetric street, a slide: their poles land beside the target's);
 - **well constrained** (after the fine alignment, :func:`localizability`): the
   alignment's Gauss-Newton Hessian constrains every translation direction (Zhang et al.
@@ -155,12 +156,15 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
         reasons.append(
             f'tilt {evidence.tilt_deg:.1f} deg > confidence.max_tilt={config.max_tilt:g} deg'
         )
-    contradicted = config.contradicting_objects > 0 and evidence.distinctive_objects == 0
+    contradicted = config.contradicting_objects > 0 and (
+        evidence.distinctive_objects < config.contradicted_fraction * evidence.distinctive_in_view
+    )
     if contradicted and evidence.distinctive_in_view >= config.contradicting_objects:
         reasons.append(
             f'contradicted: {evidence.distinctive_in_view} distinctive objects land in the '
-            'target view, none on distinctive target points (confidence.contradicting_objects='
-            f'{config.contradicting_objects})'
+            f'target view, {evidence.distinctive_objects} on distinctive target points '
+            f'(confidence.contradicting_objects={config.contradicting_objects}, '
+            f'contradicted_fraction={config.contradicted_fraction:g})'
         )
     ambiguous = evidence.ambiguity(config)
     if ambiguous:

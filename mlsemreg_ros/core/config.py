@@ -665,10 +665,18 @@ class ConfidenceConfig:
     contradicting_objects: int = param(
         3,
         'A pose that puts at least this many distinctive source objects in the target view '
-        '(within 1 m of a target point) and lines up none of them is refused (dev pairs: '
-        'every right pose at 20 m lines up one at least; 0: off).',
+        '(within 1 m of a target point) and lines up fewer than '
+        'confidence.contradicted_fraction of them is refused (0: off).',
         low=0,
         high=1000,
+    )
+    contradicted_fraction: float = param(
+        0.25,
+        'See confidence.contradicting_objects. Dev pairs: right poses with 3 or more objects '
+        'in view line up >= 0.5 of them (one 40 m pair: 0 of 3), zero-motion slides <= 0.2; '
+        'a plain-FPFH slide of a simulated street: 1 of 18.',
+        low=0.0,
+        high=1.0,
     )
     distinctive_gain: float = param(
         2.0,
