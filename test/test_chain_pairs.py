@@ -161,4 +161,4 @@ def test_dev_pairs_40_m_apart_register_and_accept_no_wrong_pose(reverse):
         right += bool(metrics.success)
         wrong_accepted += bool(result.success and not metrics.success)
     assert wrong_accepted == 0
-    assert right >= 5, f'{right} of {len(pairs)} right'  # measured 6 of 9 (forward)
+    assert right >= 6, f'{right} of {len(pairs)} right'  # measured 7 (forward), 6 (reversed)
