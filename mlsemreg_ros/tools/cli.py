@@ -29,6 +29,7 @@ from typing import Annotated
 from mlsemreg_ros.tools import (
     bench,
     bench_node,
+    chain_pairs,
     confidence,
     cut_pairs,
     demo,
@@ -147,6 +148,7 @@ for module, function, name, panel in (
     (simulate, simulate.simulate, 'simulate', DATA),
     (kitti_to_bag, kitti_to_bag.kitti_to_bag, 'kitti-to-bag', DATA),
     (cut_pairs, cut_pairs.cut_pairs, 'cut-pairs', DATA),
+    (chain_pairs, chain_pairs.chain_pairs, 'chain-pairs', DATA),
     (play, play.play, 'play', DATA),
     (params, params.params, 'params', MAINTENANCE),
 ):
