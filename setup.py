@@ -73,8 +73,10 @@ setup(
             'mlsemreg-confidence = mlsemreg_ros.tools.confidence:main',
             'mlsemreg-soak = mlsemreg_ros.tools.soak:main',
             'mlsemreg-cut-pairs = mlsemreg_ros.tools.cut_pairs:main',
+            'mlsemreg-chain-pairs = mlsemreg_ros.tools.chain_pairs:main',
             'mlsemreg-params = mlsemreg_ros.tools.params:main',
             'mlsemreg-relocalize = mlsemreg_ros.tools.relocalize:main',
+            'mlsemreg-tune = mlsemreg_ros.tools.tune:main',
         ],
     },
 )

@@ -22,8 +22,10 @@ no default or description is written twice; ``mlsemreg params`` writes them and
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 import dataclasses
 import textwrap
+from typing import Any
 
 from mlsemreg_ros.core.config import NODE_NAME
 from mlsemreg_ros.evaluation.settings import EvaluationSettings
@@ -58,13 +60,27 @@ def _yaml_value(value: object) -> str:
     return text.strip().removesuffix('...').strip()
 
 
-def params_yaml_text() -> str:
-    """``config/params.yaml``: every node parameter with its default and description."""
-    lines = [
-        '# Parameters of mlsemreg_node and their defaults, generated from the config',
-        '# metadata by `mlsemreg params` (mlsemreg_ros.parameter_docs);',
-        '# test/test_params_yaml.py checks that this file, the node and the core agree.',
-        '# [unit, range, choices] as enforced by the parameter descriptors.',
+def params_yaml_text(
+    values: Mapping[str, Any] | None = None, header: Sequence[str] | None = None
+) -> str:
+    """
+    ``config/params.yaml``: every node parameter with its default and description.
+
+    ``values`` (flat names) replace the defaults and ``header`` the leading comment lines
+    (``mlsemreg tune`` writes its tuned parameter file so, docs/tuning.md).
+    """
+    values = values or {}
+    lines = (
+        [f'# {line}' if line else '#' for line in header]
+        if header is not None
+        else [
+            '# Parameters of mlsemreg_node and their defaults, generated from the config',
+            '# metadata by `mlsemreg params` (mlsemreg_ros.parameter_docs);',
+            '# test/test_params_yaml.py checks that this file, the node and the core agree.',
+            '# [unit, range, choices] as enforced by the parameter descriptors.',
+        ]
+    )
+    lines += [
         f'{NODE_NAME}:',
         '  ros__parameters:',
     ]
@@ -78,7 +94,7 @@ def params_yaml_text() -> str:
         extra = _constraints(f)
         comment = f.metadata['description'] + (f' [{", ".join(extra)}]' if extra else '')
         lines += [f'{indent}# {c}' for c in textwrap.wrap(comment, 97 - len(indent))]
-        lines.append(f'{indent}{leaf}: {_yaml_value(default)}')
+        lines.append(f'{indent}{leaf}: {_yaml_value(values.get(name, default))}')
     return '\n'.join(lines) + '\n'
 
 

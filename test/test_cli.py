@@ -35,6 +35,7 @@ SUBCOMMANDS = (
     'demo',
     'params',
     'cut-pairs',
+    'tune',
 )
 
 

@@ -29,6 +29,30 @@ give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in
 - **plausible**: the pose turns the up axis by at most ``confidence.max_tilt`` (a ground
   vehicle does not roll over between scans; a mirrored cloud fits best upside down).
 
+- **unambiguous** (docs/hard_pairs.md): no *rival* pose explains the scans about as well.
+  Rivals are the other candidates (the estimator's verified hypotheses and, when it ran,
+  the BEV search's peaks) that are distinct from the chosen pose by more than
+  ``confidence.rival_translation`` / ``confidence.rival_rotation``, the zero-motion pose
+  (the scans on top of each other) and the chosen pose slid by ``confidence.slide_distance``
+  along eight horizontal directions (a straight street: road, curbs and facades line up
+  at any slide). A rival within ``confidence.ambiguity_margin`` of the chosen pose's
+  verification score makes the registration ambiguous, unless the **distinctive
+  structure** decides: the chosen pose puts at least ``confidence.min_distinctive_objects``
+  objects of ``confidence.distinctive_classes`` (poles, signs, trunks: things that pin a
+  place down) of the source on such target points, at least
+  ``confidence.min_distinctive_fraction`` of those that land in the target's view (the
+  others contradict the pose) and either more objects than any close rival or at least
+  ``confidence.distinctive_gain`` times the share of distinctive points it lines up;
+- **not contradicted**: a pose that puts at least ``confidence.contradicting_objects``
+  distinctive source objects in the target's view and lines up fewer than
+  ``confidence.contradicted_fraction`` of them is refused
+  (a flip of a symmetric street, a slide: their poles land beside the target's);
+- **well constrained** (after the fine alignment, :func:`localizability`): the
+  alignment's Gauss-Newton Hessian constrains every translation direction (Zhang et al.
+  2016, "On degeneracy of optimization-based state estimation problems"); a weak
+  direction is reported, and ``confidence.degeneracy`` says whether it is only reported,
+  inflates the covariance along it or refuses the registration.
+
 GM-only results (no usable landmark) face the same rule. The thresholds come from the
 distributions measured by ``mlsemreg-confidence`` (correct and wrong registrations of
 the dev pairs, non-overlapping chain pairs, mirrored clouds, label-corrupted scans and
@@ -52,6 +76,14 @@ class Evidence:
     overlap: float  # share of the source scan's seen surface on the target scan
     label_agreement: float  # share of the overlapping labeled points that agree
     tilt_deg: float  # angle between the two scans' up axes under the chosen pose
+    score: float = 0.0  # verification score of the chosen pose
+    distinctive_objects: int = 0  # distinctive source objects lined up (poles, trunks)
+    distinctive_in_view: int = 0  # distinctive source objects that land in the target's view
+    distinctive_overlap: float = 0.0  # their share of the source's distinctive points
+    rival_score: float = 0.0  # best score of a rival pose (0: no rival scored)
+    rival_distinctive_overlap: float = 0.0  # largest distinctive share of a close rival
+    rival: str = ''  # what the best rival is (e.g. 'zero motion', 'slide 5 m', 'bev_search')
+    rival_distinctive_objects: int = 0  # most distinctive objects a close rival lines up
 
     @property
     def inlier_ratio(self) -> float:
@@ -64,6 +96,35 @@ class Evidence:
             f'confidence_{k}': v
             for k, v in {**asdict(self), 'inlier_ratio': self.inlier_ratio}.items()
         }
+
+    def ambiguity(self, config: ConfidenceConfig) -> str:
+        """Why a rival makes the chosen pose ambiguous ('' when it does not)."""
+        if self.rival_score <= 0.0 or self.rival_score < (1.0 - config.ambiguity_margin) * (
+            self.score
+        ):
+            return ''
+        decided = (
+            self.distinctive_objects >= config.min_distinctive_objects
+            and self.distinctive_objects
+            >= config.min_distinctive_fraction * self.distinctive_in_view
+            and (
+                self.distinctive_overlap
+                >= config.distinctive_gain * self.rival_distinctive_overlap
+                or self.distinctive_objects > self.rival_distinctive_objects
+            )
+        )
+        if decided:
+            return ''
+        return (
+            f'ambiguous: {self.rival or "a rival pose"} scores {self.rival_score:.3f} '
+            f'against {self.score:.3f} (within confidence.ambiguity_margin='
+            f'{config.ambiguity_margin:g}) and the distinctive structure does not decide '
+            f'({self.distinctive_objects} of {self.distinctive_in_view} objects in view lined '
+            f'up, share {self.distinctive_overlap:.3f} vs '
+            f'{self.rival_distinctive_overlap:.3f}; confidence.min_distinctive_objects='
+            f'{config.min_distinctive_objects}, min_distinctive_fraction='
+            f'{config.min_distinctive_fraction:g}, distinctive_gain={config.distinctive_gain:g})'
+        )
 
 
 def tilt_deg(transform: np.ndarray) -> float:
@@ -95,4 +156,94 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
         reasons.append(
             f'tilt {evidence.tilt_deg:.1f} deg > confidence.max_tilt={config.max_tilt:g} deg'
         )
+    contradicted = config.contradicting_objects > 0 and (
+        evidence.distinctive_objects < config.contradicted_fraction * evidence.distinctive_in_view
+    )
+    if contradicted and evidence.distinctive_in_view >= config.contradicting_objects:
+        reasons.append(
+            f'contradicted: {evidence.distinctive_in_view} distinctive objects land in the '
+            f'target view, {evidence.distinctive_objects} on distinctive target points '
+            f'(confidence.contradicting_objects={config.contradicting_objects}, '
+            f'contradicted_fraction={config.contradicted_fraction:g})'
+        )
+    ambiguous = evidence.ambiguity(config)
+    if ambiguous:
+        reasons.append(ambiguous)
     return '; '.join(reasons)
+
+
+def slid_poses(transform: np.ndarray, distance: float, directions: int = 8) -> np.ndarray:
+    """
+    Move ``transform`` by ``distance`` along evenly spread horizontal directions.
+
+    Returns ``(directions, 4, 4)`` poses, directions in the target frame: the rivals of a
+    pose on a straight street.
+    """
+    angles = np.arange(directions) * (2.0 * np.pi / directions)
+    poses = np.repeat(np.asarray(transform, dtype=np.float64)[None], directions, axis=0)
+    poses[:, 0, 3] += distance * np.cos(angles)
+    poses[:, 1, 3] += distance * np.sin(angles)
+    return poses
+
+
+@dataclass(frozen=True)
+class Localizability:
+    """How well a fine alignment's Hessian constrains the translation (Zhang et al. 2016)."""
+
+    eigenvalues: np.ndarray  # (3,) ascending, of the translation block of H
+    weak_direction: np.ndarray  # (3,) unit, target frame: the eigenvector of the smallest
+    ratio: float  # smallest / largest eigenvalue (1: isotropic, 0: unconstrained)
+
+    def as_diagnostics(self) -> dict[str, float | str]:
+        """Flat values for the result's diagnostics (``degeneracy_*``)."""
+        x, y, z = (float(v) for v in self.weak_direction)
+        return {
+            'degeneracy_ratio': self.ratio,
+            'degeneracy_weak_direction': f'{x:+.2f} {y:+.2f} {z:+.2f}',
+            'degeneracy_eigenvalues': ' '.join(f'{v:.4g}' for v in self.eigenvalues),
+        }
+
+
+def localizability(hessian: np.ndarray, rotation: np.ndarray) -> Localizability | None:
+    """
+    Eigen-analysis of the translation block of small_gicp's Hessian (order [omega, v]).
+
+    The eigenvector of the smallest eigenvalue is the direction the scans constrain least
+    (a corridor: along it); ``rotation`` (the alignment's ``R_target_source``) turns it into
+    the target frame. None when the Hessian is not finite.
+    """
+    H = np.asarray(hessian, dtype=np.float64)
+    if H.shape != (6, 6) or not np.all(np.isfinite(H)):
+        return None
+    values, vectors = np.linalg.eigh(0.5 * (H[3:, 3:] + H[3:, 3:].T))
+    values = np.clip(values, 0.0, None)
+    weak = np.asarray(rotation, dtype=np.float64) @ vectors[:, 0]
+    weak = weak * (1.0 if weak[np.argmax(np.abs(weak))] >= 0 else -1.0)  # sign: largest +
+    ratio = float(values[0] / values[-1]) if values[-1] > 0 else 0.0
+    return Localizability(values, weak, ratio)
+
+
+def inflated_hessian(hessian: np.ndarray, factor: float) -> np.ndarray:
+    """
+    ``hessian`` with the smallest eigenvalue of its translation block divided by ``factor``.
+
+    Every covariance derived from it (``inv(H)``) grows by ``factor`` along the weak
+    direction and is unchanged across it.
+    """
+    H = np.array(hessian, dtype=np.float64)
+    values, vectors = np.linalg.eigh(0.5 * (H[3:, 3:] + H[3:, 3:].T))
+    weak = vectors[:, :1]
+    H[3:, 3:] -= (1.0 - 1.0 / factor) * values[0] * (weak @ weak.T)
+    return H
+
+
+def degeneracy_refusal(found: Localizability | None, config: ConfidenceConfig) -> str:
+    """Why the alignment is degenerate ('' when it is not or ``degeneracy`` is not refuse)."""
+    if found is None or config.degeneracy != 'refuse' or found.ratio >= config.min_localizability:
+        return ''
+    x, y, z = found.weak_direction
+    return (
+        f'degenerate: translation along ({x:+.2f}, {y:+.2f}, {z:+.2f}) constrained '
+        f'{found.ratio:.2g} as well as the best direction < confidence.min_localizability='
+        f'{config.min_localizability:g}'
+    )

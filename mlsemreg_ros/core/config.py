@@ -497,7 +497,11 @@ class BevSearchConfig:
         high=500.0,
     )
     max_translation: float = param(
-        40.0, 'Largest translation (x and y) searched.', unit='m', low=0.0, high=500.0
+        65.0,
+        'Largest translation (x and y) searched (the composed dev pairs 60 m apart need 62 m).',
+        unit='m',
+        low=0.0,
+        high=500.0,
     )
     yaw_step: float = param(
         2.0, 'Yaw step of the search over 360 deg.', unit='deg', low=0.1, high=90.0
@@ -533,6 +537,24 @@ class BevSearchConfig:
     )
     nms_translation: float = param(
         2.0, 'Translation bound of the peak suppression.', unit='m', low=0.0, high=100.0
+    )
+    guided_peaks: int = param(
+        3,
+        'When the best pose is still refused after the search: the keypoints are matched '
+        'again around this many best searched poses (only within bev_search.guided_radius '
+        'of where the pose puts them, compatible labels), and the estimator runs again on '
+        'each set (core/guided.py; 0: off).',
+        low=0,
+        high=64,
+    )
+    guided_radius: float = param(
+        3.0,
+        'Guided re-matching: a source keypoint is matched only among the target keypoints '
+        'within this distance of where the searched pose puts it (3 m: one more FPFH pair of '
+        'the 40 m dev pairs than 2 m, the same GEDI pairs).',
+        unit='m',
+        low=0.1,
+        high=20.0,
     )
 
     def __post_init__(self) -> None:
@@ -587,6 +609,112 @@ class ConfidenceConfig:
         unit='deg',
         low=0.0,
         high=180.0,
+    )
+    ambiguity_margin: float = param(
+        0.3,
+        'A rival pose (another candidate, the zero motion, or the chosen pose slid by '
+        'confidence.slide_distance) whose verification score reaches (1 - this) x the '
+        "chosen pose's makes the registration ambiguous, unless the distinctive structure "
+        'decides (docs/hard_pairs.md). 0: only rivals scoring as high; 1: every '
+        'rival counts.',
+        low=0.0,
+        high=1.0,
+    )
+    rival_translation: float = param(
+        3.0,
+        'A candidate is a rival when it differs from the chosen pose by more than this '
+        'translation (or more than confidence.rival_rotation).',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
+    rival_rotation: float = param(
+        10.0, 'Rotation bound of the rival test.', unit='deg', low=0.0, high=180.0
+    )
+    slide_distance: float = param(
+        5.0,
+        'The chosen pose slid by this along 8 horizontal directions is a rival too (a '
+        'straight street lines up road, curbs and facades at any slide; 0: no slides).',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
+    distinctive_classes: list[str] = param(
+        ['pole', 'traffic-sign', 'trunk'],
+        'Classes that pin a place down (not ground, not facades): the share of the source '
+        'points of these classes that lie on target points of these classes decides '
+        'between close rivals.',
+    )
+    min_distinctive_objects: int = param(
+        2,
+        'Distinctive source objects (connected points of confidence.distinctive_classes, '
+        'e.g. one pole) that the chosen pose must line up with distinctive target points '
+        '(within verification.overlap_distance) to decide between close rivals.',
+        low=0,
+        high=1000,
+    )
+    min_distinctive_fraction: float = param(
+        0.5,
+        'Share of the distinctive source objects in the target view (within 1 m of a target '
+        'point) that the chosen pose must line up to decide between close rivals: a slide '
+        'puts poles beside the target poles (dev pairs: <= 0.2 at the zero motion, >= 0.5 at '
+        'the truth).',
+        low=0.0,
+        high=1.0,
+    )
+    contradicting_objects: int = param(
+        3,
+        'A pose that puts at least this many distinctive source objects in the target view '
+        '(within 1 m of a target point) and lines up fewer than '
+        'confidence.contradicted_fraction of them is refused (0: off).',
+        low=0,
+        high=1000,
+    )
+    contradicted_fraction: float = param(
+        0.25,
+        'See confidence.contradicting_objects. Dev pairs: right poses with 3 or more objects '
+        'in view line up >= 0.5 of them (one 40 m pair: 0 of 3), zero-motion slides <= 0.2; '
+        'a plain-FPFH slide of a simulated street: 1 of 18.',
+        low=0.0,
+        high=1.0,
+    )
+    distinctive_gain: float = param(
+        2.0,
+        "The chosen pose's distinctive share must be at least this many times every close "
+        "rival's to decide.",
+        low=1.0,
+        high=100.0,
+    )
+    decide_margin: float = param(
+        0.5,
+        'A candidate pose scoring at least (1 - this) x the best verification score replaces '
+        'it when it lines up confidence.min_distinctive_objects and confidence.distinctive_gain '
+        'times its distinctive share (a zero-motion slide overlaps more than the truth 40 m '
+        'apart, but lines up none of its poles).',
+        low=0.0,
+        high=1.0,
+    )
+    degeneracy: str = param(
+        'inflate',
+        'A fine alignment whose translation is constrained less than '
+        'confidence.min_localizability along some direction (Hessian eigenvalues) is '
+        'reported in /diagnostics (report), also published with its covariance inflated '
+        'by confidence.degeneracy_inflation along that direction (inflate), or refused '
+        '(refuse).',
+        choices=('report', 'inflate', 'refuse'),
+    )
+    min_localizability: float = param(
+        0.02,
+        "Smallest ratio of the translation Hessian's smallest to largest eigenvalue "
+        '(1: every direction constrained as well).',
+        low=0.0,
+        high=1.0,
+    )
+    degeneracy_inflation: float = param(
+        100.0,
+        'Covariance factor along the weak direction (confidence.degeneracy=inflate).',
+        low=1.0,
+        high=1e6,
     )
 
 

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+import dataclasses
 from dataclasses import dataclass
 import functools
 import time
@@ -43,13 +44,16 @@ from mlsemreg_ros.core import (
     signatures,
     threads,
 )
-from mlsemreg_ros.core.alignment import align_pair
+from mlsemreg_ros.core.alignment import align_pair, Alignment
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import estimate
 from mlsemreg_ros.core.fine_alignment import alignment_cloud, refinement_refusal, RefinementBounds
+from mlsemreg_ros.core.guided import guided_correspondences
 from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.poses import same_pose
 from mlsemreg_ros.core.results import (
     Correspondences,
+    HypothesisScore,
     Landmarks,
     PreparedScan,
     RegistrationResult,
@@ -58,9 +62,12 @@ from mlsemreg_ros.core.results import (
 from mlsemreg_ros.core.scan_input import sanitize_scan_for
 from mlsemreg_ros.core.threads import LazyPool
 from mlsemreg_ros.core.verification import (
+    combined_score,
     dense_scores,
+    distinctive_scores,
     label_compatibility,
     LabelCompatibility,
+    score_hypotheses,
     verify_hypotheses,
 )
 import numpy as np
@@ -75,16 +82,18 @@ class _ResolvedClasses:
     undefined_ids: np.ndarray
     label_compatibility: LabelCompatibility
     bev_channels: np.ndarray
+    distinctive: np.ndarray  # (num_classes,) bool: confidence.distinctive_classes
 
     @classmethod
     def of(cls, config: RegistrationConfig, label_map: LabelMap) -> _ResolvedClasses:
-        sem = config.semantic
+        sem, cfg = config.semantic, config.confidence
         return cls(
             label_map.ids_of(sem.landmark_classes),
             label_map.ids_of(sem.ignored_classes),
             label_map.ids_of(sem.undefined_classes),
             label_compatibility(label_map, config.verification),
             bev_search.channel_lookup(label_map, config.bev_search),
+            np.isin(np.arange(label_map.num_classes), label_map.ids_of(cfg.distinctive_classes)),
         )
 
 
@@ -122,6 +131,7 @@ class Registration:
         self._undefined_ids = resolved.undefined_ids
         self._label_compatibility = resolved.label_compatibility
         self._bev_channels = resolved.bev_channels
+        self._distinctive = resolved.distinctive
         self._config = config
 
     @staticmethod
@@ -315,27 +325,58 @@ class Registration:
                 )
             transform = verified.T_target_source
             diagnostics.update(verified.diagnostics)
-        # 2c. confidence: sparse and dense evidence must agree (core/confidence.py)
+        # 2c. confidence: sparse and dense evidence must agree, no rival may come close
+        # (core/confidence.py, docs/hard_pairs.md)
         with _timed(timings, 'confidence_ms'):
+            measure = functools.partial(self._distinctive_of, source=source, target=target)
+            pool = _Pool.of(verified, measure)
+            chosen = pool.decide(pool.incumbent, cfg) if pool else None
+            if chosen is not None:
+                transform = pool.hypotheses[chosen].T_target_source
             inliers, evidence = self._evidence(
-                transform, src_pts, dst_pts, verified, source, target
+                transform, src_pts, dst_pts, pool, chosen, source, target
             )
         refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
-        # 2d. refused or weak: search the scans themselves (core/bev_search.py)
+        # 2d. refused or weak: search the scans themselves (core/bev_search.py); 2e. still
+        # refused: match again around the best peaks (core/guided.py). Every new candidate
+        # joins the pool, the choice and the rivals.
         weak = evidence.num_inliers < cfg.bev_search.weak_inliers
         if (refused or weak) and verified is not None and cfg.bev_search.enabled:
+            first = f'refused: {refused}' if refused else f'{evidence.num_inliers} inliers'
             with _timed(timings, 'bev_search_ms'):
-                searched = self._bev_search(
-                    source, target, src_pts, dst_pts, verified, diagnostics
+                searched = bev_search.search_scans(
+                    source,
+                    target,
+                    src_pts,
+                    dst_pts,
+                    cfg,
+                    self._label_compatibility,
+                    self._bev_channels,
                 )
+            diagnostics['bev_search_used'] = False
+            stages = []
             if searched is not None:
-                why = f'refused: {refused}' if refused else f'{evidence.num_inliers} inliers'
-                verified, transform = searched, searched.T_target_source
-                inliers, evidence = self._evidence(
-                    transform, src_pts, dst_pts, verified, source, target
-                )
+                diagnostics.update(searched.diagnostics)
+                stages.append(searched)
+            for found in stages:
+                with _timed(timings, 'confidence_ms'):
+                    pool = pool.extended(found, measure)
+                    chosen = pool.decide(chosen, cfg)
+                    transform = pool.hypotheses[chosen].T_target_source
+                    inliers, evidence = self._evidence(
+                        transform, src_pts, dst_pts, pool, chosen, source, target
+                    )
                 refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
-                message = f"bev_search pose (the estimator's was {why})"
+                if refused and found is searched and cfg.bev_search.guided_peaks > 0:
+                    with _timed(timings, 'guided_ms'):
+                        guided = self._guided(source, target, searched, diagnostics)
+                    if guided is not None:
+                        stages.append(guided)
+            origin = pool.origin(chosen)
+            diagnostics['bev_search_used'] = origin == 'bev_search'
+            diagnostics['chosen_origin'] = origin
+            if origin != 'estimator':
+                message = f"{origin} pose (the estimator's was {first})"
         diagnostics.update(evidence.as_diagnostics())
         success = not refused
         if refused:
@@ -359,6 +400,9 @@ class Registration:
             )
             if not refused:
                 transform = alignment.T_target_source
+                alignment, degenerate = self._degeneracy(alignment, diagnostics)
+                if degenerate and success:
+                    success, message = False, degenerate + (f'; {message}' if message else '')
         return RegistrationResult(
             transform,
             corr,
@@ -379,64 +423,227 @@ class Registration:
         transform: np.ndarray,
         src_pts: np.ndarray,
         dst_pts: np.ndarray,
-        verified: VerificationResult | None,
+        pool: _Pool,
+        chosen: int | None,
         source: PreparedScan,
         target: PreparedScan,
     ) -> tuple[np.ndarray, confidence.Evidence]:
-        """Inlier mask and the sparse and dense evidence of ``transform`` (verified or new)."""
+        """
+        Inlier mask and the evidence of ``transform`` (``pool.hypotheses[chosen]`` or new).
+
+        Besides the sparse and dense scores: the distinctive structure it lines up and its
+        best rival (other candidates of ``pool``, the zero motion, its slides;
+        :mod:`mlsemreg_ros.core.confidence`).
+        """
+        cfg = self.config
         residual = np.linalg.norm(
             src_pts @ transform[:3, :3].T + transform[:3, 3] - dst_pts, axis=1
         )
-        inliers = residual < self.config.estimator.inlier_threshold
-        if verified is not None:
-            chosen = verified.hypotheses[verified.chosen]
-            overlap, agreement = chosen.overlap, chosen.label_agreement
-        elif not np.all(np.isfinite(transform)):
-            overlap, agreement = 0.0, 0.0
-        else:
-            scores = dense_scores(
-                transform[None],
-                source,
-                target.points_tree(),
-                target.labels,
-                self._label_compatibility,
-                self.config.verification,
+        inliers = residual < cfg.estimator.inlier_threshold
+        if not np.all(np.isfinite(transform)):
+            return inliers, confidence.Evidence(
+                int(inliers.sum()), len(src_pts), 0.0, 0.0, confidence.tilt_deg(transform)
             )
-            overlap, agreement = float(scores[0][0]), float(scores[1][0])
+        # rivals: the pool's distinct candidates, then the zero motion and the slides
+        conf = cfg.confidence
+        extra = [np.eye(4)[None], confidence.slid_poses(transform, conf.slide_distance)]
+        extra_names = ['zero motion'] + [f'slide {conf.slide_distance:g} m'] * 8
+        if conf.slide_distance <= 0:
+            extra, extra_names = extra[:1], extra_names[:1]
+        fresh = (
+            np.concatenate([transform[None], *extra]) if chosen is None else np.concatenate(extra)
+        )
+        overlap, agreement = dense_scores(
+            fresh,
+            source,
+            target.points_tree(),
+            target.labels,
+            self._label_compatibility,
+            cfg.verification,
+        )
+        scores = combined_score(overlap, agreement, cfg.verification)
+        shares, points, views = self._distinctive_of(fresh, source, target)
+        if chosen is None:
+            own = (
+                float(overlap[0]),
+                float(agreement[0]),
+                float(scores[0]),
+                float(shares[0]),
+                int(points[0]),
+                int(views[0]),
+            )
+            overlap, agreement, scores, shares, points = (
+                a[1:] for a in (overlap, agreement, scores, shares, points)
+            )
+        else:
+            h = pool.hypotheses[chosen]
+            own = (
+                h.overlap,
+                h.label_agreement,
+                h.score,
+                float(pool.shares[chosen]),
+                int(pool.points[chosen]),
+                int(pool.views[chosen]),
+            )
+        rival_T = np.concatenate([pool.transforms(), np.concatenate(extra)])
+        rival_scores = np.concatenate([pool.scores(), scores])
+        rival_shares = np.concatenate([pool.shares, shares])
+        rival_points = np.concatenate([pool.points, points])
+        names = [pool.origin(i) for i in range(len(pool.hypotheses))] + extra_names
+        distinct = ~same_pose(transform, rival_T, conf.rival_rotation, conf.rival_translation)
+        rival_score, rival_share, rival, rival_objects = 0.0, 0.0, '', 0
+        if distinct.any():
+            best = int(np.argmax(np.where(distinct, rival_scores, -np.inf)))
+            rival_score, rival = float(rival_scores[best]), names[best]
+            close = distinct & (rival_scores >= (1.0 - conf.ambiguity_margin) * own[2])
+            rival_share = float(rival_shares[close].max()) if close.any() else 0.0
+            rival_objects = int(rival_points[close].max()) if close.any() else 0
         return inliers, confidence.Evidence(
             int(inliers.sum()),
             len(src_pts),
-            float(overlap),
-            float(agreement),
+            float(own[0]),
+            float(own[1]),
             confidence.tilt_deg(transform),
+            float(own[2]),
+            own[4],
+            own[5],
+            own[3],
+            rival_score,
+            rival_share,
+            rival,
+            rival_objects,
         )
 
-    def _bev_search(
+    def judge(
         self,
         source: PreparedScan,
         target: PreparedScan,
-        src_pts: np.ndarray,
-        dst_pts: np.ndarray,
-        verified: VerificationResult,
+        transform: np.ndarray,
+        rivals: np.ndarray | None = None,
+        source_points: np.ndarray | None = None,
+        target_points: np.ndarray | None = None,
+    ) -> tuple[confidence.Evidence, str]:
+        """
+        Judge one given pose by the confidence rule: ``(evidence, refusal)`` ('' = accepted).
+
+        ``transform`` faces the same rule as a registration's choice: its rivals are the
+        zero motion, its slides and the given ``rivals`` ``(R, 4, 4)`` (scored like the
+        estimator's hypotheses). ``source_points`` / ``target_points``: ``(K, 3)``
+        correspondences for the sparse evidence (none: 0 inliers). Needs the scans'
+        points and labels only (a ``lazy`` :meth:`prepare` is enough).
+        """
+        cfg, none = self.config, np.zeros((0, 3))
+        src = none if source_points is None else np.asarray(source_points, dtype=np.float64)
+        dst = none if target_points is None else np.asarray(target_points, dtype=np.float64)
+        measure = functools.partial(self._distinctive_of, source=source, target=target)
+        pool = _Pool.of(None, measure)
+        if rivals is not None and len(rivals):
+            rivals = np.asarray(rivals, dtype=np.float64).reshape(-1, 4, 4)
+            scored = score_hypotheses(
+                rivals,
+                np.arange(len(rivals)),
+                src,
+                dst,
+                source,
+                target,
+                cfg.verification,
+                cfg.estimator,
+                self._label_compatibility,
+                origin='rival',
+            )
+            pool = pool.extended(scored, measure)
+        _, evidence = self._evidence(
+            np.asarray(transform, dtype=np.float64), src, dst, pool, None, source, target
+        )
+        return evidence, confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
+
+    def _guided(
+        self,
+        source: PreparedScan,
+        target: PreparedScan,
+        searched: VerificationResult,
         diagnostics: dict[str, Any],
     ) -> VerificationResult | None:
         """
-        Return the BEV search's verified pose if it beats the estimator's, else None.
+        Guided re-matching around the ``bev_search.guided_peaks`` best searched poses.
 
-        Adds ``bev_search_*`` to ``diagnostics`` (``bev_search_used``: it won).
+        For each, correspondences only within ``bev_search.guided_radius`` of where the pose
+        puts a source keypoint (compatible labels), then the estimator and the verification
+        again (core/guided.py). Returns their verified hypotheses (origin ``'guided'``),
+        None when no peak gave three correspondences. Adds ``guided_*`` diagnostics.
         """
         cfg = self.config
-        searched = bev_search.search_scans(
-            source, target, src_pts, dst_pts, cfg, self._label_compatibility, self._bev_channels
+        scores = np.array([h.score for h in searched.hypotheses])
+        peaks = np.argsort(-scores, kind='stable')[: cfg.bev_search.guided_peaks]
+        found: list[HypothesisScore] = []
+        counts = []
+        for peak in peaks:
+            corr = guided_correspondences(
+                source,
+                target,
+                searched.hypotheses[peak].T_target_source,
+                cfg.bev_search.guided_radius,
+                self._label_compatibility,
+            )
+            counts.append(len(corr))
+            if len(corr) < 3:
+                continue
+            p, q = source.keypoints[corr.source], target.keypoints[corr.target]
+            estimated = estimate(p, q, cfg.estimator)
+            verified = verify_hypotheses(
+                estimated,
+                p,
+                q,
+                source,
+                target,
+                cfg.verification,
+                cfg.estimator,
+                self._label_compatibility,
+            )
+            found += [dataclasses.replace(h, origin='guided') for h in verified.hypotheses]
+        diagnostics['guided_peaks'] = len(peaks)
+        diagnostics['guided_correspondences'] = int(np.sum(counts)) if counts else 0
+        if not found:
+            return None
+        best = max(found, key=lambda h: h.score)
+        diagnostics['guided_best_score'] = best.score
+        return VerificationResult(found, 0)
+
+    def _distinctive_of(
+        self, transforms: np.ndarray, source: PreparedScan, target: PreparedScan
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:func:`~mlsemreg_ros.core.verification.distinctive_scores` of ``transforms``."""
+        return distinctive_scores(
+            transforms,
+            source,
+            target,
+            self._distinctive,
+            self.config.verification.overlap_distance,
         )
-        if searched is not None:
-            diagnostics.update(searched.diagnostics)
-        best = verified.hypotheses[verified.chosen].score
-        won = searched is not None and searched.hypotheses[searched.chosen].score > best * (
-            1.0 + cfg.verification.min_gain
-        )
-        diagnostics['bev_search_used'] = won
-        return searched if won else None
+
+    def _degeneracy(
+        self, alignment: Alignment, diagnostics: dict[str, Any]
+    ) -> tuple[Alignment, str]:
+        """
+        Localizability of the fine alignment (``degeneracy_*`` diagnostics) and its verdict.
+
+        ``confidence.degeneracy``: ``report`` leaves the alignment as it is, ``inflate``
+        returns it with the Hessian's weak translation eigenvalue divided by
+        ``confidence.degeneracy_inflation`` (so every covariance derived from it grows along
+        the weak direction), ``refuse`` returns the reason to refuse.
+        """
+        conf = self.config.confidence
+        found = confidence.localizability(alignment.hessian, alignment.T_target_source[:3, :3])
+        if found is None:
+            return alignment, ''
+        weak = found.ratio < conf.min_localizability
+        diagnostics.update(found.as_diagnostics())
+        diagnostics['degeneracy_weak'] = weak
+        diagnostics['degeneracy_action'] = conf.degeneracy if weak else ''
+        if weak and conf.degeneracy == 'inflate':
+            hessian = confidence.inflated_hessian(alignment.hessian, conf.degeneracy_inflation)
+            return dataclasses.replace(alignment, hessian=hessian), ''
+        return alignment, confidence.degeneracy_refusal(found, conf)
 
     def prepare_scans(self, *scans: dict[str, Any]) -> list[PreparedScan]:
         """
@@ -495,3 +702,101 @@ def _best_ranked(corr: Correspondences, cap: int) -> Correspondences:
         return corr
     keep = np.sort(np.argpartition(corr.distance, cap - 1)[:cap])
     return Correspondences(corr.source[keep], corr.target[keep], corr.distance[keep])
+
+
+@dataclasses.dataclass
+class _Pool:
+    """
+    Every verified candidate pose of one registration, with its distinctive structure.
+
+    The estimator's hypotheses (verification) and, once it ran, the BEV search's peaks.
+    """
+
+    hypotheses: list[HypothesisScore]
+    shares: np.ndarray  # (N,) distinctive share (core/verification.distinctive_scores)
+    points: np.ndarray  # (N,) distinctive objects lined up
+    views: np.ndarray  # (N,) distinctive objects in the target's view
+    incumbent: int = 0  # the verification's choice
+
+    @classmethod
+    def of(cls, verified: VerificationResult | None, measure: Any) -> _Pool:
+        """Pool the verification's candidates (an empty pool without verification)."""
+        if verified is None:
+            return cls([], np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
+        pool = cls(
+            [],
+            np.zeros(0),
+            np.zeros(0, dtype=np.int64),
+            np.zeros(0, dtype=np.int64),
+            verified.chosen,
+        )
+        return pool.extended(verified, measure)
+
+    def __bool__(self) -> bool:
+        """Tell whether the pool holds a candidate."""
+        return bool(self.hypotheses)
+
+    def extended(self, result: VerificationResult, measure: Any) -> _Pool:
+        """
+        Return this pool with ``result``'s hypotheses added.
+
+        ``measure(transforms)`` gives their distinctive ``(shares, objects, in_view)``.
+        """
+        added = np.stack([h.T_target_source for h in result.hypotheses])
+        shares, points, views = measure(added)
+        return _Pool(
+            self.hypotheses + list(result.hypotheses),
+            np.concatenate([self.shares, shares]),
+            np.concatenate([self.points, points]),
+            np.concatenate([self.views, views]),
+            self.incumbent,
+        )
+
+    def transforms(self) -> np.ndarray:
+        """``(N, 4, 4)`` candidate poses."""
+        if not self.hypotheses:
+            return np.zeros((0, 4, 4))
+        return np.stack([h.T_target_source for h in self.hypotheses])
+
+    def scores(self) -> np.ndarray:
+        """``(N,)`` verification scores."""
+        return np.array([h.score for h in self.hypotheses], dtype=np.float64)
+
+    def origin(self, index: int) -> str:
+        """Where candidate ``index`` came from ('estimator' or 'bev_search')."""
+        return self.hypotheses[index].origin
+
+    def decide(self, incumbent: int, config: RegistrationConfig) -> int:
+        """
+        Return the candidate to keep: the best score, then the distinctive structure decides.
+
+        ``incumbent`` is kept unless another scores more than ``verification.min_gain``
+        higher. Then, among the candidates scoring at least ``1 - confidence.decide_margin``
+        of the winner, those that are *decided* (at least ``confidence.min_distinctive_objects``
+        distinctive objects lined up, and ``confidence.min_distinctive_fraction`` of those in
+        the target view) replace an undecided winner, and one that lines up more objects
+        replaces a decided winner (most objects first, then the best score): at 40 m the
+        zero-motion slide overlaps more than the truth, but lines up none of its poles
+        (docs/hard_pairs.md).
+        """
+        conf, scores = config.confidence, self.scores()
+        best = int(np.argmax(scores))
+        winner = (
+            best
+            if scores[best] > scores[incumbent] * (1.0 + config.verification.min_gain)
+            else incumbent
+        )
+        decided = (self.points >= conf.min_distinctive_objects) & (
+            self.points >= conf.min_distinctive_fraction * self.views
+        )
+        eligible = decided & (scores >= (1.0 - conf.decide_margin) * scores[winner])
+        if eligible.any() and not decided[winner]:
+            # the most distinctive objects lined up, then the best score
+            key = np.where(eligible, self.points + scores / (scores.max() + 1.0), -np.inf)
+            winner = int(np.argmax(key))
+        elif eligible.any():
+            better = eligible & (self.points > self.points[winner])
+            if better.any():
+                key = np.where(better, self.points + scores / (scores.max() + 1.0), -np.inf)
+                winner = int(np.argmax(key))
+        return winner

@@ -22,6 +22,13 @@ Layout of the bags this package writes (simulator, KITTI converter)::
                                                           instance id in the upper 16 bits)
     /ground_truth/odometry   nav_msgs/msg/Odometry        T_world_sensor (world = first scan)
 
+Field-mode simulations (docs/simulation.md) add per-point ``time`` (float32 s after the
+header stamp = sweep start), ``ring`` (uint16), ``label_gt`` (uint32, the true raw label)
+and, for Ouster models, ``t`` (uint32 ns) to the clouds, and two topics::
+
+    /imu/data                sensor_msgs/msg/Imu          in the sensor frame, 200 Hz
+    /wheel/odometry          nav_msgs/msg/Odometry        planar dead reckoning, 50 Hz
+
 Storage is mcap (default) or sqlite3; message types come from the ROS 2 Jazzy
 typestore. Reading goes through ``rosbags.highlevel.AnyReader`` (mcap and sqlite3).
 PointCloud2 conversion is :mod:`mlsemreg_ros.codec.pointcloud2` (pure NumPy).
@@ -57,6 +64,9 @@ STORAGES = ('mcap', 'sqlite3')
 
 POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
 ODOMETRY = 'nav_msgs/msg/Odometry'
+IMU = 'sensor_msgs/msg/Imu'
+IMU_TOPIC = '/imu/data'
+WHEEL_TOPIC = '/wheel/odometry'
 POSE_TYPES = (ODOMETRY, 'geometry_msgs/msg/PoseStamped', 'geometry_msgs/msg/TransformStamped')
 
 
@@ -131,8 +141,16 @@ class BagWriter:
         frame_id: str = SENSOR_FRAME,
         topic: str = POINTS_TOPIC,
         label_datatype: str = 'uint32',
+        extra_fields: dict[str, np.ndarray] | None = None,
+        log_time_ns: int | None = None,
     ) -> None:
-        """Write one PointCloud2 (x, y, z, intensity, label) stamped ``stamp_ns``."""
+        """
+        Write one PointCloud2 (x, y, z, intensity, label) stamped ``stamp_ns``.
+
+        ``extra_fields`` (name -> (N,) array) are appended in their own datatypes
+        (e.g. a float32 ``time``); ``log_time_ns`` is the bag's receive time (default:
+        the stamp; a driver publishes a sweep at its end).
+        """
         types = self.store.types
         msg = arrays_to_pointcloud2(
             types[POINTCLOUD2],
@@ -143,7 +161,36 @@ class BagWriter:
             intensity,
             label_datatype=label_datatype,
         )
-        self.write_raw(topic, POINTCLOUD2, stamp_ns, msg)
+        if extra_fields:
+            msg = _append_fields(msg, extra_fields, types['sensor_msgs/msg/PointField'])
+        self.write_raw(topic, POINTCLOUD2, stamp_ns if log_time_ns is None else log_time_ns, msg)
+
+    def write_imu(
+        self,
+        stamp_ns: int,
+        angular_velocity: np.ndarray,
+        linear_acceleration: np.ndarray,
+        frame_id: str = SENSOR_FRAME,
+        topic: str = IMU_TOPIC,
+        gyro_variance: float = 0.0,
+        accel_variance: float = 0.0,
+    ) -> None:
+        """Write one sensor_msgs/Imu without orientation (covariance[0] = -1)."""
+        types = self.store.types
+        vector = types['geometry_msgs/msg/Vector3']
+        w, a = np.asarray(angular_velocity, float), np.asarray(linear_acceleration, float)
+        orientation_cov = np.zeros(9)
+        orientation_cov[0] = -1.0  # REP 145: no orientation estimate
+        msg = types[IMU](
+            header=self._header(stamp_ns, frame_id),
+            orientation=types['geometry_msgs/msg/Quaternion'](x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=orientation_cov,
+            angular_velocity=vector(x=float(w[0]), y=float(w[1]), z=float(w[2])),
+            angular_velocity_covariance=np.eye(3).reshape(9) * gyro_variance,
+            linear_acceleration=vector(x=float(a[0]), y=float(a[1]), z=float(a[2])),
+            linear_acceleration_covariance=np.eye(3).reshape(9) * accel_variance,
+        )
+        self.write_raw(topic, IMU, stamp_ns, msg)
 
     def write_odometry(
         self,
@@ -153,8 +200,13 @@ class BagWriter:
         child_frame_id: str = SENSOR_FRAME,
         topic: str = GT_TOPIC,
         pose_covariance: np.ndarray | None = None,
+        twist: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> None:
-        """Write one nav_msgs/Odometry with ``pose`` (4, 4) = T_frame_child."""
+        """
+        Write one nav_msgs/Odometry with ``pose`` (4, 4) = T_frame_child.
+
+        ``twist``: optional (linear (3,), angular (3,)) velocity in the child frame.
+        """
         types = self.store.types
         pose = np.asarray(pose, dtype=np.float64)
         q = matrix_to_quaternion(pose[:3, :3])
@@ -170,7 +222,13 @@ class BagWriter:
             if pose_covariance is None
             else np.asarray(pose_covariance, dtype=np.float64).reshape(36)
         )
-        zero = types['geometry_msgs/msg/Vector3'](x=0.0, y=0.0, z=0.0)
+        vector = types['geometry_msgs/msg/Vector3']
+        zero = vector(x=0.0, y=0.0, z=0.0)
+        linear, angular = zero, zero
+        if twist is not None:
+            lv, av = (np.asarray(v, dtype=np.float64).reshape(3) for v in twist)
+            linear = vector(x=float(lv[0]), y=float(lv[1]), z=float(lv[2]))
+            angular = vector(x=float(av[0]), y=float(av[1]), z=float(av[2]))
         msg = types[ODOMETRY](
             header=self._header(stamp_ns, frame_id),
             child_frame_id=child_frame_id,
@@ -178,11 +236,89 @@ class BagWriter:
                 pose=geometry, covariance=covariance
             ),
             twist=types['geometry_msgs/msg/TwistWithCovariance'](
-                twist=types['geometry_msgs/msg/Twist'](linear=zero, angular=zero),
+                twist=types['geometry_msgs/msg/Twist'](linear=linear, angular=angular),
                 covariance=np.zeros(36),
             ),
         )
         self.write_raw(topic, ODOMETRY, stamp_ns, msg)
+
+
+def _append_fields(msg: Any, columns: dict[str, np.ndarray], field_cls: type) -> Any:
+    """Copy the unorganized cloud ``msg`` with (N,) ``columns`` appended as fields."""
+    from mlsemreg_ros.codec.pointcloud2 import DATATYPE_BY_NAME
+
+    n = int(msg.width) * int(msg.height)
+    names, formats, offsets = ['_base'], [np.dtype((np.uint8, int(msg.point_step)))], [0]
+    offset = int(msg.point_step)
+    fields = list(msg.fields)
+    for name, values in columns.items():
+        column = np.asarray(values).reshape(-1)
+        if column.dtype.name not in DATATYPE_BY_NAME or column.shape[0] != n:
+            raise ValueError(f'field {name!r}: {column.dtype} x {column.shape[0]} for {n} points')
+        names.append(name)
+        formats.append(column.dtype.newbyteorder('<'))
+        offsets.append(offset)
+        fields.append(
+            field_cls(
+                name=name, offset=offset, datatype=DATATYPE_BY_NAME[column.dtype.name], count=1
+            )
+        )
+        offset += column.dtype.itemsize
+    step = -(-offset // 4) * 4  # keep 4-byte alignment of the next point
+    packed = np.zeros(
+        n,
+        dtype=np.dtype({'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': step}),
+    )
+    packed['_base'] = np.asarray(msg.data, dtype=np.uint8).reshape(n, int(msg.point_step))
+    for name, values in columns.items():
+        packed[name] = np.asarray(values).reshape(-1)
+    return type(msg)(
+        header=msg.header,
+        height=1,
+        width=n,
+        fields=fields,
+        is_bigendian=False,
+        point_step=step,
+        row_step=step * n,
+        data=packed.view(np.uint8).reshape(-1).copy(),
+        is_dense=msg.is_dense,
+    )
+
+
+#: Per-point time fields read into :attr:`Scan.point_times` (Velodyne s, Ouster ns).
+POINT_TIME_FIELDS = ('time', 't')
+
+
+def _point_times(msg: Any, count: int) -> np.ndarray | None:
+    """
+    Per-point times (count,) float64, seconds after the header stamp, or None.
+
+    Reads ``time`` (float seconds) or ``t`` (integer nanoseconds), the first present,
+    when the decoded cloud kept every point (``count`` = width x height).
+    """
+    from mlsemreg_ros.codec.pointcloud2 import DATATYPES
+
+    if count != int(msg.width) * int(msg.height):
+        return None
+    fields = {f.name: f for f in msg.fields if int(f.count) == 1}
+    name = next((n for n in POINT_TIME_FIELDS if n in fields), None)
+    if name is None or int(fields[name].datatype) not in DATATYPES:
+        return None
+    dtype = DATATYPES[int(fields[name].datatype)]
+    view = np.ndarray(
+        (int(msg.height), int(msg.width)),
+        dtype=np.dtype(
+            {
+                'names': [name],
+                'formats': [dtype],
+                'offsets': [int(fields[name].offset)],
+                'itemsize': int(msg.point_step),
+            }
+        ),
+        buffer=np.asarray(msg.data, dtype=np.uint8).reshape(-1),
+        strides=(int(msg.row_step), int(msg.point_step)),
+    ).reshape(-1)[name]
+    return view.astype(np.float64) * (1.0 if dtype.kind == 'f' else 1e-9)
 
 
 def _bag_path(path: Path) -> Path:
@@ -221,6 +357,82 @@ def _read_poses(reader: AnyReader, topic: str) -> tuple[np.ndarray, np.ndarray]:
         stamps.append(stamp_to_ns(msg.header.stamp))
         poses.append(_message_pose(msg, connection.msgtype))
     return np.asarray(stamps, dtype=np.int64), np.asarray(poses).reshape(-1, 4, 4)
+
+
+@dataclass
+class ImuArrays:
+    """The messages of an Imu topic as arrays, by header stamp."""
+
+    stamps_ns: np.ndarray  # (n,) int64
+    angular_velocity: np.ndarray  # (n, 3) rad/s, in frame_id
+    linear_acceleration: np.ndarray  # (n, 3) m/s^2 specific force (gravity included)
+    frame_id: str
+
+    def __len__(self) -> int:
+        return int(self.stamps_ns.shape[0])
+
+
+@dataclass
+class WheelOdometryArrays:
+    """The messages of a (wheel) Odometry topic as arrays, by header stamp."""
+
+    stamps_ns: np.ndarray  # (n,) int64
+    poses: np.ndarray  # (n, 4, 4) T_frame_child
+    linear_velocity: np.ndarray  # (n, 3) m/s, child frame (x: forward speed)
+    angular_velocity: np.ndarray  # (n, 3) rad/s, child frame (z: yaw rate)
+    frame_id: str
+    child_frame_id: str
+
+    def __len__(self) -> int:
+        return int(self.stamps_ns.shape[0])
+
+
+def _topic_messages(path: str | Path, topic: str, msgtypes: tuple[str, ...]) -> Iterator[Any]:
+    reader = open_reader(path)
+    try:
+        if topic not in reader.topics:
+            raise SourceError(f'topic {topic!r} not in the bag; topics: {sorted(reader.topics)}')
+        msgtype = reader.topics[topic].msgtype
+        if msgtype not in msgtypes:
+            raise SourceError(f'topic {topic!r} has type {msgtype}; expected one of {msgtypes}')
+        connections = [c for c in reader.connections if c.topic == topic]
+        for connection, _, raw in reader.messages(connections=connections):
+            yield reader.deserialize(raw, connection.msgtype)
+    finally:
+        reader.close()
+
+
+def _vectors(vectors: list[Any]) -> np.ndarray:
+    return np.array([[v.x, v.y, v.z] for v in vectors], dtype=np.float64).reshape(-1, 3)
+
+
+def read_imu(path: str | Path, topic: str = IMU_TOPIC) -> ImuArrays:
+    """All messages of a sensor_msgs/Imu topic, sorted by header stamp."""
+    msgs = list(_topic_messages(path, topic, (IMU,)))
+    stamps = np.array([stamp_to_ns(m.header.stamp) for m in msgs], dtype=np.int64)
+    order = np.argsort(stamps, kind='stable')
+    return ImuArrays(
+        stamps[order],
+        _vectors([m.angular_velocity for m in msgs])[order],
+        _vectors([m.linear_acceleration for m in msgs])[order],
+        str(msgs[0].header.frame_id) if msgs else '',
+    )
+
+
+def read_wheel_odometry(path: str | Path, topic: str = WHEEL_TOPIC) -> WheelOdometryArrays:
+    """All messages of a nav_msgs/Odometry topic (pose and twist), sorted by header stamp."""
+    msgs = list(_topic_messages(path, topic, (ODOMETRY,)))
+    stamps = np.array([stamp_to_ns(m.header.stamp) for m in msgs], dtype=np.int64)
+    order = np.argsort(stamps, kind='stable')
+    poses = np.array([pose_message_to_matrix(m.pose.pose) for m in msgs]).reshape(-1, 4, 4)
+    return WheelOdometryArrays(
+        stamps[order],
+        poses[order],
+        _vectors([m.twist.twist.linear for m in msgs])[order],
+        _vectors([m.twist.twist.angular for m in msgs])[order],
+        str(msgs[0].header.frame_id) if msgs else '',
+        str(msgs[0].child_frame_id) if msgs else '',
+    )
 
 
 class BagScanReader:
@@ -318,6 +530,9 @@ class BagScanReader:
                 )
                 self._warned_labels = True
             stamp = stamp_to_ns(msg.header.stamp)
+            times = getattr(cloud, 'point_times', None)
+            if times is None:
+                times = _point_times(msg, len(cloud))
             yield Scan(
                 index,
                 stamp,
@@ -326,6 +541,7 @@ class BagScanReader:
                 cloud.intensity,
                 str(msg.header.frame_id),
                 self.ground_truth_at(stamp),
+                times,
             )
             produced += 1
 

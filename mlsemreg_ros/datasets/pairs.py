@@ -23,6 +23,7 @@ points onto the target (``T_target_source``); keypoints are members of
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import itertools
 import os
 from pathlib import Path
 
@@ -161,3 +162,86 @@ def first_dev_pair() -> Path | None:
     folder = dev_pairs_dir()
     files = list_pairs(folder) if folder.is_dir() else []
     return files[0] if files else None
+
+
+class ChainError(ValueError):
+    """Pair files that do not form a chain (``pts_dst`` of one is not ``pts_src`` of the next)."""
+
+
+def chained(first: Pair, second: Pair, atol: float = 1e-9) -> bool:
+    """Tell whether ``second`` starts where ``first`` ends (same target / source scan)."""
+    return (
+        first.pts_dst.shape == second.pts_src.shape
+        and np.allclose(first.pts_dst, second.pts_src, rtol=0.0, atol=atol)
+        and np.array_equal(first.label_dst, second.label_src)
+    )
+
+
+def compose_chain(pairs: list[Pair], name: str | None = None) -> Pair:
+    """
+    One pair from the first scan of a chain of pairs to the last one.
+
+    ``pairs[k].pts_dst`` must be ``pairs[k + 1].pts_src`` (:func:`chained`). The source
+    side (points, labels, keypoints, descriptors) is ``pairs[0]``'s, the target side
+    ``pairs[-1]``'s, and ``trans_gt = trans_gt[-1] @ ... @ trans_gt[0]`` (each maps its
+    source onto its target). Raises :class:`ChainError` when a link is broken.
+    """
+    if not pairs:
+        raise ChainError('compose_chain needs at least one pair')
+    for first, second in itertools.pairwise(pairs):
+        if not chained(first, second):
+            raise ChainError(
+                f'{second.name} does not start where {first.name} ends '
+                '(its pts_src/label_src differ from the pts_dst/label_dst before it)'
+            )
+    trans_gt = np.eye(4)
+    for pair in pairs:
+        trans_gt = pair.trans_gt @ trans_gt
+    head, tail = pairs[0], pairs[-1]
+    return Pair(
+        name=name or f'{head.name}_{tail.name}',
+        pts_src=head.pts_src,
+        label_src=head.label_src,
+        pts_dst=tail.pts_dst,
+        label_dst=tail.label_dst,
+        trans_gt=trans_gt,
+        kpts_src=head.kpts_src,
+        kpts_dst=tail.kpts_dst,
+        descriptors_src=dict(head.descriptors_src),
+        descriptors_dst=dict(tail.descriptors_dst),
+    )
+
+
+def reversed_pair(pair: Pair, name: str | None = None) -> Pair:
+    """Return the same two scans the other way round: target as source, ``inv(trans_gt)``."""
+    return Pair(
+        name=name or f'{pair.name}_rev',
+        pts_src=pair.pts_dst,
+        label_src=pair.label_dst,
+        pts_dst=pair.pts_src,
+        label_dst=pair.label_src,
+        trans_gt=np.linalg.inv(pair.trans_gt),
+        kpts_src=pair.kpts_dst,
+        kpts_dst=pair.kpts_src,
+        descriptors_src=dict(pair.descriptors_dst),
+        descriptors_dst=dict(pair.descriptors_src),
+    )
+
+
+def chain_pairs(pairs: list[Pair], apart: int, reverse: bool = False) -> list[Pair]:
+    """
+    Every pair of scans ``apart`` links apart along a chain of pairs (``apart=1``: as given).
+
+    ``pairs`` in chain order; ``len(pairs) - apart + 1`` pairs come out, pair ``k``
+    from the source scan of ``pairs[k]`` to the target scan of ``pairs[k + apart - 1]``
+    (named ``<first>_<last>``, :func:`compose_chain`). ``reverse`` swaps every pair's
+    source and target (:func:`reversed_pair`, name suffix ``_rev``).
+    """
+    if apart < 1:
+        raise ValueError(f'apart must be at least 1, got {apart}')
+    out = []
+    for k in range(len(pairs) - apart + 1):
+        window = pairs[k:][:apart]
+        pair = compose_chain(window, f'{window[0].name}_{window[-1].name}')
+        out.append(reversed_pair(pair) if reverse else pair)
+    return out

@@ -40,6 +40,7 @@ class Scan:
     intensity: np.ndarray | None  # (N,) float32
     frame_id: str
     pose: np.ndarray | None = None  # (4, 4) ground truth T_world_sensor, if known
+    point_times: np.ndarray | None = None  # (N,) float64 s after stamp_ns (sweep start)
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])

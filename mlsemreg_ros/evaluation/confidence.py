@@ -26,6 +26,10 @@ Cases (``kind``):
 - ``dev``: the real KITTI dev pairs, both directions (should register);
 - ``chain-far``: dev-chain scans 80-180 m apart (``dst`` of pair i onto ``dst`` of pair
   j, j - i >= 4; the chain: ``src`` of pair k + 1 is ``dst`` of pair k): no overlap;
+- ``chain-40m``, ``chain-60m``: the dev pairs composed two and three links apart, both
+  ways (:func:`~mlsemreg_ros.datasets.pairs.chain_pairs`; docs/hard_pairs.md); each also
+  gives a ``slide`` row, the verdict on its zero-motion pose (the scans on top of each
+  other, ~40 or ~60 m from the truth), which must be refused;
 - ``mirror``: a scan mirrored in y onto its pair partner and onto itself: no rigid pose;
 - ``labels-20``, ``labels-flip``: a dev pair with one label outside the scheme, and with
   20 % of the source labels replaced at random (should still register);
@@ -91,6 +95,20 @@ def dev_cases(directory: Path, seed: int = 0) -> list[Case]:
         cases.append(
             Case('labels-flip', f'{p.name} 20 % flipped', (p.pts_src, flipped), dst, p.trans_gt)
         )
+    from mlsemreg_ros.datasets.pairs import chain_pairs
+
+    for apart in (2, 3):
+        for reverse in (False, True):
+            for c in chain_pairs(pairs, apart, reverse):
+                cases.append(
+                    Case(
+                        f'chain-{20 * apart}m',
+                        c.name,
+                        (c.pts_src, c.label_src),
+                        (c.pts_dst, c.label_dst),
+                        c.trans_gt,
+                    )
+                )
     # the chain: T_dst(k)_dst(k-1) = trans_gt of pair k; poses of the dst scans in dst(0)
     poses = [np.eye(4)]
     for p in pairs[1:]:
@@ -145,6 +163,8 @@ def measure(
     evidence is computed whatever the thresholds. ``accepted`` is whether ``config``'s
     thresholds accept it (the pipeline's ``success``).
     """
+    import dataclasses
+
     from mlsemreg_ros.core import confidence
     from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
     from mlsemreg_ros.core.pipeline import Registration
@@ -161,19 +181,13 @@ def measure(
             te = translation_error_m(result.transform[:3, 3], case.T_target_source[:3, 3])
             right = (bounds or EvaluationConfig()).succeeded(re, te)
         d = result.diagnostics
+        fields = [f.name for f in dataclasses.fields(confidence.Evidence)]
         evidence = confidence.Evidence(
-            *(
-                d[f'confidence_{k}']
-                for k in (
-                    'num_inliers',
-                    'correspondences',
-                    'overlap',
-                    'label_agreement',
-                    'tilt_deg',
-                )
-            )
+            **{k: d[f'confidence_{k}'] for k in fields if f'confidence_{k}' in d}
         )
         reason = confidence.refusal(evidence, config.confidence, config.estimator.min_inliers)
+        if case.kind.startswith('chain-') and case.kind != 'chain-far':
+            rows.append(_slide_row(registration, case, result))
         rows.append(
             {
                 'kind': case.kind,
@@ -189,6 +203,31 @@ def measure(
             }
         )
     return rows
+
+
+def _slide_row(registration: Any, case: Case, result: Any) -> dict[str, Any]:
+    """Judge a case's zero-motion pose (``Registration.judge``, its correspondences): a row."""
+    from mlsemreg_ros.core.metrics import translation_error_m
+
+    source, target = (
+        registration.prepare(points, labels, lazy=True)
+        for points, labels in (case.source, case.target)
+    )
+    evidence, reason = registration.judge(
+        source, target, np.eye(4), None, result.source_points, result.target_points
+    )
+    return {
+        'kind': 'slide',
+        'name': f'{case.name} zero motion',
+        'right': False,
+        'accepted': not reason,
+        'reason': reason,
+        're_deg': float('nan'),
+        'te_m': translation_error_m(np.zeros(3), case.T_target_source[:3, 3]),
+        'mode': 'judge',
+        **{k: getattr(evidence, k) for k in EVIDENCE},
+        'fine_inlier_fraction': float('nan'),
+    }
 
 
 def summary_lines(rows: list[dict[str, Any]]) -> list[str]:
@@ -375,6 +414,9 @@ def plot(rows: list[dict[str, Any]], path: Path, config: Any) -> None:
     markers = {
         'dev': 'o',
         'chain-far': 'x',
+        'chain-40m': 'P',
+        'chain-60m': '*',
+        'slide': '1',
         'mirror': 's',
         'labels-20': '^',
         'labels-flip': 'v',

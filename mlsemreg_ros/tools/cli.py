@@ -29,6 +29,7 @@ from typing import Annotated
 from mlsemreg_ros.tools import (
     bench,
     bench_node,
+    chain_pairs,
     confidence,
     cut_pairs,
     demo,
@@ -40,6 +41,7 @@ from mlsemreg_ros.tools import (
     relocalize,
     simulate,
     soak,
+    tune,
 )
 from mlsemreg_ros.tools import map as map_tool
 from mlsemreg_ros.tools.common import run
@@ -62,6 +64,7 @@ OPTIONAL = {
     'rclpy': 'the node, play, demo and bench-node (ROS 2 Jazzy)',
     'kiss_icp': 'eval-bag --baseline kiss-icp',
     'kiss_matcher': 'eval-pairs --baseline kiss-matcher',
+    'optuna': 'tune',
 }
 
 app = typer.Typer(
@@ -144,9 +147,11 @@ for module, function, name, panel in (
     (demo, demo.demo, 'demo', EVALUATION),
     (soak, soak.soak, 'soak', EVALUATION),
     (relocalize, relocalize.relocalize, 'relocalize', EVALUATION),
+    (tune, tune.tune, 'tune', EVALUATION),
     (simulate, simulate.simulate, 'simulate', DATA),
     (kitti_to_bag, kitti_to_bag.kitti_to_bag, 'kitti-to-bag', DATA),
     (cut_pairs, cut_pairs.cut_pairs, 'cut-pairs', DATA),
+    (chain_pairs, chain_pairs.chain_pairs, 'chain-pairs', DATA),
     (play, play.play, 'play', DATA),
     (params, params.params, 'params', MAINTENANCE),
 ):

@@ -24,7 +24,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-from mlsemreg_ros.datasets.bag import GT_TOPIC, POINTS_TOPIC, SENSOR_FRAME, WORLD_FRAME
+from mlsemreg_ros.datasets.bag import (
+    BagLayout,
+    GT_TOPIC,
+    POINTS_TOPIC,
+    SENSOR_FRAME,
+    WORLD_FRAME,
+)
 from mlsemreg_ros.tools.common import (
     alias,
     CompressOption,
@@ -40,14 +46,17 @@ from mlsemreg_ros.tools.common import (
 import typer
 
 HELP = 'A labeled LiDAR sequence from the procedural world, as a rosbag2.'
-SENSOR, LABELS = 'Sensor', 'Label degradation'
+SENSOR, LABELS, FIELD = 'Sensor', 'Label degradation', 'Field mode (--realism field)'
+REALISMS = ('clean', 'field')
 
 
 def simulate(
     out: Annotated[
         Path, typer.Argument(help='output bag directory (must not exist, see --force)')
     ],
-    frames: Annotated[int, typer.Option(min=1, help='number of scans')] = 200,
+    frames: Annotated[
+        int, typer.Option(min=0, help='number of scans (0: the whole loop, --route loop)')
+    ] = 200,
     seed: Annotated[int, typer.Option(min=0, help='world, route and noise seed')] = 0,
     storage: StorageOption = 'mcap',
     compress: CompressOption = False,
@@ -93,6 +102,61 @@ def simulate(
     dropout: Annotated[
         float, typer.Option(min=0.0, max=1.0, help='share of lost returns', rich_help_panel=SENSOR)
     ] = 0.05,
+    realism: Annotated[
+        str,
+        typer.Option(
+            help='clean: instantaneous sweeps, exact labels (as before); field: motion '
+            "distortion, per-point time, moving objects, a network's labels, IMU and wheel "
+            'odometry (docs/simulation.md)',
+            rich_help_panel=FIELD,
+        ),
+    ] = 'clean',
+    sensor: Annotated[
+        str, typer.Option(help='hdl64, vlp16 or os128 (field mode)', rich_help_panel=FIELD)
+    ] = 'hdl64',
+    profile: Annotated[
+        str,
+        typer.Option(
+            help='normal, or aggressive: stop-and-go, sharp turns at speed (field mode)',
+            rich_help_panel=FIELD,
+        ),
+    ] = 'normal',
+    route: Annotated[
+        str,
+        typer.Option(
+            help='street: random walk; loop: the same streets again, partly in the opposite '
+            'direction, back to the start (field mode)',
+            rich_help_panel=FIELD,
+        ),
+    ] = 'street',
+    speed: Annotated[
+        float | None,
+        typer.Option(
+            min=0.5,
+            max=40.0,
+            help="cruise speed in m/s on straights (field mode; default: the profile's, "
+            '10 normal, 14 aggressive)',
+            rich_help_panel=FIELD,
+        ),
+    ] = None,
+    moving_objects: Annotated[
+        bool, typer.Option(help='cars, cyclists, pedestrians (field mode)', rich_help_panel=FIELD)
+    ] = True,
+    network_labels: Annotated[
+        bool,
+        typer.Option(
+            help="a network's labels instead of the true ones (field mode)",
+            rich_help_panel=FIELD,
+        ),
+    ] = True,
+    network: Annotated[
+        str,
+        typer.Option(
+            help='whose per-class IoU the label model follows: rangenet++ or salsanext '
+            '(field mode)',
+            rich_help_panel=FIELD,
+        ),
+    ] = 'rangenet++',
     points_topic: PointsTopicOption = POINTS_TOPIC,
     gt_topic: GtTopicOption = GT_TOPIC,
     frame_id: FrameIdOption = SENSOR_FRAME,
@@ -107,6 +171,28 @@ def simulate(
     from mlsemreg_ros.simulation.lidar import LidarConfig
     from mlsemreg_ros.simulation.sequence import SimulationConfig
 
+    if realism not in REALISMS:
+        raise typer.BadParameter(f'use one of {list(REALISMS)}', param_hint='--realism')
+    layout = BagLayout(storage, compress, points_topic, gt_topic, frame_id, world_frame)
+    if realism == 'field':
+        return _simulate_field(
+            out,
+            frames,
+            seed,
+            sensor,
+            profile,
+            route,
+            speed,
+            moving_objects,
+            network_labels,
+            layout,
+            force,
+            quiet,
+        )
+    if frames == 0:
+        raise typer.BadParameter(
+            '0 frames only with --realism field --route loop', param_hint='--frames'
+        )
     replace_output(out, force)
     lidar = LidarConfig(
         beams=beams,
@@ -125,12 +211,56 @@ def simulate(
         flip_fraction=flip_fraction,
         lidar=lidar,
     )
-    layout = BagLayout(storage, compress, points_topic, gt_topic, frame_id, world_frame)
     report = write_simulation_bag(out, config, layout, progress=not quiet)
     print_text(
         f'wrote {out}: {report.frames} scans, {report.points_per_scan:.0f} points/scan, '
         f'{report.path_m:.1f} m driven; world {report.world_s:.1f} s, total '
         f'{report.total_s:.1f} s'
+    )
+    return 0
+
+
+def _simulate_field(
+    out: Path,
+    frames: int,
+    seed: int,
+    sensor: str,
+    profile: str,
+    route: str,
+    speed: float | None,
+    moving_objects: bool,
+    network_labels: bool,
+    network: str,
+    layout: BagLayout,
+    force: bool,
+    quiet: bool,
+) -> int:
+    """Field mode: see :mod:`mlsemreg_ros.simulation.field_export`."""
+    from mlsemreg_ros.evaluation.tables import print_text
+    from mlsemreg_ros.simulation.field import FieldConfig
+    from mlsemreg_ros.simulation.field_export import write_field_bag
+
+    config = FieldConfig(
+        seed=seed,
+        frames=frames,
+        sensor=sensor,
+        profile=profile,
+        route=route,
+        speed=speed,
+        moving_objects=moving_objects,
+        network_labels=network_labels,
+        network=network,
+    )
+    try:
+        config.validate()
+    except ValueError as error:
+        raise typer.BadParameter(str(error)) from None
+    replace_output(out, force)
+    report = write_field_bag(out, config, layout, progress=not quiet)
+    print_text(
+        f'wrote {out}: {report.frames} {sensor} sweeps ({profile}, {route}), '
+        f'{report.points_per_scan:.0f} points/scan, {report.path_m:.1f} m driven; setup '
+        f'{report.setup_s:.1f} s, total {report.total_s:.1f} s'
     )
     return 0
 
