@@ -631,6 +631,9 @@ def _check_step(step: OdometryStep) -> None:
     if step.new_keyframe:  # a degenerate scan never becomes the keyframe
         keyframe = RegistrationConfig().keyframe
         assert len(step.prepared.points) >= keyframe.min_points
+    if step.result is None and step.source == 'prediction':  # tracked: no global registration
+        assert step.accepted and step.relative is not None and np.isfinite(step.relative).all()
+        return
     if step.result is None:  # the first scan, or a scan that could not start the odometry
         assert step.relative is None and step.accepted == (step.source == 'first')
         assert step.accepted or step.reason
