@@ -213,6 +213,8 @@ class Registration:
                     self._landmark_ids,
                     cfg.semantic.cluster_radius,
                     cfg.semantic.cluster_min_points,
+                    cfg.semantic.landmark_min_share,
+                    cfg.semantic.landmark_support_radius,
                 )
             with _timed(timings, 'points_tree_ms'):  # for the dense scores, as a target
                 tree = scan.kdtree or PreparedScan.build_points_tree(points)
