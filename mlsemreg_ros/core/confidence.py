@@ -40,6 +40,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 from mlsemreg_ros.core.config import ConfidenceConfig
+from mlsemreg_ros.core.label_model import label_refusal
 import numpy as np
 
 
@@ -52,6 +53,8 @@ class Evidence:
     overlap: float  # share of the source scan's seen surface on the target scan
     label_agreement: float  # share of the overlapping labeled points that agree
     tilt_deg: float  # angle between the two scans' up axes under the chosen pose
+    #: label agreement these labels can give (core/label_model.py); NaN: unknown
+    label_ceiling: float = float('nan')
 
     @property
     def inlier_ratio(self) -> float:
@@ -86,11 +89,9 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
         reasons.append(
             f'overlap {evidence.overlap:.3f} < confidence.min_overlap={config.min_overlap:g}'
         )
-    if evidence.label_agreement < config.min_label_agreement:
-        reasons.append(
-            f'label agreement {evidence.label_agreement:.3f} < '
-            f'confidence.min_label_agreement={config.min_label_agreement:g}'
-        )
+    label = label_refusal(evidence.label_agreement, evidence.label_ceiling, config)
+    if label:
+        reasons.append(label)
     if not evidence.tilt_deg <= config.max_tilt:  # NaN fails too
         reasons.append(
             f'tilt {evidence.tilt_deg:.1f} deg > confidence.max_tilt={config.max_tilt:g} deg'

@@ -37,6 +37,7 @@ from mlsemreg_ros.core import (
     confidence,
     features,
     fpfh,
+    label_model,
     landmarks,
     matching,
     signatures,
@@ -379,6 +380,9 @@ class Registration:
             float(overlap),
             float(agreement),
             confidence.tilt_deg(transform),
+            label_model.label_ceiling(
+                source, target, self._label_compatibility, self.config.verification
+            ),
         )
 
     def _bev_search(

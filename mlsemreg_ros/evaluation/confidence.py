@@ -171,7 +171,8 @@ def measure(
                     'label_agreement',
                     'tilt_deg',
                 )
-            )
+            ),
+            label_ceiling=d.get('confidence_label_ceiling', float('nan')),
         )
         reason = confidence.refusal(evidence, config.confidence, config.estimator.min_inliers)
         rows.append(
@@ -185,6 +186,7 @@ def measure(
                 'te_m': te,
                 'mode': result.mode,
                 **{k: d[f'confidence_{k}'] for k in EVIDENCE},
+                'label_ceiling': evidence.label_ceiling,
                 'fine_inlier_fraction': d.get('fine_inlier_fraction', float('nan')),
             }
         )
