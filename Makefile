@@ -28,7 +28,7 @@ format: setup
 demo: setup
 	$(VENV)/bin/mlsemreg demo
 
-# regenerate config/params.yaml and the README parameter tables
+# regenerate config/params.yaml and docs/parameters.md
 params: setup
 	$(VENV)/bin/mlsemreg params
 

@@ -33,12 +33,12 @@ def reference_match(
     top_k: int,
     mutual: bool,
 ) -> set[tuple[int, int]]:
-    """Union over groups (eq. 3 / eq. 10) of NN or MNN on the masked distance matrix."""
+    """Union over groups (eq. 3 / eq. 9) of NN or MNN on the masked distance matrix."""
     distance = cdist(src_desc, dst_desc, 'sqeuclidean')
     if src_bmr is None:
         similarity = np.zeros(distance.shape, dtype=np.int64)
     else:
-        similarity = src_bmr.astype(np.int64) @ dst_bmr.astype(np.int64).T  # eq. 5
+        similarity = src_bmr.astype(np.int64) @ dst_bmr.astype(np.int64).T  # eq. 6
     pairs: set[tuple[int, int]] = set()
     for group in range(src_ss.shape[1]):
         rows, cols = np.flatnonzero(src_ss[:, group]), np.flatnonzero(dst_ss[:, group])

@@ -18,9 +18,11 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from mlsemreg_ros.core.alignment import align_pair, AlignmentCloud, LocalMap, UNKNOWN_VARIANCE
+from mlsemreg_ros.core.alignment import align_pair, AlignmentCloud, UNKNOWN_VARIANCE
 from mlsemreg_ros.core.config import FineAlignmentConfig, LocalMapConfig, RegistrationConfig
+from mlsemreg_ros.core.fine_alignment import refinement_refusal, RefinementBounds
 from mlsemreg_ros.core.metrics import rotation_error_deg
+from mlsemreg_ros.core.odometry.local_map import LocalMap
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.rigid import apply_transform, invert_transform
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene, synthetic_pair
@@ -163,12 +165,13 @@ def test_a_refinement_that_moves_too_far_or_keeps_too_little_is_refused() -> Non
         RegistrationConfig().replace({'odometry.max_correction_translation': 0.5})
     )
     cfg = registration.config.fine
+    bounds = RefinementBounds.of(registration.config.odometry)
     world, labels = street_scene(seed=2)
     points, _ = scan_at(world, labels, np.eye(4), seed=1)
     cloud = AlignmentCloud.build(points, 0.3)
     moved = align_pair(cloud, cloud, motion(0.0, (0.8, 0.3, 0.0)), cfg)  # back to identity
     assert _errors(moved.T_target_source, np.eye(4))[1] < 0.01
-    assert 'moved its guess by 0.85 m' in registration.refinement_refusal(moved)
-    assert registration.refinement_refusal(align_pair(cloud, cloud, np.eye(4), cfg)) == ''
+    assert 'moved its guess by 0.85 m' in refinement_refusal(moved, bounds)
+    assert refinement_refusal(align_pair(cloud, cloud, np.eye(4), cfg), bounds) == ''
     apart = align_pair(cloud, cloud, motion(0.0, (0.0, 0.0, 30.0)), cfg)  # nothing overlaps
-    assert 'kept 0.00 of the scan' in registration.refinement_refusal(apart)
+    assert 'kept 0.00 of the scan' in refinement_refusal(apart, bounds)

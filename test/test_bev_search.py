@@ -83,7 +83,7 @@ def test_the_yard_moved_by_a_known_pose_is_found(lookup):
 
 def test_peaks_near_a_better_one_are_suppressed_across_zero_yaw():
     """The peaks go through the estimator's own distinct-pose rule (core/sc2pcr.py)."""
-    from mlsemreg_ros.core.sc2pcr import distinct_hypotheses
+    from mlsemreg_ros.core.poses import distinct_hypotheses
 
     peaks = np.array(  # (score, yaw, tx, ty), best first
         [

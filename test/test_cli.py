@@ -21,6 +21,7 @@ import re
 
 from mlsemreg_ros.tools import cli, eval_bag, play
 import pytest
+import typer
 
 ROOT = Path(__file__).resolve().parents[1]
 SUBCOMMANDS = (
@@ -133,3 +134,25 @@ def test_the_subcommand_and_its_alias_are_the_same_command(tmp_path):
 )
 def test_play_keeps_its_several_topics_after_one_flag(argv, expanded):
     assert play.expand_topics(argv) == expanded
+
+
+def test_cli_choices_and_ranges_come_from_the_config_metadata() -> None:
+    """eval-pairs' --matcher/--estimator, bench's --keypoints and eval-bag's --label-field."""
+    import typing
+
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.ros.node_config import NodeConfig
+    from mlsemreg_ros.tools import bench, eval_bag, eval_pairs
+    from mlsemreg_ros.tools.common import config_choices
+
+    for alias_type, key in (
+        (eval_pairs.MatcherKind, 'matcher.kind'),
+        (eval_pairs.EstimatorKind, 'estimator.kind'),
+        (config_choices('fine.method'), 'fine.method'),
+    ):
+        assert typing.get_args(alias_type) == RegistrationConfig.field_of(key).metadata['choices']
+    low = RegistrationConfig.field_of('keypoints.count').metadata['low']
+    assert bench.keypoint_counts(f'{low},{low + 1}') == (low, low + 1)
+    with pytest.raises(typer.BadParameter, match=r'keypoints\.count'):
+        bench.keypoint_counts(f'{low - 1}')
+    assert eval_bag._LABEL_FIELD.default == NodeConfig().label_field

@@ -19,6 +19,7 @@ import sys
 
 from mlsemreg_ros.core import kernels
 from mlsemreg_ros.core.features import voxel_centroids, voxel_downsample, voxel_groups
+from mlsemreg_ros.core.warm_up import warm_up
 import numpy as np
 import pytest
 
@@ -29,7 +30,7 @@ def test_environment_switch_disables_the_kernels(monkeypatch: pytest.MonkeyPatch
     monkeypatch.setenv(kernels.ENV_SWITCH, 'numpy')
     assert not kernels.enabled()
     assert kernels.use_compiled(None) is False
-    assert kernels.warm_up() == {}
+    assert warm_up() == {}
     monkeypatch.setenv(kernels.ENV_SWITCH, 'numba')
     assert kernels.enabled() == kernels.AVAILABLE
     assert kernels.use_compiled(False) is False
@@ -61,7 +62,7 @@ def test_cache_directory_falls_back_when_the_package_is_read_only(
 
 @needs_numba
 def test_warm_up_compiles_into_the_on_disk_cache() -> None:
-    timings = kernels.warm_up()
+    timings = warm_up()
     assert set(timings) == {'voxel_ms', 'fpfh_ms', 'total_ms'}
     folder = Path(kernels.cache_directory() or Path(kernels.__file__).parent / '__pycache__')
     names = ' '.join(p.name for p in folder.rglob('*.nbi'))

@@ -129,7 +129,7 @@ def test_registers_a_pair_with_the_right_frames_and_stamps(defaults: NodeProbe) 
     directory = dev_pairs_dir()
     if directory.is_dir() and list_pairs(directory):
         pair = load_pair(list_pairs(directory)[0])
-    else:  # ../shared absent: the synthetic street
+    else:  # no dev pairs: the synthetic street
         pair = synthetic_pair(seed=1)
     dst_stamp, src_stamp, status = send_pair(probe, pair)
     assert status['level'] == 0, status['message']
@@ -225,6 +225,22 @@ def test_invalid_parameter_changes_are_rejected(
     assert reason in result.reason
     assert probe.get_parameters([name]) == before
     assert node._params.snapshot() == core_before
+
+
+def test_a_rejected_change_leaves_the_process_thread_count(ros: Any) -> None:
+    """Checking a change must not apply any of it: threads with an unknown class is refused."""
+    from mlsemreg_ros.core import threads
+    from rclpy.parameter import Parameter
+
+    node, _ = ros
+    before = threads.workers()
+    change = [
+        Parameter('threads', value=before + 1),
+        Parameter('semantic.landmark_classes', value=['pole', 'lamppost']),
+    ]
+    result = node._params._validate(change)
+    assert not result.successful and "unknown class 'lamppost'" in result.reason
+    assert threads.workers() == before
 
 
 def test_malformed_input_is_skipped_and_the_node_keeps_working(

@@ -18,6 +18,7 @@
 from __future__ import annotations
 
 from dev_pairs import dev_pair_files
+from mlsemreg_ros.core import poses
 from mlsemreg_ros.core import sc2pcr as sc2
 from mlsemreg_ros.core.config import EstimatorConfig
 from mlsemreg_ros.core.estimation import estimate
@@ -291,7 +292,7 @@ def test_every_hypothesis_is_returned_most_inliers_first() -> None:
     )
     np.testing.assert_allclose(refined, result.transform, atol=1e-9)
     # the best distinct hypothesis is the truth
-    kept = sc2.distinct_hypotheses(hypotheses.T_target_source, 5, 5.0, 0.6)
+    kept = poses.distinct_hypotheses(hypotheses.T_target_source, 5, 5.0, 0.6)
     assert kept[0] == 0
     assert _errors(hypotheses.T_target_source[kept[0]], truth)[0] < 2.0
     assert estimate(src, dst, EstimatorConfig(kind='ransac')).hypotheses is None

@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Known-answer and property tests of Local-SS (eq. 1), BMR-SS (eq. 4) and eq. 5."""
+"""Known-answer and property tests of Local-SS (eq. 1), BMR-SS (eq. 5) and eq. 6."""
 
 from mlsemreg_ros.core import threads as thread_settings
 from mlsemreg_ros.core.labels import LabelMap

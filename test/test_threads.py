@@ -91,3 +91,20 @@ def test_descriptor_choice_reaches_the_pipeline():
     np.testing.assert_array_equal(prepared.descriptors, expected[valid_descriptor_mask(expected)])
     ours = Registration().prepare(pair.pts_src, pair.label_src)
     assert not np.array_equal(ours.descriptors[:10], prepared.descriptors[:10])
+
+
+def test_checking_a_config_changes_no_thread_count():
+    """Registration.check validates class names without configuring the process's pools."""
+    from mlsemreg_ros.core.config import ConfigError
+    from mlsemreg_ros.core.labels import LabelMap
+    import pytest
+
+    before = threads.workers()
+    bad = RegistrationConfig().replace(
+        {'threads': before + 1, 'semantic.landmark_classes': ['pole', 'lamppost']}
+    )
+    with pytest.raises(ConfigError, match='lamppost'):
+        Registration.check(bad, LabelMap.load())
+    with pytest.raises(ConfigError, match='lamppost'):
+        Registration(bad)
+    assert threads.workers() == before

@@ -16,10 +16,10 @@
 
 from __future__ import annotations
 
-from mlsemreg_ros.core import sc2pcr as sc2
 from mlsemreg_ros.core.config import ConfigError, RegistrationConfig, VerificationConfig
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.core.poses import distinct_hypotheses
 from mlsemreg_ros.core.results import Landmarks, PreparedScan
 from mlsemreg_ros.core.rigid import apply_transform, invert_transform
 from mlsemreg_ros.core.verification import (
@@ -198,9 +198,9 @@ def test_distinct_hypotheses_drop_poses_within_the_success_bounds():
             _pose(180.0, (0.0, 0.0, 0.0)),  # kept
         ]
     )
-    np.testing.assert_array_equal(sc2.distinct_hypotheses(transforms, 10, 5.0, 0.6), [0, 2, 4, 6])
-    np.testing.assert_array_equal(sc2.distinct_hypotheses(transforms, 2, 5.0, 0.6), [0, 2])
-    np.testing.assert_array_equal(sc2.distinct_hypotheses(transforms, 10, 0.0, 0.0), np.arange(7))
+    np.testing.assert_array_equal(distinct_hypotheses(transforms, 10, 5.0, 0.6), [0, 2, 4, 6])
+    np.testing.assert_array_equal(distinct_hypotheses(transforms, 2, 5.0, 0.6), [0, 2])
+    np.testing.assert_array_equal(distinct_hypotheses(transforms, 10, 0.0, 0.0), np.arange(7))
 
 
 # -- a symmetric street: the mirror pose wins the sparse count, loses on labels -----------

@@ -23,8 +23,9 @@ this module only chooses its inputs and reads its result:
 
     AlignmentCloud.build(points, res)    downsample, KD-tree, normals and covariances, once
     align_pair(source, target, T_init)   T_target_source refined scan to scan
-    LocalMap.align(source, T_init)       T_map_source refined against the local map
-    LocalMap.insert(source, T)           the aligned scan joins the map (LRU-bounded)
+
+The local map of the odometry (``core/odometry/local_map.py``) aligns with the same
+solver settings.
 
 Covariance (:meth:`Alignment.covariance`): small_gicp's Gauss-Newton Hessian ``H`` is in
 the source frame, perturbation ``T exp(delta)``, ``delta = [omega, v]`` (checked by a
@@ -38,7 +39,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from mlsemreg_ros.core import threads
-from mlsemreg_ros.core.config import FineAlignmentConfig, LocalMapConfig
+from mlsemreg_ros.core.config import FineAlignmentConfig
 import numpy as np
 import small_gicp
 
@@ -209,92 +210,3 @@ def align_pair(
             **common,
         )
     return _alignment(result, init, len(source))
-
-
-class LocalMap:
-    """
-    The odometry's local map in the odom frame: recent aligned scans, LRU-bounded.
-
-    ``vgicp`` keeps a :class:`small_gicp.GaussianVoxelMap` (one Gaussian per
-    ``fine.voxel_size`` voxel) and aligns against it directly. The point-based methods
-    keep a :class:`small_gicp.IncrementalVoxelMap` of points and index its points
-    (KD-tree, normals, covariances) again after every insertion, which costs more.
-    Voxels that no insertion touched for ``local_map.horizon`` insertions are dropped.
-    """
-
-    def __init__(self, fine: FineAlignmentConfig, local_map: LocalMapConfig) -> None:
-        self.fine, self.config = fine, local_map
-        self._map: small_gicp.GaussianVoxelMap | small_gicp.IncrementalVoxelMap
-        self._indexed: AlignmentCloud | None = None  # point maps: the map as a target
-        self.insertions = 0
-        self.clear()
-
-    def clear(self) -> None:
-        """Forget every scan (a reset); the next insertion starts a new map."""
-        if self.fine.method == 'vgicp':
-            self._map = small_gicp.GaussianVoxelMap(self.fine.voxel_size)
-        else:
-            self._map = small_gicp.IncrementalVoxelMap(self.fine.voxel_size)
-        self._map.set_lru(self.config.horizon, self.config.clear_cycle)
-        self._indexed = None
-        self.insertions = 0
-
-    def reconfigure(self, fine: FineAlignmentConfig, local_map: LocalMapConfig) -> bool:
-        """Take new settings; the map is cleared when its structure changed (returns True)."""
-        rebuild = (fine.method, fine.voxel_size) != (self.fine.method, self.fine.voxel_size)
-        lru = (local_map.horizon, local_map.clear_cycle) != (
-            self.config.horizon,
-            self.config.clear_cycle,
-        )
-        self.fine, self.config = fine, local_map
-        if rebuild:
-            self.clear()
-        elif lru:
-            self._map.set_lru(local_map.horizon, local_map.clear_cycle)
-        return rebuild
-
-    def __len__(self) -> int:
-        """Occupied voxels."""
-        return int(self._map.size())
-
-    @property
-    def empty(self) -> bool:
-        """Whether no scan was inserted since the last clear."""
-        return self.insertions == 0
-
-    def points(self) -> np.ndarray:
-        """Return the map as coordinates (V, 3), odom frame: voxel means or cell points."""
-        if len(self) == 0:
-            return np.zeros((0, 3))
-        return np.asarray(self._map.voxel_points(), dtype=np.float64)[:, :3]
-
-    def insert(self, scan: AlignmentCloud, T_map_scan: np.ndarray) -> None:
-        """Add an aligned scan at its pose ``T_map_scan`` (also advances the LRU clock)."""
-        if len(scan) == 0:
-            return
-        self._map.insert(scan.cloud, np.asarray(T_map_scan, dtype=np.float64))
-        self._indexed = None
-        self.insertions += 1
-
-    def align(
-        self, scan: AlignmentCloud, T_initial: np.ndarray, num_threads: int | None = None
-    ) -> Alignment:
-        """Refine ``T_map_scan`` from ``T_initial`` against the map."""
-        if len(scan) < 6 or len(self) == 0:
-            return _failed(T_initial, len(scan))
-        init = np.asarray(T_initial, dtype=np.float64)
-        common = _solver_settings(self.fine, num_threads or threads.workers())
-        if isinstance(self._map, small_gicp.GaussianVoxelMap):
-            result = small_gicp.align(self._map, scan.cloud, init, **common)
-        else:
-            if self._indexed is None:
-                self._indexed = AlignmentCloud.build(self.points(), 0.0, self.fine.num_neighbors)
-            result = small_gicp.align(
-                self._indexed.cloud,
-                scan.cloud,
-                self._indexed.tree,
-                init,
-                registration_type=_REGISTRATION_TYPES[self.fine.method],
-                **common,
-            )
-        return _alignment(result, init, len(scan))

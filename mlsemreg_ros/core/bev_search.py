@@ -50,8 +50,8 @@ import time
 
 from mlsemreg_ros.core.config import BevSearchConfig, RegistrationConfig
 from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.poses import distinct_hypotheses
 from mlsemreg_ros.core.results import PreparedScan, VerificationResult
-from mlsemreg_ros.core.sc2pcr import distinct_hypotheses
 from mlsemreg_ros.core.verification import LabelCompatibility, refine_starts, score_hypotheses
 import numpy as np
 from scipy import fft, ndimage
@@ -254,7 +254,7 @@ def bev_hypotheses(
     - ``config``: the ``bev_search`` section (grid, yaws, peaks, suppression).
 
     Peaks within ``nms_rotation`` and ``nms_translation`` of a better one are dropped by
-    :func:`~mlsemreg_ros.core.sc2pcr.distinct_hypotheses`, as the estimator's hypotheses.
+    :func:`~mlsemreg_ros.core.poses.distinct_hypotheses`, as the estimator's hypotheses.
 
     Returns ``(transforms (H, 4, 4), scores (H,))``; empty when a scan has no searched
     point.

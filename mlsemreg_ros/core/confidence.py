@@ -32,7 +32,7 @@ give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in
 GM-only results (no usable landmark) face the same rule. The thresholds come from the
 distributions measured by ``mlsemreg-confidence`` (correct and wrong registrations of
 the dev pairs, non-overlapping chain pairs, mirrored clouds, label-corrupted scans and
-simulated drives; the README shows them).
+simulated drives; docs/results.md shows them).
 """
 
 from __future__ import annotations

@@ -106,9 +106,9 @@ class SemanticConfig:
         low=0.01,
         high=10.0,
     )
-    ring_count: int = param(33, 'Number N of BMR-SS rings (eq. 4).', low=1, high=256)
+    ring_count: int = param(33, 'Number N of BMR-SS rings (eq. 5).', low=1, high=256)
     ring_width: float = param(
-        1.5, 'Width L of each BMR-SS ring (eq. 4).', unit='m', low=0.01, high=50.0
+        1.5, 'Width L of each BMR-SS ring (eq. 5).', unit='m', low=0.01, high=50.0
     )
     top_k: int = param(
         2,
@@ -924,20 +924,6 @@ class OdometryConfig:
     )
 
 
-SECTIONS: dict[str, type] = {
-    'semantic': SemanticConfig,
-    'features': FeatureConfig,
-    'keypoints': KeypointConfig,
-    'matcher': MatcherConfig,
-    'estimator': EstimatorConfig,
-    'verification': VerificationConfig,
-    'confidence': ConfidenceConfig,
-    'fine': FineAlignmentConfig,
-    'local_map': LocalMapConfig,
-    'keyframe': KeyframeConfig,
-    'odometry': OdometryConfig,
-}
-
 #: Parameters that existed once, with what replaced them (reported when they are set).
 REMOVED: dict[str, str] = {
     'refine.icp': 'replaced by fine.method (small_gicp GICP/VGICP; off disables it)',
@@ -953,7 +939,7 @@ class Settings:
     The one engine behind the core's :class:`RegistrationConfig` and the node's settings:
     flat names are ``field`` or ``section.field``; every field is declared with
     :func:`param` (description, unit, range, choices), so the ROS layer, the parameter
-    file and the README table are generated from the same metadata. Unknown and removed
+    file and docs/parameters.md are generated from the same metadata. Unknown and removed
     names are rejected with the reason; values are type-checked, range-checked and
     cross-checked (:meth:`check`) as a whole.
     """

@@ -263,7 +263,7 @@ def valid_descriptor_mask(descriptors: np.ndarray) -> np.ndarray:
     Rows that are usable descriptors: all finite and not all zero.
 
     GEDI arrays can hold NaN rows and FPFH gives all-zero rows for isolated points;
-    either would attract matches (DESIGN, pitfalls), so such keypoints are dropped.
+    either would attract matches (docs/definitions.md, pitfalls), so such keypoints are dropped.
 
     - ``descriptors``: (M, D) float.
 

@@ -29,9 +29,9 @@ else ``<tmp>/mlsemreg_ros-numba-<uid>``. It is chosen before numba is imported;
 when numba was imported earlier with no cache directory of its own, the choice is
 written into ``numba.config.CACHE_DIR`` (it then applies to the whole process).
 
-Start-up: :func:`warm_up` compiles (first run: seconds) or loads from the cache
-(~0.15 s) every kernel. :func:`keep_freed_memory` (opt-in, process-wide) stops
-glibc from returning freed temporaries to the system at every frame.
+Start-up: :func:`mlsemreg_ros.core.warm_up.warm_up` compiles (first run: seconds) or
+loads from the cache (~0.15 s) every kernel. :func:`keep_freed_memory` (opt-in,
+process-wide) stops glibc from returning freed temporaries to the system at every frame.
 """
 
 from __future__ import annotations
@@ -43,7 +43,6 @@ import os
 from pathlib import Path
 import sys
 import tempfile
-import time
 from typing import Any
 
 import numpy as np
@@ -285,33 +284,3 @@ def keep_freed_memory(mmap_threshold: int = 32 << 20, trim_threshold: int = 256 
         mallopt(_M_MMAP_THRESHOLD, int(mmap_threshold))
         and mallopt(_M_TRIM_THRESHOLD, int(trim_threshold))
     )
-
-
-def warm_up() -> dict[str, float]:
-    """
-    Compile or load from the cache every kernel, on a tiny cloud; return ms per step.
-
-    Call it once at start-up (e.g. the node before its first scan) so the first frame
-    does not pay the JIT. Without numba (or with ``MLSEMREG_KERNELS=numpy``) it
-    returns ``{}``. Keys: ``voxel_ms``, ``fpfh_ms`` (both FPFH variants), ``total_ms``.
-    """
-    if not enabled():
-        return {}
-    from mlsemreg_ros.core import fpfh
-    from mlsemreg_ros.core.features import voxel_downsample
-
-    rng = np.random.default_rng(0)
-    points = np.c_[rng.uniform(-2.0, 2.0, (200, 2)), rng.normal(0.0, 0.05, 200)]
-    labels = rng.integers(0, 3, 200)
-    timings: dict[str, float] = {}
-    start = time.perf_counter()
-    voxel_downsample(points, labels, 0.3, compiled=True)
-    timings['voxel_ms'] = 1e3 * (time.perf_counter() - start)
-    middle = time.perf_counter()
-    indices = np.arange(0, 200, 7)
-    fpfh.fpfh_at_keypoints(points, indices, 0.9, 1.5, 0.5, snap=True, compiled=True)
-    fpfh.fpfh_at_keypoints(points, indices, 0.9, 1.5, 0.5, snap=False, compiled=True)
-    end = time.perf_counter()
-    timings['fpfh_ms'] = 1e3 * (end - middle)
-    timings['total_ms'] = 1e3 * (end - start)
-    return timings

@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Landmarks for BMR-SS: Euclidean clusters of landmark-class points (Sec. 3.3, eq. 3)."""
+"""Landmarks for BMR-SS: Euclidean clusters of landmark-class points (Sec. 3.3, eq. 4)."""
 
 from __future__ import annotations
 

@@ -14,22 +14,22 @@
 """
 Group Matching, Mask Matching and ML-SemReg = GM o MM (paper Sec. 3.2-3.3).
 
-Definitions (paper, DESIGN.md section 3):
+Definitions (paper; docs/definitions.md):
 
 * Group Matching (eq. 2-3): group G_s holds the source and target keypoints whose Local-SS
   contains label s; correspondences are the union over groups of the matcher run inside
   each group.
-* Mask Matching (eq. 6-9): in a group, row i of the scene similarity S (eq. 5) keeps the
+* Mask Matching (eq. 7-8): in a group, row i of the scene similarity S (eq. 6) keeps the
   targets j with ``S[i, j] >= max_j S[i, j] - (K - 1)`` (the top-K *levels*, ties
   included, as the reference implementation); the matcher selects among those by
   descriptor distance (masked argmin on distances, never an argmax of underflowing scores).
-* ML-SemReg (eq. 10): Mask Matching inside every group, union of the results.
+* ML-SemReg (eq. 9): Mask Matching inside every group, union of the results.
 
 The engine (:func:`semantic_match`) is exact and avoids the dense |P| x |Q| x |bins| work:
 
 1. Targets are sorted by their group pattern (Local-SS bitmask); a group touches only its
    own rows and targets (sum over groups of |P_s| |Q_s| is about 2/3 of |P| |Q| on KITTI).
-2. In a group, S (eq. 5) is built per chunk of source rows as a gather-add of target bin
+2. In a group, S (eq. 6) is built per chunk of source rows as a gather-add of target bin
    rows (BMR-SS has 2-15 set bins a row), once per distinct target BMR-SS ("pattern",
    about half of the targets at 5000 keypoints); its row maxima give m_s(i).
 3. A (row, group) with threshold ``T = m_s(i) - (K - 1) <= 0`` keeps every target of the
@@ -108,7 +108,7 @@ def ml_semreg(
     class_names: tuple[str, ...] | None = None,
 ) -> MatchOutcome:
     """
-    ML-SemReg correspondences (eq. 10) between two prepared scans.
+    ML-SemReg correspondences (eq. 9) between two prepared scans.
 
     Landmark classes enter BMR-SS only when both scans have them. When either scan has
     fewer than ``config.min_landmarks`` such landmarks, Mask Matching is skipped and
@@ -383,7 +383,7 @@ def _padded_bins(bmr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     Set bins of every BMR-SS row, (M, W) padded with the zero bin T*N, and (M,) counts.
 
-    Row i of S is then the sum over k of the target bin rows ``bits[i, k]`` (eq. 5).
+    Row i of S is then the sum over k of the target bin rows ``bits[i, k]`` (eq. 6).
     """
     flat = np.flatnonzero(bmr)  # (2-D np.nonzero is about twice as slow)
     rows = flat // max(bmr.shape[1], 1)
@@ -448,7 +448,7 @@ def _masked_chunk(
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Mask Matching of source ``rows`` in one group: S, threshold, candidates, winners."""
     bits = ctx.bits[rows, : max(int(ctx.width[rows].max()), 1)]  # padded with the zero bin
-    similarity = group.bins[bits[:, 0]]  # (R, P) scene similarity S per pattern, eq. 5
+    similarity = group.bins[bits[:, 0]]  # (R, P) scene similarity S per pattern, eq. 6
     for k in range(1, bits.shape[1]):  # set bins, not points
         similarity += group.bins[bits[:, k]]
     # T = m_s(i) - (K - 1); a (row, group) is restrictive iff T >= 1

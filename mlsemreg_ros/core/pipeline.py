@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 import functools
 import time
 from typing import Any
@@ -43,9 +44,10 @@ from mlsemreg_ros.core import (
     signatures,
     threads,
 )
-from mlsemreg_ros.core.alignment import align_pair, Alignment, AlignmentCloud
+from mlsemreg_ros.core.alignment import align_pair
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import estimate
+from mlsemreg_ros.core.fine_alignment import alignment_cloud, refinement_refusal, RefinementBounds
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.core.results import (
     Correspondences,
@@ -54,11 +56,37 @@ from mlsemreg_ros.core.results import (
     RegistrationResult,
     VerificationResult,
 )
-from mlsemreg_ros.core.rigid import rotation_angle_deg
 from mlsemreg_ros.core.scan_input import sanitize_scan_for
 from mlsemreg_ros.core.threads import LazyPool
-from mlsemreg_ros.core.verification import dense_scores, label_compatibility, verify_hypotheses
+from mlsemreg_ros.core.verification import (
+    dense_scores,
+    label_compatibility,
+    LabelCompatibility,
+    verify_hypotheses,
+)
 import numpy as np
+
+
+@dataclass(frozen=True)
+class _ResolvedClasses:
+    """A config's class names resolved to label ids once (unknown names raise ConfigError)."""
+
+    landmark_ids: np.ndarray
+    ignored_ids: np.ndarray
+    undefined_ids: np.ndarray
+    label_compatibility: LabelCompatibility
+    bev_channels: np.ndarray
+
+    @classmethod
+    def of(cls, config: RegistrationConfig, label_map: LabelMap) -> _ResolvedClasses:
+        sem = config.semantic
+        return cls(
+            label_map.ids_of(sem.landmark_classes),
+            label_map.ids_of(sem.ignored_classes),
+            label_map.ids_of(sem.undefined_classes),
+            label_compatibility(label_map, config.verification),
+            bev_search.channel_lookup(label_map, config.bev_search),
+        )
 
 
 @contextmanager
@@ -88,15 +116,19 @@ class Registration:
 
     @config.setter
     def config(self, config: RegistrationConfig) -> None:
-        sem = config.semantic
-        threads.configure(config.threads)
-        # Resolve class names once; unknown names raise ConfigError here.
-        self._landmark_ids = self.label_map.ids_of(sem.landmark_classes)
-        self._ignored_ids = self.label_map.ids_of(sem.ignored_classes)
-        self._undefined_ids = self.label_map.ids_of(sem.undefined_classes)
-        self._label_compatibility = label_compatibility(self.label_map, config.verification)
-        self._bev_channels = bev_search.channel_lookup(self.label_map, config.bev_search)
+        resolved = _ResolvedClasses.of(config, self.label_map)  # ConfigError if unknown
+        threads.configure(config.threads)  # process-wide: only once the config is valid
+        self._landmark_ids = resolved.landmark_ids
+        self._ignored_ids = resolved.ignored_ids
+        self._undefined_ids = resolved.undefined_ids
+        self._label_compatibility = resolved.label_compatibility
+        self._bev_channels = resolved.bev_channels
         self._config = config
+
+    @staticmethod
+    def check(config: RegistrationConfig, label_map: LabelMap) -> None:
+        """Raise ConfigError if ``config`` names a class ``label_map`` lacks; no side effects."""
+        _ResolvedClasses.of(config, label_map)
 
     # ------------------------------------------------------------------------------
     def prepare(
@@ -316,13 +348,13 @@ class Registration:
         if refine and np.all(np.isfinite(transform)) and cfg.fine.pair_method != 'off':
             with _timed(timings, 'fine_ms'):
                 alignment = align_pair(
-                    self.alignment_cloud(source, pair=True),
-                    self.alignment_cloud(target, pair=True),
+                    alignment_cloud(source, cfg.fine, pair=True),
+                    alignment_cloud(target, cfg.fine, pair=True),
                     transform,
                     cfg.fine,
                     cfg.fine.pair_method,
                 )
-            refused = self.refinement_refusal(alignment)
+            refused = refinement_refusal(alignment, RefinementBounds.of(cfg.odometry))
             diagnostics.update(
                 fine_inlier_fraction=alignment.inlier_fraction,
                 fine_iterations=alignment.iterations,
@@ -411,51 +443,6 @@ class Registration:
         )
         diagnostics['bev_search_used'] = won
         return searched if won else None
-
-    def alignment_cloud(self, scan: PreparedScan, pair: bool = False) -> AlignmentCloud:
-        """
-        Return the scan's fine-alignment cloud (built once, then cached on the scan).
-
-        Odometry: downsampled to ``fine.downsampling_resolution``, ``fine.num_neighbors``
-        (made by :meth:`prepare`). Pairs (``pair=True``): the prepared scan as it is,
-        ``fine.pair_num_neighbors``.
-        """
-        fine = self.config.fine
-        key = (
-            (0.0, fine.pair_num_neighbors)
-            if pair
-            else (fine.downsampling_resolution, fine.num_neighbors)
-        )
-        if key not in scan.alignment_clouds:
-            scan.alignment_clouds[key] = AlignmentCloud.build(scan.points, *key)
-        return scan.alignment_clouds[key]
-
-    def refinement_refusal(self, alignment: Alignment) -> str:
-        """
-        Why a fine alignment's result is not trusted ('' if it is).
-
-        It must keep ``odometry.min_inlier_fraction`` of the scan as inliers and move its
-        initial guess by at most the ``odometry.max_correction_*`` bounds: a refinement
-        that runs away or converges with little overlap is refused, not believed.
-        """
-        bounds = self.config.odometry
-        moved = alignment.correction
-        shift, turn = float(np.linalg.norm(moved[:3, 3])), rotation_angle_deg(moved)
-        if not np.all(np.isfinite(alignment.T_target_source)):
-            return 'non-finite fine alignment'
-        if alignment.inlier_fraction < bounds.min_inlier_fraction:
-            return (
-                f'fine alignment kept {alignment.inlier_fraction:.2f} of the scan as '
-                f'inliers < odometry.min_inlier_fraction={bounds.min_inlier_fraction:g}'
-            )
-        if shift > bounds.max_correction_translation or turn > bounds.max_correction_rotation:
-            return (
-                f'fine alignment moved its guess by {shift:.2f} m / {turn:.2f} deg, more '
-                f'than odometry.max_correction_translation/rotation='
-                f'{bounds.max_correction_translation:g} m / '
-                f'{bounds.max_correction_rotation:g} deg'
-            )
-        return ''
 
     def prepare_scans(self, *scans: dict[str, Any]) -> list[PreparedScan]:
         """

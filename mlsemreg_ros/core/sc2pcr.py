@@ -34,7 +34,7 @@ following the stages of the authors' reference code, in NumPy/SciPy for a CPU:
 5. the hypothesis with most inliers (residual < ``inlier_threshold``) wins and
    is refined by reweighted least squares on its inliers.  All hypotheses are
    returned too, most inliers first (:class:`Hypotheses`):
-   :func:`distinct_hypotheses` picks the best distinct ones for hypothesis
+   :func:`~mlsemreg_ros.core.poses.distinct_hypotheses` picks the best distinct ones for hypothesis
    verification on the dense scans (``core/verification.py``, beyond the paper).
 
 Departures from the reference code, all deliberate:
@@ -66,8 +66,9 @@ import dataclasses
 import time
 
 from mlsemreg_ros.core.config import EstimatorConfig
+from mlsemreg_ros.core.poses import residuals
 from mlsemreg_ros.core.results import EstimateResult, Hypotheses
-from mlsemreg_ros.core.rigid import apply_transform, weighted_rigid_transform
+from mlsemreg_ros.core.rigid import weighted_rigid_transform
 import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
@@ -215,46 +216,6 @@ def sc2pcr(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estimat
     timings['sc2_total_ms'] = _ms(start)
     diagnostics.update(timings)
     return EstimateResult(transform, inlier_mask, diagnostics, candidates)
-
-
-def distinct_hypotheses(
-    transforms: np.ndarray, limit: int, rotation_deg: float, translation_m: float
-) -> np.ndarray:
-    """
-    Return the indices of at most ``limit`` distinct hypotheses, best first.
-
-    Greedy: the first is kept, then every hypothesis within ``rotation_deg`` *and*
-    ``translation_m`` of a kept one is dropped, and the next remaining one is kept.
-    With the success bounds (5 deg, 0.6 m) two kept hypotheses can never both count
-    as the same registration. One vectorized pass over all ``S`` per kept hypothesis.
-
-    - ``transforms``: ``(S, 4, 4)``, best first (e.g. :class:`Hypotheses`).
-    - ``limit``: most hypotheses to keep (``>= 1``).
-
-    Returns ``(n,)`` int64 indices, ``n <= limit``, ascending; ``0`` first when ``S > 0``.
-    """
-    available = np.ones(transforms.shape[0], dtype=bool)
-    kept: list[int] = []
-    while len(kept) < limit and available.any():
-        first = int(np.argmax(available))
-        kept.append(first)
-        available &= ~same_pose(transforms[first], transforms, rotation_deg, translation_m)
-    return np.asarray(kept, dtype=np.int64)
-
-
-def same_pose(
-    pose: np.ndarray, others: np.ndarray, rotation_deg: float, translation_m: float
-) -> np.ndarray:
-    """
-    ``(S,)`` bool: ``pose`` ``(4, 4)`` is within both bounds of each of ``others`` ``(S, 4, 4)``.
-
-    The rotation angle of ``R^T R_s`` comes from its trace, the elementwise product sum
-    ``(trace - 1) / 2 = cos``; the translation bound is on ``||t - t_s||``, as in the
-    success test of the evaluation protocol.
-    """
-    cos = (np.einsum('ab,sab->s', pose[:3, :3], others[:, :3, :3]) - 1.0) / 2.0
-    close = np.linalg.norm(others[:, :3, 3] - pose[:3, 3], axis=1) <= translation_m
-    return close & (cos >= np.cos(np.radians(rotation_deg)) - 1e-12)
 
 
 def graph_rows(count: int, graph_size: int) -> np.ndarray:
@@ -786,11 +747,6 @@ def post_refinement(
         if stop is not None and stop(transform):
             break
     return transform, done
-
-
-def residuals(transform: np.ndarray, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """``(K,)`` distances ``||R src_i + t - dst_i||`` in metres."""
-    return np.linalg.norm(apply_transform(transform, src) - dst, axis=-1)
 
 
 def _augmented(points: np.ndarray, dtype: type) -> tuple[np.ndarray, np.ndarray]:

@@ -12,7 +12,7 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-Semantic signatures of keypoints: Local-SS (eq. 1) and BMR-SS (eq. 4), scene similarity (eq. 5).
+Semantic signatures of keypoints: Local-SS (eq. 1) and BMR-SS (eq. 5), scene similarity (eq. 6).
 
 Notation of the paper (Sec. 3): keypoints p_i of a scan with labels rho(.), a set S of
 semantic labels, landmarks (cluster centroids of landmark classes), N rings of width L.
@@ -51,7 +51,7 @@ def local_semantic_signature(
     ``n_i[c]`` is true iff a scan point of learning id c lies within ``radius`` (r_local, m)
     of keypoint i. Ignored classes are dropped. A keypoint that sees an undefined class
     (e.g. unlabeled) becomes a member of every group: all defined classes are set and the
-    undefined ones cleared, independent of keypoint order (cf. DESIGN pitfalls).
+    undefined ones cleared, independent of keypoint order (docs/definitions.md, pitfalls).
 
     points (N, 3), labels (N,) learning ids, keypoints (M, 3). ``points_tree`` may be a
     cKDTree of ``points`` the caller already has (it is built here otherwise).
@@ -117,7 +117,7 @@ def binary_multi_ring_signature(
     ring_width: float,
 ) -> np.ndarray:
     """
-    BMR-SS H_i of every keypoint (eq. 4) as a (M, T * N) bool matrix.
+    BMR-SS H_i of every keypoint (eq. 5) as a (M, T * N) bool matrix.
 
     Row i, column ``t * N + k`` (k = 0..N-1, the paper's ring k+1) is true iff a landmark of
     class ``classes[t]`` lies at distance [k L, (k+1) L) from keypoint i. Only distances
@@ -177,5 +177,5 @@ def _bmr_bits(
 
 
 def scene_similarity(source_bmr: np.ndarray, target_bmr: np.ndarray) -> np.ndarray:
-    """Scene similarity matrix S[i, j] = |H_i (.) H_j| (eq. 5), dense reference version."""
+    """Scene similarity matrix S[i, j] = |H_i (.) H_j| (eq. 6), dense reference version."""
     return source_bmr.astype(np.int32) @ target_bmr.astype(np.int32).T

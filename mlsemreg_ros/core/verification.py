@@ -22,7 +22,7 @@ dense, labeled scans hold far more evidence; this stage (beyond the paper, the n
 level of its "multi-level semantic consistency") weighs it:
 
 1. candidates: the estimator's choice and its next best *distinct* hypotheses
-   (:func:`~mlsemreg_ros.core.sc2pcr.distinct_hypotheses`: not within
+   (:func:`~mlsemreg_ros.core.poses.distinct_hypotheses`: not within
    ``distinct_rotation`` / ``distinct_translation`` of a better one), each refined like
    the winner (SC2-PCR post-refinement) and de-duplicated again;
 2. on a seeded sample of ``sample_points`` source scan points, transformed by every
@@ -55,19 +55,14 @@ import time
 
 from mlsemreg_ros.core.config import EstimatorConfig, VerificationConfig
 from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.poses import distinct_hypotheses, residuals, same_pose
 from mlsemreg_ros.core.results import (
     EstimateResult,
     HypothesisScore,
     PreparedScan,
     VerificationResult,
 )
-from mlsemreg_ros.core.sc2pcr import (
-    count_inliers,
-    distinct_hypotheses,
-    post_refinement,
-    residuals,
-    same_pose,
-)
+from mlsemreg_ros.core.sc2pcr import count_inliers, post_refinement
 import numpy as np
 from scipy.spatial import cKDTree
 

@@ -25,10 +25,12 @@ Pair-registration baselines of ``mlsemreg eval-pairs --baseline``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 import sys
 import time
 from typing import Any
 
+from mlsemreg_ros.evaluation.pairs import evaluate_directory, method_label, pair_row
 from mlsemreg_ros.evaluation.settings import EvaluationConfig
 import numpy as np
 
@@ -113,7 +115,6 @@ def evaluate_kiss_matcher(
     """
     from mlsemreg_ros.core.metrics import summarize
     from mlsemreg_ros.datasets.pairs import load_pair
-    from mlsemreg_ros.evaluation.pairs import pair_row
     from mlsemreg_ros.evaluation.scoring import score_pair
     from tqdm import tqdm
 
@@ -155,3 +156,24 @@ def fpfh_ransac_config(config: Any) -> Any:
             'fine.pair_method': 'off',
         }
     )
+
+
+def run_baselines(
+    directory: Path, names: list[str], config: Any, bounds: EvaluationConfig, progress: bool = True
+) -> dict[str, dict[str, Any]]:
+    """Run the named baselines on the pairs of ``directory``; reports by method label."""
+    from mlsemreg_ros.datasets.pairs import list_pairs
+
+    out: dict[str, dict[str, Any]] = {}
+    for name in dict.fromkeys(names):  # once each, in the given order
+        if name == 'kiss-matcher':
+            report = evaluate_kiss_matcher(list_pairs(directory), bounds, progress=progress)
+            out[report['method']] = report
+        else:
+            import open3d as o3d
+
+            o3d.utility.random.seed(0)  # RANSAC samples (its threads still vary the order)
+            baseline = fpfh_ransac_config(config)
+            report = evaluate_directory(directory, 'fpfh', baseline, bounds, progress=progress)
+            out[method_label('fpfh', baseline)] = report
+    return out

@@ -19,7 +19,7 @@ registered ``--repeats`` times and the per-stage median is reported, in ms per
 pair (both clouds):
 
 - ``local_ss_ms``: Local-SS of both clouds (eq. 1);
-- ``bmr_ss_ms``: landmark extraction of both clouds plus BMR-SS (eq. 4);
+- ``bmr_ss_ms``: landmark extraction of both clouds plus BMR-SS (eq. 5);
 - ``gm_mm_ms``: Group Matching + Mask Matching (NN), BMR-SS excluded;
 - ``fpfh_ms``: FPFH at the keypoints of both clouds (normals included);
 - ``sc2pcr_ms``: the estimator (SC2-PCR by default);

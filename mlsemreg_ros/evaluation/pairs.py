@@ -224,25 +224,3 @@ def method_label(descriptor: str, config: Any) -> str:
         f'{" + verification" if config.verification.enabled else ""}'
         f'{"" if fine == "off" else " + " + fine.upper()}'
     )
-
-
-def run_baselines(
-    directory: Path, names: list[str], config: Any, bounds: EvaluationConfig, progress: bool = True
-) -> dict[str, dict[str, Any]]:
-    """Run the named baselines on the pairs of ``directory``; reports by method label."""
-    from mlsemreg_ros.datasets.pairs import list_pairs
-    from mlsemreg_ros.evaluation.baselines import evaluate_kiss_matcher, fpfh_ransac_config
-
-    out: dict[str, dict[str, Any]] = {}
-    for name in dict.fromkeys(names):  # once each, in the given order
-        if name == 'kiss-matcher':
-            report = evaluate_kiss_matcher(list_pairs(directory), bounds, progress=progress)
-            out[report['method']] = report
-        else:
-            import open3d as o3d
-
-            o3d.utility.random.seed(0)  # RANSAC samples (its threads still vary the order)
-            baseline = fpfh_ransac_config(config)
-            report = evaluate_directory(directory, 'fpfh', baseline, bounds, progress=progress)
-            out[method_label('fpfh', baseline)] = report
-    return out

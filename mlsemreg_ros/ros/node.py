@@ -15,7 +15,7 @@
 """
 ``mlsemreg_node``: labeled PointCloud2 in; transform, odometry, path and markers out.
 
-Interface (DESIGN.md section 5; names are part of the contract):
+Interface (docs/ros_interface.md; names are part of the contract):
 
 - subscribes ``points`` (sensor_msgs/PointCloud2 with x, y, z and a label field);
 - publishes ``mlsemreg/transform`` (TransformStamped ``T_keyframe_current``,
@@ -27,7 +27,7 @@ Interface (DESIGN.md section 5; names are part of the contract):
 - broadcasts TF ``odom_frame -> base_frame`` when tf2_ros is importable;
 - serves ``mlsemreg/reset`` (std_srvs/Trigger): drop the keyframe, restart at identity.
 
-Per frame (STYLE.md item 1): convert the message -> call the core -> publish.
+Per frame (docs/architecture.md, core vs glue): convert the message -> call the core -> publish.
 The subscription callback only converts and hands the scan to a worker thread
 through a latest-only slot (a scan still waiting when a newer one arrives is
 dropped and counted), so a slow registration never blocks the executor. The
@@ -66,6 +66,7 @@ from mlsemreg_ros.core.odometry import OdometryStep
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
+from mlsemreg_ros.core.warm_up import warm_up
 from mlsemreg_ros.ros import messages
 from mlsemreg_ros.ros.markers import correspondence_markers
 from mlsemreg_ros.ros.node_config import NodeConfig
@@ -202,7 +203,7 @@ class MlSemRegNode(Node):
             )
         if config.node.keep_freed_memory:
             kernels.keep_freed_memory()
-        warm = kernels.warm_up()  # compile or load the numba kernels before the first scan
+        warm = warm_up()  # compile or load the numba kernels before the first scan
         self._startup_ms = {
             'kernels_ms': warm.get('total_ms', 0.0),
             'node_ms': 1e3 * (time.perf_counter() - started),

@@ -155,7 +155,7 @@ class LiveParameters:
         core_values = {k: v for k, v in values.items() if k not in node_keys}
         if core_values:
             core = core.replace(core_values)
-            Registration(core, self._label_map)  # resolves class names; ConfigError if unknown
+            Registration.check(core, self._label_map)  # class names known; no side effects
         if node_values:
             node_cfg = node_cfg.replace(node_values)
         return core, node_cfg
@@ -194,15 +194,3 @@ class LiveParameters:
             'parameters changed (from the next frame on): '
             + ', '.join(f'{k}={v!r}' for k, v in values.items())
         )
-
-
-def nested_defaults() -> dict[str, Any]:
-    """Every parameter's default as the nested mapping of ``config/params.yaml``."""
-    out: dict[str, Any] = {}
-    for name, _, default in all_parameter_fields():
-        *sections, leaf = name.split('.')
-        level = out
-        for section in sections:
-            level = level.setdefault(section, {})
-        level[leaf] = default
-    return out

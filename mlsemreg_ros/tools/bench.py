@@ -27,6 +27,7 @@ from pathlib import Path
 import sys
 from typing import Annotated
 
+from mlsemreg_ros.core.config import metadata_errors, RegistrationConfig
 from mlsemreg_ros.tools.common import (
     alias,
     CommandError,
@@ -53,8 +54,12 @@ def keypoint_counts(text: str) -> tuple[int, ...]:
         counts = tuple(int(c) for c in text.split(',') if c.strip())
     except ValueError:
         raise typer.BadParameter(f'expects comma-separated integers, got {text!r}') from None
-    if not counts or min(counts) < 1:
-        raise typer.BadParameter('needs positive counts')
+    if not counts:
+        raise typer.BadParameter('needs at least one count')
+    meta = RegistrationConfig.field_of('keypoints.count').metadata
+    errors = [e for c in counts for e in metadata_errors('keypoints.count', c, meta)]
+    if errors:
+        raise typer.BadParameter('; '.join(errors))
     return counts
 
 
@@ -90,7 +95,6 @@ def bench(
     no_progress: NoProgressOption = False,
 ) -> int:
     """Per-stage median times of the registration core (alias mlsemreg-bench)."""
-    from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.pipeline import Registration
     from mlsemreg_ros.datasets.pairs import first_dev_pair, load_pair
     from mlsemreg_ros.evaluation import tables

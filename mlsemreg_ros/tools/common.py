@@ -31,7 +31,14 @@ import shutil
 import sys
 from typing import Annotated, Any, Literal
 
+from mlsemreg_ros.core.config import RegistrationConfig
 import typer
+
+
+def config_choices(key: str) -> Any:
+    """``Literal`` of a config parameter's choices: a CLI option never restates them."""
+    return Literal[RegistrationConfig.field_of(key).metadata['choices']]
+
 
 #: Help panels of the options.
 DATA, PARAMETERS, OUTPUT = 'Data', 'Parameters', 'Output'

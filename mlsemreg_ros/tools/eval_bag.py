@@ -27,6 +27,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
+from mlsemreg_ros.ros.node_config import NodeConfig
 from mlsemreg_ros.tools.common import (
     alias,
     CommandError,
@@ -44,6 +45,10 @@ HELP = (
     "Replay a bag (mcap or sqlite3) or SemanticKITTI folder offline through the node's "
     'registration and keyframe policy; write metrics, trajectories and plots.'
 )
+
+
+#: The node parameter this option mirrors (its default and description).
+_LABEL_FIELD = NodeConfig.field_of('label_field')
 
 
 def eval_bag(
@@ -72,8 +77,8 @@ def eval_bag(
         typer.Option(help='PointCloud2 topic (default: the only one)', rich_help_panel=DATA),
     ] = None,
     label_field: Annotated[
-        str, typer.Option(help='label field of the clouds', rich_help_panel=DATA)
-    ] = 'label',
+        str, typer.Option(help=_LABEL_FIELD.metadata['description'], rich_help_panel=DATA)
+    ] = _LABEL_FIELD.default,
     gt_topic: Annotated[
         str,
         typer.Option(

@@ -32,6 +32,7 @@ from typing import Annotated, Any, Literal
 from mlsemreg_ros.tools.common import (
     alias,
     CommandError,
+    config_choices,
     ConfigOption,
     JsonOption,
     NoProgressOption,
@@ -86,6 +87,10 @@ def build_config(config_path: Path | None, flags: dict[str, Any], overrides: lis
     return apply_overrides(config.replace(flags) if flags else config, overrides)
 
 
+MatcherKind = config_choices('matcher.kind')
+EstimatorKind = config_choices('estimator.kind')
+
+
 def eval_pairs(
     directory: Annotated[
         Path,
@@ -99,7 +104,7 @@ def eval_pairs(
         ),
     ] = 'gedi',
     matcher: Annotated[
-        Literal['nn', 'mnn'] | None, typer.Option(help='matcher.kind', rich_help_panel=PARAMETERS)
+        MatcherKind | None, typer.Option(help='matcher.kind', rich_help_panel=PARAMETERS)
     ] = None,
     no_semantic: Annotated[
         bool,
@@ -110,7 +115,7 @@ def eval_pairs(
         ),
     ] = False,
     estimator: Annotated[
-        Literal['sc2pcr', 'ransac'] | None,
+        EstimatorKind | None,
         typer.Option(help='estimator.kind', rich_help_panel=PARAMETERS),
     ] = None,
     no_refine: Annotated[
@@ -156,14 +161,9 @@ def eval_pairs(
     """Register every pair file of DIR and print the paper metrics (alias mlsemreg-eval-pairs)."""
     from mlsemreg_ros.core.config import ConfigError
     from mlsemreg_ros.evaluation import tables
-    from mlsemreg_ros.evaluation.baselines import BaselineUnavailable
+    from mlsemreg_ros.evaluation.baselines import BaselineUnavailable, run_baselines
     from mlsemreg_ros.evaluation.label_noise import LabelNoise, LabelNoiseError
-    from mlsemreg_ros.evaluation.pairs import (
-        EvalError,
-        evaluate_directory,
-        method_label,
-        run_baselines,
-    )
+    from mlsemreg_ros.evaluation.pairs import EvalError, evaluate_directory, method_label
     from mlsemreg_ros.evaluation.reports import write_json
 
     flags: dict[str, Any] = {}

@@ -1,0 +1,126 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The choice between candidates of the current pose (never a silent jump).
+
+:func:`decide` after a global registration; :func:`chain` with ``fine.method: off``
+(the scan-to-keyframe chain). A candidate is acceptable only if its fine alignment kept
+``odometry.min_inlier_fraction`` of the scan as map inliers, at least
+``odometry.min_relative_inlier_fraction`` of the median fraction of the last accepted
+frames, and moved its initial guess by at most ``odometry.max_correction_*``
+(``core/fine_alignment.py``). Without an acceptable candidate the frame is rejected.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+import time
+
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.fine_alignment import Candidate
+from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
+from mlsemreg_ros.core.odometry.steps import Decision, sparse_inlier_covariance
+from mlsemreg_ros.core.poses import within_bounds
+import numpy as np
+
+
+def decide(
+    estimate: GlobalEstimate,
+    predicted: Candidate | None,
+    refine: Callable[[np.ndarray], Candidate],
+    cfg: RegistrationConfig,
+) -> Decision:
+    """
+    Accept one candidate or reject the frame.
+
+    1. The global estimate counts when the registration succeeded (enough sparse
+       inliers) and is finite: ``T_global = pose_keyframe @ T_keyframe_current``.
+    2. If the refined prediction is acceptable and within ``odometry.agreement_*`` of
+       ``T_global``, it is accepted (source ``prediction+global``): both agree, and
+       the second alignment is not needed.
+    3. Otherwise ``T_global`` is refined too (``refine``), and among the acceptable
+       candidates the one with the most alignment inliers wins (a tie goes to the global
+       one): a wrong global estimate (the mirror pose of a street) loses against the
+       prediction, a wrong prediction (a jump in speed) against the global estimate.
+    4. No acceptable candidate: the frame is rejected; pose, keyframe and map stay.
+    """
+    odometry, result, T_global = cfg.odometry, estimate.result, estimate.T_odom_current
+    timings: dict[str, float] = {}
+    candidates = [predicted] if predicted is not None else []
+    chosen: Candidate | None = None
+    source = ''
+    notes = []
+    if T_global is None:
+        notes.append(f'global registration failed ({result.message or "non-finite"})')
+    if (
+        T_global is not None
+        and predicted is not None
+        and predicted.acceptable
+        and within_bounds(
+            predicted.alignment.T_target_source,
+            T_global,
+            odometry.agreement_translation,
+            odometry.agreement_rotation,
+        )
+    ):
+        chosen, source = predicted, 'prediction+global'
+    else:
+        if T_global is not None:
+            tic = time.perf_counter()
+            candidates.append(refine(T_global))
+            timings['fine_global_ms'] = 1e3 * (time.perf_counter() - tic)
+        acceptable = [c for c in candidates if c.acceptable]
+        if acceptable:
+            # most inliers wins; a tie goes to the global candidate (listed last)
+            chosen = max(reversed(acceptable), key=lambda c: c.alignment.num_inliers)
+            source = chosen.name
+            if T_global is not None and chosen.name == 'prediction':
+                notes.append('the global estimate disagrees with the local map')
+    if chosen is None:
+        reasons = [f'{c.name}: {c.refusal}' for c in candidates]
+        return Decision(
+            source='',
+            reason='; '.join(notes + reasons) or 'no candidate',
+            result=result,
+            relative=result.transform if estimate.usable else None,
+            candidates=candidates,
+            timings_ms=timings,
+        )
+    alignment = chosen.alignment
+    return Decision(
+        source=source,
+        reason='; '.join(notes),
+        result=result,
+        pose=alignment.T_target_source,
+        frame_covariance=alignment.covariance(odometry.covariance_scale, axes='source'),
+        inlier_fraction=alignment.inlier_fraction,
+        candidates=candidates,
+        timings_ms=timings,
+    )
+
+
+def chain(estimate: GlobalEstimate, cfg: RegistrationConfig) -> Decision:
+    """``fine.method: off``: the pose is ``pose_keyframe @ T`` of a successful registration."""
+    result = estimate.result
+    if not estimate.usable:
+        reason = result.message or 'non-finite transform'
+        return Decision(source='', reason=reason, result=result, relative=result.transform)
+    return Decision(
+        source='global',
+        reason='',
+        result=result,
+        pose=estimate.T_odom_current,
+        frame_covariance=sparse_inlier_covariance(result, cfg.estimator.inlier_threshold),
+    )

@@ -1,0 +1,58 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The global registration of a scan onto the keyframe (what makes the odometry robust).
+
+``Registration.register(current, keyframe, refine=False)`` runs ML-SemReg -> SC2-PCR ->
+hypothesis verification -> BEV search -> confidence (``core/pipeline.py``); the fine
+alignment is the odometry's own, against its map. This component composes the result
+with the keyframe pose: ``T_odom_current = T_odom_keyframe @ T_keyframe_current``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from mlsemreg_ros.core.odometry.local_map import Keyframe
+from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
+import numpy as np
+
+
+@dataclass
+class GlobalEstimate:
+    """One global registration and the pose it implies."""
+
+    result: RegistrationResult  # transform: T_keyframe_current
+    T_odom_current: np.ndarray | None  # pose_keyframe @ transform; None: not usable
+
+    @property
+    def usable(self) -> bool:
+        """Whether the registration succeeded with a finite transform."""
+        return self.T_odom_current is not None
+
+
+class GlobalRegistration:
+    """Registers the current scan onto the keyframe."""
+
+    def __init__(self, registration: Any) -> None:
+        """Register with ``registration`` (a :class:`~mlsemreg_ros.core.pipeline.Registration`)."""
+        self.registration = registration
+
+    def __call__(self, current: PreparedScan, keyframe: Keyframe) -> GlobalEstimate:
+        """Return the estimate of ``current`` onto ``keyframe`` (completes both lazily)."""
+        result = self.registration.register(current, keyframe.prepared, refine=False)
+        usable = bool(result.success) and bool(np.all(np.isfinite(result.transform)))
+        return GlobalEstimate(result, keyframe.pose @ result.transform if usable else None)

@@ -1,0 +1,183 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The odometry's maps: the local map it tracks against, and the keyframe it registers onto.
+
+The odometry holds one ``map`` object with this interface (a keyframe store or another
+backend plugs in here, see ``docs/extending.md``)::
+
+    map.insert(scan, T_map_scan)      an accepted, aligned scan joins the map
+    map.align(scan, T_initial)        Alignment: T_map_scan refined against the map
+    map.clear()                       forget every scan (reset, re-initialisation)
+    map.reconfigure(fine, local_map)  new settings; True when the map was cleared
+    len(map), map.points()            occupied voxels; coordinates for display
+
+The keyframe policy (:func:`is_new_keyframe`, :func:`keyframe_refusal`) decides which
+accepted scan becomes the :class:`Keyframe`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mlsemreg_ros.core import threads
+from mlsemreg_ros.core.alignment import (
+    _alignment,
+    _failed,
+    _REGISTRATION_TYPES,
+    _solver_settings,
+    Alignment,
+    AlignmentCloud,
+)
+from mlsemreg_ros.core.config import (
+    FineAlignmentConfig,
+    KeyframeConfig,
+    LocalMapConfig,
+    RegistrationConfig,
+)
+from mlsemreg_ros.core.results import PreparedScan
+from mlsemreg_ros.core.rigid import rotation_angle_deg
+import numpy as np
+import small_gicp
+
+
+class LocalMap:
+    """
+    The odometry's local map in the odom frame: recent aligned scans, LRU-bounded.
+
+    ``vgicp`` keeps a :class:`small_gicp.GaussianVoxelMap` (one Gaussian per
+    ``fine.voxel_size`` voxel) and aligns against it directly. The point-based methods
+    keep a :class:`small_gicp.IncrementalVoxelMap` of points and index its points
+    (KD-tree, normals, covariances) again after every insertion, which costs more.
+    Voxels that no insertion touched for ``local_map.horizon`` insertions are dropped.
+    """
+
+    def __init__(self, fine: FineAlignmentConfig, local_map: LocalMapConfig) -> None:
+        self.fine, self.config = fine, local_map
+        self._map: small_gicp.GaussianVoxelMap | small_gicp.IncrementalVoxelMap
+        self._indexed: AlignmentCloud | None = None  # point maps: the map as a target
+        self.insertions = 0
+        self.clear()
+
+    def clear(self) -> None:
+        """Forget every scan (a reset); the next insertion starts a new map."""
+        if self.fine.method == 'vgicp':
+            self._map = small_gicp.GaussianVoxelMap(self.fine.voxel_size)
+        else:
+            self._map = small_gicp.IncrementalVoxelMap(self.fine.voxel_size)
+        self._map.set_lru(self.config.horizon, self.config.clear_cycle)
+        self._indexed = None
+        self.insertions = 0
+
+    def reconfigure(self, fine: FineAlignmentConfig, local_map: LocalMapConfig) -> bool:
+        """Take new settings; the map is cleared when its structure changed (returns True)."""
+        rebuild = (fine.method, fine.voxel_size) != (self.fine.method, self.fine.voxel_size)
+        lru = (local_map.horizon, local_map.clear_cycle) != (
+            self.config.horizon,
+            self.config.clear_cycle,
+        )
+        self.fine, self.config = fine, local_map
+        if rebuild:
+            self.clear()
+        elif lru:
+            self._map.set_lru(local_map.horizon, local_map.clear_cycle)
+        return rebuild
+
+    def __len__(self) -> int:
+        """Occupied voxels."""
+        return int(self._map.size())
+
+    @property
+    def empty(self) -> bool:
+        """Whether no scan was inserted since the last clear."""
+        return self.insertions == 0
+
+    def points(self) -> np.ndarray:
+        """Return the map as coordinates (V, 3), odom frame: voxel means or cell points."""
+        if len(self) == 0:
+            return np.zeros((0, 3))
+        return np.asarray(self._map.voxel_points(), dtype=np.float64)[:, :3]
+
+    def insert(self, scan: AlignmentCloud, T_map_scan: np.ndarray) -> None:
+        """Add an aligned scan at its pose ``T_map_scan`` (also advances the LRU clock)."""
+        if len(scan) == 0:
+            return
+        self._map.insert(scan.cloud, np.asarray(T_map_scan, dtype=np.float64))
+        self._indexed = None
+        self.insertions += 1
+
+    def align(
+        self, scan: AlignmentCloud, T_initial: np.ndarray, num_threads: int | None = None
+    ) -> Alignment:
+        """Refine ``T_map_scan`` from ``T_initial`` against the map."""
+        if len(scan) < 6 or len(self) == 0:
+            return _failed(T_initial, len(scan))
+        init = np.asarray(T_initial, dtype=np.float64)
+        common = _solver_settings(self.fine, num_threads or threads.workers())
+        if isinstance(self._map, small_gicp.GaussianVoxelMap):
+            result = small_gicp.align(self._map, scan.cloud, init, **common)
+        else:
+            if self._indexed is None:
+                self._indexed = AlignmentCloud.build(self.points(), 0.0, self.fine.num_neighbors)
+            result = small_gicp.align(
+                self._indexed.cloud,
+                scan.cloud,
+                self._indexed.tree,
+                init,
+                registration_type=_REGISTRATION_TYPES[self.fine.method],
+                **common,
+            )
+        return _alignment(result, init, len(scan))
+
+
+def make_map(config: RegistrationConfig) -> LocalMap:
+    """Return the map backend of the odometry (the seam of a keyframe store)."""
+    return LocalMap(config.fine, config.local_map)
+
+
+@dataclass
+class Keyframe:
+    """The scan others are registered onto: raw arrays (to re-prepare), prepared scan, pose."""
+
+    index: int  # frame counter of the keyframe scan
+    stamp_ns: int
+    points: np.ndarray  # (N, 3) raw scan
+    labels: np.ndarray  # (N,) raw labels
+    prepared: PreparedScan
+    pose: np.ndarray  # (4, 4) T_odom_keyframe
+
+
+def is_new_keyframe(policy: KeyframeConfig, T_keyframe_current: np.ndarray) -> bool:
+    """Whether a scan accepted with this relative transform becomes the keyframe."""
+    if policy.policy == 'every_frame':
+        return True
+    T = np.asarray(T_keyframe_current, dtype=np.float64)
+    return (
+        float(np.linalg.norm(T[:3, 3])) >= policy.min_distance
+        or rotation_angle_deg(T) >= policy.min_rotation
+    )
+
+
+def keyframe_refusal(config: RegistrationConfig, scan: PreparedScan) -> str:
+    """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
+    policy = config.keyframe
+    needed = min(policy.min_keypoints, config.keypoints.count)
+    points, keypoints = len(scan.points), len(scan.keypoints)
+    if points < policy.min_points or keypoints < needed:
+        return (
+            f'{points} points / {keypoints} keypoints < keyframe.min_points='
+            f'{policy.min_points} / keyframe.min_keypoints={needed}'
+        )
+    return ''

@@ -1,0 +1,403 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+LiDAR odometry: global ML-SemReg registration for robustness, fine alignment to a local map.
+
+The code path shared by the ROS node, the offline bag evaluation and the demo. Each job is
+a component of its own (``docs/extending.md``)::
+
+    preprocess.py           Preprocessor: raw scan (+ point times) -> lazily prepared scan
+    motion_model.py         MotionModel: predicted T_odom_current (constant velocity)
+    tracking.py             Tracker: guesses refined against the map; the trust rule
+    global_registration.py  GlobalRegistration: ML-SemReg + SC2-PCR onto the keyframe
+    decision.py             decide / chain: which candidate is accepted, if any
+    local_map.py            LocalMap (the ``map``), Keyframe and the keyframe policy
+    steps.py                OdometryStep, covariance and twist
+
+Per scan (:meth:`Odometry.process`)::
+
+    stream rules                               duplicate stamp: skip; backwards: reset
+    current = preprocess(scan)                 once per scan; the keyframe's is cached
+    predicted = map.align(current, predict())  the motion model's guess, refined
+    if tracking is trusted (on_demand):        accept it: no global registration
+    else:
+      global = register(current, keyframe)     ML-SemReg + SC2-PCR: T_keyframe_current
+      decide(global, predicted)                agreement, or the candidate with most inliers
+    map.insert(current, pose)                  only an accepted, aligned scan
+    keyframe <- current                        per the keyframe policy
+
+**Global registration on demand** (``odometry.global_registration: on_demand``, default).
+ML-SemReg + SC2-PCR is what makes the odometry robust (it registers scans 16 m apart and
+after a jump), and it is the expensive part. A scan is *tracked* by the refined
+prediction alone only when that can be trusted (``core/fine_alignment.py``,
+:func:`~mlsemreg_ros.core.fine_alignment.tracking_refusal`). Every other scan is
+registered globally; ``always`` registers every scan.
+
+The decision (:func:`~mlsemreg_ros.core.odometry.decision.decide`) never publishes a silent
+jump: without an acceptable candidate the frame is rejected, the pose, the keyframe and
+the map stay, and ``reason`` says why. After ``keyframe.max_failures`` rejections in a row
+the odometry re-initialises on the current scan at the last accepted pose.
+**The core owns the odometry state**: pose, keyframe, local map, covariances, twist.
+
+With ``fine.method: off`` the odometry is the earlier scan-to-keyframe chain: the pose
+is ``pose_keyframe @ global`` when the registration succeeded.
+"""
+
+from __future__ import annotations
+
+import time
+
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.fine_alignment import alignment_cloud, Candidate
+from mlsemreg_ros.core.odometry.decision import chain, decide
+from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
+from mlsemreg_ros.core.odometry.local_map import (
+    is_new_keyframe,
+    Keyframe,
+    keyframe_refusal,
+    LocalMap,
+    make_map,
+)
+from mlsemreg_ros.core.odometry.motion_model import make_motion_model
+from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
+from mlsemreg_ros.core.odometry.steps import (
+    Decision,
+    odom_covariance,
+    OdometryStep,
+    prepare_timings,
+    REINITIALIZATION_VARIANCE,
+    twist_between,
+)
+from mlsemreg_ros.core.odometry.tracking import Tracker
+from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
+from mlsemreg_ros.core.rigid import invert_transform
+import numpy as np
+
+#: Sections whose change makes the cached keyframe be prepared again.
+_PREPARE_SECTIONS = ('semantic', 'features', 'keypoints')
+
+
+class Odometry:
+    """Registers every scan onto a keyframe and refines it against a local map."""
+
+    def __init__(
+        self, registration: Registration | None = None, config: RegistrationConfig | None = None
+    ) -> None:
+        """Use ``registration`` (default: a new one), optionally with ``config``."""
+        self.registration = registration if registration is not None else Registration()
+        if config is not None:
+            self.registration.config = config
+        cfg = self.registration.config
+        # the components (seams: docs/extending.md)
+        self.preprocessor = Preprocessor(self.registration)
+        self.motion_model = make_motion_model(cfg)
+        self.map = make_map(cfg)
+        self.tracker = Tracker(self.map)
+        self.global_registration = GlobalRegistration(self.registration)
+        # the state
+        self.keyframe: Keyframe | None = None
+        self.pose = np.eye(4)
+        self.covariance = np.zeros((6, 6))
+        self._count = 0
+        self._last_accepted: tuple[np.ndarray, int] | None = None  # (pose, stamp): the twist
+        self._failures = 0  # rejected frames in a row
+        self._last_stamp = 0  # stamp of the last scan (0: none or unstamped)
+
+    @property
+    def config(self) -> RegistrationConfig:
+        """Return the configuration in use."""
+        return self.registration.config
+
+    @property
+    def local_map(self) -> LocalMap:
+        """Return the map the scans are tracked against."""
+        return self.map
+
+    def reconfigure(self, config: RegistrationConfig) -> None:
+        """
+        Apply a new configuration from the next scan on.
+
+        The cached keyframe is prepared again only when a section that
+        :meth:`Registration.prepare` reads (semantic, features, keypoints) changed; its
+        alignment cloud only when ``fine`` changed; the local map is cleared when its
+        structure (method, voxel size) changed.
+        """
+        old = self.registration.config
+        self.registration.config = config
+        if self.keyframe is not None:
+            if any(getattr(old, s) != getattr(config, s) for s in _PREPARE_SECTIONS):
+                self.keyframe.prepared = self.registration.prepare(
+                    self.keyframe.points, self.keyframe.labels, lazy=True
+                )
+            elif old.fine != config.fine:
+                self.keyframe.prepared.alignment_clouds.clear()  # rebuilt when needed
+        if self.map.reconfigure(config.fine, config.local_map) and self.keyframe:
+            self._insert(self.keyframe.prepared, self.keyframe.pose)  # restart from the keyframe
+
+    def reset(self) -> None:
+        """Drop the keyframe and the map; the next scan restarts the odometry at identity."""
+        self.keyframe = None
+        self.pose = np.eye(4)
+        self.covariance = np.zeros((6, 6))
+        self.map.clear()
+        self.motion_model.reset()
+        self.tracker.restart()
+        self._count = 0
+        self._last_accepted = None
+        self._failures = 0
+        self._last_stamp = 0
+
+    def keyframe_refusal(self, scan: PreparedScan) -> str:
+        """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
+        return keyframe_refusal(self.config, scan)
+
+    def predict(self, stamp_ns: int) -> np.ndarray | None:
+        """Return the motion model's ``T_odom_current`` at ``stamp_ns``, or None."""
+        prediction = self.motion_model.predict(stamp_ns)
+        return None if prediction is None else prediction.T_odom_current
+
+    # ------------------------------------------------------------------------------
+    def process(
+        self,
+        points: np.ndarray,
+        labels: np.ndarray,
+        stamp_ns: int = 0,
+        *,
+        point_times: np.ndarray | None = None,
+    ) -> OdometryStep:
+        """
+        Register one scan (points (N, 3) metres, labels (N,)) and update the odometry.
+
+        ``point_times`` (N,), seconds, go to the preprocessor's deskew step. Stream rules
+        (stamps of 0 mean unstamped and are exempt): a stamp equal to the last one is
+        skipped; a stamp before it resets the odometry first (a bag that loops, a replay
+        restarted).
+        """
+        start = time.perf_counter()
+        skipped, notes = self._stream_rules(stamp_ns)
+        if skipped:
+            return self._finish(self._rejected(self._count, stamp_ns, None, skipped), start)
+        index = self._count
+        self._count += 1
+        raw = self.preprocessor(points, labels, point_times)
+        if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
+            return self._finish(self._first(index, stamp_ns, raw, notes), start)
+        timings: dict[str, float] = {}
+        chosen = self._estimate(raw.scan, stamp_ns, timings)
+        step = self._apply(index, stamp_ns, raw, chosen)
+        self._count_failure(step, raw)
+        registered = chosen.result.timings_ms if chosen.result is not None else {}
+        step.timings_ms = {
+            **prepare_timings(raw.scan),
+            **timings,
+            **{f'register.{k}': v for k, v in registered.items()},
+            **step.timings_ms,
+        }
+        return self._finish(step, start)
+
+    def _stream_rules(self, stamp_ns: int) -> tuple[str, list[str]]:
+        """Return why the scan is skipped ('' if not) and notes; reset on a backward stamp."""
+        notes = []
+        if stamp_ns and self._last_stamp and stamp_ns <= self._last_stamp:
+            if stamp_ns == self._last_stamp:
+                return f'duplicate stamp {stamp_ns} ns: skipped', notes
+            notes.append(
+                f'stamp went backwards ({stamp_ns} < {self._last_stamp} ns): odometry reset'
+            )
+            self.reset()
+        if stamp_ns:
+            self._last_stamp = stamp_ns
+        return '', notes
+
+    def _estimate(
+        self, current: PreparedScan, stamp_ns: int, timings: dict[str, float]
+    ) -> Decision:
+        """Predict, then track or register globally, and decide."""
+        cfg, keyframe = self.config, self.keyframe
+        if cfg.fine.method == 'off':
+            return chain(self.global_registration(current, keyframe), cfg)
+        prediction = (
+            self.motion_model.predict(stamp_ns) if cfg.odometry.constant_velocity else None
+        )
+        predicted = self.tracker.refine_prediction(current, prediction, cfg, timings)
+        why_global = self.tracker.refusal(predicted, prediction, cfg)
+        if not why_global:  # tracking: no global registration needed
+            return self.tracker.track(predicted, cfg)
+        estimate = self.global_registration(current, keyframe)
+        self.tracker.tracked_in_a_row = 0
+
+        def refine(T_initial: np.ndarray) -> Candidate:
+            cloud = alignment_cloud(current, cfg.fine)
+            return self.tracker.candidate('global', T_initial, cloud, cfg)
+
+        chosen = decide(estimate, predicted, refine, cfg)
+        chosen.reason = '; '.join(
+            r for r in (f'registered globally: {why_global}', chosen.reason) if r
+        )
+        return chosen
+
+    # -- the odometry state moves -------------------------------------------------------
+    def _first(
+        self, index: int, stamp_ns: int, raw: PreprocessedScan, notes: list[str]
+    ) -> OdometryStep:
+        """Start the odometry on this scan, or reject it if it cannot be a keyframe."""
+        current = raw.scan
+        refusal = self.keyframe_refusal(current)
+        if refusal:
+            self._count = 0  # the next scan tries to start the odometry again
+            reason = '; '.join([*notes, f'no keyframe yet: {refusal}'])
+            return self._rejected(
+                index, stamp_ns, current, reason, timings=prepare_timings(current)
+            )
+        self._start(index, stamp_ns, raw, self.pose)
+        return OdometryStep(
+            index=index,
+            stamp_ns=stamp_ns,
+            pose=self.pose.copy(),
+            relative=None,
+            result=None,
+            accepted=True,
+            keyframe_index=index,
+            keyframe_stamp_ns=stamp_ns,
+            new_keyframe=True,
+            prepared=current,
+            timings_ms=prepare_timings(current),
+            source='first',
+            reason='; '.join(notes),
+            covariance=self.covariance.copy(),
+            map_voxels=len(self.map),
+        )
+
+    def _apply(
+        self, index: int, stamp_ns: int, raw: PreprocessedScan, chosen: Decision
+    ) -> OdometryStep:
+        """Accept the decision (map, keyframe, motion model move) or reject the frame."""
+        if not chosen.accepted:
+            step = self._rejected(
+                index, stamp_ns, raw.scan, chosen.reason, chosen.result, chosen.relative
+            )
+        else:
+            if chosen.inlier_fraction is not None:
+                self.tracker.history.append(chosen.inlier_fraction)
+            step = self._accept(index, stamp_ns, raw, chosen)
+        step.candidates, step.timings_ms = chosen.candidates, chosen.timings_ms
+        return step
+
+    def _accept(
+        self, index: int, stamp_ns: int, raw: PreprocessedScan, chosen: Decision
+    ) -> OdometryStep:
+        """Move the pose, feed the map, move the keyframe; the step of an accepted frame."""
+        keyframe, current, pose = self.keyframe, raw.scan, chosen.pose
+        relative = invert_transform(keyframe.pose) @ pose
+        twist, twist_cov = twist_between(
+            *self._last_accepted, pose, stamp_ns, chosen.frame_covariance
+        )
+        self.pose = pose.copy()
+        self.covariance = self.covariance + odom_covariance(pose, chosen.frame_covariance)
+        self._insert(current, pose)
+        self.motion_model.update(pose, stamp_ns)
+        self._last_accepted = (pose.copy(), stamp_ns)
+        new_keyframe = is_new_keyframe(
+            self.config.keyframe, relative
+        ) and not self.keyframe_refusal(current)
+        if new_keyframe:
+            self.keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, current, pose.copy())
+        return OdometryStep(
+            index=index,
+            stamp_ns=stamp_ns,
+            pose=pose.copy(),
+            relative=relative,
+            result=chosen.result,
+            accepted=True,
+            keyframe_index=keyframe.index,
+            keyframe_stamp_ns=keyframe.stamp_ns,
+            new_keyframe=new_keyframe,
+            prepared=current,
+            source=chosen.source,
+            reason=chosen.reason,
+            covariance=self.covariance.copy(),
+            frame_covariance=chosen.frame_covariance,
+            twist=twist,
+            twist_covariance=twist_cov,
+            map_voxels=len(self.map),
+        )
+
+    def _rejected(
+        self,
+        index: int,
+        stamp_ns: int,
+        current: PreparedScan | None,
+        reason: str,
+        result: RegistrationResult | None = None,
+        relative: np.ndarray | None = None,
+        timings: dict[str, float] | None = None,
+    ) -> OdometryStep:
+        """Return the step of a rejected scan: pose, keyframe, map and covariance stay."""
+        keyframe = self.keyframe
+        return OdometryStep(
+            index=index,
+            stamp_ns=stamp_ns,
+            pose=self.pose.copy(),
+            relative=relative,
+            result=result,
+            accepted=False,
+            keyframe_index=keyframe.index if keyframe else -1,
+            keyframe_stamp_ns=keyframe.stamp_ns if keyframe else 0,
+            new_keyframe=False,
+            prepared=current,
+            timings_ms=timings or {},
+            reason=reason,
+            covariance=self.covariance.copy(),
+            map_voxels=len(self.map),
+        )
+
+    def _start(self, index: int, stamp_ns: int, raw: PreprocessedScan, pose: np.ndarray) -> None:
+        """Make ``raw`` the keyframe at ``pose`` and the first scan of a new map."""
+        self.keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, raw.scan, pose.copy())
+        self.map.clear()
+        self._insert(raw.scan, pose)
+        self.motion_model.reset()
+        self.motion_model.update(pose, stamp_ns)
+        self._last_accepted = (pose.copy(), stamp_ns)
+        self.tracker.restart()
+        self._failures = 0
+
+    def _count_failure(self, step: OdometryStep, raw: PreprocessedScan) -> None:
+        """After ``keyframe.max_failures`` rejections in a row, re-initialise on this scan."""
+        if step.accepted:
+            self._failures = 0
+            return
+        self._failures += 1
+        limit = self.config.keyframe.max_failures
+        if not limit or self._failures < limit or self.keyframe_refusal(raw.scan):
+            return
+        self._start(step.index, step.stamp_ns, raw, self.pose)
+        self.covariance = self.covariance + np.eye(6) * REINITIALIZATION_VARIANCE
+        step.new_keyframe, step.source = True, 'reinitialized'
+        step.keyframe_index, step.map_voxels = step.index, len(self.map)
+        step.reason += (
+            f'; {limit} frames rejected in a row: re-initialised on this scan at '
+            'the last accepted pose (the motion since is unknown)'
+        )
+
+    def _insert(self, scan: PreparedScan, pose: np.ndarray) -> None:
+        if self.config.fine.method != 'off':
+            self.map.insert(alignment_cloud(scan, self.config.fine), pose)
+
+    @staticmethod
+    def _finish(step: OdometryStep, start: float) -> OdometryStep:
+        step.latency_ms = 1e3 * (time.perf_counter() - start)
+        return step

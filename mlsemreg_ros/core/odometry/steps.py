@@ -1,0 +1,132 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+What the odometry reports per scan (:class:`OdometryStep`) and how it is computed.
+
+Covariance (ROS order ``[x, y, z, roll, pitch, yaw]``): the accepted alignment's
+(:meth:`Alignment.covariance`, current-frame axes) is the frame's covariance; the pose
+covariance adds it, rotated into odom axes, to the previous one (a random walk: drift
+grows with every frame). Twist: the motion between the last two accepted poses over
+their stamp difference, in the current frame; its covariance is the frame's / dt^2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from mlsemreg_ros.core.alignment import UNKNOWN_VARIANCE
+from mlsemreg_ros.core.fine_alignment import Candidate
+from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
+from mlsemreg_ros.core.rigid import invert_transform
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+#: Variance (m^2, rad^2) added to the pose covariance when the odometry re-initialises.
+REINITIALIZATION_VARIANCE = 1e2
+#: Minimum lever arm of the sparse-inlier covariance model (fine alignment off).
+MIN_LEVER_ARM_M = 1.0
+
+
+@dataclass
+class OdometryStep:
+    """What one scan did to the odometry (constructed by keyword)."""
+
+    index: int  # frame counter (0 = first scan after construction or reset)
+    stamp_ns: int
+    pose: np.ndarray  # (4, 4) T_odom_current: accepted, or the last accepted if rejected
+    relative: np.ndarray | None  # (4, 4) T_keyframe_current (accepted, refined); else the
+    #                              global estimate (for diagnostics); None for the first scan
+    result: RegistrationResult | None  # the global registration; None for the first scan
+    #                                  and for a scan tracked by the prediction alone
+    accepted: bool  # the frame moved the pose (True for the first scan)
+    keyframe_index: int  # frame counter of the keyframe registered onto (own index if first)
+    keyframe_stamp_ns: int
+    new_keyframe: bool  # this scan became the keyframe
+    latency_ms: float = 0.0  # wall time of process()
+    prepared: PreparedScan | None = None  # the current scan as prepared (markers, plots)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+    source: str = ''  # first, global, prediction, prediction+global; reinitialized (rejected)
+    reason: str = ''  # why the frame was rejected, or notes on an accepted one
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))  # pose, odom axes
+    frame_covariance: np.ndarray | None = None  # (6, 6) of this frame's alignment: the pose
+    #                                 perturbation T exp(delta), current-frame axes
+    twist: np.ndarray | None = None  # (6,) [vx, vy, vz, wx, wy, wz] current frame, m/s rad/s
+    twist_covariance: np.ndarray | None = None  # (6, 6)
+    candidates: list[Candidate] = field(default_factory=list)
+    map_voxels: int = 0  # local map size after this frame
+
+
+@dataclass
+class Decision:
+    """The outcome of one scan's estimation, before the odometry state moves."""
+
+    source: str  # global, prediction, prediction+global ('' when rejected)
+    reason: str  # why it was rejected, or notes on an accepted one
+    result: RegistrationResult | None = None  # the global registration, if one ran
+    pose: np.ndarray | None = None  # (4, 4) accepted T_odom_current; None: rejected
+    frame_covariance: np.ndarray | None = None  # (6, 6) current-frame axes
+    relative: np.ndarray | None = None  # rejected: the global estimate, for diagnostics
+    inlier_fraction: float | None = None  # the accepted fine alignment's (history)
+    candidates: list[Candidate] = field(default_factory=list)
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def accepted(self) -> bool:
+        """Whether the scan moves the pose."""
+        return self.pose is not None
+
+
+def odom_covariance(pose: np.ndarray, frame_covariance: np.ndarray) -> np.ndarray:
+    """Rotate a current-frame covariance (6, 6) into odom axes by ``pose`` (4, 4)."""
+    axes = np.zeros((6, 6))
+    axes[:3, :3] = axes[3:, 3:] = pose[:3, :3]
+    return axes @ frame_covariance @ axes.T
+
+
+def twist_between(
+    last: np.ndarray, last_stamp_ns: int, pose: np.ndarray, stamp_ns: int, body_cov: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Twist (6,) from ``last`` to ``pose`` (current frame) and its covariance (6, 6)."""
+    if stamp_ns <= last_stamp_ns:
+        return np.zeros(6), np.eye(6) * UNKNOWN_VARIANCE
+    dt = 1e-9 * (stamp_ns - last_stamp_ns)
+    motion = invert_transform(last) @ pose
+    twist = np.concatenate([motion[:3, 3], Rotation.from_matrix(motion[:3, :3]).as_rotvec()])
+    return twist / dt, body_cov / dt**2
+
+
+def sparse_inlier_covariance(result: RegistrationResult, inlier_threshold: float) -> np.ndarray:
+    """
+    Covariance (6, 6) of a registration from its sparse inliers (fine alignment off).
+
+    ``[x, y, z, roll, pitch, yaw]`` in m^2 and rad^2, body axes. An inlier's residual is
+    bounded by the inlier threshold tau, so the translation's standard error is
+    ``sigma_t = tau / sqrt(IN)``; a rotation error theta moves inliers at a lever arm rho
+    by about ``rho * theta``, so ``sigma_r = sigma_t / rho`` with rho the RMS distance of
+    the inlier keypoints from their centroid (at least 1 m).
+    """
+    inliers = result.source_points[result.inlier_mask]
+    count = max(int(inliers.shape[0]), 1)
+    sigma_t = inlier_threshold / np.sqrt(count)
+    lever = 0.0
+    if inliers.shape[0] > 1:
+        lever = float(np.sqrt(((inliers - inliers.mean(axis=0)) ** 2).sum(axis=1).mean()))
+    sigma_r = sigma_t / max(lever, MIN_LEVER_ARM_M)
+    return np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
+
+
+def prepare_timings(scan: PreparedScan) -> dict[str, float]:
+    """Return the scan's preparation stages (lazy ones once computed) as ``prepare.*``."""
+    return {f'prepare.{k}': v for k, v in scan.timings_ms.items()}
