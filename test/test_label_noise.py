@@ -175,3 +175,36 @@ def test_landmarks_come_only_from_confidently_labeled_points():
     kept = extract_landmarks(points, labels, np.array([ID['pole']]), 1.5, 3, 0.2, 0.6)
     assert len(kept) == 1
     np.testing.assert_allclose(kept.centroids[0], [30.0, 0.0, 1.95], atol=1e-6)
+
+
+@pytest.mark.slow
+def test_the_odometry_teaches_the_adaptive_model_a_network_confusion_online():
+    """A synthetic street drive whose 'network' sees 40 % of the building as vegetation."""
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.odometry import Odometry
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
+
+    world, world_labels = street_scene(seed=3)
+    config = RegistrationConfig().replace(
+        {'keypoints.count': 1000, 'confidence.label_model': 'adaptive'}
+    )
+    registration = Registration(config)
+    odometry = Odometry(registration)
+    rng = np.random.default_rng(8)
+    b, v = ID['building'], ID['vegetation']
+    accepted = 0
+    for k in range(8):
+        pose = motion(0.4 * k, (-20.0 + 1.5 * k, 0.2 * np.sin(k), 0.0))
+        points, labels = scan_at(world, world_labels, pose, seed=100 + k, max_points=20000)
+        labels = np.where((labels == b) & (rng.random(len(labels)) < 0.4), v, labels)
+        accepted += odometry.process(points, labels, 100_000_000 * k).accepted
+    model = registration.label_model
+    assert accepted == 8 and model is not None and model.updates == 7
+    assert 'building~vegetation' in model.confused_pairs(LABELS.names)
+    assert registration._label_compatibility.compatible[b, v] > 0.5
+    registration.config = config.replace({'confidence.min_overlap': 0.1})  # live tuning
+    assert registration.label_model.updates == 7  # keeps what it learned
+    registration.config = config.replace({'confidence.label_model': 'fixed'})
+    assert registration.label_model is None
+    assert not registration._label_compatibility.compatible[b, v]

@@ -309,6 +309,7 @@ class Odometry:
         self.covariance = self.covariance + odom_covariance(pose, chosen.frame_covariance)
         self._insert(current, pose)
         self.motion_model.update(pose, stamp_ns)
+        self.registration.learn_labels(relative, current, keyframe.prepared)  # adaptive only
         self._last_accepted = (pose.copy(), stamp_ns)
         new_keyframe = is_new_keyframe(
             self.config.keyframe, relative
