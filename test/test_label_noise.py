@@ -208,3 +208,71 @@ def test_the_odometry_teaches_the_adaptive_model_a_network_confusion_online():
     registration.config = config.replace({'confidence.label_model': 'fixed'})
     assert registration.label_model is None
     assert not registration._label_compatibility.compatible[b, v]
+
+
+def test_a_dev_pair_with_30_percent_confused_labels_is_accepted_at_its_pose_not_at_a_slide():
+    """000007 with confusions: the fixed 0.6 rule refuses its right pose, the relative one not."""
+    from dev_pairs import dev_pair_files
+
+    from mlsemreg_ros.core import confidence
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.datasets.pairs import load_pair
+    from mlsemreg_ros.evaluation.label_noise import scan_rng
+
+    path = next(p for p in dev_pair_files() if p.stem == '000007')
+    pair = load_pair(path)
+    noise = LabelNoise(confuse=0.3)
+    config = RegistrationConfig()
+    registration = Registration(config)
+    source, target = registration.prepare_scans(
+        *(
+            {
+                'points': points,
+                'labels': noise.apply(labels, LABELS, scan_rng(0, 4, scan)),
+                'keypoints': keypoints,
+                'descriptors': descriptors,
+                'voxelize': False,
+            }
+            for scan, (points, labels, keypoints, descriptors) in enumerate(
+                [
+                    (pair.pts_src, pair.label_src, pair.kpts_src, pair.descriptors('gedi')[0]),
+                    (pair.pts_dst, pair.label_dst, pair.kpts_dst, pair.descriptors('gedi')[1]),
+                ]
+            )
+        )
+    )
+    result = registration.register(source, target)
+    T = result.transform
+    assert rotation_error_deg(T[:3, :3], pair.trans_gt[:3, :3]) < 5.0
+    assert translation_error_m(T[:3, 3], pair.trans_gt[:3, 3]) < 0.6
+    assert result.success, result.message
+    agreement = result.diagnostics['confidence_label_agreement']
+    ceiling = result.diagnostics['confidence_label_ceiling']
+    assert agreement < 0.6 < agreement / ceiling  # fixed rule: refused
+    assert label_refusal(agreement, ceiling, ConfidenceConfig(label_rule='fixed'))
+
+    slide = pair.trans_gt.copy()
+    slide[:3, 3] += pair.trans_gt[:3, :3] @ np.array([0.0, 2.0, 0.0])  # 2 m across the street
+    overlap, slid_agreement = dense_scores(
+        slide[None],
+        source,
+        target.points_tree(),
+        target.labels,
+        label_compatibility(LABELS, config.verification),
+        config.verification,
+    )
+    residual = np.linalg.norm(
+        result.source_points @ slide[:3, :3].T + slide[:3, 3] - result.target_points, axis=1
+    )
+    evidence = confidence.Evidence(
+        int((residual < config.estimator.inlier_threshold).sum()),
+        len(residual),
+        float(overlap[0]),
+        float(slid_agreement[0]),
+        confidence.tilt_deg(slide),
+        ceiling,
+    )
+    assert confidence.refusal(evidence, config.confidence, config.estimator.min_inliers)
+    assert label_refusal(evidence.label_agreement, ceiling, config.confidence)  # labels alone
