@@ -73,6 +73,7 @@ setup(
             'mlsemreg-confidence = mlsemreg_ros.tools.confidence:main',
             'mlsemreg-soak = mlsemreg_ros.tools.soak:main',
             'mlsemreg-cut-pairs = mlsemreg_ros.tools.cut_pairs:main',
+            'mlsemreg-label-noise-sweep = mlsemreg_ros.tools.label_noise_sweep:main',
             'mlsemreg-params = mlsemreg_ros.tools.params:main',
         ],
     },

@@ -47,10 +47,12 @@ def _scan(points: np.ndarray, labels: np.ndarray) -> PreparedScan:
 
 
 def _street(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """A 0.3 m grid street: road, sidewalks, a building wall left, a hedge right, poles."""
+    """Build a 0.3 m grid street: road, sidewalks, a building wall left, a hedge right, poles."""
     x = np.arange(-20.0, 20.0, 0.3)
     road = np.stack(np.meshgrid(x, np.arange(-4.0, 4.0, 0.3)), -1).reshape(-1, 2)
-    walk = np.stack(np.meshgrid(x, np.r_[np.arange(-6.0, -4.0, 0.3), np.arange(4.0, 6.0, 0.3)]), -1)
+    walk = np.stack(
+        np.meshgrid(x, np.r_[np.arange(-6.0, -4.0, 0.3), np.arange(4.0, 6.0, 0.3)]), -1
+    )
     wall = np.stack(np.meshgrid(x, np.arange(0.0, 6.0, 0.3)), -1).reshape(-1, 2)
     pole_z = np.arange(0.0, 4.0, 0.3)
     poles = np.array([[px, 5.0, z] for px in (-15.0, -3.0, 9.0) for z in pole_z])
@@ -138,12 +140,14 @@ def test_the_adaptive_model_learns_a_swapped_class_pair_on_a_stream():
     model = LabelModel(fixed.compatible, min_count=50.0)
     b, v = ID['building'], ID['vegetation']
     before = None
-    for frame in range(12):
+    for _frame in range(12):
         src = _scan(points, labels)
         seen = np.where((labels == b) & (rng.random(len(labels)) < 0.4), v, labels)
         dst = _scan(points + rng.normal(0, 0.05, points.shape), seen)
         learned = LabelCompatibility(model.compatibility(), fixed.counted)
-        _, agreement = dense_scores(np.eye(4)[None], src, dst.points_tree(), dst.labels, learned, config)
+        _, agreement = dense_scores(
+            np.eye(4)[None], src, dst.points_tree(), dst.labels, learned, config
+        )
         before = agreement[0] if before is None else before
         model.update(cooccurrence(np.eye(4), src, dst, LABELS.num_classes, config))
     weights = model.compatibility()
@@ -162,8 +166,11 @@ def test_landmarks_come_only_from_confidently_labeled_points():
     """A pole keeps its landmark; pole labels scattered over a wall make none."""
     rng = np.random.default_rng(7)
     wall = np.column_stack(
-        [rng.uniform(0, 20, 3000), np.full(3000, 5.0) + rng.normal(0, 0.05, 3000),
-         rng.uniform(0, 6, 3000)]
+        [
+            rng.uniform(0, 20, 3000),
+            np.full(3000, 5.0) + rng.normal(0, 0.05, 3000),
+            rng.uniform(0, 6, 3000),
+        ]
     )
     labels = np.full(3000, ID['building'])
     labels[rng.random(3000) < 0.03] = ID['pole']  # flips
@@ -213,7 +220,6 @@ def test_the_odometry_teaches_the_adaptive_model_a_network_confusion_online():
 def test_a_dev_pair_with_30_percent_confused_labels_is_accepted_at_its_pose_not_at_a_slide():
     """000007 with confusions: the fixed 0.6 rule refuses its right pose, the relative one not."""
     from dev_pairs import dev_pair_files
-
     from mlsemreg_ros.core import confidence
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m

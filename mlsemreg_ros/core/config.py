@@ -613,7 +613,7 @@ class ConfidenceConfig:
         choices=('relative', 'fixed'),
     )
     min_relative_agreement: float = param(
-        0.7,
+        0.75,
         'relative rule: smallest label agreement of the chosen pose as a share of the '
         "labels' ceiling.",
         low=0.0,

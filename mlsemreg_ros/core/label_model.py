@@ -101,7 +101,7 @@ def self_agreement(scan: PreparedScan, labels: Any, config: VerificationConfig) 
 def label_ceiling(
     source: PreparedScan, target: PreparedScan, labels: Any, config: VerificationConfig
 ) -> float:
-    """``sqrt(self_agreement(source) * self_agreement(target))`` (module docstring); NaN if unknown."""
+    """``sqrt(self_agreement(source) * self_agreement(target))``; NaN if unknown."""
     a = self_agreement(source, labels, config)
     b = self_agreement(target, labels, config)
     return math.sqrt(a * b) if a > 0 and b > 0 else float('nan')
@@ -131,7 +131,7 @@ def label_refusal(label_agreement: float, ceiling: float, config: ConfidenceConf
     relative = label_agreement / ceiling
     if relative < config.min_relative_agreement:
         return (
-            f'label agreement {label_agreement:.3f} = {relative:.3f} of the labels\' ceiling '
+            f"label agreement {label_agreement:.3f} = {relative:.3f} of the labels' ceiling "
             f'{ceiling:.3f} < confidence.min_relative_agreement='
             f'{config.min_relative_agreement:g}'
         )
@@ -196,7 +196,7 @@ class LabelModel:
 
     @classmethod
     def from_config(cls, prior: np.ndarray, config: ConfidenceConfig) -> LabelModel:
-        """A model with the ``confidence.label_*`` settings."""
+        """Build a model with the ``confidence.label_*`` settings."""
         return cls(
             prior,
             decay=config.label_decay,
@@ -226,7 +226,7 @@ class LabelModel:
         return r
 
     def learned(self) -> np.ndarray:
-        """The learned weights ``w(a, b)`` in ``[0, 1]`` (module docstring)."""
+        """Return the learned weights ``w(a, b)`` in ``[0, 1]`` (module docstring)."""
         r0 = self.min_association
         return np.clip((self.association() - r0) / max(1.0 - r0, 1e-9), 0.0, 1.0)
 

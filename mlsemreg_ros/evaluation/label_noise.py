@@ -32,6 +32,7 @@ and written back as canonical raw ids. Every scan gets its own seeded generator.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.simulation.degrade import class_confusions
@@ -71,7 +72,9 @@ class LabelNoise:
             try:
                 share = float(value)
             except ValueError:
-                raise LabelNoiseError(f'label noise {item.strip()!r}: share is not a number')
+                raise LabelNoiseError(
+                    f'label noise {item.strip()!r}: share is not a number'
+                ) from None
             if not 0.0 <= share <= 1.0:
                 raise LabelNoiseError(f'label noise {item.strip()!r}: share outside [0, 1]')
             shares[kind] = share
@@ -117,5 +120,61 @@ class LabelNoise:
 
 
 def scan_rng(seed: int, index: int, scan: int) -> np.random.Generator:
-    """The generator of scan ``scan`` (0 source, 1 target) of pair ``index``."""
+    """Return the generator of scan ``scan`` (0 source, 1 target) of pair ``index``."""
     return np.random.default_rng([seed, 21, index, scan])
+
+
+#: The levels of the sweep in docs/label_noise.md.
+SWEEP = ('none', 'flip:0.1', 'flip:0.2', 'flip:0.3', 'confuse:0.1', 'confuse:0.3', 'confuse:0.5')
+
+
+def sweep_row(descriptor: str, noise: str, report: dict[str, Any]) -> dict[str, Any]:
+    """RR, accepted (right / wrong), IR and label agreement of one eval-pairs report."""
+    pairs = report['pairs']
+    right = [p for p in pairs if p['success']]
+    ceilings = [p['evidence'].get('label_ceiling', float('nan')) for p in right]
+    return {
+        'descriptor': descriptor,
+        'noise': noise,
+        'pairs': len(pairs),
+        'rr_pct': 100.0 * len(right) / len(pairs),
+        'accepted_right': sum(bool(p['accepted']) for p in right),
+        'accepted_right_pct': 100.0 * sum(bool(p['accepted']) for p in right) / max(len(right), 1),
+        'wrong_accepted': sum(bool(p['accepted']) and not p['success'] for p in pairs),
+        'ir_pct': float(np.mean([p['inlier_ratio_pct'] for p in pairs])),
+        'agreement_right_min': min((p['evidence']['label_agreement'] for p in right), default=0),
+        'ceiling_right_mean': float(np.nanmean(ceilings)) if ceilings else float('nan'),
+    }
+
+
+def plot_sweep(rows: list[dict[str, Any]], path: Any) -> None:
+    """Plot the accepted share of the right poses, RR and IR per noise level and descriptor."""
+    import matplotlib
+
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    levels = list(dict.fromkeys(r['noise'] for r in rows))
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.5), constrained_layout=True)
+    x = np.arange(len(levels))
+    for offset, descriptor in ((-0.2, 'gedi'), (0.2, 'fpfh')):
+        mine = {r['noise']: r for r in rows if r['descriptor'] == descriptor}
+        if not mine:
+            continue
+        acc = [mine[n]['accepted_right_pct'] if n in mine else np.nan for n in levels]
+        rr = [mine[n]['rr_pct'] if n in mine else np.nan for n in levels]
+        wrong = [mine[n]['wrong_accepted'] if n in mine else 0 for n in levels]
+        left.bar(x + offset, acc, 0.38, label=f'{descriptor.upper()}: accepted of the right')
+        left.plot(x + offset, rr, 'k_', ms=14, mew=2)
+        for xi, w in zip(x + offset, wrong, strict=True):
+            left.text(xi, 3, f'{w} wrong', rotation=90, ha='center', va='bottom', fontsize=8)
+        right.plot(x, [mine[n]['ir_pct'] for n in levels], 'o-', label=descriptor.upper())
+    left.axhline(90, color='tab:red', lw=0.8, ls='--')
+    left.axhline(80, color='tab:orange', lw=0.8, ls=':')
+    left.set(xticks=x, xticklabels=levels, ylim=(0, 105), ylabel='% (bars: accepted; -: RR)')
+    left.set_title('dev pairs: accepted share of the right poses, RR (black)')
+    left.legend(loc='lower left', fontsize=8)
+    right.set(xticks=x, xticklabels=levels, ylabel='inlier ratio %', title='inlier ratio')
+    right.legend()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
