@@ -133,6 +133,7 @@ def sweep_row(descriptor: str, noise: str, report: dict[str, Any]) -> dict[str, 
     pairs = report['pairs']
     right = [p for p in pairs if p['success']]
     ceilings = [p['evidence'].get('label_ceiling', float('nan')) for p in right]
+    ceilings = [c for c in ceilings if c is not None and np.isfinite(c)]
     return {
         'descriptor': descriptor,
         'noise': noise,
@@ -143,7 +144,7 @@ def sweep_row(descriptor: str, noise: str, report: dict[str, Any]) -> dict[str, 
         'wrong_accepted': sum(bool(p['accepted']) and not p['success'] for p in pairs),
         'ir_pct': float(np.mean([p['inlier_ratio_pct'] for p in pairs])),
         'agreement_right_min': min((p['evidence']['label_agreement'] for p in right), default=0),
-        'ceiling_right_mean': float(np.nanmean(ceilings)) if ceilings else float('nan'),
+        'ceiling_right_mean': float(np.mean(ceilings)) if ceilings else float('nan'),
     }
 
 
