@@ -172,9 +172,11 @@ def plot_sweep(rows: list[dict[str, Any]], path: Any) -> None:
         right.plot(x, [mine[n]['ir_pct'] for n in levels], 'o-', label=descriptor.upper())
     left.axhline(90, color='tab:red', lw=0.8, ls='--')
     left.axhline(80, color='tab:orange', lw=0.8, ls=':')
-    left.set(xticks=x, xticklabels=levels, ylim=(0, 105), ylabel='% (bars: accepted; -: RR)')
+    left.set(xticks=x, xticklabels=levels, ylim=(0, 125), ylabel='% (bars: accepted; -: RR)')
     left.set_title('dev pairs: accepted share of the right poses, RR (black)')
-    left.legend(loc='lower left', fontsize=8)
+    left.legend(loc='upper left', ncol=2, fontsize=8)
+    for axis in (left, right):
+        axis.tick_params(axis='x', labelrotation=25)
     right.set(xticks=x, xticklabels=levels, ylabel='inlier ratio %', title='inlier ratio')
     right.legend()
     fig.savefig(path, dpi=110)
