@@ -64,6 +64,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 from mlsemreg_ros.core.config import ConfidenceConfig
+from mlsemreg_ros.core.label_model import label_refusal
 import numpy as np
 
 
@@ -84,6 +85,8 @@ class Evidence:
     rival_distinctive_overlap: float = 0.0  # largest distinctive share of a close rival
     rival: str = ''  # what the best rival is (e.g. 'zero motion', 'slide 5 m', 'bev_search')
     rival_distinctive_objects: int = 0  # most distinctive objects a close rival lines up
+    #: label agreement these labels can give (core/label_model.py); NaN: unknown
+    label_ceiling: float = float('nan')
 
     @property
     def inlier_ratio(self) -> float:
@@ -147,11 +150,9 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
         reasons.append(
             f'overlap {evidence.overlap:.3f} < confidence.min_overlap={config.min_overlap:g}'
         )
-    if evidence.label_agreement < config.min_label_agreement:
-        reasons.append(
-            f'label agreement {evidence.label_agreement:.3f} < '
-            f'confidence.min_label_agreement={config.min_label_agreement:g}'
-        )
+    label = label_refusal(evidence.label_agreement, evidence.label_ceiling, config)
+    if label:
+        reasons.append(label)
     if not evidence.tilt_deg <= config.max_tilt:  # NaN fails too
         reasons.append(
             f'tilt {evidence.tilt_deg:.1f} deg > confidence.max_tilt={config.max_tilt:g} deg'

@@ -143,6 +143,22 @@ class SemanticConfig:
         low=1,
         high=100000,
     )
+    landmark_min_share: float = param(
+        0.15,
+        'Only confidently labeled points are clustered into landmarks: at least this share '
+        'of the scan points within landmark_support_radius carry the same class (0: every '
+        'point of a landmark class). With 20-30 % of the labels flipped it keeps the inlier '
+        'ratio at 7 % instead of 0.5 % (docs/label_noise.md).',
+        low=0.0,
+        high=1.0,
+    )
+    landmark_support_radius: float = param(
+        0.6,
+        'Neighbourhood radius of the landmark_min_share test.',
+        unit='m',
+        low=0.05,
+        high=10.0,
+    )
 
 
 @dataclass
@@ -715,6 +731,54 @@ class ConfidenceConfig:
         'Covariance factor along the weak direction (confidence.degeneracy=inflate).',
         low=1.0,
         high=1e6,
+    )
+    label_rule: str = param(
+        'relative',
+        'How the label agreement is judged (core/label_model.py, docs/label_noise.md): '
+        'relative (against the ceiling these labels can give, the geometric mean of the two '
+        "scans' self-agreement: min_relative_agreement and label_floor) or fixed "
+        '(min_label_agreement).',
+        choices=('relative', 'fixed'),
+    )
+    min_relative_agreement: float = param(
+        0.75,
+        'relative rule: smallest label agreement of the chosen pose as a share of the '
+        "labels' ceiling.",
+        low=0.0,
+        high=2.0,
+    )
+    label_floor: float = param(
+        0.3,
+        'relative rule: the label agreement must also reach this, however noisy the labels.',
+        low=0.0,
+        high=1.0,
+    )
+    label_model: str = param(
+        'fixed',
+        'Label compatibility of the agreement: fixed (verification.compatible_classes) or '
+        'adaptive (the odometry adds the confusions learned from the label co-occurrence '
+        'at accepted poses, core/label_model.py).',
+        choices=('fixed', 'adaptive'),
+    )
+    label_decay: float = param(
+        0.98,
+        'adaptive: the learned co-occurrence counts are multiplied by this at every update.',
+        low=0.0,
+        high=1.0,
+    )
+    label_min_association: float = param(
+        0.15,
+        'adaptive: a class pair starts to count as agreeing above this association (how '
+        'often a class lies on the other per time it lies on itself, either way), fully at 1.',
+        low=0.0,
+        high=0.99,
+    )
+    label_min_count: float = param(
+        200.0,
+        'adaptive: a class pair is learned only when both classes have at least this much '
+        '(range-weighted, in sampled points) co-occurrence with themselves.',
+        low=0.0,
+        high=1e9,
     )
 
 

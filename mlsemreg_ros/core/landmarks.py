@@ -28,6 +28,8 @@ def extract_landmarks(
     landmark_ids: np.ndarray,
     cluster_radius: float,
     min_points: int,
+    min_share: float = 0.0,
+    support_radius: float = 0.6,
 ) -> Landmarks:
     """
     Cluster the points of every landmark class; each cluster's centroid is a landmark.
@@ -38,10 +40,18 @@ def extract_landmarks(
     clustered in one pass: class ids are spread along a third axis far apart, so no edge
     joins two classes.
 
+    ``min_share > 0`` (``semantic.landmark_min_share``, beyond the paper): only
+    *confidently labeled* points are clustered, those with at least that share of the scan
+    points within ``support_radius`` (3-D, m) in their own class
+    (:func:`confident_points`). A randomly mislabeled point on a wall has no support;
+    without the test such points chain along facades into false landmarks.
+
     points (N, 3), labels (N,) learning ids -> Landmarks(centroids (Z, 3), classes (Z,)).
     """
     landmark_ids = np.asarray(landmark_ids, dtype=np.int64)
     select = np.isin(labels, landmark_ids)
+    if min_share > 0.0 and select.any():
+        select[select] = confident_points(points, labels, select, min_share, support_radius)
     pts, cls = points[select], labels[select].astype(np.int64)
     if len(pts) == 0:
         return Landmarks.empty()
@@ -63,3 +73,25 @@ def extract_landmarks(
     np.minimum.at(first, component, np.arange(len(pts)))
     keep = size >= min_points
     return Landmarks(centroids[keep], cls[first[keep]])
+
+
+def confident_points(
+    points: np.ndarray,
+    labels: np.ndarray,
+    select: np.ndarray,
+    min_share: float,
+    radius: float,
+) -> np.ndarray:
+    """
+    Which selected points have at least ``min_share`` of their neighbours in their class.
+
+    Neighbours: the scan points within ``radius`` (the point itself included). Returns a
+    bool array over ``points[select]``. Two counts per selected point: all points, and
+    the points of its own class (classes spread far apart along a fourth axis, one tree).
+    """
+    query = points[select]
+    total = cKDTree(points).query_ball_point(query, radius, return_length=True)
+    own = labels[select].astype(np.float64)[:, None] * (10.0 * radius + 1e3)
+    tagged = np.column_stack([query, own])
+    same = cKDTree(tagged).query_ball_point(tagged, radius, return_length=True)
+    return same >= min_share * total

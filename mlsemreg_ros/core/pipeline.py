@@ -39,6 +39,7 @@ from mlsemreg_ros.core import (
     confidence,
     features,
     fpfh,
+    label_model,
     landmarks,
     matching,
     signatures,
@@ -133,6 +134,38 @@ class Registration:
         self._bev_channels = resolved.bev_channels
         self._distinctive = resolved.distinctive
         self._config = config
+        self._configure_label_model(config)
+
+    def _configure_label_model(self, config: RegistrationConfig) -> None:
+        """``confidence.label_model: adaptive``: a :class:`LabelModel` (its counts kept)."""
+        fixed = self._label_compatibility
+        previous = getattr(self, 'label_model', None)
+        if config.confidence.label_model != 'adaptive':
+            self.label_model = None
+            return
+        model = label_model.LabelModel.from_config(fixed.compatible, config.confidence)
+        if previous is not None and previous.counts.shape == model.counts.shape:
+            model.counts, model.updates = previous.counts, previous.updates
+        self.label_model = model
+        self._label_compatibility = type(fixed)(model.compatibility(), fixed.counted)
+
+    def learn_labels(
+        self, T_target_source: np.ndarray, source: PreparedScan, target: PreparedScan
+    ) -> None:
+        """
+        Feed an accepted pose's label co-occurrence to the adaptive label model.
+
+        A no-op unless ``confidence.label_model`` is ``adaptive``; the odometry calls it for
+        every accepted scan against its keyframe (core/label_model.py).
+        """
+        if self.label_model is None:
+            return
+        counts = label_model.cooccurrence(
+            T_target_source, source, target, self.label_map.num_classes, self.config.verification
+        )
+        self.label_model.update(counts)
+        fixed = self._label_compatibility
+        self._label_compatibility = type(fixed)(self.label_model.compatibility(), fixed.counted)
 
     @staticmethod
     def check(config: RegistrationConfig, label_map: LabelMap) -> None:
@@ -255,6 +288,8 @@ class Registration:
                     self._landmark_ids,
                     cfg.semantic.cluster_radius,
                     cfg.semantic.cluster_min_points,
+                    cfg.semantic.landmark_min_share,
+                    cfg.semantic.landmark_support_radius,
                 )
             with _timed(timings, 'points_tree_ms'):  # for the dense scores, as a target
                 tree = scan.kdtree or PreparedScan.build_points_tree(points)
@@ -512,6 +547,9 @@ class Registration:
             rival_share,
             rival,
             rival_objects,
+            label_model.label_ceiling(
+                source, target, self._label_compatibility, self.config.verification
+            ),
         )
 
     def judge(

@@ -193,7 +193,8 @@ def dense_scores(
     nearest_labels = target_labels[nearest]  # (N, n), meaningless where not overlapping
     counted = overlapping & labels.counted[source_labels][None, :]
     counted &= labels.counted[nearest_labels]
-    agreeing = counted & labels.compatible[source_labels[None, :], nearest_labels]
+    # compatible: bool rules, or float weights of the adaptive label model (label_model.py)
+    agreeing = counted * labels.compatible[source_labels[None, :], nearest_labels]
     counted_weight = counted @ weight
     agreement = np.where(
         counted_weight > 0, (agreeing @ weight) / np.maximum(counted_weight, 1e-300), 1.0

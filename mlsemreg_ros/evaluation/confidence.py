@@ -199,6 +199,7 @@ def measure(
                 'te_m': te,
                 'mode': result.mode,
                 **{k: d[f'confidence_{k}'] for k in EVIDENCE},
+                'label_ceiling': evidence.label_ceiling,
                 'fine_inlier_fraction': d.get('fine_inlier_fraction', float('nan')),
             }
         )

@@ -132,9 +132,20 @@ def summarize_pairs(metrics: list[Any], rows: list[dict[str, Any]]) -> dict[str,
 
 
 def evaluate_directory(
-    directory: Path, descriptor: str, config: Any, bounds: EvaluationConfig, progress: bool = True
+    directory: Path,
+    descriptor: str,
+    config: Any,
+    bounds: EvaluationConfig,
+    progress: bool = True,
+    label_noise: Any = None,
+    noise_seed: int = 0,
 ) -> dict[str, Any]:
-    """Run every pair of ``directory``; return the JSON report (config, pairs, summary)."""
+    """
+    Run every pair of ``directory``; return the JSON report (config, pairs, summary).
+
+    ``label_noise``: a :class:`~mlsemreg_ros.evaluation.label_noise.LabelNoise` applied to
+    both scans of every pair first (seeded by ``noise_seed``, the pair's index and the scan).
+    """
     from mlsemreg_ros.core.pipeline import Registration
     from mlsemreg_ros.datasets.pairs import list_pairs, load_pair, PairFileError
     from tqdm import tqdm
@@ -159,6 +170,8 @@ def evaluate_directory(
             )
         if descriptor != 'fpfh' and (pair.kpts_src is None or pair.kpts_dst is None):
             raise EvalError(f'{path} has descriptors but no keypoints (kpts_src/kpts_dst)')
+        if label_noise is not None and label_noise.active:
+            pair = noisy_pair(pair, label_noise, registration, noise_seed, len(rows))
         result, metrics, timings = run_pair(registration, pair, descriptor, bounds)
         all_metrics.append(metrics)
         row = pair_row(pair.name, metrics, timings)
@@ -179,10 +192,26 @@ def evaluate_directory(
     return {
         'directory': str(directory),
         'descriptor': descriptor,
+        'label_noise': str(label_noise) if label_noise is not None else 'none',
         'config': config.to_dict(),
         'pairs': rows,
         'summary': summarize_pairs(all_metrics, rows),
     }
+
+
+def noisy_pair(pair: Any, noise: Any, registration: Any, seed: int, index: int) -> Any:
+    """``pair`` with ``noise`` applied to both scans' labels (evaluation/label_noise.py)."""
+    from dataclasses import replace
+
+    from mlsemreg_ros.evaluation.label_noise import scan_rng
+
+    scheme = registration.config.semantic.label_scheme
+    label_map = registration.label_map
+    return replace(
+        pair,
+        label_src=noise.apply(pair.label_src, label_map, scan_rng(seed, index, 0), scheme),
+        label_dst=noise.apply(pair.label_dst, label_map, scan_rng(seed, index, 1), scheme),
+    )
 
 
 def method_label(descriptor: str, config: Any) -> str:

@@ -142,3 +142,32 @@ def random_flips(
     draw = np.where(own_known & (draw >= own), draw + 1, draw)
     out[rows] = classes[draw].astype(labels.dtype)
     return out
+
+
+def class_confusions(
+    labels: np.ndarray,
+    fraction: float,
+    pairs: list[tuple[int, int]],
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """
+    Confuse class pairs: a ``fraction`` of the points of each paired class take a partner.
+
+    ``pairs``: ``(a, b)`` class ids confused both ways. A class in several pairs (e.g.
+    vegetation with building and with terrain) takes one of its partners, drawn evenly.
+    Every point is decided once, from the labels as given.
+    """
+    labels = np.asarray(labels)
+    out = labels.copy()
+    if fraction <= 0.0 or labels.size == 0:
+        return out
+    partners: dict[int, list[int]] = {}
+    for a, b in pairs:
+        partners.setdefault(int(a), []).append(int(b))
+        partners.setdefault(int(b), []).append(int(a))
+    hit = rng.random(labels.size) < fraction
+    for own, others in partners.items():
+        rows = np.flatnonzero(hit & (labels == own))
+        choice = np.asarray(others, dtype=np.int64)[rng.integers(0, len(others), rows.size)]
+        out[rows] = choice.astype(labels.dtype)
+    return out

@@ -142,6 +142,16 @@ def eval_pairs(
             '(Open3D FPFH + NN + Open3D RANSAC)'
         ),
     ] = None,
+    label_noise: Annotated[
+        str | None,
+        typer.Option(
+            help='degrade the labels of both scans first: flip:F (a share F of the points get '
+            'a uniformly random learning id), confuse:C (a share C of building/vegetation, '
+            'road/sidewalk, terrain/vegetation points take the partner class), or both '
+            '(flip:0.1,confuse:0.3); seeded by --noise-seed (docs/label_noise.md)'
+        ),
+    ] = None,
+    noise_seed: Annotated[int, typer.Option(min=0, help='seed of --label-noise')] = 0,
     config: ConfigOption = None,
     overrides: SetOption = None,
     json_path: JsonOption = None,
@@ -152,6 +162,7 @@ def eval_pairs(
     from mlsemreg_ros.core.config import ConfigError
     from mlsemreg_ros.evaluation import tables
     from mlsemreg_ros.evaluation.baselines import BaselineUnavailable, run_baselines
+    from mlsemreg_ros.evaluation.label_noise import LabelNoise, LabelNoiseError
     from mlsemreg_ros.evaluation.pairs import EvalError, evaluate_directory, method_label
     from mlsemreg_ros.evaluation.reports import write_json
 
@@ -170,13 +181,26 @@ def eval_pairs(
         core, evaluation = build_settings(config, flags, list(overrides or []))
     except (ConfigError, OSError) as error:
         raise CommandError(f'configuration error: {error}', 2) from None
+    try:
+        noise = LabelNoise.parse(label_noise)
+    except LabelNoiseError as error:
+        raise CommandError(f'--label-noise: {error}', 2) from None
     bounds, progress = evaluation.evaluation, not (quiet or no_progress)
     try:
-        report = evaluate_directory(directory, descriptor, core, bounds, progress=progress)
+        report = evaluate_directory(
+            directory,
+            descriptor,
+            core,
+            bounds,
+            progress=progress,
+            label_noise=noise,
+            noise_seed=noise_seed,
+        )
     except EvalError as error:
         raise CommandError(str(error)) from None
     label = method_label(descriptor, core)
-    tables.print_text(f'{label}, {len(report["pairs"])} pairs from {directory}')
+    noisy = f', label noise {noise}' if noise.active else ''
+    tables.print_text(f'{label}, {len(report["pairs"])} pairs from {directory}{noisy}')
     tables.print_table(tables.pair_results_table(report['pairs'], report['summary']))
     stages = ', '.join(f'{k} {v:.0f}' for k, v in report['summary']['time_ms'].items())
     tables.print_text(f'mean time per pair (ms, both clouds): {stages}')

@@ -309,6 +309,9 @@ class Odometry:
         self.covariance = self.covariance + odom_covariance(pose, chosen.frame_covariance)
         self._insert(current, pose)
         self.motion_model.update(pose, stamp_ns)
+        learn_labels = getattr(self.registration, 'learn_labels', None)  # stand-ins lack it
+        if learn_labels is not None:
+            learn_labels(relative, current, keyframe.prepared)  # confidence.label_model adaptive
         self._last_accepted = (pose.copy(), stamp_ns)
         new_keyframe = is_new_keyframe(
             self.config.keyframe, relative

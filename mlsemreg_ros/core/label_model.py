@@ -1,0 +1,241 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+How much label agreement the labels of a pair can give, and a label model that learns.
+
+**The label ceiling** (docs/label_noise.md). The label agreement ``A`` of a pose
+(:func:`~mlsemreg_ros.core.verification.dense_scores`: the share of the overlapping,
+labeled seen surface whose source and target labels agree) is bounded by how noisy the
+two scans' labels are. With a share ``f`` of independently mislabeled points in each scan,
+the right pose agrees on about ``(1 - f_s) (1 - f_t) A_clean``. The *self-agreement*
+``a_s`` of a scan, the same agreement between each sampled point and its nearest other
+point of the same scan (:func:`self_agreement`), shrinks by ``(1 - f_s)^2``. So
+
+    ``ceiling = sqrt(a_source * a_target)``,  ``relative = A / ceiling``
+
+keeps the clean value of ``relative`` whatever the noise, for the right pose and for a
+wrong one alike: the rule ``relative >= confidence.min_relative_agreement`` separates
+them as the fixed rule does on clean labels. Both use the same label compatibility
+(fixed, or learned by :class:`LabelModel`), so a learned confusion raises both.
+
+Hypothesis verification and the BEV search compare poses of one pair, whose ceiling is
+the same: the ceiling changes no choice, only the acceptance.
+
+**The adaptive label model** (``confidence.label_model: adaptive``). A network confuses
+some classes habitually (a wall as vegetation). :class:`LabelModel` counts, at accepted
+poses, which target label lies under which source label (:func:`cooccurrence`), and
+turns the counts ``N(a, b)`` (source label a over target label b) into compatibility
+weights: the pair agrees with weight ``w(a, b) = clip((r(a, b) - r0) / (1 - r0), 0, 1)``,
+``r(a, b) = max(N(a, b) / N(a, a), N(b, a) / N(b, b))`` (how often a class is seen as the
+other per time it is seen as itself, either way), ``r0 =
+confidence.label_min_association``: boundary coincidences (``r`` a few %) stay
+disagreements, a class seen as another 40 % of the time (``r = 0.67``) counts 0.6.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+from mlsemreg_ros.core.config import ConfidenceConfig, VerificationConfig
+from mlsemreg_ros.core.results import PreparedScan
+import numpy as np
+
+RULES = ('relative', 'fixed')
+MODELS = ('fixed', 'adaptive')
+
+
+def _sample_rows(total: int, config: VerificationConfig) -> np.ndarray:
+    rng = np.random.default_rng(config.seed)
+    if total > config.sample_points:
+        return rng.choice(total, config.sample_points, replace=False)
+    return np.arange(total)
+
+
+def _area_weights(points: np.ndarray, exponent: float) -> np.ndarray:
+    from mlsemreg_ros.core.verification import area_weights
+
+    return area_weights(points, exponent)
+
+
+def self_agreement(scan: PreparedScan, labels: Any, config: VerificationConfig) -> float:
+    """
+    Label agreement of a scan with itself: each sampled point against its nearest neighbour.
+
+    The seeded sample, the range weights, the counted classes and the compatibility
+    (``labels``: a :class:`~mlsemreg_ros.core.verification.LabelCompatibility`, boolean or
+    weighted) are those of the dense scores; the neighbour is the nearest *other* point
+    within ``overlap_distance``. NaN when no sampled point has a counted neighbour.
+    """
+    total = scan.points.shape[0]
+    if total < 2:
+        return float('nan')
+    rows = _sample_rows(total, config)
+    points, own = scan.points[rows], scan.labels[rows]
+    distance, nearest = scan.points_tree().query(
+        points, k=2, distance_upper_bound=config.overlap_distance
+    )
+    found = np.isfinite(distance[:, 1])
+    neighbour = np.where(found, nearest[:, 1], 0)
+    other = scan.labels[neighbour]
+    counted = found & labels.counted[own] & labels.counted[other]
+    weight = _area_weights(points, config.range_exponent) * counted
+    if weight.sum() <= 0:
+        return float('nan')
+    agree = np.asarray(labels.compatible[own, other], dtype=np.float64)
+    return float((agree * weight).sum() / weight.sum())
+
+
+def label_ceiling(
+    source: PreparedScan, target: PreparedScan, labels: Any, config: VerificationConfig
+) -> float:
+    """``sqrt(self_agreement(source) * self_agreement(target))``; NaN if unknown."""
+    a = self_agreement(source, labels, config)
+    b = self_agreement(target, labels, config)
+    return math.sqrt(a * b) if a > 0 and b > 0 else float('nan')
+
+
+def label_refusal(label_agreement: float, ceiling: float, config: ConfidenceConfig) -> str:
+    """
+    Why the label agreement is not enough ('' when it is), by ``confidence.label_rule``.
+
+    ``fixed``: ``label_agreement >= min_label_agreement``. ``relative``: ``label_agreement
+    / ceiling >= min_relative_agreement`` and ``label_agreement >= label_floor``; a NaN
+    ceiling (no labeled neighbours) falls back to the fixed rule.
+    """
+    fixed = (
+        ''
+        if label_agreement >= config.min_label_agreement
+        else f'label agreement {label_agreement:.3f} < '
+        f'confidence.min_label_agreement={config.min_label_agreement:g}'
+    )
+    if config.label_rule == 'fixed' or not ceiling > 0:
+        return fixed
+    if label_agreement < config.label_floor:
+        return (
+            f'label agreement {label_agreement:.3f} < confidence.label_floor='
+            f'{config.label_floor:g}'
+        )
+    relative = label_agreement / ceiling
+    if relative < config.min_relative_agreement:
+        return (
+            f"label agreement {label_agreement:.3f} = {relative:.3f} of the labels' ceiling "
+            f'{ceiling:.3f} < confidence.min_relative_agreement='
+            f'{config.min_relative_agreement:g}'
+        )
+    return ''
+
+
+def cooccurrence(
+    transform: np.ndarray,
+    source: PreparedScan,
+    target: PreparedScan,
+    num_classes: int,
+    config: VerificationConfig,
+) -> np.ndarray:
+    """
+    ``(C, C)`` range-weighted counts of (source label, target label) at ``transform``.
+
+    The seeded source sample of the dense scores, moved by ``transform``; its nearest
+    target point within ``overlap_distance``. Weights ``range ** range_exponent``,
+    normalised to a mean of 1 per sampled point (so a count is about a number of points).
+    """
+    counts = np.zeros((num_classes, num_classes))
+    total = source.points.shape[0]
+    if total == 0 or target.points.shape[0] == 0 or not np.all(np.isfinite(transform)):
+        return counts
+    rows = _sample_rows(total, config)
+    points = source.points[rows]
+    moved = points @ transform[:3, :3].T + transform[:3, 3]
+    distance, nearest = target.points_tree().query(
+        moved, distance_upper_bound=config.overlap_distance
+    )
+    found = np.isfinite(distance)
+    weight = _area_weights(points, config.range_exponent)[found] * len(rows)
+    np.add.at(counts, (source.labels[rows][found], target.labels[nearest[found]]), weight)
+    return counts
+
+
+class LabelModel:
+    """
+    Class compatibility learned from the label co-occurrence at accepted poses.
+
+    ``prior``: the fixed ``(C, C)`` compatibility (boolean rules of
+    ``verification.compatible_classes``); learned weights only add to it. ``decay``: each
+    :meth:`update` first multiplies the counts by it (``1``: never forget).
+    ``min_association``: ``r0`` of the module docstring. ``min_count``: a class pair is
+    judged only when both classes have at least that much weight on the diagonal.
+    """
+
+    def __init__(
+        self,
+        prior: np.ndarray,
+        *,
+        decay: float = 0.98,
+        min_association: float = 0.15,
+        min_count: float = 200.0,
+    ) -> None:
+        self.prior = np.asarray(prior, dtype=np.float64)
+        self.decay = float(decay)
+        self.min_association = float(min_association)
+        self.min_count = float(min_count)
+        self.counts = np.zeros_like(self.prior)
+        self.updates = 0
+
+    @classmethod
+    def from_config(cls, prior: np.ndarray, config: ConfidenceConfig) -> LabelModel:
+        """Build a model with the ``confidence.label_*`` settings."""
+        return cls(
+            prior,
+            decay=config.label_decay,
+            min_association=config.label_min_association,
+            min_count=config.label_min_count,
+        )
+
+    def update(self, counts: np.ndarray) -> None:
+        """Add one accepted pose's ``(C, C)`` co-occurrence counts (:func:`cooccurrence`)."""
+        counts = np.asarray(counts, dtype=np.float64)
+        if counts.shape != self.counts.shape or not np.all(np.isfinite(counts)):
+            raise ValueError(
+                f'co-occurrence counts must be finite {self.counts.shape}, got {counts.shape}'
+            )
+        self.counts = self.decay * self.counts + np.clip(counts, 0.0, None)
+        self.updates += 1
+
+    def association(self) -> np.ndarray:
+        """``r(a, b) = max(N(a, b) / N(a, a), N(b, a) / N(b, b))``, 1 on the diagonal."""
+        diag = np.diag(self.counts)
+        enough = diag >= self.min_count
+        rate = np.where(
+            enough[:, None], self.counts / np.maximum(diag, 1e-300)[:, None], 0.0
+        )  # a as b per a as a (rows: source labels)
+        r = np.maximum(rate, rate.T) * np.outer(enough, enough)
+        np.fill_diagonal(r, 1.0)
+        return r
+
+    def learned(self) -> np.ndarray:
+        """Return the learned weights ``w(a, b)`` in ``[0, 1]`` (module docstring)."""
+        r0 = self.min_association
+        return np.clip((self.association() - r0) / max(1.0 - r0, 1e-9), 0.0, 1.0)
+
+    def compatibility(self) -> np.ndarray:
+        """``(C, C)`` float weights for the label agreement: max of the prior and learned."""
+        return np.maximum(self.prior, self.learned())
+
+    def confused_pairs(self, names: tuple[str, ...], threshold: float = 0.5) -> list[str]:
+        """Learned pairs ``a~b`` with weight above ``threshold`` (not in the prior)."""
+        w = self.learned()
+        a, b = np.nonzero(np.triu(w > threshold, k=1) & ~np.triu(self.prior > 0, k=1))
+        return [f'{names[i]}~{names[j]}' for i, j in zip(a.tolist(), b.tolist(), strict=True)]
