@@ -36,6 +36,7 @@ from mlsemreg_ros.simulation.inertial import true_motion
 from mlsemreg_ros.simulation.lidar import LidarConfig
 from mlsemreg_ros.simulation.sensors import HDL64, SENSORS
 from mlsemreg_ros.simulation.sequence import Simulation, SimulationConfig
+from mlsemreg_ros.tools import cli
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -307,3 +308,16 @@ def test_field_bag_round_trip(tmp_path: Path) -> None:
     reader.close()
     assert fields is not None and fields['time'][0] == 7 and fields['t'][0] == 6
     assert {'label', 'label_gt', 'ring', 'intensity'} <= set(fields)
+
+
+@pytest.mark.parametrize('network', ['rangenet++', 'salsanext'])
+def test_the_simulate_command_writes_a_field_bag_with_each_network(
+    tmp_path: Path, network: str
+) -> None:
+    # the command passed its options on by position and once lost --network (TypeError)
+    out = tmp_path / 'cli_field'
+    argv = ['simulate', str(out), '--realism', 'field', '--frames', '2', '--sensor', 'vlp16']
+    assert cli.main([*argv, '--network', network, '--quiet']) == 0
+    reader = BagScanReader(out)
+    assert [scan.index for scan in reader.scans()] == [0, 1]
+    reader.close()
