@@ -352,7 +352,7 @@ def eigen_vectors(
     covariance: np.ndarray, q: np.ndarray, p: np.ndarray, cosine: np.ndarray, points: np.ndarray
 ) -> np.ndarray:
     """
-    Second half of the solver and the orientation of :func:`mlsemreg_ros.core.fpfh.orient_normals`.
+    Finish the solver and orient as :func:`mlsemreg_ros.core.fpfh.orient_normals` does.
 
     ``cosine`` = ``cos(phi + 2 pi / 3)`` from NumPy. Returns (3, N) float32 unit normals
     facing the origin.

@@ -650,7 +650,7 @@ class Registration:
     def _distinctive_of(
         self, transforms: np.ndarray, source: PreparedScan, target: PreparedScan
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:func:`~mlsemreg_ros.core.verification.distinctive_scores` of ``transforms``."""
+        """:func:`distinctive_scores` (``core/verification.py``) of ``transforms``."""
         return distinctive_scores(
             transforms,
             source,
