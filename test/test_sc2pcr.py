@@ -18,7 +18,7 @@
 from __future__ import annotations
 
 from dev_pairs import dev_pair_files
-from mlsemreg_ros.core import poses
+from mlsemreg_ros.core import poses, second_order
 from mlsemreg_ros.core import sc2pcr as sc2
 from mlsemreg_ros.core.config import EstimatorConfig
 from mlsemreg_ros.core.estimation import estimate
@@ -94,9 +94,9 @@ def test_second_order_matches_dense_formula(
     monkeypatch: pytest.MonkeyPatch, enumeration_cost: float
 ) -> None:
     # all-enumerated, the default split, all bit sets: the same SC2 (eq. 4)
-    monkeypatch.setattr(sc2, '_ENUMERATION_COST', enumeration_cost)
-    monkeypatch.setattr(sc2, '_BIT_CHUNK_WORDS', 64)  # many chunks
-    monkeypatch.setattr(sc2, '_LIGHT_TABLE_ENTRIES', 5000)
+    monkeypatch.setattr(second_order, '_ENUMERATION_COST', enumeration_cost)
+    monkeypatch.setattr(second_order, '_BIT_CHUNK_WORDS', 64)  # many chunks
+    monkeypatch.setattr(second_order, '_LIGHT_TABLE_ENTRIES', 5000)
     src, dst, _, _ = _problem(8, count=700, outlier_ratio=0.7)
     threshold = 0.6
     cross = _dense_cross(src, dst)
@@ -104,7 +104,7 @@ def test_second_order_matches_dense_formula(
     tight = (cross < threshold / 2).astype(float)
     seeds = np.random.default_rng(0).choice(700, 90, replace=False)
     expected = hard[seeds] * (tight[seeds] @ tight)
-    row, col, value = sc2.second_order_compatibility(
+    row, col, value = second_order.second_order_compatibility(
         sc2.compatibility_matrix(src, dst, threshold), seeds
     )
     result = np.zeros_like(expected)
@@ -132,8 +132,8 @@ def test_consensus_sets_put_the_seed_first_and_rank_by_sc2() -> None:
     src, dst, _, _ = _problem(10, count=500, outlier_ratio=0.6)
     matrix = sc2.compatibility_matrix(src, dst, 0.6)
     seeds = np.array([3, 50, 400])
-    consensus, valid = sc2.seed_consensus_sets(matrix, seeds, 30)
-    row, col, value = sc2.second_order_compatibility(matrix, seeds)
+    consensus, valid = second_order.seed_consensus_sets(matrix, seeds, 30)
+    row, col, value = second_order.second_order_compatibility(matrix, seeds)
     table = np.zeros((3, 500))
     table[row, col] = value
     np.testing.assert_array_equal(consensus[:, 0], seeds)
@@ -150,16 +150,16 @@ def test_seed_budget_keeps_the_best_seeds_of_dense_input() -> None:
     # 60 % inliers: dense compatibility, expensive SC2 rows
     src, dst, truth, _ = _problem(15, count=1500, outlier_ratio=0.4)
     matrix = sc2.compatibility_matrix(src, dst, 0.6)
-    tight = sc2.tight_compatibility(matrix)
+    tight = second_order.tight_compatibility(matrix)
     scores, _ = sc2.leading_eigenvector(matrix, 10)
     seeds = sc2.pick_seeds(src, scores, 0.1, 300)
-    cost = sc2.second_order_cost(matrix, tight, seeds)
+    cost = second_order.second_order_cost(matrix, tight, seeds)
     assert cost.shape == seeds.shape and np.all(np.diff(cost) >= 0)
-    np.testing.assert_array_equal(sc2.budget_seeds(matrix, tight, seeds, np.inf), seeds)
-    kept = sc2.budget_seeds(matrix, tight, seeds, cost[99])
+    np.testing.assert_array_equal(second_order.budget_seeds(matrix, tight, seeds, np.inf), seeds)
+    kept = second_order.budget_seeds(matrix, tight, seeds, cost[99])
     np.testing.assert_array_equal(kept, seeds[:100])  # a prefix: the best scores
     np.testing.assert_array_equal(
-        sc2.budget_seeds(matrix, tight, seeds, 0.0), seeds[: sc2._MIN_SEEDS]
+        second_order.budget_seeds(matrix, tight, seeds, 0.0), seeds[: second_order._MIN_SEEDS]
     )
     # end to end with a small budget (estimator.second_order_budget): fewer seeds, same result
     result = sc2.sc2pcr(
@@ -214,7 +214,7 @@ def test_seed_hypotheses_match_a_plain_per_seed_implementation() -> None:
     matrix = sc2.compatibility_matrix(src, dst, 0.6)
     scores, _ = sc2.leading_eigenvector(matrix, 10)
     seeds = sc2.pick_seeds(src, scores, 0.1, 80)
-    consensus, valid = sc2.seed_consensus_sets(matrix, seeds, 30)
+    consensus, valid = second_order.seed_consensus_sets(matrix, seeds, 30)
     hypotheses = sc2.seed_hypotheses(src, dst, consensus, valid, 20, 0.6, iterations=200)
     assert hypotheses.shape == (seeds.size, 4, 4)
     checked = 0
