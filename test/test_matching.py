@@ -13,7 +13,7 @@
 # limitations under the License.
 """Group Matching, Mask Matching and ML-SemReg: known answers and agreement with a reference."""
 
-from mlsemreg_ros.core import matching
+from mlsemreg_ros.core import mask_search
 from mlsemreg_ros.core import threads as thread_settings
 from mlsemreg_ros.core.matching import (
     group_bitmask,
@@ -169,7 +169,7 @@ def test_engine_agrees_with_reference_on_repeated_patterns_and_small_chunks(
     args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss))
     results = []
     for chunk, threads in [(600_000, 2), (97, 2), (97, 1), (5, 2)]:  # 1 .. many row chunks
-        monkeypatch.setattr(matching, '_CHUNK_ELEMENTS', chunk)
+        monkeypatch.setattr(mask_search, '_CHUNK_ELEMENTS', chunk)
         monkeypatch.setattr(thread_settings, '_requested', threads)
         corr = semantic_match(*args, src_bmr, dst_bmr, 2, mutual)
         assert _pairs(corr) == expected
@@ -217,11 +217,11 @@ def test_target_patterns_and_padded_bins_known_answer():
     bmr[0, [1, 65]] = bmr[2, [1, 65]] = True  # same pattern across the 64-bit word border
     bmr[1, [1]] = True
     bmr[4, [69]] = True  # row 3 empty
-    pattern_of, table = matching._target_patterns(bmr, np.uint8)
+    pattern_of, table = mask_search._target_patterns(bmr, np.uint8)
     assert pattern_of[0] == pattern_of[2] and len(set(pattern_of.tolist())) == 4
     assert table.shape == (71, 4) and not table[-1].any()
     np.testing.assert_array_equal(table[:-1, pattern_of].T.astype(bool), bmr)
-    bits, width = matching._padded_bins(bmr)
+    bits, width = mask_search._padded_bins(bmr)
     assert width.tolist() == [2, 1, 2, 0, 1]
     assert bits.tolist() == [[1, 65], [1, 70], [1, 65], [70, 70], [69, 70]]
 
@@ -273,7 +273,7 @@ def test_dense_and_sparse_candidate_paths_agree_with_reference(seed, mutual, mon
     )
     outputs = []
     for fraction in (0.0, np.inf):  # every chunk dense / every chunk sparse
-        monkeypatch.setattr(matching, '_DENSE_FRACTION', fraction)
+        monkeypatch.setattr(mask_search, '_DENSE_FRACTION', fraction)
         diagnostics: dict = {}
         corr = semantic_match(*args, diagnostics)
         assert _pairs(corr) == expected
@@ -300,7 +300,7 @@ def test_non_finite_descriptors_give_the_same_winners_on_both_candidate_paths(mu
     )
     results = []
     for fraction in (0.0, np.inf):
-        monkeypatch.setattr(matching, '_DENSE_FRACTION', fraction)
+        monkeypatch.setattr(mask_search, '_DENSE_FRACTION', fraction)
         results.append(_pairs(semantic_match(*args)))
     assert results[0] == results[1] and len(results[0]) > 0
 
