@@ -37,6 +37,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.core.settings import param
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -383,21 +384,42 @@ class ImuBiasEstimator:
         return True
 
 
+def _hat(vectors: np.ndarray) -> np.ndarray:
+    """Return the skew matrices (n, 3, 3) of ``vectors`` (n, 3)."""
+    x, y, z = vectors.T
+    zero = np.zeros_like(x)
+    return np.stack([zero, -z, y, z, zero, -x, -y, x, zero], axis=1).reshape(-1, 3, 3)
+
+
+def _left_jacobian(rotvecs: np.ndarray) -> np.ndarray:
+    """Return SO(3)'s left Jacobians (n, 3, 3): ``I + (1 - cos)/th^2 K + (th - sin)/th^3 K^2``."""
+    theta = np.linalg.norm(rotvecs, axis=1)[:, None, None]
+    small = theta < 1e-8
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 0.5, (1.0 - np.cos(safe)) / safe**2)
+    b = np.where(small, 1.0 / 6.0, (safe - np.sin(safe)) / safe**3)
+    K = _hat(rotvecs)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
 def interpolate_poses(stamps_ns: np.ndarray, poses: np.ndarray, at_ns: np.ndarray) -> np.ndarray:
     """
-    Return poses (k, 4, 4) at ``at_ns``: slerp and linear translation between neighbours.
+    Return poses (k, 4, 4) at ``at_ns``, on the constant twist between neighbouring messages.
 
-    Past either end the motion of the two end messages is extrapolated at the same rate.
+    The relative pose of the two neighbours is scaled on SE(3) (``exp(s log(T0^-1 T1))``),
+    so a constant-twist motion (a circle driven at constant speed) is interpolated exactly;
+    past either end the twist of the two end messages is extrapolated.
     """
     at = np.atleast_1d(np.asarray(at_ns, dtype=np.int64))
     upper = np.clip(np.searchsorted(stamps_ns, at, side='right'), 1, len(stamps_ns) - 1)
     lower = upper - 1
     span = (stamps_ns[upper] - stamps_ns[lower]).astype(np.float64)
-    s = (at - stamps_ns[lower]) / np.where(span > 0, span, 1.0)
+    s = ((at - stamps_ns[lower]) / np.where(span > 0, span, 1.0))[:, None]
     P0, P1 = poses[lower], poses[upper]
-    delta = np.einsum('nji,njk->nik', P0[:, :3, :3], P1[:, :3, :3])
-    rotvec = Rotation.from_matrix(delta).as_rotvec() * s[:, None]
-    out = np.tile(np.eye(4), (at.size, 1, 1))
-    out[:, :3, :3] = P0[:, :3, :3] @ Rotation.from_rotvec(rotvec).as_matrix()
-    out[:, :3, 3] = P0[:, :3, 3] + s[:, None] * (P1[:, :3, 3] - P0[:, :3, 3])
-    return out
+    delta = invert_transform(P0) @ P1
+    rotvec = Rotation.from_matrix(delta[:, :3, :3]).as_rotvec()
+    v = np.linalg.solve(_left_jacobian(rotvec), delta[:, :3, 3:])[..., 0]  # log translation
+    step = np.tile(np.eye(4), (at.size, 1, 1))
+    step[:, :3, :3] = Rotation.from_rotvec(rotvec * s).as_matrix()
+    step[:, :3, 3] = np.einsum('nij,nj->ni', _left_jacobian(rotvec * s), v * s)
+    return P0 @ step
