@@ -55,20 +55,14 @@ class _Drive:
 
 
 def _quiet_imu(**changes: float) -> ImuConfig:
-    values = dict(
-        gyro_noise_density=0.0,
-        gyro_bias_walk=0.0,
-        accel_noise_density=0.0,
-        accel_bias_walk=0.0,
-        gyro_turn_on_bias=0.0,
-        accel_turn_on_bias=0.0,
-    )
+    names = ('gyro_noise_density', 'gyro_bias_walk', 'accel_noise_density', 'accel_bias_walk')
+    values = dict.fromkeys((*names, 'gyro_turn_on_bias', 'accel_turn_on_bias'), 0.0)
     values.update(changes)
     return ImuConfig(**values)
 
 
 def _imu_model(config: ImuConfig, seconds: float = 6.0, seed: int = 0):
-    """A prior model fed with a simulated IMU over ``seconds``, and the drive's truth."""
+    """Return a prior model fed with a simulated IMU over ``seconds``, and the truth."""
     drive = _Drive()
     samples = simulate_imu(drive, 0.0, seconds, config, np.random.default_rng(seed))
     stamps = T0_NS + np.round(samples.times * 1e9).astype(np.int64)

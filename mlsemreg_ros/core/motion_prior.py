@@ -269,7 +269,7 @@ class ImuSegment:
     force: np.ndarray  # (m, 3) specific force at the midpoints (sensor frame, m/s^2)
 
     def accelerations(self, offset_t0: np.ndarray) -> np.ndarray:
-        """Return the accelerations (m, 3) in the frame at ``t0``: ``R f + c`` (c in it too)."""
+        """Return the (m, 3) accelerations in the frame at ``t0``: rotated force plus ``c``."""
         return np.einsum('nij,nj->ni', self.R_mid, self.force) + offset_t0
 
     def displacement(self, velocity_t0: np.ndarray, offset_t0: np.ndarray) -> np.ndarray:
