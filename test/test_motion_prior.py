@@ -16,6 +16,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.motion_prior import (
     integrate_imu,
@@ -318,3 +320,38 @@ def test_prior_topics_are_fed_once_up_to_the_sweep_end() -> None:
     np.testing.assert_array_equal(np.concatenate(recorder.imu), stamps)
     assert [len(s) for s in recorder.imu] == [5, 5]
     np.testing.assert_array_equal(np.concatenate(recorder.wheel), stamps[::2])
+
+
+@pytest.fixture(scope='module')
+def field_bag(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    from mlsemreg_ros.simulation.field import FieldConfig
+    from mlsemreg_ros.simulation.field_export import write_field_bag
+
+    out = tmp_path_factory.mktemp('prior') / 'field'
+    write_field_bag(out, FieldConfig(seed=2, frames=5, sensor='vlp16'), progress=False)
+    return out
+
+
+@pytest.mark.slow  # a field bag and two eval-bag runs: about 20 s, 60 s under load
+def test_eval_bag_replays_the_prior_topics(field_bag: Any) -> None:
+    import json
+
+    from mlsemreg_ros.tools import eval_bag
+
+    out = field_bag.parent / 'imu'
+    args = [
+        str(field_bag),
+        '-o',
+        str(out),
+        '--quiet',
+        '--no-plots',
+        '--set',
+        'keypoints.count=1500',
+    ]
+    assert (
+        eval_bag.main([*args, '--imu-topic', '/imu/data', '--wheel-topic', '/wheel/odometry']) == 0
+    )
+    details = json.loads((out / 'details.json').read_text())
+    # auto: the wheels predict scan 1 (one pose is enough), the IMU scans 2..4 (two needed)
+    assert details['prediction_sources'] == {'wheel': 1, 'imu': 3}
+    assert eval_bag.main([*args, '--imu-topic', '/no/such/topic']) == 2
