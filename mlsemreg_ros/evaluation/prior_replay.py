@@ -59,3 +59,58 @@ class PriorFedEstimator:
     def prediction_sources(self) -> dict[str, int]:
         """Return how many predictions each source made ('imu', 'wheel', ...)."""
         return dict(getattr(self.estimator.odometry.motion_model, 'counts', {}))
+
+
+def prediction_errors(
+    bag: str,
+    source: str,
+    stride: int = 1,
+    imu_topic: str = '/imu/data',
+    wheel_topic: str = '/wheel/odometry',
+    gt_topic: str = '',
+) -> dict[str, float]:
+    """
+    Score a motion model's predictions on a bag's ground truth (no registration).
+
+    The model (``motion_prior.source`` = ``source``; ``none`` is constant velocity) is fed
+    the bag's prior topics and updated with the true poses (``gt_topic``, default the
+    bag's ground truth, one per scan) of every ``stride``-th scan; each
+    prediction from the third scan on is compared with the true pose. Returns the mean, 95th
+    percentile and maximum translation (m) and rotation (deg) errors, and the count.
+    """
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.odometry.motion_model import make_motion_model
+    from mlsemreg_ros.core.odometry.prior_model import motion_model_name
+    from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg
+    from mlsemreg_ros.datasets.bag import GT_TOPIC, read_wheel_odometry
+    from mlsemreg_ros.datasets.prior_topics import read_prior_topics
+    import numpy as np
+
+    gt_topic = gt_topic or GT_TOPIC
+    cfg = RegistrationConfig()
+    cfg.motion_prior.source = source
+    model = make_motion_model(cfg, motion_model_name(cfg))
+    topics = read_prior_topics(bag, imu_topic, wheel_topic) if source != 'none' else None
+    truth = read_wheel_odometry(bag, gt_topic)  # any nav_msgs/Odometry topic
+    scans = list(zip(truth.stamps_ns[::stride], truth.poses[::stride], strict=True))
+    first = invert_transform(scans[0][1])
+    errors = []
+    for k, (stamp, pose) in enumerate(scans):
+        pose = first @ pose
+        if topics is not None:
+            topics.feed_until(model, stamp)
+        prediction = model.predict(stamp)
+        if k >= 2 and prediction is not None:
+            error = invert_transform(pose) @ prediction.T_odom_current
+            errors.append((np.linalg.norm(error[:3, 3]), rotation_angle_deg(error)))
+        model.update(pose, stamp)
+    t, r = np.array(errors).reshape(-1, 2).T
+    return {
+        'n': len(errors),
+        't_mean_m': float(t.mean()),
+        't_p95_m': float(np.percentile(t, 95)),
+        't_max_m': float(t.max()),
+        'r_mean_deg': float(r.mean()),
+        'r_p95_deg': float(np.percentile(r, 95)),
+        'r_max_deg': float(r.max()),
+    }
