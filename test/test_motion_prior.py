@@ -355,3 +355,12 @@ def test_eval_bag_replays_the_prior_topics(field_bag: Any) -> None:
     # auto: the wheels predict scan 1 (one pose is enough), the IMU scans 2..4 (two needed)
     assert details['prediction_sources'] == {'wheel': 1, 'imu': 3}
     assert eval_bag.main([*args, '--imu-topic', '/no/such/topic']) == 2
+
+
+def test_a_motion_prior_change_reaches_the_model() -> None:
+    odometry = Odometry(config=RegistrationConfig())
+    model = odometry.motion_model
+    odometry.reconfigure(RegistrationConfig().replace({'motion_prior.max_span': 1.0}))
+    assert odometry.motion_model is model and model.cfg.max_span == 1.0
+    odometry.reconfigure(RegistrationConfig().replace({'motion_prior.source': 'none'}))
+    assert isinstance(odometry.motion_model, ConstantVelocityModel)

@@ -153,3 +153,66 @@ def test_t_base_sensor_moves_the_published_pose_by_exactly_the_extrinsic(ros: An
     np.testing.assert_allclose(_matrix(path.poses[-1].pose), expected, atol=1e-6)
     # the IMU reached the motion model (tf2_ros missing: the parameters were used)
     assert len(node._odometry.motion_model._imu) == 5
+
+
+class _Model:
+    def __init__(self) -> None:
+        self.imu: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.wheel: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+
+    def add_imu(self, stamps: np.ndarray, gyro: np.ndarray, accel: np.ndarray) -> None:
+        self.imu.append((stamps, gyro, accel))
+
+    def add_wheel(self, stamps: np.ndarray, poses: np.ndarray, extrinsic: np.ndarray) -> None:
+        self.wheel.append((stamps, poses, extrinsic))
+
+
+def _header(seconds: int, frame: str) -> Any:
+    from types import SimpleNamespace
+
+    return SimpleNamespace(stamp=SimpleNamespace(sec=seconds, nanosec=0), frame_id=frame)
+
+
+def _vector(x: float, y: float, z: float) -> Any:
+    from types import SimpleNamespace
+
+    return SimpleNamespace(x=x, y=y, z=z)
+
+
+def test_prior_messages_in_the_base_frame_are_moved_to_the_sensor() -> None:
+    from types import SimpleNamespace
+
+    from mlsemreg_ros.ros.prior_inputs import PriorInbox
+
+    X = ExtrinsicConfig(yaw=np.pi / 2, x=1.0).matrix()  # sensor x = base y
+    inbox, model = PriorInbox(), _Model()
+    imu = SimpleNamespace(
+        header=_header(1, 'base_link'),
+        angular_velocity=_vector(0.0, 0.0, 0.5),
+        linear_acceleration=_vector(0.0, 2.0, 9.81),  # forward in base y: the sensor's x
+    )
+    pose = SimpleNamespace(
+        position=_vector(3.0, 0.0, 0.0), orientation=SimpleNamespace(x=0, y=0, z=0, w=1)
+    )
+    wheel = SimpleNamespace(
+        header=_header(1, 'odom'), child_frame_id='base_link', pose=SimpleNamespace(pose=pose)
+    )
+    inbox.on_imu(imu)
+    inbox.on_wheel(wheel)
+    inbox.flush(model, 'velodyne', 'base_link', X)
+    stamps, gyro, accel = model.imu[0]
+    assert stamps.tolist() == [1_000_000_000]
+    np.testing.assert_allclose(accel[0], [2.0, 0.0, 9.81], atol=1e-12)
+    np.testing.assert_allclose(gyro[0], [0.0, 0.0, 0.5], atol=1e-12)
+    np.testing.assert_allclose(model.wheel[0][2], X)
+    np.testing.assert_allclose(model.wheel[0][1][0][:3, 3], [3.0, 0.0, 0.0])
+    inbox.on_imu(imu)
+    inbox.flush(object(), 'velodyne', 'base_link', X)  # a model that takes none: dropped
+    inbox.flush(model, 'velodyne', 'base_link', X)
+    assert len(model.imu) == 1
+    imu.header.frame_id = 'imu_link'  # neither frame: used as it is, with one warning
+    inbox.on_imu(imu)
+    inbox.on_imu(imu)
+    inbox.flush(model, 'velodyne', 'base_link', X)
+    assert len(inbox.warnings) == 1 and 'imu_link' in inbox.warnings[0]
+    np.testing.assert_allclose(model.imu[-1][2][0], [0.0, 2.0, 9.81])

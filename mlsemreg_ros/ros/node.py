@@ -328,8 +328,7 @@ class MlSemRegNode(Node):
         self._T_base_sensor = self._extrinsic.matrix(scan.frame_id)
         self._map.T_base_sensor = self._T_base_sensor
         model = self._odometry.motion_model
-        if hasattr(model, 'add_imu'):
-            self._prior.flush(model, scan.frame_id, node.base_frame, self._T_base_sensor)
+        self._prior.flush(model, scan.frame_id, node.base_frame, self._T_base_sensor)
         for warning in self._extrinsic.warnings + self._prior.warnings:
             self.get_logger().warning(warning, throttle_duration_sec=LOG_THROTTLE_S)
         self._extrinsic.warnings.clear()

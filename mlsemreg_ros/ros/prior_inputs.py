@@ -73,10 +73,16 @@ class PriorInbox:
     def flush(
         self, model: Any, sensor_frame: str, base_frame: str, T_base_sensor: np.ndarray
     ) -> None:
-        """Hand the waiting messages to ``model`` (``add_imu`` / ``add_wheel``; worker thread)."""
+        """
+        Hand the waiting messages to ``model`` (``add_imu`` / ``add_wheel``; worker thread).
+
+        A model that takes no prior messages (``motion_prior.source: none``) drops them.
+        """
         with self._lock:
             imu, self._imu = self._imu, []
             wheel, self._wheel = self._wheel, []
+        if not hasattr(model, 'add_imu'):
+            return
         if imu:
             stamps = np.array([m[0] for m in imu], dtype=np.int64)
             gyro = np.array([m[1] for m in imu], dtype=np.float64)
@@ -134,17 +140,12 @@ def subscribe_prior_topics(node: Any, inbox: PriorInbox, config: Any, model: Any
     """
     Subscribe ``node`` to the configured IMU and wheel topics (sensor-data QoS).
 
-    Returns what to log: the subscriptions, or why a topic is not used (the motion model
-    takes no prior messages when ``motion_prior.source`` is none).
+    Returns what to log: the subscriptions, and a note when the motion model takes no
+    prior messages (``motion_prior.source: none``; a live change may enable it).
     """
     topics = {'imu': config.node.imu_topic, 'wheel': config.node.wheel_odometry_topic}
     if not any(topics.values()):
         return []
-    if not hasattr(model, 'add_imu'):
-        return [
-            f'motion_prior.source is {config.core.motion_prior.source}: the prior topics '
-            f'{[t for t in topics.values() if t]} are not subscribed'
-        ]
     from nav_msgs.msg import Odometry
     from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import Imu
@@ -158,4 +159,9 @@ def subscribe_prior_topics(node: Any, inbox: PriorInbox, config: Any, model: Any
             Odometry, topics['wheel'], inbox.on_wheel, qos_profile_sensor_data
         )
         notes.append(f'motion prior: wheel odometry on {node.resolve_topic_name(topics["wheel"])}')
+    if not hasattr(model, 'add_imu'):
+        notes.append(
+            f'motion_prior.source is {config.core.motion_prior.source}: the prior messages '
+            'are dropped until it changes'
+        )
     return notes

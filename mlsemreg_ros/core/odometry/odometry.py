@@ -148,6 +148,13 @@ class Odometry:
                 self.keyframe.prepared.alignment_clouds.clear()  # rebuilt when needed
         if self.map.reconfigure(config.fine, config.local_map) and self.keyframe:
             self._insert(self.keyframe.prepared, self.keyframe.pose)  # restart from the keyframe
+        if old.motion_prior != config.motion_prior:  # core/odometry/prior_model.py
+            if motion_model_name(old) != motion_model_name(config):
+                self.motion_model = make_motion_model(config, motion_model_name(config))
+                if self._last_accepted is not None:
+                    self.motion_model.update(*self._last_accepted)
+            elif hasattr(self.motion_model, 'cfg'):
+                self.motion_model.cfg = config.motion_prior
 
     def reset(self) -> None:
         """Drop the keyframe and the map; the next scan restarts the odometry at identity."""
