@@ -242,17 +242,33 @@ class SampleBuffer:
         self.values = np.zeros((0, *self.width))
 
 
+def quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Return the Hamilton products ``a b`` of quaternions (n, 4), scalar last (scipy's order)."""
+    ax, ay, az, aw = a.T
+    bx, by, bz, bw = b.T
+    return np.stack(
+        [
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+            aw * bw - ax * bx - ay * by - az * bz,
+        ],
+        axis=1,
+    )
+
+
 def prefix_rotations(increments: Rotation) -> Rotation:
     """
     Return the running products ``r_0 r_1 ... r_i`` of ``increments`` (vectorised).
 
-    A Hillis-Steele scan: log2(n) compositions of whole arrays instead of n single ones.
+    A Hillis-Steele scan: log2(n) products of whole quaternion arrays instead of n single
+    compositions.
     """
     quats = increments.as_quat()
     offset = 1
     while offset < len(quats):
-        combined = Rotation.from_quat(quats[:-offset]) * Rotation.from_quat(quats[offset:])
-        quats = np.concatenate([quats[:offset], combined.as_quat()])
+        combined = quaternion_product(quats[:-offset], quats[offset:])
+        quats = np.concatenate([quats[:offset], combined])
         offset *= 2
     return Rotation.from_quat(quats)
 
