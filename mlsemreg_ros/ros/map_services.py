@@ -38,8 +38,10 @@ from typing import Any
 from geometry_msgs.msg import TransformStamped
 from mlsemreg_ros.core.localization import LocalizationUpdate, MapLocalization
 from mlsemreg_ros.core.map_io import load_store, MapError
+from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.ros import messages
 from nav_msgs.msg import Path
+import numpy as np
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
@@ -52,6 +54,7 @@ class MapServices:
         self.node = node
         self.odometry = odometry
         self.tf = tf
+        self.T_base_sensor = np.eye(4)  # the odom frame is the base's (ros/extrinsic.py)
         core = config.core
         registration = odometry.registration
         store = None
@@ -92,6 +95,7 @@ class MapServices:
         return update
 
     def _publish(self, stamp: Any, T_map_odom: Any, odom_frame: str, config: Any) -> None:
+        T_map_odom = T_map_odom @ invert_transform(self.T_base_sensor)  # odom at the base
         msg = messages.transform_msg(stamp, self.localization.frame_id, odom_frame, T_map_odom)
         self._pub_pose.publish(msg)
         if self.tf is not None and config.node.publish_tf:

@@ -71,10 +71,12 @@ from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.core.warm_up import warm_up
 from mlsemreg_ros.ros import messages
+from mlsemreg_ros.ros.extrinsic import ExtrinsicSource, to_base
 from mlsemreg_ros.ros.map_services import MapServices
 from mlsemreg_ros.ros.markers import correspondence_markers
 from mlsemreg_ros.ros.node_config import NodeConfig
 from mlsemreg_ros.ros.parameters import ConfigSnapshot, LiveParameters
+from mlsemreg_ros.ros.prior_inputs import PriorInbox, subscribe_prior_topics
 from nav_msgs.msg import Odometry, Path
 import numpy as np
 import rclpy
@@ -200,6 +202,12 @@ class MlSemRegNode(Node):
         self._pub_diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_subscription(PointCloud2, 'points', self._on_points, qos)
         self.create_service(Trigger, 'mlsemreg/reset', self._on_reset)
+        # the motion prior's topics and the extrinsic (docs/field_prior.md)
+        self._prior = PriorInbox()
+        for note in subscribe_prior_topics(self, self._prior, config, self._odometry.motion_model):
+            self.get_logger().info(note)
+        self._extrinsic = ExtrinsicSource(self, config.node)
+        self._T_base_sensor = np.eye(4)  # of the clouds' frame, set per scan
         self._tf = TransformBroadcaster(self) if TransformBroadcaster is not None else None
         self._map = MapServices(self, self._odometry, config, self._tf)  # ros/map_services.py
         if self._tf is None:
@@ -271,6 +279,7 @@ class MlSemRegNode(Node):
         if not self._check_frame(scan, config.node):
             return
         self._stream.observe(stamp_to_ns(scan.stamp))
+        self._before_scan(scan, config.node)
         try:
             step = self._odometry.process(scan.xyz, scan.labels, stamp_to_ns(scan.stamp))
         except LabelError as error:
@@ -313,6 +322,17 @@ class MlSemRegNode(Node):
                 f'frame rejected, keyframe kept: {reason}', throttle_duration_sec=LOG_THROTTLE_S
             )
             self._diagnose(scan, 'warn', f'frame rejected: {reason}', step)
+
+    def _before_scan(self, scan: Scan, node: NodeConfig) -> None:
+        """Resolve the extrinsic and hand the waiting prior messages to the motion model."""
+        self._T_base_sensor = self._extrinsic.matrix(scan.frame_id)
+        self._map.T_base_sensor = self._T_base_sensor
+        model = self._odometry.motion_model
+        self._prior.flush(model, scan.frame_id, node.base_frame, self._T_base_sensor)
+        for warning in self._extrinsic.warnings + self._prior.warnings:
+            self.get_logger().warning(warning, throttle_duration_sec=LOG_THROTTLE_S)
+        self._extrinsic.warnings.clear()
+        self._prior.warnings.clear()
 
     def _check_frame(self, scan: Scan, node: NodeConfig) -> bool:
         """Handle a change of the clouds' frame_id per ``frame_change`` (False: skip it)."""
@@ -372,16 +392,24 @@ class MlSemRegNode(Node):
     def _publish_pose(self, scan: Scan, step: OdometryStep, node: NodeConfig) -> None:
         """Odometry, path and TF of the step's pose (called with the lock held)."""
         child = node.base_frame or scan.frame_id
-        pose = step.pose
         twist = step.twist if step.twist is not None else np.zeros(6)
         twist_cov = (
             step.twist_covariance
             if step.twist_covariance is not None
             else np.eye(6) * UNKNOWN_VARIANCE
         )
+        # the base's pose: T_odom_base = X T_odom_sensor X^-1 (ros/extrinsic.py)
+        base = to_base(self._T_base_sensor, step.pose, step.covariance, twist, twist_cov)
+        pose = base.pose
         self._pub_odometry.publish(
             messages.odometry_msg(
-                scan.stamp, node.odom_frame, child, pose, step.covariance, twist, twist_cov
+                scan.stamp,
+                node.odom_frame,
+                child,
+                pose,
+                base.covariance,
+                base.twist,
+                base.twist_covariance,
             )
         )
         self._path.header = Header(stamp=scan.stamp, frame_id=node.odom_frame)

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from mlsemreg_ros.core.config import param, RegistrationConfig, Settings
+from mlsemreg_ros.ros.extrinsic import ExtrinsicConfig
 
 
 @dataclass
@@ -66,7 +67,15 @@ class PathConfig:
 
 
 #: Parameters that only take effect at startup (declared read-only).
-READ_ONLY: tuple[str, ...] = ('qos.reliability', 'qos.depth', 'keep_freed_memory')
+READ_ONLY: tuple[str, ...] = (
+    'qos.reliability',
+    'qos.depth',
+    'keep_freed_memory',
+    'imu_topic',
+    'wheel_odometry_topic',
+    'extrinsic_source',
+    *(f'T_base_sensor.{f.name}' for f in dataclasses.fields(ExtrinsicConfig)),
+)
 
 
 @dataclass
@@ -85,8 +94,28 @@ class NodeConfig(Settings):
     )
     base_frame: str = param(
         '',
-        "Child frame of the odometry and TF; '' uses the cloud's frame_id. No extrinsic is "
-        "applied: the estimated motion is the sensor's.",
+        "Child frame of the odometry and TF; '' uses the cloud's frame_id. With a "
+        "base_frame the published pose is the base's: T_odom_base = T_base_sensor "
+        'T_odom_sensor T_base_sensor^-1 (odom: the base at the first scan; '
+        'docs/field_prior.md).',
+    )
+    extrinsic_source: str = param(
+        'parameter',
+        'Where T_base_sensor comes from: parameter (the T_base_sensor.* parameters) or tf '
+        "(TF's base_frame -> cloud frame transform, looked up at the first scan; without "
+        'tf2_ros or before the transform exists: the parameters, with a warning; '
+        'read-only).',
+        choices=('parameter', 'tf'),
+    )
+    imu_topic: str = param(
+        '',
+        "sensor_msgs/Imu topic fed to the motion prior (motion_prior.*; ''"
+        ': none; sensor-data QoS; read-only).',
+    )
+    wheel_odometry_topic: str = param(
+        '',
+        "nav_msgs/Odometry wheel-odometry topic fed to the motion prior (''"
+        ': none; sensor-data QoS; read-only).',
     )
     publish_outliers: bool = param(
         False, 'Also draw outlier correspondences (red) in mlsemreg/correspondences.'
@@ -119,6 +148,7 @@ class NodeConfig(Settings):
     )
     qos: QosConfig = field(default_factory=QosConfig)
     path: PathConfig = field(default_factory=PathConfig)
+    T_base_sensor: ExtrinsicConfig = field(default_factory=ExtrinsicConfig)  # noqa: N815, RUF100
 
     def check(self) -> list[str]:
         """Frame names and the label field."""
@@ -134,6 +164,13 @@ class NodeConfig(Settings):
                 )
         if self.base_frame and self.base_frame == self.odom_frame:
             errors.append(f'base_frame and odom_frame are both {self.odom_frame!r}')
+        if not self.base_frame and not self.T_base_sensor.is_identity():
+            errors.append('T_base_sensor is set but base_frame is empty: name the base frame')
+        if not self.base_frame and self.extrinsic_source == 'tf':
+            errors.append('extrinsic_source: tf needs a base_frame')
+        for key in ('imu_topic', 'wheel_odometry_topic'):
+            if getattr(self, key).strip() != getattr(self, key):
+                errors.append(f'{key}={getattr(self, key)!r}: no surrounding spaces')
         return errors
 
 

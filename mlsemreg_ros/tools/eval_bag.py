@@ -136,6 +136,20 @@ def eval_bag(
         ),
     ] = None,
     quiet: QuietOption = False,
+    imu_topic: Annotated[
+        str,
+        typer.Option(
+            help="sensor_msgs/Imu topic fed to the motion prior ('': none; docs/field_prior.md)",
+            rich_help_panel=DATA,
+        ),
+    ] = '',
+    wheel_topic: Annotated[
+        str,
+        typer.Option(
+            help="nav_msgs/Odometry wheel topic fed to the motion prior ('': none)",
+            rich_help_panel=DATA,
+        ),
+    ] = '',
     baseline: Annotated[
         Literal['none', 'kiss-icp'],
         typer.Option(
@@ -182,9 +196,12 @@ def eval_bag(
         if gt_calib is not None:
             truth = camera_to_lidar_poses(truth, read_kitti_calib(gt_calib)['Tr'])
     options = ReplayOptions(stride, max_frames, truth, plot_frame, progress=not quiet)
+    estimator = OdometryEstimator(Odometry(Registration(core)))
+    if imu_topic or wheel_topic:
+        estimator = _fed_with_prior(bag, estimator, imu_topic, wheel_topic)
     source = open_source()
     try:
-        run_ = replay(source, OdometryEstimator(Odometry(Registration(core))), bounds, options)
+        run_ = replay(source, estimator, bounds, options)
     finally:
         source.close()
     if not run_.records:
@@ -193,6 +210,8 @@ def eval_bag(
     details = run_details(
         run_, bag=str(bag), stride=stride, max_frames=max_frames, argv=invocation_argv(context)
     )
+    if hasattr(estimator, 'prediction_sources'):
+        details['prediction_sources'] = estimator.prediction_sources()
     out = output or reports.default_output(results_root, 'eval_bag', run_.name)
     others: dict[str, dict] = {}
     extra = {}
@@ -236,6 +255,21 @@ def eval_bag(
     if fail_below is not None and (rr is None or rr < fail_below):
         raise CommandError(f'registration recall {rr} % < {fail_below} %')
     return 0
+
+
+def _fed_with_prior(bag: Path, estimator: Any, imu_topic: str, wheel_topic: str) -> Any:
+    """Wrap ``estimator`` so its motion model hears the bag's prior topics first."""
+    from mlsemreg_ros.datasets.factory import is_rosbag2
+    from mlsemreg_ros.datasets.prior_topics import read_prior_topics
+    from mlsemreg_ros.datasets.source import SourceError
+    from mlsemreg_ros.evaluation.prior_replay import PriorFedEstimator
+
+    if not is_rosbag2(bag):
+        raise CommandError('--imu-topic / --wheel-topic need a rosbag2', 2)
+    try:
+        return PriorFedEstimator(estimator, read_prior_topics(bag, imu_topic, wheel_topic))
+    except (SourceError, ValueError) as error:
+        raise CommandError(str(error), 2) from None
 
 
 main = alias(eval_bag, HELP, 'mlsemreg-eval-bag')

@@ -39,6 +39,11 @@ from mlsemreg_ros.core.odometry.motion_model import (
 )
 from mlsemreg_ros.core.odometry.odometry import Odometry
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
+from mlsemreg_ros.core.odometry.prior_model import (
+    motion_model_name,
+    PRIOR_MOTION_MODEL,
+    PriorMotionModel,
+)
 from mlsemreg_ros.core.odometry.steps import (
     Decision,
     MIN_LEVER_ARM_M,
@@ -54,6 +59,7 @@ __all__ = [
     'MAX_TRACKING_GAP',
     'MIN_LEVER_ARM_M',
     'MOTION_MODELS',
+    'PRIOR_MOTION_MODEL',
     'REINITIALIZATION_VARIANCE',
     'Candidate',
     'ConstantVelocityModel',
@@ -68,11 +74,13 @@ __all__ = [
     'Prediction',
     'PreprocessedScan',
     'Preprocessor',
+    'PriorMotionModel',
     'Tracker',
     'is_new_keyframe',
     'keyframe_refusal',
     'make_map',
     'make_motion_model',
     'motion_model',
+    'motion_model_name',
     'sparse_inlier_covariance',
 ]

@@ -20,6 +20,7 @@ a component of its own (``docs/extending.md``)::
 
     preprocess.py           Preprocessor: raw scan (+ point times) -> lazily prepared scan
     motion_model.py         MotionModel: predicted T_odom_current (constant velocity)
+    prior_model.py          the IMU / wheel-odometry prior (motion_prior.source)
     tracking.py             Tracker: guesses refined against the map; the trust rule
     global_registration.py  GlobalRegistration: ML-SemReg + SC2-PCR onto the keyframe
     decision.py             decide / chain: which candidate is accepted, if any
@@ -72,6 +73,7 @@ from mlsemreg_ros.core.odometry.local_map import (
 )
 from mlsemreg_ros.core.odometry.motion_model import make_motion_model
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
+from mlsemreg_ros.core.odometry.prior_model import motion_model_name
 from mlsemreg_ros.core.odometry.steps import (
     Decision,
     odom_covariance,
@@ -103,7 +105,7 @@ class Odometry:
         cfg = self.registration.config
         # the components (seams: docs/extending.md)
         self.preprocessor = Preprocessor(self.registration)
-        self.motion_model = make_motion_model(cfg)
+        self.motion_model = make_motion_model(cfg, motion_model_name(cfg))
         self.map = make_map(cfg)
         self.tracker = Tracker(self.map)
         self.global_registration = GlobalRegistration(self.registration)
@@ -146,6 +148,13 @@ class Odometry:
                 self.keyframe.prepared.alignment_clouds.clear()  # rebuilt when needed
         if self.map.reconfigure(config.fine, config.local_map) and self.keyframe:
             self._insert(self.keyframe.prepared, self.keyframe.pose)  # restart from the keyframe
+        if old.motion_prior != config.motion_prior:  # core/odometry/prior_model.py
+            if motion_model_name(old) != motion_model_name(config):
+                self.motion_model = make_motion_model(config, motion_model_name(config))
+                if self._last_accepted is not None:
+                    self.motion_model.update(*self._last_accepted)
+            elif hasattr(self.motion_model, 'cfg'):
+                self.motion_model.cfg = config.motion_prior
 
     def reset(self) -> None:
         """Drop the keyframe and the map; the next scan restarts the odometry at identity."""
