@@ -33,7 +33,13 @@ from mlsemreg_ros.datasets.pairs import load_pair
 import numpy as np
 import pytest
 
-BASE = dict(num_inliers=150, correspondences=5000, overlap=0.4, label_agreement=0.7, tilt_deg=0.5)
+BASE = {
+    'num_inliers': 150,
+    'correspondences': 5000,
+    'overlap': 0.4,
+    'label_agreement': 0.7,
+    'tilt_deg': 0.5,
+}
 
 
 def _evidence(ceiling: float, lined: int = 3, in_view: int = 13) -> confidence.Evidence:
