@@ -46,7 +46,9 @@ give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in
 - **not contradicted**: a pose that puts at least ``confidence.contradicting_objects``
   distinctive source objects in the target's view and lines up fewer than
   ``confidence.contradicted_fraction`` of them is refused
-  (a flip of a symmetric street, a slide: their poles land beside the target's);
+  (a flip of a symmetric street, a slide: their poles land beside the target's), as long
+  as the labels' ceiling reaches ``confidence.contradiction_min_ceiling`` (noisy labels
+  make objects of mislabeled points, :func:`labels_clean_enough`);
 - **well constrained** (after the fine alignment, :func:`localizability`): the
   alignment's Gauss-Newton Hessian constrains every translation direction (Zhang et al.
   2016, "On degeneracy of optimization-based state estimation problems"); a weak
@@ -136,6 +138,22 @@ def tilt_deg(transform: np.ndarray) -> float:
     return float(np.degrees(np.arccos(cos))) if np.isfinite(cos) else float('nan')
 
 
+def labels_clean_enough(evidence: Evidence, config: ConfidenceConfig) -> bool:
+    """
+    Whether the labels are clean enough for the contradiction check (docs/label_noise.md).
+
+    With noisy labels, mislabeled points of ``confidence.distinctive_classes`` on walls and
+    road form source "objects" that land in the target's view and cannot line up: with 20 %
+    of the source labels random, the right dev poses put 8-31 objects in view and line up
+    1-6 of them. Their label ceiling (:func:`~mlsemreg_ros.core.label_model.label_ceiling`)
+    says so: 0.74-0.81 there, at least 0.90 on the clean dev pairs. Below
+    ``confidence.contradiction_min_ceiling`` the check is skipped; an unknown (NaN) ceiling
+    keeps it.
+    """
+    ceiling = evidence.label_ceiling
+    return not (np.isfinite(ceiling) and ceiling < config.contradiction_min_ceiling)
+
+
 def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> str:
     """Why the evidence is not enough ('' when the registration is accepted)."""
     reasons = []
@@ -157,8 +175,11 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
         reasons.append(
             f'tilt {evidence.tilt_deg:.1f} deg > confidence.max_tilt={config.max_tilt:g} deg'
         )
-    contradicted = config.contradicting_objects > 0 and (
-        evidence.distinctive_objects < config.contradicted_fraction * evidence.distinctive_in_view
+    contradicted = (
+        config.contradicting_objects > 0
+        and labels_clean_enough(evidence, config)
+        and evidence.distinctive_objects
+        < config.contradicted_fraction * evidence.distinctive_in_view
     )
     if contradicted and evidence.distinctive_in_view >= config.contradicting_objects:
         reasons.append(

@@ -666,6 +666,17 @@ class ConfidenceConfig:
         low=0.0,
         high=1.0,
     )
+    contradiction_min_ceiling: float = param(
+        0.85,
+        'The contradiction check (confidence.contradicting_objects) applies only when the '
+        "labels' ceiling (the geometric mean of the two scans' label self-agreement, "
+        'core/label_model.py) reaches this: noisier labels make objects of mislabeled '
+        'distinctive points that cannot line up. Dev pairs: >= 0.90 clean, 0.74-0.81 with '
+        '20 % of the source labels random (right poses: 1-6 of 8-31 objects in view lined '
+        'up). 0: always; an unknown ceiling keeps the check (docs/label_noise.md).',
+        low=0.0,
+        high=1.0,
+    )
     distinctive_gain: float = param(
         2.0,
         "The chosen pose's distinctive share must be at least this many times every close "
