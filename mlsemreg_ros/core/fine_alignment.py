@@ -89,8 +89,6 @@ def refinement_refusal(alignment: Alignment, bounds: RefinementBounds) -> str:
     initial guess by at most the ``odometry.max_correction_*`` bounds: a refinement
     that runs away or converges with little overlap is refused, not believed.
     """
-    moved = alignment.correction
-    shift, turn = float(np.linalg.norm(moved[:3, 3])), rotation_angle_deg(moved)
     if not np.all(np.isfinite(alignment.T_target_source)):
         return 'non-finite fine alignment'
     if alignment.inlier_fraction < bounds.min_inlier_fraction:
@@ -98,6 +96,21 @@ def refinement_refusal(alignment: Alignment, bounds: RefinementBounds) -> str:
             f'fine alignment kept {alignment.inlier_fraction:.2f} of the scan as '
             f'inliers < odometry.min_inlier_fraction={bounds.min_inlier_fraction:g}'
         )
+    return correction_refusal(alignment, bounds)
+
+
+def correction_refusal(alignment: Alignment, bounds: RefinementBounds) -> str:
+    """
+    Why the guess itself is doubtful: the refinement moved it beyond the bounds ('' if not).
+
+    A coarse pose that the fine alignment pulls further than
+    ``odometry.max_correction_translation/rotation`` was not right to that bound; a pair
+    registration refuses such a pose instead of returning it unrefined (docs/confidence.md).
+    """
+    if not np.all(np.isfinite(alignment.T_target_source)):
+        return 'non-finite fine alignment'
+    moved = alignment.correction
+    shift, turn = float(np.linalg.norm(moved[:3, 3])), rotation_angle_deg(moved)
     if shift > bounds.max_correction_translation or turn > bounds.max_correction_rotation:
         return (
             f'fine alignment moved its guess by {shift:.2f} m / {turn:.2f} deg, more '

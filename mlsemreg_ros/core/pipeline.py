@@ -48,7 +48,12 @@ from mlsemreg_ros.core import (
 from mlsemreg_ros.core.alignment import align_pair, Alignment
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import estimate
-from mlsemreg_ros.core.fine_alignment import alignment_cloud, refinement_refusal, RefinementBounds
+from mlsemreg_ros.core.fine_alignment import (
+    alignment_cloud,
+    correction_refusal,
+    refinement_refusal,
+    RefinementBounds,
+)
 from mlsemreg_ros.core.guided import guided_correspondences
 from mlsemreg_ros.core.labels import LabelMap
 from mlsemreg_ros.core.poses import same_pose
@@ -427,12 +432,16 @@ class Registration:
                     cfg.fine,
                     cfg.fine.pair_method,
                 )
-            refused = refinement_refusal(alignment, RefinementBounds.of(cfg.odometry))
+            bounds = RefinementBounds.of(cfg.odometry)
+            refused = refinement_refusal(alignment, bounds)
             diagnostics.update(
                 fine_inlier_fraction=alignment.inlier_fraction,
                 fine_iterations=alignment.iterations,
                 fine_refused=refused or '',
             )
+            doubtful = correction_refusal(alignment, bounds)
+            if doubtful and success:  # the coarse pose was not right to the bounds
+                success, message = False, doubtful + (f'; {message}' if message else '')
             if not refused:
                 transform = alignment.T_target_source
                 alignment, degenerate = self._degeneracy(alignment, diagnostics)
