@@ -34,6 +34,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+from mlsemreg_ros.core.moving_objects import MovingObjectsConfig
+
 # The settings engine, re-exported: most modules import it from here.
 from mlsemreg_ros.core.settings import (  # noqa: F401 (re-exported)
     apply_overrides,
@@ -1214,6 +1216,7 @@ class RegistrationConfig(Settings):
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
     keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    moving_objects: MovingObjectsConfig = field(default_factory=MovingObjectsConfig)
     map: MapConfig = field(default_factory=MapConfig)  # noqa: A003, RUF100 (the section name)
 
     REMOVED: ClassVar[dict[str, str]] = REMOVED
