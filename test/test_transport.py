@@ -118,3 +118,16 @@ def test_without_the_profile_2_mb_best_effort_clouds_are_lost(ros_env: dict[str,
     # ever carry them, this test says the profile is no longer needed
     received = _exchange(ros_env, timeout=12.0)
     assert len(received) < COUNT
+
+
+def test_frames_lost_estimate_counts_the_missing_periods(rclpy_module: Any) -> None:
+    from mlsemreg_ros.ros.node import StampGaps
+
+    gaps = StampGaps()
+    stamps = [k * 100_000_000 for k in (1, 2, 3, 4, 5, 6, 7, 10, 11, 13)]  # 8, 9, 12 missing
+    for stamp in stamps:
+        gaps.observe(stamp)
+    assert gaps.lost == 3
+    gaps.observe(5 * 100_000_000)  # backwards (a replay restarted): a new reference only
+    gaps.observe(6 * 100_000_000)
+    assert gaps.lost == 3
