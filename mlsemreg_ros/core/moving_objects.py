@@ -117,12 +117,9 @@ class MovingObjectFilter:
         if config.map_filter == 'moving':
             if scheme == 'learning':
                 return None
+            # with 'auto' too: 252-259 is never a valid learning id (those are 0-19)
             semantic = _semantic_ids(labels)
             mask = (semantic >= MOVING_RAW_IDS[0]) & (semantic <= MOVING_RAW_IDS[-1])
-            if scheme == 'auto' and mask.any():
-                # moving ids only count when the scan reads as raw ids
-                if self.label_map.detect_scheme(labels) != 'raw':
-                    return None
         else:
             ids = self.label_map.convert(labels, scheme, max_out_of_scheme=1.0).ids
             mask = self.movable_lookup(config)[ids]
