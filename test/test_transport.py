@@ -92,7 +92,7 @@ def _exchange(env: dict[str, str], timeout: float) -> list[list[int]]:
 
 @pytest.fixture
 def ros_env(rclpy_module: Any) -> dict[str, str]:
-    """The environment of the peer processes: Fast DDS, localhost, this module's domain."""
+    """Return the environment of the peer processes: Fast DDS, localhost, own domain."""
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id('transport')))
     env['RMW_IMPLEMENTATION'] = 'rmw_fastrtps_cpp'
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
