@@ -223,7 +223,7 @@ class Odometry:
         if mask is not None and self.config.moving_objects.matching == 'drop':
             keep = ~mask
             points, labels = np.asarray(points)[keep], np.asarray(labels).reshape(-1)[keep]
-            if point_times is not None:
+            if point_times is not None and np.size(point_times) == len(keep):
                 point_times = np.asarray(point_times).reshape(-1)[keep]
             mask = None
         raw = self.preprocessor(points, labels, point_times)
@@ -240,8 +240,8 @@ class Odometry:
         """Return the raw points ``moving_objects`` filters (N,) bool, or None if none."""
         if self.moving_objects is None:
             return None
-        labels = np.asarray(labels).reshape(-1)
-        if len(labels) != len(np.asarray(points).reshape(-1, 3)):
+        shape, labels = np.shape(points), np.asarray(labels).reshape(-1)
+        if len(shape) != 2 or shape[1] != 3 or shape[0] != len(labels):
             return None  # preparation says what is wrong with the scan
         cfg = self.config
         return self.moving_objects.raw_mask(labels, cfg.moving_objects, cfg.semantic.label_scheme)
