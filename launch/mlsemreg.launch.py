@@ -17,11 +17,16 @@ Launch mlsemreg_node on a labeled PointCloud2 topic.
 
 ``ros2 launch mlsemreg_ros mlsemreg.launch.py points_topic:=/velodyne_points_labeled
 params_file:=/path/params.yaml use_sim_time:=true``
+
+The node runs with the package's Fast DDS profile (``config/fastdds.xml``: a shared-memory
+segment that holds a 128-beam scan), unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` names
+another or ``fastdds_profile:=`` does. The publisher of the clouds needs the same profile
+(``docs/field_moving.md``).
 """
 
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.launch_description import LaunchDescription
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
@@ -32,8 +37,21 @@ def generate_launch_description() -> LaunchDescription:
     default_params = PathJoinSubstitution(
         [FindPackageShare('mlsemreg_ros'), 'config', 'params.yaml']
     )
+    shipped_profile = PathJoinSubstitution(
+        [FindPackageShare('mlsemreg_ros'), 'config', 'fastdds.xml']
+    )
+    profile = LaunchConfiguration('fastdds_profile')
     return LaunchDescription(
         [
+            DeclareLaunchArgument(
+                'fastdds_profile',
+                default_value=EnvironmentVariable(
+                    'FASTRTPS_DEFAULT_PROFILES_FILE', default_value=shipped_profile
+                ),
+                description='Fast DDS profile XML (large clouds: config/fastdds.xml).',
+            ),
+            SetEnvironmentVariable('FASTRTPS_DEFAULT_PROFILES_FILE', profile),
+            SetEnvironmentVariable('FASTDDS_DEFAULT_PROFILES_FILE', profile),
             DeclareLaunchArgument(
                 'points_topic',
                 default_value='points',

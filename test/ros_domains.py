@@ -21,14 +21,24 @@ variable MLSEMREG_TEST_DOMAIN_BASE), and each module adds its own offset.
 
 import os
 
-MODULES = ('node', 'colcon', 'params_yaml', 'demo', 'play', 'soak', 'map_node', 'node_extrinsic')
+MODULES = (
+    'node',
+    'colcon',
+    'params_yaml',
+    'demo',
+    'play',
+    'soak',
+    'map_node',
+    'node_extrinsic',
+    'transport',
+)
+#: Test runs whose base ids fit below Fast DDS's largest domain id, 232.
+_RUNS = (232 - 100) // len(MODULES)
 
 
 def domain_id(module: str) -> int:
     """Return the ROS_DOMAIN_ID of a test module (0..232 is valid for Fast DDS)."""
     base = int(
-        os.environ.get(
-            'MLSEMREG_TEST_DOMAIN_BASE', 100 + (os.getpid() % (130 // len(MODULES))) * len(MODULES)
-        )
+        os.environ.get('MLSEMREG_TEST_DOMAIN_BASE', 100 + (os.getpid() % _RUNS) * len(MODULES))
     )
     return base + MODULES.index(module)

@@ -93,6 +93,7 @@ def test_executable_is_found_like_ros2_run(install: Path, monkeypatch: pytest.Mo
     for data in (
         'package.xml',
         'config/params.yaml',
+        'config/fastdds.xml',
         'config/labels/semantic_kitti.yaml',
         'launch/mlsemreg.launch.py',
     ):
@@ -200,7 +201,7 @@ def test_launch_file_compiles_and_declares_its_arguments(tmp_path: Path) -> None
         for node in ast.walk(tree)
         if isinstance(node, ast.Call) and getattr(node.func, 'id', '') == 'DeclareLaunchArgument'
     }
-    assert declared == {'points_topic', 'params_file', 'use_sim_time'}
+    assert declared == {'points_topic', 'params_file', 'use_sim_time', 'fastdds_profile'}
     assert 'generate_launch_description' in {
         n.name for n in tree.body if isinstance(n, ast.FunctionDef)
     }

@@ -35,6 +35,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from mlsemreg_ros.core.motion_prior import MotionPriorConfig
+from mlsemreg_ros.core.moving_objects import MovingObjectsConfig
 
 # The settings engine, re-exported: most modules import it from here.
 from mlsemreg_ros.core.settings import (  # noqa: F401 (re-exported)
@@ -1228,6 +1229,7 @@ class RegistrationConfig(Settings):
     keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     motion_prior: MotionPriorConfig = field(default_factory=MotionPriorConfig)
+    moving_objects: MovingObjectsConfig = field(default_factory=MovingObjectsConfig)
     map: MapConfig = field(default_factory=MapConfig)  # noqa: A003, RUF100 (the section name)
 
     REMOVED: ClassVar[dict[str, str]] = REMOVED

@@ -50,7 +50,8 @@ def alignment_cloud(
     """
     Return the scan's fine-alignment cloud (built once, then cached on the scan).
 
-    Odometry: downsampled to ``fine.downsampling_resolution``, ``fine.num_neighbors``.
+    Odometry: downsampled to ``fine.downsampling_resolution``, ``fine.num_neighbors``,
+    without the points of ``scan.map_excluded`` (moving objects, ``core/moving_objects.py``).
     Pairs (``pair=True``): the prepared scan as it is, ``fine.pair_num_neighbors``.
     """
     key = (
@@ -59,7 +60,10 @@ def alignment_cloud(
         else (fine.downsampling_resolution, fine.num_neighbors)
     )
     if key not in scan.alignment_clouds:
-        scan.alignment_clouds[key] = AlignmentCloud.build(scan.points, *key)
+        points = scan.points
+        if not pair and scan.map_excluded is not None:
+            points = points[~scan.map_excluded]
+        scan.alignment_clouds[key] = AlignmentCloud.build(points, *key)
     return scan.alignment_clouds[key]
 
 

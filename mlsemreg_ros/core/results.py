@@ -75,6 +75,9 @@ class PreparedScan:
     pending_features: Callable[[PreparedScan], None] | None = field(
         default=None, repr=False, compare=False
     )
+    #: (N,) bool: points the odometry keeps out of its local map and fine alignment (moving
+    #: objects, ``core/moving_objects.py``); None: none
+    map_excluded: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def points_tree(self) -> cKDTree:
         """

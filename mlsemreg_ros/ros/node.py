@@ -236,6 +236,7 @@ class MlSemRegNode(Node):
         """Convert the message and hand it to the worker; malformed input is skipped."""
         received = time.perf_counter()
         self._count('frames_received')
+        self._observe_stamp(msg.header.stamp)
         try:
             cloud = pointcloud2_to_arrays(msg, self._params.snapshot().node.label_field)
         except PointCloudError as error:
@@ -251,6 +252,19 @@ class MlSemRegNode(Node):
                 cloud.dropped_nonfinite,
             )
         )
+
+    def _observe_stamp(self, stamp: Time) -> None:
+        """Count clouds missing between the stamps (before the worker's slot); warn."""
+        before = self._stream.lost
+        self._stream.observe(stamp_to_ns(stamp))
+        if self._stream.lost > before:
+            self.get_logger().warning(
+                f'{self._stream.lost - before} cloud(s) missing before stamp '
+                f'{stamp_to_seconds(stamp):.3f} (frames_lost_estimate={self._stream.lost}): '
+                'lost in transport? Large best-effort clouds need the Fast DDS profile '
+                'config/fastdds.xml in every process (docs/field_moving.md)',
+                throttle_duration_sec=LOG_THROTTLE_S,
+            )
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """Drop the keyframe and restart the odometry at identity (from the next scan)."""
@@ -278,7 +292,6 @@ class MlSemRegNode(Node):
         config = self._sync(self._params.snapshot())
         if not self._check_frame(scan, config.node):
             return
-        self._stream.observe(stamp_to_ns(scan.stamp))
         self._before_scan(scan, config.node)
         try:
             step = self._odometry.process(scan.xyz, scan.labels, stamp_to_ns(scan.stamp))

@@ -155,6 +155,10 @@ def demo(
     from mlsemreg_ros.ros.node_config import NodeConfig
     from mlsemreg_ros.ros.node_process import start_node, stop_node, write_params_file
     from mlsemreg_ros.ros.recorder import record_and_play, scan_stamps, write_recording
+    from mlsemreg_ros.ros.transport import use_fastdds_profile
+
+    # the player (this process) and the node (a child) share config/fastdds.xml
+    profile = use_fastdds_profile()
 
     core, node_settings, evaluation = settings(
         (RegistrationConfig, NodeConfig, EvaluationSettings), config, overrides
@@ -167,7 +171,8 @@ def demo(
     out = output or reports.default_output(Path('results'), 'demo', bag.name)
     out.mkdir(parents=True, exist_ok=True)
     tables.print_text(
-        f'starting mlsemreg_node (ROS_DOMAIN_ID {domain_id}); log: {out / "node.log"}'
+        f'starting mlsemreg_node (ROS_DOMAIN_ID {domain_id}, Fast DDS profile {profile}); '
+        f'log: {out / "node.log"}'
     )
     with tempfile.TemporaryDirectory() as folder:
         params = write_params_file(Path(folder) / 'params.yaml', core, node_settings)

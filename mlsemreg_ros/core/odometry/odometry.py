@@ -62,6 +62,7 @@ import time
 
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.fine_alignment import alignment_cloud, Candidate
+from mlsemreg_ros.core.moving_objects import MovingObjectFilter
 from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (
@@ -89,7 +90,7 @@ from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
 
 #: Sections whose change makes the cached keyframe be prepared again.
-_PREPARE_SECTIONS = ('semantic', 'features', 'keypoints')
+_PREPARE_SECTIONS = ('semantic', 'features', 'keypoints', 'moving_objects')
 
 
 class Odometry:
@@ -105,6 +106,9 @@ class Odometry:
         cfg = self.registration.config
         # the components (seams: docs/extending.md)
         self.preprocessor = Preprocessor(self.registration)
+        label_map = getattr(self.registration, 'label_map', None)  # stand-ins lack it
+        self.moving_objects = MovingObjectFilter(label_map) if label_map is not None else None
+        self._check_moving_objects(cfg)
         self.motion_model = make_motion_model(cfg, motion_model_name(cfg))
         self.map = make_map(cfg)
         self.tracker = Tracker(self.map)
@@ -137,13 +141,16 @@ class Odometry:
         alignment cloud only when ``fine`` changed; the local map is cleared when its
         structure (method, voxel size) changed.
         """
+        self._check_moving_objects(config)
         old = self.registration.config
         self.registration.config = config
         if self.keyframe is not None:
             if any(getattr(old, s) != getattr(config, s) for s in _PREPARE_SECTIONS):
-                self.keyframe.prepared = self.registration.prepare(
-                    self.keyframe.points, self.keyframe.labels, lazy=True
+                keyframe = self.keyframe
+                keyframe.prepared = self.registration.prepare(
+                    keyframe.points, keyframe.labels, lazy=True
                 )
+                self._exclude_moving(keyframe.prepared, keyframe.points, keyframe.labels)
             elif old.fine != config.fine:
                 self.keyframe.prepared.alignment_clouds.clear()  # rebuilt when needed
         if self.map.reconfigure(config.fine, config.local_map) and self.keyframe:
@@ -201,7 +208,7 @@ class Odometry:
             return self._finish(self._rejected(self._count, stamp_ns, None, skipped), start)
         index = self._count
         self._count += 1
-        raw = self.preprocessor(points, labels, point_times)
+        raw = self._preprocess(points, labels, point_times)
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
             return self._finish(self._first(index, stamp_ns, raw, notes), start)
         timings: dict[str, float] = {}
@@ -216,6 +223,59 @@ class Odometry:
             **step.timings_ms,
         }
         return self._finish(step, start)
+
+    def _preprocess(
+        self, points: np.ndarray, labels: np.ndarray, point_times: np.ndarray | None
+    ) -> PreprocessedScan:
+        """Preprocess; moving objects are dropped first or kept out of the map after."""
+        mask = self._moving_mask(points, labels)
+        if mask is not None and self.config.moving_objects.matching == 'drop':
+            keep = ~mask
+            points, labels = np.asarray(points)[keep], np.asarray(labels).reshape(-1)[keep]
+            if point_times is not None and np.size(point_times) == len(keep):
+                point_times = np.asarray(point_times).reshape(-1)[keep]
+            mask = None
+        raw = self.preprocessor(points, labels, point_times)
+        if mask is not None:
+            self._exclude_moving(raw.scan, raw.points, raw.labels, mask)
+        return raw
+
+    def _check_moving_objects(self, config: RegistrationConfig) -> None:
+        """Resolve ``moving_objects.movable_classes`` now (ConfigError for unknown names)."""
+        if self.moving_objects is not None:
+            self.moving_objects.movable_lookup(config.moving_objects)
+
+    def _moving_mask(self, points: np.ndarray, labels: np.ndarray) -> np.ndarray | None:
+        """Return the raw points ``moving_objects`` filters (N,) bool, or None if none."""
+        if self.moving_objects is None:
+            return None
+        shape, labels = np.shape(points), np.asarray(labels).reshape(-1)
+        if len(shape) != 2 or shape[1] != 3 or shape[0] != len(labels):
+            return None  # preparation says what is wrong with the scan
+        cfg = self.config
+        return self.moving_objects.raw_mask(labels, cfg.moving_objects, cfg.semantic.label_scheme)
+
+    def _exclude_moving(
+        self,
+        scan: PreparedScan,
+        points: np.ndarray,
+        labels: np.ndarray,
+        mask: np.ndarray | None = None,
+    ) -> None:
+        """Mark the prepared points kept out of the local map (``scan.map_excluded``)."""
+        if self.moving_objects is None:
+            return
+        if mask is None:
+            mask = self._moving_mask(points, labels)
+        filtered = None
+        if mask is not None and len(mask) == len(points):
+            filtered = np.asarray(points).reshape(-1, 3)[mask]
+        cfg = self.config
+        scan.map_excluded = self.moving_objects.prepared_mask(
+            scan.points, scan.labels, filtered, cfg.moving_objects, cfg.features.voxel_size
+        )
+        if scan.map_excluded is not None:
+            scan.alignment_clouds.clear()  # built again without the excluded points
 
     def _stream_rules(self, stamp_ns: int) -> tuple[str, list[str]]:
         """Return why the scan is skipped ('' if not) and notes; reset on a backward stamp."""
