@@ -95,6 +95,7 @@ def test_an_extrinsic_without_a_base_frame_is_refused() -> None:
 @pytest.fixture(scope='module')
 def ros(rclpy_module: Any) -> Any:
     args = ['--ros-args', '-p', 'keypoints.count:=1500', '-p', 'base_frame:=base_link']
+    args += ['-p', 'path.publish_period:=0.0']  # every scan's path (no 1 s throttle)
     args += ['-p', 'extrinsic_source:=tf', '-p', 'imu_topic:=imu/data']
     for key, value in EXTRINSIC.items():
         args += ['-p', f'T_base_sensor.{key}:={value}']
