@@ -94,3 +94,16 @@ def test_a_dev_pair_with_a_fifth_of_its_labels_random_is_accepted_at_its_true_po
         config.confidence.contradicted_fraction * d['confidence_distinctive_in_view']
     )  # the old rule would have refused it
     assert result.success, result.message
+
+
+@pytest.mark.parametrize(
+    ('ceiling', 'refused'), [(0.54, True), (0.59, True), (0.64, False), (np.nan, False)]
+)
+def test_labels_too_noisy_vouch_for_no_pose(ceiling, refused) -> None:
+    # a 42 m slide of a 40 m dev pair with 30 % flipped labels: ceiling 0.54, 14 of 25
+    # distinctive objects lined up on mislabeled points, every other rule passed
+    config = ConfidenceConfig(label_rule='fixed')
+    reason = confidence.refusal(_evidence(ceiling, 14, 25), config, min_inliers=40)
+    assert ('too noisy' in reason) is refused, reason
+    never = ConfidenceConfig(label_rule='fixed', min_label_ceiling=0.0)
+    assert 'too noisy' not in confidence.refusal(_evidence(ceiling, 14, 25), never, 40)

@@ -48,7 +48,8 @@ give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in
   ``confidence.contradicted_fraction`` of them is refused
   (a flip of a symmetric street, a slide: their poles land beside the target's), as long
   as the labels' ceiling reaches ``confidence.contradiction_min_ceiling`` (noisy labels
-  make objects of mislabeled points, :func:`labels_clean_enough`);
+  make objects of mislabeled points, :func:`labels_clean_enough`); below
+  ``confidence.min_label_ceiling`` the labels vouch for no pose at all;
 - **well constrained** (after the fine alignment, :func:`localizability`): the
   alignment's Gauss-Newton Hessian constrains every translation direction (Zhang et al.
   2016, "On degeneracy of optimization-based state estimation problems"); a weak
@@ -167,6 +168,12 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
     if evidence.overlap < config.min_overlap:
         reasons.append(
             f'overlap {evidence.overlap:.3f} < confidence.min_overlap={config.min_overlap:g}'
+        )
+    ceiling = evidence.label_ceiling
+    if np.isfinite(ceiling) and ceiling < config.min_label_ceiling:
+        reasons.append(
+            f'label ceiling {ceiling:.2f} < confidence.min_label_ceiling='
+            f'{config.min_label_ceiling:g}: the labels are too noisy to vouch for a pose'
         )
     label = label_refusal(evidence.label_agreement, evidence.label_ceiling, config)
     if label:

@@ -678,6 +678,17 @@ class ConfidenceConfig:
         low=0.0,
         high=1.0,
     )
+    min_label_ceiling: float = param(
+        0.6,
+        "Refuse every pose while the labels' ceiling (see "
+        'confidence.contradiction_min_ceiling) is below this: the labels are too noisy to '
+        'vouch for a pose. 40 m dev pairs with 30 % of the labels flipped (ceiling '
+        '0.52-0.57): a 42 m slide lined up 14 of 25 distinctive objects on mislabeled points '
+        'and passed every other rule; 20 % flips: 0.64-0.70. 0: never; an unknown ceiling '
+        'passes (docs/label_noise.md).',
+        low=0.0,
+        high=1.0,
+    )
     distinctive_gain: float = param(
         2.0,
         "The chosen pose's distinctive share must be at least this many times every close "
