@@ -34,6 +34,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+from mlsemreg_ros.core.deskew import PreprocessConfig
+
 # The settings engine, re-exported: most modules import it from here.
 from mlsemreg_ros.core.settings import (  # noqa: F401 (re-exported)
     apply_overrides,
@@ -1202,6 +1204,7 @@ class RegistrationConfig(Settings):
         low=0,
         high=256,
     )
+    preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
     semantic: SemanticConfig = field(default_factory=SemanticConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
     keypoints: KeypointConfig = field(default_factory=KeypointConfig)

@@ -185,6 +185,7 @@ def simulate(
             speed,
             moving_objects,
             network_labels,
+            network,
             layout,
             force,
             quiet,

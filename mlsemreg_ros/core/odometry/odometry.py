@@ -29,8 +29,10 @@ a component of its own (``docs/extending.md``)::
 Per scan (:meth:`Odometry.process`)::
 
     stream rules                               duplicate stamp: skip; backwards: reset
-    current = preprocess(scan)                 once per scan; the keyframe's is cached
-    predicted = map.align(current, predict())  the motion model's guess, refined
+    prediction = predict()                     the motion model's guess at the stamp
+    current = preprocess(scan, motion)         deskewed by last pose -> prediction (per-point
+                                               times); once per scan, the keyframe's cached
+    predicted = map.align(current, prediction) the motion model's guess, refined
     if tracking is trusted (on_demand):        accept it: no global registration
     else:
       global = register(current, keyframe)     ML-SemReg + SC2-PCR: T_keyframe_current
@@ -60,6 +62,7 @@ from __future__ import annotations
 import time
 
 from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.deskew import sweep_motion, SweepMotion
 from mlsemreg_ros.core.fine_alignment import alignment_cloud, Candidate
 from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
@@ -70,7 +73,7 @@ from mlsemreg_ros.core.odometry.local_map import (
     LocalMap,
     make_map,
 )
-from mlsemreg_ros.core.odometry.motion_model import make_motion_model
+from mlsemreg_ros.core.odometry.motion_model import make_motion_model, Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
 from mlsemreg_ros.core.odometry.steps import (
     Decision,
@@ -192,11 +195,13 @@ class Odometry:
             return self._finish(self._rejected(self._count, stamp_ns, None, skipped), start)
         index = self._count
         self._count += 1
-        raw = self.preprocessor(points, labels, point_times)
+        prediction = self._prediction(stamp_ns)
+        motion = self._sweep_motion(prediction, stamp_ns)
+        raw = self.preprocessor(points, labels, point_times, motion)
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
-            return self._finish(self._first(index, stamp_ns, raw, notes), start)
+            return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
         timings: dict[str, float] = {}
-        chosen = self._estimate(raw.scan, stamp_ns, timings)
+        chosen = self._estimate(raw.scan, stamp_ns, timings, prediction)
         step = self._apply(index, stamp_ns, raw, chosen)
         self._count_failure(step, raw)
         registered = chosen.result.timings_ms if chosen.result is not None else {}
@@ -206,7 +211,20 @@ class Odometry:
             **{f'register.{k}': v for k, v in registered.items()},
             **step.timings_ms,
         }
-        return self._finish(step, start)
+        return self._finish(step, start, raw)
+
+    def _prediction(self, stamp_ns: int) -> Prediction | None:
+        """Return the motion model's prediction at ``stamp_ns`` if the odometry uses one."""
+        if self.keyframe is None or not self.config.odometry.constant_velocity:
+            return None
+        return self.motion_model.predict(stamp_ns)
+
+    def _sweep_motion(self, prediction: Prediction | None, stamp_ns: int) -> SweepMotion | None:
+        """The motion within the sweep: last accepted pose -> prediction (``core/deskew.py``)."""
+        if prediction is None or self._last_accepted is None:
+            return None
+        last_pose, last_stamp = self._last_accepted
+        return sweep_motion(last_pose, last_stamp, prediction.T_odom_current, stamp_ns)
 
     def _stream_rules(self, stamp_ns: int) -> tuple[str, list[str]]:
         """Return why the scan is skipped ('' if not) and notes; reset on a backward stamp."""
@@ -223,15 +241,16 @@ class Odometry:
         return '', notes
 
     def _estimate(
-        self, current: PreparedScan, stamp_ns: int, timings: dict[str, float]
+        self,
+        current: PreparedScan,
+        stamp_ns: int,
+        timings: dict[str, float],
+        prediction: Prediction | None,
     ) -> Decision:
-        """Predict, then track or register globally, and decide."""
+        """Track the prediction or register globally, and decide."""
         cfg, keyframe = self.config, self.keyframe
         if cfg.fine.method == 'off':
             return chain(self.global_registration(current, keyframe), cfg)
-        prediction = (
-            self.motion_model.predict(stamp_ns) if cfg.odometry.constant_velocity else None
-        )
         predicted = self.tracker.refine_prediction(current, prediction, cfg, timings)
         why_global = self.tracker.refusal(predicted, prediction, cfg)
         if not why_global:  # tracking: no global registration needed
@@ -401,6 +420,12 @@ class Odometry:
             self.map.insert(alignment_cloud(scan, self.config.fine), pose)
 
     @staticmethod
-    def _finish(step: OdometryStep, start: float) -> OdometryStep:
+    def _finish(
+        step: OdometryStep, start: float, raw: PreprocessedScan | None = None
+    ) -> OdometryStep:
+        if raw is not None:
+            step.deskewed = raw.deskewed
+            if raw.deskew_note:
+                step.reason = '; '.join(r for r in (step.reason, raw.deskew_note) if r)
         step.latency_ms = 1e3 * (time.perf_counter() - start)
         return step
