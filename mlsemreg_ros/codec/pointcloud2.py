@@ -395,7 +395,8 @@ def decode_point_times(
     values = view.astype(np.float64)
     if not np.all(np.isfinite(values)):
         return None, f'time field {name!r} holds NaN/inf values'
-    stamp_ns = stamp_to_ns(msg.header.stamp)
+    stamp = getattr(getattr(msg, 'header', None), 'stamp', None)
+    stamp_ns = stamp_to_ns(stamp) if stamp is not None else 0
     units = TIME_UNITS if time_unit == 'auto' else {time_unit: TIME_UNITS[time_unit]}
     absolute = _absolute_unit(values, stamp_ns, units)
     if absolute:
@@ -412,7 +413,7 @@ def decode_point_times(
 
 
 def _absolute_unit(values: np.ndarray, stamp_ns: int, units: dict[str, float]) -> str:
-    """The unit in which ``values`` are absolute times near the stamp ('' if none)."""
+    """Return the unit in which ``values`` are absolute times near the stamp ('' if none)."""
     if not stamp_ns or values.size == 0:
         return ''
     stamp_s, median = stamp_ns * 1e-9, float(np.median(values))

@@ -220,7 +220,7 @@ class Odometry:
         return self.motion_model.predict(stamp_ns)
 
     def _sweep_motion(self, prediction: Prediction | None, stamp_ns: int) -> SweepMotion | None:
-        """The motion within the sweep: last accepted pose -> prediction (``core/deskew.py``)."""
+        """Return the motion within the sweep: last accepted pose -> prediction."""
         if prediction is None or self._last_accepted is None:
             return None
         last_pose, last_stamp = self._last_accepted
