@@ -40,6 +40,8 @@ PENDING_PAGES = frozenset(
     {
         'docs/extending.md',
         'docs/field.md',
+        'docs/field_moving.md',
+        'docs/field_prior.md',
         'docs/hard_pairs.md',
         'docs/label_noise.md',
         'docs/maps.md',
