@@ -201,3 +201,24 @@ def test_sweep_motion_needs_a_duration() -> None:
     assert sweep_motion(np.eye(4), STAMP_NS, np.eye(4), STAMP_NS) is None
     with pytest.raises(ValueError, match='point times'):
         deskew(np.zeros((3, 3)), np.zeros(2), SweepMotion(np.zeros(3), np.ones(3)))
+
+
+def test_kiss_icp_gets_the_times_and_an_anchor_when_scans_are_further_apart() -> None:
+    pytest.importorskip('kiss_icp')
+    from mlsemreg_ros.datasets.source import Scan
+    from mlsemreg_ros.evaluation.estimators import KissIcpEstimator
+
+    kiss = KissIcpEstimator()
+    xyz = np.random.default_rng(0).normal(size=(100, 3)) * 10.0
+    times = np.linspace(0.0, 0.099, 100)
+
+    def scan(index: int, stamp_ns: int, point_times: np.ndarray | None) -> Scan:
+        return Scan(index, stamp_ns, xyz, None, None, 'lidar', None, point_times)
+
+    points, given = kiss._inputs(scan(0, STAMP_NS, None))  # the clean world: no deskew
+    assert given.size == 0 and points.shape == (100, 3)
+    points, given = kiss._inputs(scan(1, STAMP_NS + 100_000_000, times))  # consecutive
+    assert np.array_equal(given, times) and points.shape == (100, 3)
+    points, given = kiss._inputs(scan(11, STAMP_NS + 1_100_000_000, times))  # stride 10
+    assert points.shape == (101, 3) and np.linalg.norm(points[-1]) > kiss.max_range
+    assert given[-1] == pytest.approx(times.max() - 1.0)
