@@ -118,6 +118,7 @@ class Odometry:
         self._last_accepted: tuple[np.ndarray, int] | None = None  # (pose, stamp): the twist
         self._failures = 0  # rejected frames in a row
         self._last_stamp = 0  # stamp of the last scan (0: none or unstamped)
+        self._start_scan: tuple[PreprocessedScan, np.ndarray, int] | None = None  # to deskew
 
     @property
     def config(self) -> RegistrationConfig:
@@ -162,6 +163,7 @@ class Odometry:
         self._last_accepted = None
         self._failures = 0
         self._last_stamp = 0
+        self._start_scan = None
 
     def keyframe_refusal(self, scan: PreparedScan) -> str:
         """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
@@ -337,6 +339,7 @@ class Odometry:
         ) and not self.keyframe_refusal(current)
         if new_keyframe:
             self.keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, current, pose.copy())
+        self._deskew_start(raw, pose, stamp_ns)
         return OdometryStep(
             index=index,
             stamp_ns=stamp_ns,
@@ -396,6 +399,39 @@ class Odometry:
         self._last_accepted = (pose.copy(), stamp_ns)
         self.tracker.restart()
         self._failures = 0
+        self._start_scan = (raw, pose.copy(), stamp_ns)
+
+    def _deskew_start(self, raw: PreprocessedScan, pose: np.ndarray, stamp_ns: int) -> None:
+        """
+        Deskew the scan the odometry started on and the next one, once their motion is known.
+
+        Neither had a prediction, so neither was deskewed. A map of skewed scans would bias
+        every deskewed scan aligned to it (and, through the velocity, the next deskew), so
+        both are deskewed with the motion estimated between them, prepared again, and
+        become the map and the keyframe (``docs/field.md``).
+        """
+        start, self._start_scan = self._start_scan, None
+        if start is None or raw.deskewed:
+            return
+        first, first_pose, first_stamp = start
+        motion = sweep_motion(first_pose, first_stamp, pose, stamp_ns)
+        refusal = self.preprocessor.refusal
+        if refusal(first.points, first.point_times, motion) or refusal(
+            raw.points, raw.point_times, motion
+        ):
+            return  # no times (the clean world), deskew off, or no duration: nothing to redo
+        redone = [
+            (self.preprocessor(r.points, r.labels, r.point_times, motion), p)
+            for r, p in ((first, first_pose), (raw, pose))
+        ]
+        if not all(r.deskewed for r, _ in redone):
+            return
+        self.map.clear()
+        for r, p in redone:
+            self._insert(r.scan, p)
+        keyframe = self.keyframe
+        r = redone[0][0] if keyframe.points is first.points else redone[1][0]
+        keyframe.points, keyframe.labels, keyframe.prepared = r.points, r.labels, r.scan
 
     def _count_failure(self, step: OdometryStep, raw: PreprocessedScan) -> None:
         """After ``keyframe.max_failures`` rejections in a row, re-initialise on this scan."""

@@ -41,6 +41,7 @@ class PreprocessedScan:
     labels: np.ndarray  # (N,) raw labels
     scan: PreparedScan
     deskewed: bool = False  # the points were motion-compensated
+    point_times: np.ndarray | None = None  # (N,) s after the stamp, as given
     deskew_note: str = ''  # why not, when preprocess.deskew is on
 
 
@@ -94,5 +95,6 @@ class Preprocessor:
             np.asarray(labels),
             scan,
             deskewed=not why,
+            point_times=point_times,
             deskew_note=f'not deskewed: {why}' if why and on else '',
         )
