@@ -42,6 +42,8 @@ import numpy as np
 SMALL_ANGLE = 1e-6
 #: Per-point times spanning more than this (s) are not a sweep: the scan is not deskewed.
 MAX_SWEEP_SPAN_S = 1.0
+#: Largest preprocess.deskew_window.
+MAX_DESKEW_WINDOW = 10
 
 
 @dataclass
@@ -55,6 +57,15 @@ class PreprocessConfig:
         'and the step notes why a scan could not be deskewed), off (never; the points are '
         'used as they are).',
         choices=('auto', 'on', 'off'),
+    )
+    deskew_window: int = param(
+        3,
+        'The motion within a sweep is the constant twist from the pose this many accepted '
+        'scans back to the prediction at the stamp. 1 (the last pose only) makes a loop: '
+        'each pose error biases the next deskew with gain 1, and the error grew on the field '
+        'drives. 3 damps it (docs/field.md).',
+        low=1,
+        high=MAX_DESKEW_WINDOW,
     )
     time_field: str = param(
         '',

@@ -59,10 +59,11 @@ is ``pose_keyframe @ global`` when the registration succeeded.
 
 from __future__ import annotations
 
+from collections import deque
 import time
 
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.deskew import sweep_motion, SweepMotion
+from mlsemreg_ros.core.deskew import MAX_DESKEW_WINDOW, sweep_motion, SweepMotion
 from mlsemreg_ros.core.fine_alignment import alignment_cloud, Candidate
 from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
@@ -116,6 +117,7 @@ class Odometry:
         self.covariance = np.zeros((6, 6))
         self._count = 0
         self._last_accepted: tuple[np.ndarray, int] | None = None  # (pose, stamp): the twist
+        self._accepted: deque[tuple[np.ndarray, int]] = deque(maxlen=MAX_DESKEW_WINDOW + 1)
         self._failures = 0  # rejected frames in a row
         self._last_stamp = 0  # stamp of the last scan (0: none or unstamped)
         self._start_scan: tuple[PreprocessedScan, np.ndarray, int] | None = None  # to deskew
@@ -161,6 +163,7 @@ class Odometry:
         self.tracker.restart()
         self._count = 0
         self._last_accepted = None
+        self._accepted.clear()
         self._failures = 0
         self._last_stamp = 0
         self._start_scan = None
@@ -222,11 +225,18 @@ class Odometry:
         return self.motion_model.predict(stamp_ns)
 
     def _sweep_motion(self, prediction: Prediction | None, stamp_ns: int) -> SweepMotion | None:
-        """Return the motion within the sweep: last accepted pose -> prediction."""
-        if prediction is None or self._last_accepted is None:
+        """
+        Return the motion within the sweep: an earlier accepted pose -> the prediction.
+
+        The twist spans ``preprocess.deskew_window`` accepted poses back: a twist from the
+        last pose only (window 1) feeds each pose's error into the next deskew with gain 1,
+        a marginally stable loop (``docs/field.md``).
+        """
+        window = self.config.preprocess.deskew_window
+        if prediction is None or not self._accepted:
             return None
-        last_pose, last_stamp = self._last_accepted
-        return sweep_motion(last_pose, last_stamp, prediction.T_odom_current, stamp_ns)
+        pose, stamp = self._accepted[-min(window, len(self._accepted))]
+        return sweep_motion(pose, stamp, prediction.T_odom_current, stamp_ns)
 
     def _stream_rules(self, stamp_ns: int) -> tuple[str, list[str]]:
         """Return why the scan is skipped ('' if not) and notes; reset on a backward stamp."""
@@ -334,6 +344,7 @@ class Odometry:
         if learn_labels is not None:
             learn_labels(relative, current, keyframe.prepared)  # confidence.label_model adaptive
         self._last_accepted = (pose.copy(), stamp_ns)
+        self._accepted.append(self._last_accepted)
         new_keyframe = is_new_keyframe(
             self.config.keyframe, relative
         ) and not self.keyframe_refusal(current)
@@ -397,6 +408,8 @@ class Odometry:
         self.motion_model.reset()
         self.motion_model.update(pose, stamp_ns)
         self._last_accepted = (pose.copy(), stamp_ns)
+        self._accepted.clear()
+        self._accepted.append(self._last_accepted)
         self.tracker.restart()
         self._failures = 0
         self._start_scan = (raw, pose.copy(), stamp_ns)
