@@ -115,9 +115,9 @@ def test_the_odometry_deskews_with_the_motion_models_prediction() -> None:
     odometry.keyframe = object()  # a running odometry (the registration is not needed here)
     period_ns = int(PERIOD_S * 1e9)
     for k in (2, 1):  # two accepted poses before the stamp: a constant-velocity prediction
-        odometry.motion_model.update(
-            _pose(-k * PERIOD_S, omega, velocity), STAMP_NS - k * period_ns
-        )
+        pose, stamp = _pose(-k * PERIOD_S, omega, velocity), STAMP_NS - k * period_ns
+        odometry.motion_model.update(pose, stamp)
+        odometry._accepted.append((pose, stamp))
     odometry._last_accepted = (_pose(-PERIOD_S, omega, velocity), STAMP_NS - period_ns)
     labels = np.zeros(len(world), np.int64)
     with pytest.raises(RuntimeError, match='prepared'):
