@@ -69,7 +69,9 @@ class _Recording(Preprocessor):
         super().__init__(registration)
         self.seen: list[Any] = []
 
-    def deskew(self, points: np.ndarray, point_times: np.ndarray | None) -> np.ndarray:
+    def deskew(
+        self, points: np.ndarray, point_times: np.ndarray | None, motion: Any = None
+    ) -> np.ndarray:
         self.seen.append(point_times)
         return points
 

@@ -88,6 +88,8 @@ class CloudArrays:
     intensity: np.ndarray | None  # (N,) float32
     dropped_nonfinite: int  # points dropped because x, y or z was NaN/inf
     ignored_fields: tuple[str, ...] = ()  # count-0 fields and unreadable optional fields
+    point_times: np.ndarray | None = None  # (N,) float64 s after the header stamp
+    time_note: str = ''  # how the times were decoded, or why there are none
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
@@ -119,7 +121,11 @@ def _buffer(data: Any) -> np.ndarray:
 
 
 def pointcloud2_to_arrays(
-    msg: Any, label_field: str = 'label', require_labels: bool = True
+    msg: Any,
+    label_field: str = 'label',
+    require_labels: bool = True,
+    time_field: str | None = '',
+    time_unit: str = 'auto',
 ) -> CloudArrays:
     """
     Convert a PointCloud2 to xyz (N, 3) float64, raw labels (N,) int64 and intensity.
@@ -131,6 +137,10 @@ def pointcloud2_to_arrays(
     dropped and counted; count-0 fields and an unreadable optional ``intensity``
     are ignored and named; every other defect raises :class:`PointCloudError`
     with the reason.
+
+    Per-point times are decoded by :func:`decode_point_times` (``time_field`` '' detects
+    the field, None skips the times) into :attr:`CloudArrays.point_times`; a time field that
+    cannot be read gives no times and a :attr:`CloudArrays.time_note`, never an error.
     """
     if bool(msg.is_bigendian):
         raise PointCloudError('big-endian point clouds are not supported')
@@ -208,8 +218,19 @@ def pointcloud2_to_arrays(
         values = points['intensity'] if keep is None else points['intensity'][keep]
         with np.errstate(over='ignore'):  # float64 beyond float32 range: inf, no warning
             intensity = values.astype(np.float32)
+    times, note = None, ''
+    if time_field is not None:
+        times, note = decode_point_times(msg, time_field, time_unit)
+        if times is not None and keep is not None:
+            times = times[keep]
     return CloudArrays(
-        xyz if keep is None else xyz[keep], labels, intensity, dropped, tuple(ignored)
+        xyz if keep is None else xyz[keep],
+        labels,
+        intensity,
+        dropped,
+        tuple(ignored),
+        times,
+        note,
     )
 
 
@@ -310,3 +331,114 @@ def arrays_to_pointcloud2(
         data=data.copy() if rosbags_style else data.tobytes(),
         is_dense=bool(np.isfinite(xyz).all()),
     )
+
+
+#: Per-point time fields, in the order auto-detection tries them: Velodyne ``time`` (float
+#: s after the stamp, or before the sweep end: negative), Ouster ``t`` (uint32 ns),
+#: Hesai/RoboSense ``timestamp`` (float64 absolute s), Livox ``time_stamp``/``offset_time``
+#: (ns). ``docs/field.md`` lists the conventions.
+TIME_FIELDS = ('time', 't', 'timestamp', 'time_stamp', 'offset_time')
+#: Seconds per unit of a time field.
+TIME_UNITS: dict[str, float] = {'s': 1.0, 'ms': 1e-3, 'us': 1e-6, 'ns': 1e-9}
+#: Times within this many seconds of the header stamp (and nearer to it than to 0) are absolute.
+ABSOLUTE_TOLERANCE_S = 10.0
+#: A relative time field whose span in its default unit lies in this range (s) keeps it.
+PLAUSIBLE_SPAN_S = (1e-3, 1.0)
+#: Auto-detected units aim at a sweep of about this span (s).
+TYPICAL_SPAN_S = 0.1
+
+
+def decode_point_times(
+    msg: Any, time_field: str = '', time_unit: str = 'auto'
+) -> tuple[np.ndarray | None, str]:
+    """
+    Return the per-point times (N,) float64, seconds after the header stamp, and a note.
+
+    ``time_field`` '' tries :data:`TIME_FIELDS` in order; ``time_unit`` 'auto' takes the
+    unit from the values (:func:`_time_unit`). Absolute times (near the stamp) have the
+    stamp subtracted; relative ones are kept as they are, negative ones too (Velodyne
+    drivers that count back from the sweep end). No usable field gives ``(None, why)``
+    (never an error: a cloud without times is registered without deskew).
+    """
+    from mlsemreg_ros.codec.stamps import stamp_to_ns
+
+    if time_unit != 'auto' and time_unit not in TIME_UNITS:
+        return None, f'unknown time unit {time_unit!r} (auto, {", ".join(TIME_UNITS)})'
+    fields = {str(f.name): f for f in msg.fields if int(f.count) != 0}
+    if time_field:
+        if time_field not in fields:
+            return None, f'time field {time_field!r} not in the cloud (fields: {list(fields)})'
+        name = time_field
+    else:
+        name = next((n for n in TIME_FIELDS if n in fields), '')
+        if not name:
+            return None, 'no per-point time field (' + ', '.join(TIME_FIELDS) + ')'
+    field_ = fields[name]
+    if not _readable(field_):
+        return None, (
+            f'time field {name!r} is unreadable (count {field_.count}, datatype {field_.datatype})'
+        )
+    dtype, offset = DATATYPES[int(field_.datatype)], int(field_.offset)
+    point_step, row_step = int(msg.point_step), int(msg.row_step)
+    height, width = int(msg.height), int(msg.width)
+    buffer = _buffer(msg.data)
+    if offset < 0 or offset + dtype.itemsize > point_step or buffer.size != height * row_step:
+        return None, f'time field {name!r} does not fit the cloud layout'
+    view = np.ndarray(
+        (height, width),
+        dtype=np.dtype(
+            {'names': [name], 'formats': [dtype], 'offsets': [offset], 'itemsize': point_step}
+        ),
+        buffer=buffer,
+        strides=(row_step, point_step),
+    ).reshape(-1)[name]
+    values = view.astype(np.float64)
+    if not np.all(np.isfinite(values)):
+        return None, f'time field {name!r} holds NaN/inf values'
+    stamp = getattr(getattr(msg, 'header', None), 'stamp', None)
+    stamp_ns = stamp_to_ns(stamp) if stamp is not None else 0
+    units = TIME_UNITS if time_unit == 'auto' else {time_unit: TIME_UNITS[time_unit]}
+    absolute = _absolute_unit(values, stamp_ns, units)
+    if absolute:
+        scale = TIME_UNITS[absolute]
+        if view.dtype.kind in 'iu':  # exact integer arithmetic before the scaling
+            stamp_units = round(stamp_ns * 1e-9 / scale)
+            times = (view.astype(np.int64) - stamp_units).astype(np.float64) * scale
+        else:
+            times = values - stamp_ns * 1e-9 / scale
+            times *= scale
+        return times, f'{name!r}: absolute {absolute}, stamp subtracted'
+    unit = time_unit if time_unit != 'auto' else _time_unit(values, view.dtype.kind)
+    return values * TIME_UNITS[unit], f'{name!r}: {unit} after the stamp'
+
+
+def _absolute_unit(values: np.ndarray, stamp_ns: int, units: dict[str, float]) -> str:
+    """Return the unit in which ``values`` are absolute times near the stamp ('' if none)."""
+    if not stamp_ns or values.size == 0:
+        return ''
+    stamp_s, median = stamp_ns * 1e-9, float(np.median(values))
+    for unit, scale in units.items():
+        seconds = median * scale
+        gap = abs(seconds - stamp_s)
+        if gap < ABSOLUTE_TOLERANCE_S and gap < abs(seconds):
+            return unit
+    return ''
+
+
+def _time_unit(values: np.ndarray, kind: str) -> str:
+    """
+    Return the unit of relative times: the datatype's default if its span is plausible.
+
+    Floats default to seconds and integers to nanoseconds; when that span lies outside
+    :data:`PLAUSIBLE_SPAN_S`, the unit whose span is nearest :data:`TYPICAL_SPAN_S` (on a
+    log scale) among those not longer than the plausible maximum is taken.
+    """
+    default = 's' if kind == 'f' else 'ns'
+    span = float(values.max() - values.min()) if values.size else 0.0
+    if span == 0.0:
+        return default
+    low, high = PLAUSIBLE_SPAN_S
+    if low <= span * TIME_UNITS[default] <= high:
+        return default
+    candidates = [u for u, scale in TIME_UNITS.items() if span * scale <= high] or ['ns']
+    return min(candidates, key=lambda u: abs(np.log10(span * TIME_UNITS[u] / TYPICAL_SPAN_S)))

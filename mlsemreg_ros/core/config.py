@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+from mlsemreg_ros.core.deskew import PreprocessConfig
 from mlsemreg_ros.core.motion_prior import MotionPriorConfig
 from mlsemreg_ros.core.moving_objects import MovingObjectsConfig
 
@@ -1227,6 +1228,7 @@ class RegistrationConfig(Settings):
         low=0,
         high=256,
     )
+    preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
     semantic: SemanticConfig = field(default_factory=SemanticConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
     keypoints: KeypointConfig = field(default_factory=KeypointConfig)

@@ -285,42 +285,6 @@ def _append_fields(msg: Any, columns: dict[str, np.ndarray], field_cls: type) ->
     )
 
 
-#: Per-point time fields read into :attr:`Scan.point_times` (Velodyne s, Ouster ns).
-POINT_TIME_FIELDS = ('time', 't')
-
-
-def _point_times(msg: Any, count: int) -> np.ndarray | None:
-    """
-    Per-point times (count,) float64, seconds after the header stamp, or None.
-
-    Reads ``time`` (float seconds) or ``t`` (integer nanoseconds), the first present,
-    when the decoded cloud kept every point (``count`` = width x height).
-    """
-    from mlsemreg_ros.codec.pointcloud2 import DATATYPES
-
-    if count != int(msg.width) * int(msg.height):
-        return None
-    fields = {f.name: f for f in msg.fields if int(f.count) == 1}
-    name = next((n for n in POINT_TIME_FIELDS if n in fields), None)
-    if name is None or int(fields[name].datatype) not in DATATYPES:
-        return None
-    dtype = DATATYPES[int(fields[name].datatype)]
-    view = np.ndarray(
-        (int(msg.height), int(msg.width)),
-        dtype=np.dtype(
-            {
-                'names': [name],
-                'formats': [dtype],
-                'offsets': [int(fields[name].offset)],
-                'itemsize': int(msg.point_step),
-            }
-        ),
-        buffer=np.asarray(msg.data, dtype=np.uint8).reshape(-1),
-        strides=(int(msg.row_step), int(msg.point_step)),
-    ).reshape(-1)[name]
-    return view.astype(np.float64) * (1.0 if dtype.kind == 'f' else 1e-9)
-
-
 def _bag_path(path: Path) -> Path:
     """Return the rosbag2 directory of a bag directory or of one of its storage files."""
     if path.is_file() and (path.parent / 'metadata.yaml').exists():
@@ -453,11 +417,14 @@ class BagScanReader:
         label_field: str = 'label',
         require_labels: bool = False,
         gt_tolerance_ns: int = 5_000_000,
+        time_field: str = '',
+        time_unit: str = 'auto',
     ) -> None:
         self.path = _bag_path(Path(path))
         self.name = self.path.name
         self.label_field = label_field
         self.require_labels = require_labels
+        self.time_options = (time_field, time_unit)  # codec: decode_point_times
         self.reader = open_reader(self.path)
         topics = self.reader.topics
         clouds = sorted(t for t, info in topics.items() if info.msgtype == POINTCLOUD2)
@@ -522,7 +489,9 @@ class BagScanReader:
             if max_frames is not None and produced >= max_frames:
                 return
             msg = self.reader.deserialize(raw, connection.msgtype)
-            cloud = pointcloud2_to_arrays(msg, self.label_field, self.require_labels)
+            cloud = pointcloud2_to_arrays(
+                msg, self.label_field, self.require_labels, *self.time_options
+            )
             if cloud.labels is None and not self._warned_labels:
                 warnings.warn(
                     f'{self.points_topic} has no {self.label_field!r} field; scans are unlabeled',
@@ -530,9 +499,6 @@ class BagScanReader:
                 )
                 self._warned_labels = True
             stamp = stamp_to_ns(msg.header.stamp)
-            times = getattr(cloud, 'point_times', None)
-            if times is None:
-                times = _point_times(msg, len(cloud))
             yield Scan(
                 index,
                 stamp,
@@ -541,7 +507,7 @@ class BagScanReader:
                 cloud.intensity,
                 str(msg.header.frame_id),
                 self.ground_truth_at(stamp),
-                times,
+                cloud.point_times,
             )
             produced += 1
 

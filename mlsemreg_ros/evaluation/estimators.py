@@ -51,12 +51,14 @@ class OdometryEstimator:
         """Wrap a fresh :class:`~mlsemreg_ros.core.odometry.Odometry`."""
         self.odometry = odometry
         self._bag_index: list[int] = []  # sequence index by odometry frame counter
+        self.deskewed_scans = 0  # scans the odometry motion-compensated
 
     def step(self, scan: Scan) -> FrameEstimate:
         """Process one scan with the odometry."""
         labels = scan.labels if scan.labels is not None else np.zeros(len(scan), np.int64)
         keyframe = self.odometry.keyframe
-        step = self.odometry.process(scan.xyz, labels, scan.stamp_ns)
+        step = self.odometry.process(scan.xyz, labels, scan.stamp_ns, point_times=scan.point_times)
+        self.deskewed_scans += int(step.deskewed)
         self._bag_index.append(scan.index)
         result = step.result
         if result is None and step.relative is not None:  # tracked by the prediction alone
@@ -115,10 +117,15 @@ class KissIcpEstimator:
     KISS-ICP (Vizzo et al., RA-L 2023; PyPI ``kiss-icp``) on the same scans.
 
     Default KISS-ICP configuration (voxel size = max_range / 100, adaptive threshold,
-    constant-velocity prediction), deskewing off (scans carry no per-point times). Each
-    scan's pair is (previous kept scan, scan): the relative estimate ``inv(P_prev) P_k``
-    is scored like an ML-SemReg pair; every estimate counts as accepted (KISS-ICP has no
-    failure signal).
+    constant-velocity prediction, deskew on). Scans with per-point times are deskewed by
+    KISS-ICP itself (to its reference, the sweep end); scans without (the clean world) are
+    not. KISS-ICP normalises the times of a scan to [0, 1] and spreads its last
+    frame-to-frame motion over them, which assumes consecutive sweeps; when the scans are
+    further apart than a sweep (``--stride``), an anchor time at ``last time - stamp gap``
+    is added on a point beyond ``max_range`` (its range filter drops it after the deskew),
+    so the normalisation spans the gap (``docs/field.md``). Each scan's pair is (previous
+    kept scan, scan): the relative estimate ``inv(P_prev) P_k`` is scored like an ML-SemReg
+    pair; every estimate counts as accepted (KISS-ICP has no failure signal).
     """
 
     method = 'KISS-ICP'
@@ -130,17 +137,22 @@ class KissIcpEstimator:
         from kiss_icp.kiss_icp import KissICP
 
         config = load_config(None)
-        config.data.deskew = False
+        config.data.deskew = True  # used only on scans with per-point times
         config.data.max_range = max_range
         config.mapping.voxel_size = max_range / 100.0
+        self.max_range = max_range
         self.odometry = KissICP(config)
         self._previous: tuple[int, np.ndarray] | None = None  # (index, pose)
+        self._previous_stamp = 0
+        self.deskewed_scans = 0  # scans given to KISS-ICP with their per-point times
 
     def step(self, scan: Scan) -> FrameEstimate:
         """Register one scan with KISS-ICP."""
+        points, times = self._inputs(scan)
         tic = time.perf_counter()
-        self.odometry.register_frame(np.asarray(scan.xyz, dtype=np.float64), np.zeros(0))
+        self.odometry.register_frame(points, times)
         latency = 1e3 * (time.perf_counter() - tic)
+        self.deskewed_scans += int(times.size > 0)
         pose = self.odometry.last_pose.copy()
         previous, self._previous = self._previous, (scan.index, pose)
         if previous is None:
@@ -156,6 +168,21 @@ class KissIcpEstimator:
             mode='kiss-icp',
             new_keyframe=True,
         )
+
+    def _inputs(self, scan: Scan) -> tuple[np.ndarray, np.ndarray]:
+        """Return the points and the times KISS-ICP deskews by (empty: no deskew)."""
+        points = np.asarray(scan.xyz, dtype=np.float64)
+        gap_s = 1e-9 * (scan.stamp_ns - self._previous_stamp) if self._previous_stamp else 0.0
+        self._previous_stamp = scan.stamp_ns
+        times = scan.point_times
+        if times is None or times.shape != (points.shape[0],) or np.ptp(times) == 0.0:
+            return points, np.zeros(0)
+        times = np.asarray(times, dtype=np.float64)
+        last = float(times.max())
+        if gap_s > 1.5 * float(np.ptp(times)):  # scans further apart than one sweep
+            anchor = np.array([[10.0 * self.max_range + 1.0, 0.0, 0.0]])
+            return np.vstack([points, anchor]), np.append(times, last - gap_s)
+        return points, times
 
 
 @dataclass

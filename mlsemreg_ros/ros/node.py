@@ -112,6 +112,7 @@ class Scan:
     labels: np.ndarray  # (N,) int64 raw label values
     received: float  # time.perf_counter() when the message reached the callback
     dropped_nonfinite: int
+    point_times: np.ndarray | None = None  # (N,) float64 s after the stamp (deskew)
 
 
 class StampGaps:
@@ -221,6 +222,7 @@ class MlSemRegNode(Node):
             'kernels_ms': warm.get('total_ms', 0.0),
             'node_ms': 1e3 * (time.perf_counter() - started),
         }
+        self._time_note: str | None = None  # how per-point times were last read (logged)
         self._slot = LatestSlot()
         self._worker = threading.Thread(target=self._work, name='mlsemreg_worker', daemon=True)
         self._worker.start()
@@ -238,10 +240,17 @@ class MlSemRegNode(Node):
         self._count('frames_received')
         self._observe_stamp(msg.header.stamp)
         try:
-            cloud = pointcloud2_to_arrays(msg, self._params.snapshot().node.label_field)
+            params = self._params.snapshot()
+            cloud = pointcloud2_to_arrays(
+                msg,
+                params.node.label_field,
+                time_field=params.core.preprocess.time_field,
+                time_unit=params.core.preprocess.time_unit,
+            )
         except PointCloudError as error:
             self._skip(msg.header.stamp, f'skipped malformed PointCloud2: {error}')
             return
+        self._note_times(cloud.time_note, cloud.point_times is not None)
         self._slot.put(
             Scan(
                 msg.header.stamp,
@@ -250,6 +259,7 @@ class MlSemRegNode(Node):
                 cloud.labels,
                 received,
                 cloud.dropped_nonfinite,
+                cloud.point_times,
             )
         )
 
@@ -264,6 +274,16 @@ class MlSemRegNode(Node):
                 'lost in transport? Large best-effort clouds need the Fast DDS profile '
                 'config/fastdds.xml in every process (docs/field_moving.md)',
                 throttle_duration_sec=LOG_THROTTLE_S,
+            )
+
+    def _note_times(self, note: str, decoded: bool) -> None:
+        """Log once how per-point times are read, and again when that changes."""
+        if note != self._time_note:
+            self._time_note = note
+            self.get_logger().info(
+                f'per-point times: {note}'
+                if decoded
+                else f'no per-point times ({note}): scans are not deskewed'
             )
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
@@ -294,7 +314,9 @@ class MlSemRegNode(Node):
             return
         self._before_scan(scan, config.node)
         try:
-            step = self._odometry.process(scan.xyz, scan.labels, stamp_to_ns(scan.stamp))
+            step = self._odometry.process(
+                scan.xyz, scan.labels, stamp_to_ns(scan.stamp), point_times=scan.point_times
+            )
         except LabelError as error:
             self._skip(scan.stamp, f'skipped scan with unusable labels: {error}')
             return

@@ -182,6 +182,8 @@ def eval_bag(
             'points_topic': points_topic,
             'label_field': label_field,
             'gt_topic': None if gt_topic == 'none' or gt_poses else gt_topic,
+            'time_field': core.preprocess.time_field,
+            'time_unit': core.preprocess.time_unit,
         }
 
     def open_source() -> Any:
@@ -196,9 +198,10 @@ def eval_bag(
         if gt_calib is not None:
             truth = camera_to_lidar_poses(truth, read_kitti_calib(gt_calib)['Tr'])
     options = ReplayOptions(stride, max_frames, truth, plot_frame, progress=not quiet)
-    estimator = OdometryEstimator(Odometry(Registration(core)))
+    ours = OdometryEstimator(Odometry(Registration(core)))
+    estimator = ours
     if imu_topic or wheel_topic:
-        estimator = _fed_with_prior(bag, estimator, imu_topic, wheel_topic)
+        estimator = _fed_with_prior(bag, ours, imu_topic, wheel_topic)
     source = open_source()
     try:
         run_ = replay(source, estimator, bounds, options)
@@ -207,8 +210,14 @@ def eval_bag(
     if not run_.records:
         raise CommandError('no scans read')
     summary = summarize_run(run_)
+    deskewed = {run_.method: ours.deskewed_scans}
     details = run_details(
-        run_, bag=str(bag), stride=stride, max_frames=max_frames, argv=invocation_argv(context)
+        run_,
+        bag=str(bag),
+        stride=stride,
+        max_frames=max_frames,
+        argv=invocation_argv(context),
+        deskewed_scans=ours.deskewed_scans,
     )
     if hasattr(estimator, 'prediction_sources'):
         details['prediction_sources'] = estimator.prediction_sources()
@@ -217,22 +226,26 @@ def eval_bag(
     extra = {}
     if baseline == 'kiss-icp':
         source = open_source()
+        kiss_estimator = KissIcpEstimator()
         try:
             kiss = replay(
                 source,
-                KissIcpEstimator(),
+                kiss_estimator,
                 bounds,
                 ReplayOptions(stride, max_frames, truth, progress=not quiet),
             )
         finally:
             source.close()
         others[kiss.method] = summarize_run(kiss)
+        deskewed[kiss.method] = kiss_estimator.deskewed_scans
         extra[kiss.method] = kiss.poses
         reports.write_results(
             out / 'kiss-icp',
             kiss,
             others[kiss.method],
-            run_details(kiss, bag=str(bag), stride=stride),
+            run_details(
+                kiss, bag=str(bag), stride=stride, deskewed_scans=kiss_estimator.deskewed_scans
+            ),
             None,
             bounds,
             plots=False,
@@ -250,6 +263,10 @@ def eval_bag(
     if output is None:
         reports.link_latest(out)
     tables.print_table(tables.sequence_summary_table(summary, run_.method, others))
+    tables.print_text(
+        'deskewed scans (per-point times): '
+        + ', '.join(f'{name} {n}/{len(run_.records)}' for name, n in deskewed.items())
+    )
     tables.print_text(f'results: {out}')
     rr = summary['registration_recall_pct']
     if fail_below is not None and (rr is None or rr < fail_below):

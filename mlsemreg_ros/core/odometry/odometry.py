@@ -30,8 +30,10 @@ a component of its own (``docs/extending.md``)::
 Per scan (:meth:`Odometry.process`)::
 
     stream rules                               duplicate stamp: skip; backwards: reset
-    current = preprocess(scan)                 once per scan; the keyframe's is cached
-    predicted = map.align(current, predict())  the motion model's guess, refined
+    prediction = predict()                     the motion model's guess at the stamp
+    current = preprocess(scan, motion)         deskewed by last pose -> prediction (per-point
+                                               times); once per scan, the keyframe's cached
+    predicted = map.align(current, prediction) the motion model's guess, refined
     if tracking is trusted (on_demand):        accept it: no global registration
     else:
       global = register(current, keyframe)     ML-SemReg + SC2-PCR: T_keyframe_current
@@ -58,9 +60,11 @@ is ``pose_keyframe @ global`` when the registration succeeded.
 
 from __future__ import annotations
 
+from collections import deque
 import time
 
 from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.deskew import MAX_DESKEW_WINDOW, sweep_motion, SweepMotion
 from mlsemreg_ros.core.fine_alignment import alignment_cloud, Candidate
 from mlsemreg_ros.core.moving_objects import MovingObjectFilter
 from mlsemreg_ros.core.odometry.decision import chain, decide
@@ -72,7 +76,7 @@ from mlsemreg_ros.core.odometry.local_map import (
     LocalMap,
     make_map,
 )
-from mlsemreg_ros.core.odometry.motion_model import make_motion_model
+from mlsemreg_ros.core.odometry.motion_model import make_motion_model, Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
 from mlsemreg_ros.core.odometry.prior_model import motion_model_name
 from mlsemreg_ros.core.odometry.steps import (
@@ -119,8 +123,10 @@ class Odometry:
         self.covariance = np.zeros((6, 6))
         self._count = 0
         self._last_accepted: tuple[np.ndarray, int] | None = None  # (pose, stamp): the twist
+        self._accepted: deque[tuple[np.ndarray, int]] = deque(maxlen=MAX_DESKEW_WINDOW + 1)
         self._failures = 0  # rejected frames in a row
         self._last_stamp = 0  # stamp of the last scan (0: none or unstamped)
+        self._start_scan: tuple[PreprocessedScan, np.ndarray, int] | None = None  # to deskew
 
     @property
     def config(self) -> RegistrationConfig:
@@ -173,8 +179,10 @@ class Odometry:
         self.tracker.restart()
         self._count = 0
         self._last_accepted = None
+        self._accepted.clear()
         self._failures = 0
         self._last_stamp = 0
+        self._start_scan = None
 
     def keyframe_refusal(self, scan: PreparedScan) -> str:
         """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
@@ -208,11 +216,13 @@ class Odometry:
             return self._finish(self._rejected(self._count, stamp_ns, None, skipped), start)
         index = self._count
         self._count += 1
-        raw = self._preprocess(points, labels, point_times)
+        prediction = self._prediction(stamp_ns)
+        motion = self._sweep_motion(prediction, stamp_ns)
+        raw = self._preprocess(points, labels, point_times, motion)
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
-            return self._finish(self._first(index, stamp_ns, raw, notes), start)
+            return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
         timings: dict[str, float] = {}
-        chosen = self._estimate(raw.scan, stamp_ns, timings)
+        chosen = self._estimate(raw.scan, stamp_ns, timings, prediction)
         step = self._apply(index, stamp_ns, raw, chosen)
         self._count_failure(step, raw)
         registered = chosen.result.timings_ms if chosen.result is not None else {}
@@ -222,10 +232,34 @@ class Odometry:
             **{f'register.{k}': v for k, v in registered.items()},
             **step.timings_ms,
         }
-        return self._finish(step, start)
+        return self._finish(step, start, raw)
+
+    def _prediction(self, stamp_ns: int) -> Prediction | None:
+        """Return the motion model's prediction at ``stamp_ns`` if the odometry uses one."""
+        if self.keyframe is None or not self.config.odometry.constant_velocity:
+            return None
+        return self.motion_model.predict(stamp_ns)
+
+    def _sweep_motion(self, prediction: Prediction | None, stamp_ns: int) -> SweepMotion | None:
+        """
+        Return the motion within the sweep: an earlier accepted pose -> the prediction.
+
+        The twist spans ``preprocess.deskew_window`` accepted poses back: a twist from the
+        last pose only (window 1) feeds each pose's error into the next deskew with gain 1,
+        a marginally stable loop (``docs/field.md``).
+        """
+        window = self.config.preprocess.deskew_window
+        if prediction is None or not self._accepted:
+            return None
+        pose, stamp = self._accepted[-min(window, len(self._accepted))]
+        return sweep_motion(pose, stamp, prediction.T_odom_current, stamp_ns)
 
     def _preprocess(
-        self, points: np.ndarray, labels: np.ndarray, point_times: np.ndarray | None
+        self,
+        points: np.ndarray,
+        labels: np.ndarray,
+        point_times: np.ndarray | None,
+        motion: SweepMotion | None = None,
     ) -> PreprocessedScan:
         """Preprocess; moving objects are dropped first or kept out of the map after."""
         mask = self._moving_mask(points, labels)
@@ -235,7 +269,7 @@ class Odometry:
             if point_times is not None and np.size(point_times) == len(keep):
                 point_times = np.asarray(point_times).reshape(-1)[keep]
             mask = None
-        raw = self.preprocessor(points, labels, point_times)
+        raw = self.preprocessor(points, labels, point_times, motion)
         if mask is not None:
             self._exclude_moving(raw.scan, raw.points, raw.labels, mask)
         return raw
@@ -292,15 +326,16 @@ class Odometry:
         return '', notes
 
     def _estimate(
-        self, current: PreparedScan, stamp_ns: int, timings: dict[str, float]
+        self,
+        current: PreparedScan,
+        stamp_ns: int,
+        timings: dict[str, float],
+        prediction: Prediction | None,
     ) -> Decision:
-        """Predict, then track or register globally, and decide."""
+        """Track the prediction or register globally, and decide."""
         cfg, keyframe = self.config, self.keyframe
         if cfg.fine.method == 'off':
             return chain(self.global_registration(current, keyframe), cfg)
-        prediction = (
-            self.motion_model.predict(stamp_ns) if cfg.odometry.constant_velocity else None
-        )
         predicted = self.tracker.refine_prediction(current, prediction, cfg, timings)
         why_global = self.tracker.refusal(predicted, prediction, cfg)
         if not why_global:  # tracking: no global registration needed
@@ -382,11 +417,13 @@ class Odometry:
         if learn_labels is not None:
             learn_labels(relative, current, keyframe.prepared)  # confidence.label_model adaptive
         self._last_accepted = (pose.copy(), stamp_ns)
+        self._accepted.append(self._last_accepted)
         new_keyframe = is_new_keyframe(
             self.config.keyframe, relative
         ) and not self.keyframe_refusal(current)
         if new_keyframe:
             self.keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, current, pose.copy())
+        self._deskew_start(raw, pose, stamp_ns)
         return OdometryStep(
             index=index,
             stamp_ns=stamp_ns,
@@ -444,8 +481,43 @@ class Odometry:
         self.motion_model.reset()
         self.motion_model.update(pose, stamp_ns)
         self._last_accepted = (pose.copy(), stamp_ns)
+        self._accepted.clear()
+        self._accepted.append(self._last_accepted)
         self.tracker.restart()
         self._failures = 0
+        self._start_scan = (raw, pose.copy(), stamp_ns)
+
+    def _deskew_start(self, raw: PreprocessedScan, pose: np.ndarray, stamp_ns: int) -> None:
+        """
+        Deskew the scan the odometry started on and the next one, once their motion is known.
+
+        Neither had a prediction, so neither was deskewed. A map of skewed scans would bias
+        every deskewed scan aligned to it (and, through the velocity, the next deskew), so
+        both are deskewed with the motion estimated between them, prepared again, and
+        become the map and the keyframe (``docs/field.md``).
+        """
+        start, self._start_scan = self._start_scan, None
+        if start is None or raw.deskewed:
+            return
+        first, first_pose, first_stamp = start
+        motion = sweep_motion(first_pose, first_stamp, pose, stamp_ns)
+        refusal = self.preprocessor.refusal
+        if refusal(first.points, first.point_times, motion) or refusal(
+            raw.points, raw.point_times, motion
+        ):
+            return  # no times (the clean world), deskew off, or no duration: nothing to redo
+        redone = [
+            (self._preprocess(r.points, r.labels, r.point_times, motion), p)
+            for r, p in ((first, first_pose), (raw, pose))
+        ]
+        if not all(r.deskewed for r, _ in redone):
+            return
+        self.map.clear()
+        for r, p in redone:
+            self._insert(r.scan, p)
+        keyframe = self.keyframe
+        r = redone[0][0] if keyframe.points is first.points else redone[1][0]
+        keyframe.points, keyframe.labels, keyframe.prepared = r.points, r.labels, r.scan
 
     def _count_failure(self, step: OdometryStep, raw: PreprocessedScan) -> None:
         """After ``keyframe.max_failures`` rejections in a row, re-initialise on this scan."""
@@ -470,6 +542,12 @@ class Odometry:
             self.map.insert(alignment_cloud(scan, self.config.fine), pose)
 
     @staticmethod
-    def _finish(step: OdometryStep, start: float) -> OdometryStep:
+    def _finish(
+        step: OdometryStep, start: float, raw: PreprocessedScan | None = None
+    ) -> OdometryStep:
+        if raw is not None:
+            step.deskewed = raw.deskewed
+            if raw.deskew_note:
+                step.reason = '; '.join(r for r in (step.reason, raw.deskew_note) if r)
         step.latency_ms = 1e3 * (time.perf_counter() - start)
         return step

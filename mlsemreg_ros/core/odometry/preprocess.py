@@ -15,9 +15,12 @@
 """
 Preprocessing: a raw scan in, the lazily prepared scan out (``docs/extending.md``).
 
-    deskew(points, point_times)      where motion compensation plugs in (a no-op today)
-    registration.prepare(lazy=True)  sanitize, labels, voxelize, keypoints; descriptors and
-                                     signatures only if a global registration needs them
+    deskew(points, point_times, motion)  points mapped to the stamp (core/deskew.py), when
+                                         preprocess.deskew allows it and the scan has times
+                                         and the motion within the sweep is known
+    registration.prepare(lazy=True)      sanitize, labels, voxelize, keypoints; descriptors
+                                         and signatures only if a global registration needs
+                                         them
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from mlsemreg_ros.core import deskew
 from mlsemreg_ros.core.results import PreparedScan
 import numpy as np
 
@@ -36,6 +40,9 @@ class PreprocessedScan:
     points: np.ndarray  # (N, 3) raw (deskewed) points, metres
     labels: np.ndarray  # (N,) raw labels
     scan: PreparedScan
+    deskewed: bool = False  # the points were motion-compensated
+    point_times: np.ndarray | None = None  # (N,) s after the stamp, as given
+    deskew_note: str = ''  # why not, when preprocess.deskew is on
 
 
 class Preprocessor:
@@ -45,19 +52,49 @@ class Preprocessor:
         """Prepare with ``registration`` (a :class:`~mlsemreg_ros.core.pipeline.Registration`)."""
         self.registration = registration
 
-    def deskew(self, points: np.ndarray, point_times: np.ndarray | None) -> np.ndarray:
+    def deskew(
+        self,
+        points: np.ndarray,
+        point_times: np.ndarray | None,
+        motion: deskew.SweepMotion | None = None,
+    ) -> np.ndarray:
         """
         Motion-compensate ``points`` (N, 3) by their ``point_times`` (N,), seconds.
 
-        The seam of a deskew step: today the points are returned as they are (also
-        without per-point times).
+        The seam of a deskew step (``docs/extending.md``): :func:`core.deskew.deskew` with
+        the motion within the sweep. Called for every scan; ``motion`` is None (and the
+        points are returned as they are) when :meth:`refusal` refused the scan.
         """
-        return points
+        if point_times is None or motion is None:
+            return points
+        return deskew.deskew(points, point_times, motion)
+
+    def refusal(self, points: np.ndarray, point_times: np.ndarray | None, motion: Any) -> str:
+        """Why the scan is not deskewed ('' if it is): the mode, the times, the motion."""
+        if self.registration.config.preprocess.deskew == 'off':
+            return 'preprocess.deskew is off'
+        why = deskew.time_span_refusal(point_times, int(np.shape(points)[0]))
+        if not why and motion is None:
+            why = 'the motion within the sweep is unknown (no prediction yet)'
+        return why
 
     def __call__(
-        self, points: np.ndarray, labels: np.ndarray, point_times: np.ndarray | None = None
+        self,
+        points: np.ndarray,
+        labels: np.ndarray,
+        point_times: np.ndarray | None = None,
+        motion: deskew.SweepMotion | None = None,
     ) -> PreprocessedScan:
         """Deskew and prepare lazily (descriptors on demand, :meth:`Registration.complete`)."""
-        points = self.deskew(points, point_times)
+        why = self.refusal(points, point_times, motion)
+        points = self.deskew(points, point_times, None if why else motion)
         scan = self.registration.prepare(points, labels, lazy=True)
-        return PreprocessedScan(np.asarray(points), np.asarray(labels), scan)
+        on = self.registration.config.preprocess.deskew == 'on'
+        return PreprocessedScan(
+            np.asarray(points),
+            np.asarray(labels),
+            scan,
+            deskewed=not why,
+            point_times=point_times,
+            deskew_note=f'not deskewed: {why}' if why and on else '',
+        )

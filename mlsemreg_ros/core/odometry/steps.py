@@ -66,6 +66,7 @@ class OdometryStep:
     twist_covariance: np.ndarray | None = None  # (6, 6)
     candidates: list[Candidate] = field(default_factory=list)
     map_voxels: int = 0  # local map size after this frame
+    deskewed: bool = False  # the scan was motion-compensated (core/deskew.py)
 
 
 @dataclass

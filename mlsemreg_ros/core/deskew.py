@@ -1,0 +1,191 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Deskew: points taken while the sensor moved, mapped into the sensor frame at the stamp.
+
+A spinning LiDAR takes a sweep over its scan period; each point is reported in the
+sensor frame *at its own time*. With per-point times ``tau`` (seconds after the header
+stamp, the codec's output, ``docs/field.md``) and the motion of the sensor within the
+sweep, every point ``p`` is mapped by ``T(tau) p``, where ``T(tau)`` is the pose at
+``stamp + tau`` relative to the pose at the stamp. The deskewed scan is then the scan an
+instantaneous sensor at the stamp would have taken, so the estimated pose stays the pose
+at the stamp (the simulator's ground-truth convention).
+
+The motion (:class:`SweepMotion`) is a constant twist: the SE(3) logarithm of the relative
+motion from the last accepted pose to the motion model's prediction at the stamp, per
+second. ``T(tau) = exp(tau * twist)`` is evaluated for all points at once (Rodrigues about
+the fixed axis, and the closed-form left Jacobian for the translation): no loop over
+points. The motion model is whatever the odometry uses (constant velocity, or a prior),
+through ``MotionModel.predict`` (``docs/extending.md``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mlsemreg_ros.core.settings import param
+import numpy as np
+
+#: Below this rotation angle (rad) the series of the SE(3) coefficients are used.
+SMALL_ANGLE = 1e-6
+#: Per-point times spanning more than this (s) are not a sweep: the scan is not deskewed.
+MAX_SWEEP_SPAN_S = 1.0
+#: Largest preprocess.deskew_window.
+MAX_DESKEW_WINDOW = 10
+
+
+@dataclass
+class PreprocessConfig:
+    """Per-point times and deskew (``docs/field.md``)."""
+
+    deskew: str = param(
+        'auto',
+        'Motion-compensate each scan from its per-point times: auto (when the scan has '
+        'times and the motion is known: a prediction of the motion model), on (the same, '
+        'and the step notes why a scan could not be deskewed), off (never; the points are '
+        'used as they are).',
+        choices=('auto', 'on', 'off'),
+    )
+    deskew_window: int = param(
+        3,
+        'The motion within a sweep is the constant twist from the pose this many accepted '
+        'scans back to the prediction at the stamp. 1 (the last pose only) makes a loop: '
+        'each pose error biases the next deskew with gain 1, and the error grew on the field '
+        'drives. 3 damps it (docs/field.md).',
+        low=1,
+        high=MAX_DESKEW_WINDOW,
+    )
+    time_field: str = param(
+        '',
+        "PointCloud2 field holding the per-point time ('': auto-detect time, t, timestamp, "
+        'time_stamp, offset_time, in that order).',
+    )
+    time_unit: str = param(
+        'auto',
+        'Unit of the per-point time field (auto: from the field name, its datatype and its '
+        'values; absolute times are recognised by their closeness to the header stamp).',
+        choices=('auto', 's', 'ms', 'us', 'ns'),
+    )
+
+
+@dataclass(frozen=True)
+class SweepMotion:
+    """A constant twist of the sensor, in the sensor frame at the stamp."""
+
+    omega: np.ndarray  # (3,) angular velocity, rad/s
+    velocity: np.ndarray  # (3,) the SE(3) log's translational part per second, m/s
+
+
+def se3_log(transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the SE(3) logarithm ``(phi, rho)`` of ``transform`` (4, 4): rotation vector, rho."""
+    from scipy.spatial.transform import Rotation
+
+    transform = np.asarray(transform, dtype=np.float64)
+    phi = Rotation.from_matrix(transform[:3, :3]).as_rotvec()
+    theta = float(np.linalg.norm(phi))
+    hat = _hat(phi)
+    if theta < SMALL_ANGLE:
+        coefficient = 1.0 / 12.0
+    else:
+        half = 0.5 * theta
+        coefficient = (1.0 - half * np.cos(half) / np.sin(half)) / theta**2
+    v_inverse = np.eye(3) - 0.5 * hat + coefficient * hat @ hat
+    return phi, v_inverse @ transform[:3, 3]
+
+
+def sweep_motion(
+    T_last: np.ndarray, last_stamp_ns: int, T_predicted: np.ndarray, stamp_ns: int
+) -> SweepMotion | None:
+    """
+    Return the constant twist from the last accepted pose to the predicted one, or None.
+
+    ``T_last`` (4, 4) is ``T_odom_last`` at ``last_stamp_ns``, ``T_predicted`` the motion
+    model's ``T_odom_current`` at ``stamp_ns``; None when the stamps cannot give a duration.
+    """
+    if not last_stamp_ns or not stamp_ns or stamp_ns <= last_stamp_ns:
+        return None
+    dt = 1e-9 * (stamp_ns - last_stamp_ns)
+    relative = np.linalg.inv(np.asarray(T_last, dtype=np.float64)) @ T_predicted
+    phi, rho = se3_log(relative)
+    return SweepMotion(phi / dt, rho / dt)
+
+
+def motion_at(motion: SweepMotion, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return ``exp(tau * twist)`` for every ``tau`` in ``times`` (N,): rotations and translations.
+
+    Rotations as (N, 3, 3) would be large; instead the pair ``(angles (N,), translations
+    (N, 3))`` is returned, the axis being fixed (``omega / |omega|``): see :func:`deskew`.
+    """
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    rate = float(np.linalg.norm(motion.omega))
+    angles = times * rate
+    rho = times[:, None] * motion.velocity  # tau * rho
+    if rate * float(np.max(np.abs(times), initial=0.0)) < SMALL_ANGLE:
+        return angles, rho
+    axis = motion.omega / rate
+    cross1 = np.cross(axis, motion.velocity)  # axis x rho per second
+    cross2 = np.cross(axis, cross1)
+    # V(theta) (tau rho) = tau rho + (1 - cos)/theta (axis x tau rho) + (theta - sin)/theta
+    # axis x (axis x tau rho), with theta = tau |omega| (tau rho = theta / |omega| rho).
+    a = np.where(np.abs(angles) < SMALL_ANGLE, 0.0, 1.0 - np.cos(angles)) / rate
+    b = (angles - np.sin(angles)) / rate
+    return angles, rho + a[:, None] * cross1 + b[:, None] * cross2
+
+
+def deskew(points: np.ndarray, times: np.ndarray, motion: SweepMotion) -> np.ndarray:
+    """
+    Map ``points`` (N, 3), each taken at ``times`` (N,) s after the stamp, to the stamp.
+
+    ``p' = R(tau) p + t(tau)`` with ``(R, t)(tau) = exp(tau * twist)``: the pose at
+    ``stamp + tau`` in the frame at the stamp. Vectorised (Rodrigues about the twist's axis).
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    times = np.asarray(times, dtype=np.float64).reshape(-1)
+    if times.shape[0] != points.shape[0]:
+        raise ValueError(f'{times.shape[0]} point times for {points.shape[0]} points')
+    angles, translations = motion_at(motion, times)
+    rate = float(np.linalg.norm(motion.omega))
+    if rate == 0.0 or not np.any(angles):
+        return points + translations
+    axis = motion.omega / rate
+    cos, sin = np.cos(angles)[:, None], np.sin(angles)[:, None]
+    rotated = (
+        points * cos + np.cross(axis, points) * sin + np.outer(points @ axis, axis) * (1.0 - cos)
+    )
+    return rotated + translations
+
+
+def time_span_refusal(times: np.ndarray | None, count: int) -> str:
+    """Why ``times`` cannot deskew a scan of ``count`` points ('' if they can)."""
+    if times is None:
+        return 'the scan has no per-point times'
+    times = np.asarray(times)
+    if times.shape != (count,):
+        return f'{times.size} point times for {count} points'
+    if not np.all(np.isfinite(times)):
+        return 'per-point times are not all finite'
+    span = float(times.max() - times.min()) if count else 0.0
+    if span == 0.0:
+        return 'all points have the same time'
+    if span > MAX_SWEEP_SPAN_S:
+        return f'per-point times span {span:.3g} s (> {MAX_SWEEP_SPAN_S:g} s: not one sweep)'
+    return ''
+
+
+def _hat(vector: np.ndarray) -> np.ndarray:
+    """Return the skew-symmetric matrix of ``vector`` (3,)."""
+    x, y, z = vector
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
