@@ -14,7 +14,8 @@
 """
 Dense, loop-per-group reference of ML-SemReg matching, straight from the paper's equations.
 
-Slow and obvious on purpose: the fast engine in mlsemreg_ros.core.matching must agree with it.
+Slow and obvious on purpose: the fast engine in mlsemreg_ros.core.matching.matching must agree with
+it.
 """
 
 from __future__ import annotations

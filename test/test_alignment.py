@@ -18,9 +18,9 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from mlsemreg_ros.core.alignment import align_pair, AlignmentCloud, UNKNOWN_VARIANCE
+from mlsemreg_ros.core.alignment.alignment import align_pair, AlignmentCloud, UNKNOWN_VARIANCE
+from mlsemreg_ros.core.alignment.fine_alignment import refinement_refusal, RefinementBounds
 from mlsemreg_ros.core.config import FineAlignmentConfig, LocalMapConfig, RegistrationConfig
-from mlsemreg_ros.core.fine_alignment import refinement_refusal, RefinementBounds
 from mlsemreg_ros.core.metrics import rotation_error_deg
 from mlsemreg_ros.core.odometry.local_map import LocalMap
 from mlsemreg_ros.core.pipeline import Registration

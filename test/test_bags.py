@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.rigid import relative_transform
 from mlsemreg_ros.datasets.bag import BagScanReader, BagWriter, read_poses
 from mlsemreg_ros.datasets.factory import open_scan_source

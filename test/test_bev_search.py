@@ -18,9 +18,9 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from mlsemreg_ros.core import bev_search
 from mlsemreg_ros.core.config import ConfigError, RegistrationConfig
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.estimation import bev_search
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.rigid import apply_transform, invert_transform
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
@@ -82,7 +82,7 @@ def test_the_yard_moved_by_a_known_pose_is_found(lookup):
 
 
 def test_peaks_near_a_better_one_are_suppressed_across_zero_yaw():
-    """The peaks go through the estimator's own distinct-pose rule (core/sc2pcr.py)."""
+    """The peaks go through the estimator's own distinct-pose rule (core/estimation/sc2pcr.py)."""
     from mlsemreg_ros.core.poses import distinct_hypotheses
 
     peaks = np.array(  # (score, yaw, tx, ty), best first

@@ -19,8 +19,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from dev_pairs import dev_pair_files
-from mlsemreg_ros.core.confidence import Evidence, refusal, tilt_deg
 from mlsemreg_ros.core.config import ConfidenceConfig, RegistrationConfig
+from mlsemreg_ros.core.estimation.confidence import Evidence, refusal, tilt_deg
 from mlsemreg_ros.core.odometry import Odometry
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene, synthetic_pair

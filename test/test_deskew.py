@@ -12,14 +12,14 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Deskew (core/deskew.py): a skewed sweep with a known motion is straightened."""
+"""Deskew (core/features/deskew.py): a skewed sweep with a known motion is straightened."""
 
 from __future__ import annotations
 
 from typing import Any
 
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.deskew import (
+from mlsemreg_ros.core.features.deskew import (
     deskew,
     se3_log,
     sweep_motion,

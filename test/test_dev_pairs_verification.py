@@ -114,7 +114,7 @@ def test_the_bev_search_finds_000007_and_confidence_still_decides():
         pytest.skip('dev pair 000007 not present')
     result, metrics = _register(paths[0], True)
     d = result.diagnostics
-    # found by the BEV search or by the re-matching guided by its peaks (core/guided.py)
+    # found by the BEV search or by the re-matching guided by its peaks (core/estimation/guided.py)
     assert d['chosen_origin'] in ('bev_search', 'guided'), result.message
     assert metrics.success  # measured: RE 0.22 deg, TE 28 cm (refined by GICP)
     assert metrics.rotation_error_deg < 1.0 and metrics.translation_error_cm < 45.0

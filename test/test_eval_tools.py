@@ -15,8 +15,8 @@
 
 import json
 
-from mlsemreg_ros.core.features import sample_keypoints
-from mlsemreg_ros.core.fpfh import fpfh_at_keypoints
+from mlsemreg_ros.core.features.features import sample_keypoints
+from mlsemreg_ros.core.features.fpfh import fpfh_at_keypoints
 from mlsemreg_ros.datasets.pairs import list_pairs, load_pair, save_pair
 from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 from mlsemreg_ros.evaluation.benchmark import STAGES

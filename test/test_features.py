@@ -13,8 +13,8 @@
 # limitations under the License.
 """Known-answer tests of voxel downsampling, keypoint sampling, FPFH at keypoints, validity."""
 
-from mlsemreg_ros.core import kernels
-from mlsemreg_ros.core.features import (
+from mlsemreg_ros.core.features import kernels
+from mlsemreg_ros.core.features.features import (
     fpfh_open3d_at,
     sample_keypoints,
     valid_descriptor_mask,

@@ -11,10 +11,10 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""Known-answer and property tests of the vectorized FPFH (core/fpfh.py)."""
+"""Known-answer and property tests of the vectorized FPFH (core/features/fpfh.py)."""
 
-from mlsemreg_ros.core import kernels
-from mlsemreg_ros.core.fpfh import (
+from mlsemreg_ros.core.features import kernels
+from mlsemreg_ros.core.features.fpfh import (
     estimate_normals,
     fpfh_at_keypoints,
     pair_feature_bins,

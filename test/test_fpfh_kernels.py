@@ -11,10 +11,10 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""The compiled FPFH (core/fpfh_kernels.py) equals the NumPy FPFH bit for bit."""
+"""The compiled FPFH (core/features/fpfh_kernels.py) equals the NumPy FPFH bit for bit."""
 
-from mlsemreg_ros.core import kernels
-from mlsemreg_ros.core.fpfh import fpfh_at_keypoints
+from mlsemreg_ros.core.features import kernels
+from mlsemreg_ros.core.features.fpfh import fpfh_at_keypoints
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 import numpy as np
@@ -109,8 +109,8 @@ def test_prepared_scans_are_identical_with_and_without_kernels(
 
 @pytest.mark.parametrize('support_voxel', [0.2, 0.5, 1.3])
 def test_bounded_snapping_finds_the_nearest_support_centroid(support_voxel: float) -> None:
-    from mlsemreg_ros.core.features import voxel_centroids
-    from mlsemreg_ros.core.fpfh import _snap
+    from mlsemreg_ros.core.features.features import voxel_centroids
+    from mlsemreg_ros.core.features.fpfh import _snap
     from scipy.spatial import cKDTree
 
     points = _scene(11)

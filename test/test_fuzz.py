@@ -44,11 +44,11 @@ from mlsemreg_ros.codec.pointcloud2 import (
     PointCloudError,
 )
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.labels import LabelConversion, LabelError, LabelMap, SCHEMES
+from mlsemreg_ros.core.features.scan_input import sanitize_scan
+from mlsemreg_ros.core.matching.labels import LabelConversion, LabelError, LabelMap, SCHEMES
 from mlsemreg_ros.core.odometry import Odometry, OdometryStep
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan
-from mlsemreg_ros.core.scan_input import sanitize_scan
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 from msg_stubs import Cloud, Field
 import numpy as np

@@ -15,10 +15,10 @@
 
 from __future__ import annotations
 
-from mlsemreg_ros.core import confidence
-from mlsemreg_ros.core.alignment import align_pair, AlignmentCloud
+from mlsemreg_ros.core.alignment.alignment import align_pair, AlignmentCloud
 from mlsemreg_ros.core.config import ConfidenceConfig, RegistrationConfig
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.estimation import confidence
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.pipeline import Registration
 import numpy as np
 import pytest

@@ -20,7 +20,7 @@ import importlib.util
 import json
 from pathlib import Path
 
-from mlsemreg_ros.core.features import sample_keypoints
+from mlsemreg_ros.core.features.features import sample_keypoints
 from mlsemreg_ros.core.metrics import evaluate_pair
 from mlsemreg_ros.datasets.pairs import list_pairs, load_pair, save_pair
 from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair

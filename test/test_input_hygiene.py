@@ -34,11 +34,11 @@ from mlsemreg_ros.codec.pointcloud2 import (
     FLOAT32,
     pointcloud2_to_arrays,
 )
-from mlsemreg_ros.core import features
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.features import features
+from mlsemreg_ros.core.features.scan_input import sanitize_scan_for
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
 from mlsemreg_ros.core.pipeline import Registration
-from mlsemreg_ros.core.scan_input import sanitize_scan_for
 from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 from msg_stubs import Cloud, Field
 import numpy as np

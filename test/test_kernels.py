@@ -11,15 +11,15 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""The compiled kernels (core/kernels.py): switch, cache, voxel grid equal to NumPy's."""
+"""The compiled kernels (core/features/kernels.py): switch, cache, voxel grid equal to NumPy's."""
 
 from pathlib import Path
 import subprocess
 import sys
 
-from mlsemreg_ros.core import kernels
-from mlsemreg_ros.core.features import voxel_centroids, voxel_downsample, voxel_groups
-from mlsemreg_ros.core.warm_up import warm_up
+from mlsemreg_ros.core.features import kernels
+from mlsemreg_ros.core.features.features import voxel_centroids, voxel_downsample, voxel_groups
+from mlsemreg_ros.core.features.warm_up import warm_up
 import numpy as np
 import pytest
 
@@ -167,7 +167,7 @@ def test_keep_freed_memory_removes_the_page_faults_of_repeated_allocations() -> 
     # each one is fresh mmap pages (a fault per 4 KiB page), once kept they are reused.
     script = (
         'import resource, sys, numpy as np\n'
-        'from mlsemreg_ros.core import kernels\n'
+        'from mlsemreg_ros.core.features import kernels\n'
         'if sys.argv[1] == "1": assert kernels.keep_freed_memory(64 << 20, 512 << 20)\n'
         'for _ in range(3): np.ones(5 << 20).sum()\n'
         'start = resource.getrusage(resource.RUSAGE_SELF).ru_minflt\n'

@@ -14,17 +14,21 @@
 """Label noise, the label ceiling, the adaptive label model, confident landmarks."""
 
 from mlsemreg_ros.core.config import ConfidenceConfig, VerificationConfig
-from mlsemreg_ros.core.label_model import (
+from mlsemreg_ros.core.estimation.label_model import (
     cooccurrence,
     label_ceiling,
     label_refusal,
     LabelModel,
     self_agreement,
 )
-from mlsemreg_ros.core.labels import LabelMap
-from mlsemreg_ros.core.landmarks import extract_landmarks
+from mlsemreg_ros.core.estimation.verification import (
+    dense_scores,
+    label_compatibility,
+    LabelCompatibility,
+)
+from mlsemreg_ros.core.matching.labels import LabelMap
+from mlsemreg_ros.core.matching.landmarks import extract_landmarks
 from mlsemreg_ros.core.results import Landmarks, PreparedScan
-from mlsemreg_ros.core.verification import dense_scores, label_compatibility, LabelCompatibility
 from mlsemreg_ros.evaluation.label_noise import LabelNoise, LabelNoiseError
 import numpy as np
 import pytest
@@ -220,8 +224,8 @@ def test_the_odometry_teaches_the_adaptive_model_a_network_confusion_online():
 def test_a_dev_pair_with_30_percent_confused_labels_is_accepted_at_its_pose_not_at_a_slide():
     """000007 with confusions: the fixed 0.6 rule refuses its right pose, the relative one not."""
     from dev_pairs import dev_pair_files
-    from mlsemreg_ros.core import confidence
     from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.estimation import confidence
     from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
     from mlsemreg_ros.core.pipeline import Registration
     from mlsemreg_ros.datasets.pairs import load_pair

@@ -16,7 +16,7 @@
 import warnings
 
 from mlsemreg_ros.core.config import ConfigError
-from mlsemreg_ros.core.labels import (
+from mlsemreg_ros.core.matching.labels import (
     AUTO_RAW_MARGIN,
     LabelConversion,
     LabelError,

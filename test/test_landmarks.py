@@ -13,8 +13,8 @@
 # limitations under the License.
 """Known-answer tests of landmark extraction (Euclidean clustering per class)."""
 
-from mlsemreg_ros.core.labels import LabelMap
-from mlsemreg_ros.core.landmarks import extract_landmarks
+from mlsemreg_ros.core.matching.labels import LabelMap
+from mlsemreg_ros.core.matching.landmarks import extract_landmarks
 import numpy as np
 
 LABELS = LabelMap.load()

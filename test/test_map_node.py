@@ -20,8 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.keyframe_store import KeyframeStore
-from mlsemreg_ros.core.map_io import load_map, save_map
+from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
+from mlsemreg_ros.core.maps.map_io import load_map, save_map
 from mlsemreg_ros.core.metrics import rotation_error_deg
 from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene

@@ -18,13 +18,13 @@ from pathlib import Path
 
 from dev_pairs import dev_pair_files
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.keyframe_store import KeyframeStore
-from mlsemreg_ros.core.map_io import load_map, load_store, MAP_FILE, MapError, save_map
+from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
+from mlsemreg_ros.core.maps.map_io import load_map, load_store, MAP_FILE, MapError, save_map
+from mlsemreg_ros.core.maps.place_recognition import context_similarity, PlaceIndex
+from mlsemreg_ros.core.maps.pose_graph import PoseGraph
+from mlsemreg_ros.core.maps.relocalization import Relocalizer
 from mlsemreg_ros.core.metrics import rotation_error_deg
 from mlsemreg_ros.core.pipeline import Registration
-from mlsemreg_ros.core.place_recognition import context_similarity, PlaceIndex
-from mlsemreg_ros.core.pose_graph import PoseGraph
-from mlsemreg_ros.core.relocalization import Relocalizer
 from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 import numpy as np
@@ -292,7 +292,7 @@ def test_real_dev_chain_odd_frames_relocalize_against_the_even_frames(tmp_path: 
 @pytest.mark.slow
 def test_the_mapper_closes_a_loop_on_a_drifting_out_and_back_drive() -> None:
     """Out along the street and back: the drift is found and removed by a verified loop."""
-    from mlsemreg_ros.core.mapping import Mapper
+    from mlsemreg_ros.core.maps.mapping import Mapper
 
     config = RegistrationConfig().replace(
         {

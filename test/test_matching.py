@@ -13,9 +13,9 @@
 # limitations under the License.
 """Group Matching, Mask Matching and ML-SemReg: known answers and agreement with a reference."""
 
-from mlsemreg_ros.core import mask_search
 from mlsemreg_ros.core import threads as thread_settings
-from mlsemreg_ros.core.matching import (
+from mlsemreg_ros.core.matching import mask_search
+from mlsemreg_ros.core.matching.matching import (
     group_bitmask,
     group_matching,
     match_descriptors,

@@ -12,13 +12,13 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""Moving objects stay out of the odometry's local map (``core/moving_objects.py``)."""
+"""Moving objects stay out of the odometry's local map (``core/features/moving_objects.py``)."""
 
 from __future__ import annotations
 
 from mlsemreg_ros.core.config import ConfigError, RegistrationConfig
-from mlsemreg_ros.core.labels import LabelMap
-from mlsemreg_ros.core.moving_objects import MovingObjectFilter, MovingObjectsConfig
+from mlsemreg_ros.core.features.moving_objects import MovingObjectFilter, MovingObjectsConfig
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.odometry import Odometry
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.rigid import invert_transform

@@ -392,7 +392,7 @@ def test_distance_keyframe_policy_and_reset(probe: NodeProbe, scene: Any) -> Non
 def test_label_scheme_change_that_invalidates_the_keyframe_restarts(
     probe: NodeProbe, scene: Any
 ) -> None:
-    from mlsemreg_ros.core.labels import LabelMap
+    from mlsemreg_ros.core.matching.labels import LabelMap
 
     raw = LabelMap.load().to_raw(scene.label_dst)  # raw ids (car 10, road 40, ...)
     send(probe, scene.pts_dst, raw)
@@ -458,7 +458,7 @@ def test_a_frame_id_change_restarts_the_odometry(probe: NodeProbe, scene: Any) -
 
 def test_input_the_old_node_got_wrong_now_registers(probe: NodeProbe, scene: Any) -> None:
     """One label 20, a signed raw label -2^31, a point at 1e30, a count-0 intensity field."""
-    from mlsemreg_ros.core.labels import LabelMap
+    from mlsemreg_ros.core.matching.labels import LabelMap
 
     raw_dst = LabelMap.load().to_raw(scene.label_dst).astype(np.int64)
     raw_dst[0] = -(2**31)  # instance bits only, class 0: valid

@@ -25,8 +25,8 @@ ceiling reaches ``confidence.contradiction_min_ceiling``.
 from __future__ import annotations
 
 from dev_pairs import dev_pair_files
-from mlsemreg_ros.core import confidence
 from mlsemreg_ros.core.config import ConfidenceConfig, RegistrationConfig
+from mlsemreg_ros.core.estimation import confidence
 from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.datasets.pairs import load_pair

@@ -308,7 +308,7 @@ def test_unreadable_optional_intensity_is_ignored() -> None:
 
 
 def test_int32_raw_label_of_minus_2_31_decodes_and_converts() -> None:
-    from mlsemreg_ros.core.labels import LabelMap
+    from mlsemreg_ros.core.matching.labels import LabelMap
 
     xyz, _ = _scene(4)
     raw = np.array([0x80000000, 40 | (3 << 16), 70, 81 | (0xFFFF << 16)], dtype=np.uint32)

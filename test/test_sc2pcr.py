@@ -18,10 +18,11 @@
 from __future__ import annotations
 
 from dev_pairs import dev_pair_files
-from mlsemreg_ros.core import poses, second_order
-from mlsemreg_ros.core import sc2pcr as sc2
+from mlsemreg_ros.core import poses
 from mlsemreg_ros.core.config import EstimatorConfig
-from mlsemreg_ros.core.estimation import estimate
+from mlsemreg_ros.core.estimation import sc2pcr as sc2
+from mlsemreg_ros.core.estimation import second_order
+from mlsemreg_ros.core.estimation.estimation import estimate
 from mlsemreg_ros.core.rigid import apply_transform
 import numpy as np
 import pytest

@@ -18,9 +18,9 @@ from __future__ import annotations
 
 import warnings
 
-from mlsemreg_ros.core import features
 from mlsemreg_ros.core.config import ConfigError, field_of, RegistrationConfig
-from mlsemreg_ros.core.scan_input import (
+from mlsemreg_ros.core.features import features
+from mlsemreg_ros.core.features.scan_input import (
     MAX_RANGE_LIMIT_M,
     sanitize_scan,
     sanitize_scan_for,

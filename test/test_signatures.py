@@ -14,14 +14,14 @@
 """Known-answer and property tests of Local-SS (eq. 1), BMR-SS (eq. 5) and eq. 6."""
 
 from mlsemreg_ros.core import threads as thread_settings
-from mlsemreg_ros.core.labels import LabelMap
-from mlsemreg_ros.core.results import Landmarks
-from mlsemreg_ros.core.signatures import (
+from mlsemreg_ros.core.matching.labels import LabelMap
+from mlsemreg_ros.core.matching.signatures import (
     binary_multi_ring_signature,
     bmr_signature_sparse,
     local_semantic_signature,
     scene_similarity,
 )
+from mlsemreg_ros.core.results import Landmarks
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree

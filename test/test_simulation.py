@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import dataclasses
 
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.simulation.degrade import boundary_blur, random_flips
 from mlsemreg_ros.simulation.lidar import Lidar, LidarConfig
 from mlsemreg_ros.simulation.sequence import Simulation, SimulationConfig

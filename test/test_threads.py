@@ -17,7 +17,7 @@ import threading
 
 from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.features import fpfh_open3d_at, valid_descriptor_mask
+from mlsemreg_ros.core.features.features import fpfh_open3d_at, valid_descriptor_mask
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.threads import LazyPool
 from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
@@ -96,7 +96,7 @@ def test_descriptor_choice_reaches_the_pipeline():
 def test_checking_a_config_changes_no_thread_count():
     """Registration.check validates class names without configuring the process's pools."""
     from mlsemreg_ros.core.config import ConfigError
-    from mlsemreg_ros.core.labels import LabelMap
+    from mlsemreg_ros.core.matching.labels import LabelMap
     import pytest
 
     before = threads.workers()

@@ -246,8 +246,8 @@ def test_storage_urls() -> None:
 @pytest.fixture(scope='module')
 def pair_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """One small generated pair with keypoints and a stand-in 'gedi' descriptor (FPFH)."""
-    from mlsemreg_ros.core.features import sample_keypoints
-    from mlsemreg_ros.core.fpfh import fpfh_at_keypoints
+    from mlsemreg_ros.core.features.features import sample_keypoints
+    from mlsemreg_ros.core.features.fpfh import fpfh_at_keypoints
     from mlsemreg_ros.datasets.pairs import save_pair
     from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 

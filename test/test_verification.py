@@ -17,18 +17,18 @@
 from __future__ import annotations
 
 from mlsemreg_ros.core.config import ConfigError, RegistrationConfig, VerificationConfig
-from mlsemreg_ros.core.labels import LabelMap
-from mlsemreg_ros.core.pipeline import Registration
-from mlsemreg_ros.core.poses import distinct_hypotheses
-from mlsemreg_ros.core.results import Landmarks, PreparedScan
-from mlsemreg_ros.core.rigid import apply_transform, invert_transform
-from mlsemreg_ros.core.verification import (
+from mlsemreg_ros.core.estimation.verification import (
     area_weights,
     choose,
     combined_score,
     dense_scores,
     label_compatibility,
 )
+from mlsemreg_ros.core.matching.labels import LabelMap
+from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.core.poses import distinct_hypotheses
+from mlsemreg_ros.core.results import Landmarks, PreparedScan
+from mlsemreg_ros.core.rigid import apply_transform, invert_transform
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation

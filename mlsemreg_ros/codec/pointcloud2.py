@@ -28,7 +28,7 @@ Only ``x, y, z`` and the label field are required. Fields with ``count 0`` are
 ignored wherever they are (a required one then counts as missing), and so is an
 optional ``intensity`` field that cannot be read (count above 1, unknown
 datatype); :attr:`CloudArrays.ignored_fields` names them. Labels are returned
-as stored (int64); :meth:`mlsemreg_ros.core.labels.LabelMap.convert` reads them as
+as stored (int64); :meth:`mlsemreg_ros.core.matching.labels.LabelMap.convert` reads them as
 uint32 bit patterns, so an int32 raw label of -2**31 (instance bits set, class 0)
 is an ordinary raw id.
 """

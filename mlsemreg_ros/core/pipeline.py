@@ -34,28 +34,31 @@ import functools
 import time
 from typing import Any
 
-from mlsemreg_ros.core import (
-    bev_search,
-    confidence,
-    features,
-    fpfh,
-    label_model,
-    landmarks,
-    matching,
-    signatures,
-    threads,
-)
-from mlsemreg_ros.core.alignment import align_pair, Alignment
-from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.estimation import estimate
-from mlsemreg_ros.core.fine_alignment import (
+from mlsemreg_ros.core import threads
+from mlsemreg_ros.core.alignment.alignment import align_pair, Alignment
+from mlsemreg_ros.core.alignment.fine_alignment import (
     alignment_cloud,
     correction_refusal,
     refinement_refusal,
     RefinementBounds,
 )
-from mlsemreg_ros.core.guided import guided_correspondences
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.estimation import bev_search, confidence, label_model
+from mlsemreg_ros.core.estimation.estimation import estimate
+from mlsemreg_ros.core.estimation.guided import guided_correspondences
+from mlsemreg_ros.core.estimation.verification import (
+    combined_score,
+    dense_scores,
+    distinctive_scores,
+    label_compatibility,
+    LabelCompatibility,
+    score_hypotheses,
+    verify_hypotheses,
+)
+from mlsemreg_ros.core.features import features, fpfh
+from mlsemreg_ros.core.features.scan_input import sanitize_scan_for
+from mlsemreg_ros.core.matching import landmarks, matching, signatures
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.poses import same_pose
 from mlsemreg_ros.core.results import (
     Correspondences,
@@ -65,17 +68,7 @@ from mlsemreg_ros.core.results import (
     RegistrationResult,
     VerificationResult,
 )
-from mlsemreg_ros.core.scan_input import sanitize_scan_for
 from mlsemreg_ros.core.threads import LazyPool
-from mlsemreg_ros.core.verification import (
-    combined_score,
-    dense_scores,
-    distinctive_scores,
-    label_compatibility,
-    LabelCompatibility,
-    score_hypotheses,
-    verify_hypotheses,
-)
 import numpy as np
 
 
@@ -161,7 +154,7 @@ class Registration:
         Feed an accepted pose's label co-occurrence to the adaptive label model.
 
         A no-op unless ``confidence.label_model`` is ``adaptive``; the odometry calls it for
-        every accepted scan against its keyframe (core/label_model.py).
+        every accepted scan against its keyframe (core/estimation/label_model.py).
         """
         if self.label_model is None:
             return
@@ -349,7 +342,7 @@ class Registration:
             estimate_result = estimate(src_pts, dst_pts, cfg.estimator)
         transform = estimate_result.transform
         diagnostics.update(estimate_result.diagnostics)
-        # 2b. hypothesis verification on the dense labeled scans (core/verification.py)
+        # 2b. hypothesis verification on the dense labeled scans (core/estimation/verification.py)
         verified = None
         if cfg.verification.enabled:
             with _timed(timings, 'verification_ms'):
@@ -366,7 +359,7 @@ class Registration:
             transform = verified.T_target_source
             diagnostics.update(verified.diagnostics)
         # 2c. confidence: sparse and dense evidence must agree, no rival may come close
-        # (core/confidence.py, docs/hard_pairs.md)
+        # (core/estimation/confidence.py, docs/hard_pairs.md)
         with _timed(timings, 'confidence_ms'):
             measure = functools.partial(self._distinctive_of, source=source, target=target)
             pool = _Pool.of(verified, measure)
@@ -377,8 +370,10 @@ class Registration:
                 transform, src_pts, dst_pts, pool, chosen, source, target
             )
         refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
-        # 2d. refused or weak: search the scans themselves (core/bev_search.py); 2e. still
-        # refused: match again around the best peaks (core/guided.py). Every new candidate
+        # 2d. refused or weak: search the scans themselves (core/estimation/bev_search.py); 2e.
+        # still
+        # refused: match again around the best peaks (core/estimation/guided.py). Every new
+        # candidate
         # joins the pool, the choice and the rivals.
         weak = evidence.num_inliers < cfg.bev_search.weak_inliers
         if (refused or weak) and verified is not None and cfg.bev_search.enabled:
@@ -477,7 +472,7 @@ class Registration:
 
         Besides the sparse and dense scores: the distinctive structure it lines up and its
         best rival (other candidates of ``pool``, the zero motion, its slides;
-        :mod:`mlsemreg_ros.core.confidence`).
+        :mod:`mlsemreg_ros.core.estimation.confidence`).
         """
         cfg = self.config
         residual = np.linalg.norm(
@@ -616,7 +611,7 @@ class Registration:
 
         For each, correspondences only within ``bev_search.guided_radius`` of where the pose
         puts a source keypoint (compatible labels), then the estimator and the verification
-        again (core/guided.py). Returns their verified hypotheses (origin ``'guided'``),
+        again (core/estimation/guided.py). Returns their verified hypotheses (origin ``'guided'``),
         None when no peak gave three correspondences. Adds ``guided_*`` diagnostics.
         """
         cfg = self.config
@@ -659,7 +654,7 @@ class Registration:
     def _distinctive_of(
         self, transforms: np.ndarray, source: PreparedScan, target: PreparedScan
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:func:`distinctive_scores` (``core/verification.py``) of ``transforms``."""
+        """:func:`distinctive_scores` (``core/estimation/verification.py``) of ``transforms``."""
         return distinctive_scores(
             transforms,
             source,

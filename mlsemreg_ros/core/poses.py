@@ -15,8 +15,10 @@
 """
 Pose helpers shared by the estimators: residuals, pose equality within bounds, NMS of poses.
 
-SC2-PCR (``core/sc2pcr.py``), the hypothesis verification (``core/verification.py``), the
-BEV search (``core/bev_search.py``) and the odometry's decision use the same definition of
+SC2-PCR (``core/estimation/sc2pcr.py``), the hypothesis verification
+(``core/estimation/verification.py``), the
+BEV search (``core/estimation/bev_search.py``) and the odometry's decision use the same definition
+of
 "the same pose": within a rotation *and* a translation bound, as in the success test of
 the evaluation protocol.
 """

@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 if TYPE_CHECKING:  # small_gicp is only needed where the fine alignment runs
-    from mlsemreg_ros.core.alignment import Alignment, AlignmentCloud
+    from mlsemreg_ros.core.alignment.alignment import Alignment, AlignmentCloud
 
 
 @dataclass
@@ -76,7 +76,7 @@ class PreparedScan:
         default=None, repr=False, compare=False
     )
     #: (N,) bool: points the odometry keeps out of its local map and fine alignment (moving
-    #: objects, ``core/moving_objects.py``); None: none
+    #: objects, ``core/features/moving_objects.py``); None: none
     map_excluded: np.ndarray | None = field(default=None, repr=False, compare=False)
 
     def points_tree(self) -> cKDTree:
@@ -171,7 +171,7 @@ class HypothesisScore:
     num_inliers: int  # correspondences with residual < estimator.inlier_threshold
     overlap: float  # share of sampled source points within overlap_distance of the target
     label_agreement: float  # share of the overlapping labeled points with compatible labels
-    score: float  # combined score, see core/verification.py
+    score: float  # combined score, see core/estimation/verification.py
     origin: str = 'estimator'  # where the pose came from: 'estimator' or 'bev_search'
 
 

@@ -87,8 +87,8 @@ def read_frames(
     bag: Path, voxel_size: float, max_range: float, progress: bool = True
 ) -> list[Frame]:
     """Read every scan of ``bag`` with ground truth: cropped, voxelized, in learning ids."""
-    from mlsemreg_ros.core.features import voxel_downsample
-    from mlsemreg_ros.core.labels import LabelMap
+    from mlsemreg_ros.core.features.features import voxel_downsample
+    from mlsemreg_ros.core.matching.labels import LabelMap
     from mlsemreg_ros.datasets.factory import open_scan_source
     from tqdm import tqdm
 
@@ -179,7 +179,7 @@ def make_pair(
     frames: list[Frame], choice: PairChoice, name: str, keypoints: int, seed: int
 ) -> Any:
     """Build the :class:`~mlsemreg_ros.datasets.pairs.Pair` of a choice, random keypoints."""
-    from mlsemreg_ros.core.features import sample_keypoints
+    from mlsemreg_ros.core.features.features import sample_keypoints
     from mlsemreg_ros.datasets.pairs import Pair
 
     source, target = frames[choice.source], frames[choice.target]

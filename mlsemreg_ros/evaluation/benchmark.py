@@ -25,7 +25,7 @@ pair (both clouds):
 - ``sc2pcr_ms``: the estimator (SC2-PCR by default);
 - ``verification_ms``: hypothesis verification on the dense scans (0 when
   ``verification.enabled`` is false), the target's KD-tree included;
-- ``bev_search_ms``: the BEV search (core/bev_search.py), which runs only when the
+- ``bev_search_ms``: the BEV search (core/estimation/bev_search.py), which runs only when the
   estimate is refused (e.g. too few inliers at few keypoints), else 0;
 - ``fine_ms``: the fine alignment of the pair (``fine.pair_method``, GICP by default,
   on the prepared scans; their covariances included; 0 when off);
@@ -77,7 +77,7 @@ def generated_pair(seed: int = 0, keypoints: int = 5000) -> Any:
     The scene (ground, facades, cars, poles, trunks, signs) comes from
     :mod:`mlsemreg_ros.datasets.synthetic_scene`; ``trans_gt`` is the known motion.
     """
-    from mlsemreg_ros.core.features import sample_keypoints
+    from mlsemreg_ros.core.features.features import sample_keypoints
     from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
     import numpy as np
 

@@ -17,7 +17,7 @@ The confidence study: the evidence of right and wrong registrations, side by sid
 
 Registers scan pairs of known outcome with the node's registration (own keypoints and
 FPFH, the configured thresholds, so a refused estimate goes on to the BEV search) and
-records what the returned pose offers as proof (core/confidence.py; computed whatever
+records what the returned pose offers as proof (core/estimation/confidence.py; computed whatever
 the thresholds): sparse inliers and inlier ratio, dense overlap and label agreement of
 the chosen pose, the fine alignment's inlier share.
 
@@ -159,13 +159,13 @@ def measure(
     Register every case; one row of the evidence of the returned pose and its outcome each.
 
     The registration runs with ``config`` as it is, so a refused estimate goes on to the
-    BEV search (core/bev_search.py) and the row holds the pose finally returned; the
+    BEV search (core/estimation/bev_search.py) and the row holds the pose finally returned; the
     evidence is computed whatever the thresholds. ``accepted`` is whether ``config``'s
     thresholds accept it (the pipeline's ``success``).
     """
     import dataclasses
 
-    from mlsemreg_ros.core import confidence
+    from mlsemreg_ros.core.estimation import confidence
     from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
     from mlsemreg_ros.core.pipeline import Registration
     from tqdm import tqdm

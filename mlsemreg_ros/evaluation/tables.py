@@ -154,7 +154,7 @@ def pair_results_table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> R
 
 
 def _accepted(row: dict[str, Any]) -> str:
-    """Return a pair's verdict (core/confidence.py); ``+bev``: a BEV search pose."""
+    """Return a pair's verdict (core/estimation/confidence.py); ``+bev``: a BEV search pose."""
     verdict = 'yes' if row.get('accepted', True) else 'no'
     return verdict + (' +bev' if row.get('bev_search') else '')
 

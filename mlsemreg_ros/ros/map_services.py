@@ -15,7 +15,7 @@
 """
 The node's map interface: ``map -> odom``, relocalization and saving (docs/maps.md).
 
-The core (:class:`mlsemreg_ros.core.localization.MapLocalization`) owns the state; this
+The core (:class:`mlsemreg_ros.core.maps.localization.MapLocalization`) owns the state; this
 layer converts and publishes:
 
 - publishes ``mlsemreg/map_pose`` (geometry_msgs/TransformStamped ``T_map_odom``: header
@@ -36,8 +36,8 @@ from __future__ import annotations
 from typing import Any
 
 from geometry_msgs.msg import TransformStamped
-from mlsemreg_ros.core.localization import LocalizationUpdate, MapLocalization
-from mlsemreg_ros.core.map_io import load_store, MapError
+from mlsemreg_ros.core.maps.localization import LocalizationUpdate, MapLocalization
+from mlsemreg_ros.core.maps.map_io import load_store, MapError
 from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.ros import messages
 from nav_msgs.msg import Path

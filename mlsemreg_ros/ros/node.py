@@ -60,16 +60,16 @@ from mlsemreg_ros.codec.pointcloud2 import (
     PointCloudError,
 )
 from mlsemreg_ros.codec.stamps import stamp_to_ns, stamp_to_seconds
-from mlsemreg_ros.core import kernels
-from mlsemreg_ros.core.alignment import UNKNOWN_VARIANCE
+from mlsemreg_ros.core.alignment.alignment import UNKNOWN_VARIANCE
 from mlsemreg_ros.core.config import ConfigError, NODE_NAME
-from mlsemreg_ros.core.labels import LabelError, LabelMap
+from mlsemreg_ros.core.features import kernels
+from mlsemreg_ros.core.features.warm_up import warm_up
+from mlsemreg_ros.core.matching.labels import LabelError, LabelMap
 from mlsemreg_ros.core.odometry import Odometry as ScanOdometry
 from mlsemreg_ros.core.odometry import OdometryStep
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
-from mlsemreg_ros.core.warm_up import warm_up
 from mlsemreg_ros.ros import messages
 from mlsemreg_ros.ros.extrinsic import ExtrinsicSource, to_base
 from mlsemreg_ros.ros.map_services import MapServices

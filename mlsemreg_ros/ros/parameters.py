@@ -32,7 +32,7 @@ import threading
 from typing import Any
 
 from mlsemreg_ros.core.config import ConfigError, RegistrationConfig
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.ros.node_config import all_parameter_fields, NodeConfig, READ_ONLY
 from rcl_interfaces.msg import (

@@ -41,7 +41,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.simulation.field_lidar import FieldLidar, FieldScan, LabeledMesh
 from mlsemreg_ros.simulation.inertial import (
     ImuConfig,

@@ -48,7 +48,7 @@ per-class IoU the model reaches in the simulated world.
 
 from __future__ import annotations
 
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.simulation.field_lidar import FieldScan
 import numpy as np
 

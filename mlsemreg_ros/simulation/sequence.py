@@ -26,7 +26,7 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.simulation.degrade import boundary_blur, random_flips
 from mlsemreg_ros.simulation.lidar import Lidar, LidarConfig, LidarScan
 from mlsemreg_ros.simulation.trajectory import Path2D, plan_route, sensor_poses, TrajectoryConfig

@@ -32,7 +32,7 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import dataclass, field
 
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.simulation import primitives as prim
 from mlsemreg_ros.simulation.primitives import Mesh
 import numpy as np

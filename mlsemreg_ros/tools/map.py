@@ -81,7 +81,7 @@ def build(
 ) -> int:
     """Build a map folder from a bag."""
     from mlsemreg_ros.core.config import RegistrationConfig
-    from mlsemreg_ros.core.map_io import MapError, save_map
+    from mlsemreg_ros.core.maps.map_io import MapError, save_map
     from mlsemreg_ros.datasets.factory import open_scan_source
     from mlsemreg_ros.datasets.source import SourceError
     from mlsemreg_ros.evaluation.tables import print_text
@@ -136,7 +136,7 @@ def build_map(
     progress: bool = False,
 ) -> dict[str, Any]:
     """Map a scan source; returns the mapper and a summary (keyframes, loops, ATE)."""
-    from mlsemreg_ros.core.mapping import Mapper
+    from mlsemreg_ros.core.maps.mapping import Mapper
     from mlsemreg_ros.core.metrics import ate_rmse
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
@@ -352,7 +352,7 @@ def pair_chain(
 ) -> int:
     """Map of the even frames of a pair chain, queries of the odd ones (docs/maps.md)."""
     from mlsemreg_ros.core.config import RegistrationConfig
-    from mlsemreg_ros.core.labels import LabelMap
+    from mlsemreg_ros.core.matching.labels import LabelMap
     from mlsemreg_ros.datasets.pair_chain import chain_frames
     from mlsemreg_ros.evaluation.tables import print_text
 
@@ -377,8 +377,8 @@ def write_pair_chain(
     frames: list, out_map: Path, out_queries: Path, config: Any, label_map: Any
 ) -> None:
     """Even frames as map keyframes (at their chained poses), odd frames as queries."""
-    from mlsemreg_ros.core.keyframe_store import KeyframeStore
-    from mlsemreg_ros.core.map_io import save_map
+    from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
+    from mlsemreg_ros.core.maps.map_io import save_map
 
     store = KeyframeStore(config.replace({'map.max_keyframes': 10**6}), label_map)
     for frame in frames[::2]:

@@ -63,9 +63,9 @@ def relocalize(
 ) -> int:
     """Relocalize the queries against the map and print the recall (alias mlsemreg-relocalize)."""
     from mlsemreg_ros.core.config import RegistrationConfig
-    from mlsemreg_ros.core.map_io import load_map, MapError
+    from mlsemreg_ros.core.maps.map_io import load_map, MapError
+    from mlsemreg_ros.core.maps.relocalization import Relocalizer
     from mlsemreg_ros.core.pipeline import Registration
-    from mlsemreg_ros.core.relocalization import Relocalizer
     from mlsemreg_ros.evaluation.tables import print_table, print_text, ResultTable
 
     try:
@@ -225,7 +225,7 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
 
 def duplicated(keyframes: list[Any], copies: int) -> list[Any]:
     """Every keyframe ``copies`` times, at the same pose (scale tests)."""
-    from mlsemreg_ros.core.map_io import MapKeyframe
+    from mlsemreg_ros.core.maps.map_io import MapKeyframe
 
     out = []
     for _ in range(copies):

@@ -19,7 +19,11 @@ The LiDAR odometry, one module per job (``docs/extending.md``).
 names the node, the evaluation and the tests import from ``mlsemreg_ros.core.odometry``.
 """
 
-from mlsemreg_ros.core.fine_alignment import Candidate, FRACTION_HISTORY, MAX_TRACKING_GAP
+from mlsemreg_ros.core.alignment.fine_alignment import (
+    Candidate,
+    FRACTION_HISTORY,
+    MAX_TRACKING_GAP,
+)
 from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate, GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (
     is_new_keyframe,

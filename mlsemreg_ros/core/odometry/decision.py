@@ -20,7 +20,7 @@ The choice between candidates of the current pose (never a silent jump).
 ``odometry.min_inlier_fraction`` of the scan as map inliers, at least
 ``odometry.min_relative_inlier_fraction`` of the median fraction of the last accepted
 frames, and moved its initial guess by at most ``odometry.max_correction_*``
-(``core/fine_alignment.py``). Without an acceptable candidate the frame is rejected.
+(``core/alignment/fine_alignment.py``). Without an acceptable candidate the frame is rejected.
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ from __future__ import annotations
 from collections.abc import Callable
 import time
 
+from mlsemreg_ros.core.alignment.fine_alignment import Candidate
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.fine_alignment import Candidate
 from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
 from mlsemreg_ros.core.odometry.steps import Decision, sparse_inlier_covariance
 from mlsemreg_ros.core.poses import within_bounds

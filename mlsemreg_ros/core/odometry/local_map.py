@@ -33,7 +33,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from mlsemreg_ros.core import threads
-from mlsemreg_ros.core.alignment import (
+from mlsemreg_ros.core.alignment.alignment import (
     _alignment,
     _failed,
     _REGISTRATION_TYPES,

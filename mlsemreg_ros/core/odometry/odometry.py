@@ -44,8 +44,8 @@ Per scan (:meth:`Odometry.process`)::
 **Global registration on demand** (``odometry.global_registration: on_demand``, default).
 ML-SemReg + SC2-PCR is what makes the odometry robust (it registers scans 16 m apart and
 after a jump), and it is the expensive part. A scan is *tracked* by the refined
-prediction alone only when that can be trusted (``core/fine_alignment.py``,
-:func:`~mlsemreg_ros.core.fine_alignment.tracking_refusal`). Every other scan is
+prediction alone only when that can be trusted (``core/alignment/fine_alignment.py``,
+:func:`~mlsemreg_ros.core.alignment.fine_alignment.tracking_refusal`). Every other scan is
 registered globally; ``always`` registers every scan.
 
 The decision (:func:`~mlsemreg_ros.core.odometry.decision.decide`) never publishes a silent
@@ -63,10 +63,10 @@ from __future__ import annotations
 from collections import deque
 import time
 
+from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud, Candidate
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.deskew import MAX_DESKEW_WINDOW, sweep_motion, SweepMotion
-from mlsemreg_ros.core.fine_alignment import alignment_cloud, Candidate
-from mlsemreg_ros.core.moving_objects import MovingObjectFilter
+from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, sweep_motion, SweepMotion
+from mlsemreg_ros.core.features.moving_objects import MovingObjectFilter
 from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (

@@ -15,7 +15,7 @@
 """
 Preprocessing: a raw scan in, the lazily prepared scan out (``docs/extending.md``).
 
-    deskew(points, point_times, motion)  points mapped to the stamp (core/deskew.py), when
+    deskew(points, point_times, motion)  points mapped to the stamp (core/features/deskew.py), when
                                          preprocess.deskew allows it and the scan has times
                                          and the motion within the sweep is known
     registration.prepare(lazy=True)      sanitize, labels, voxelize, keypoints; descriptors
@@ -28,7 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from mlsemreg_ros.core import deskew
+from mlsemreg_ros.core.features import deskew
 from mlsemreg_ros.core.results import PreparedScan
 import numpy as np
 

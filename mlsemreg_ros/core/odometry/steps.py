@@ -26,8 +26,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from mlsemreg_ros.core.alignment import UNKNOWN_VARIANCE
-from mlsemreg_ros.core.fine_alignment import Candidate
+from mlsemreg_ros.core.alignment.alignment import UNKNOWN_VARIANCE
+from mlsemreg_ros.core.alignment.fine_alignment import Candidate
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
@@ -66,7 +66,7 @@ class OdometryStep:
     twist_covariance: np.ndarray | None = None  # (6, 6)
     candidates: list[Candidate] = field(default_factory=list)
     map_voxels: int = 0  # local map size after this frame
-    deskewed: bool = False  # the scan was motion-compensated (core/deskew.py)
+    deskewed: bool = False  # the scan was motion-compensated (core/features/deskew.py)
 
 
 @dataclass

@@ -16,7 +16,7 @@
 Tracking against the local map: candidates, the trust rule and its state.
 
 A candidate is an initial guess of ``T_odom_current`` refined against the map and judged
-by the rules of ``core/fine_alignment.py`` (absolute bounds, then the inlier fraction
+by the rules of ``core/alignment/fine_alignment.py`` (absolute bounds, then the inlier fraction
 relative to the last accepted frames). A scan is *tracked* (accepted by its refined
 prediction alone, no global registration) when :func:`tracking_refusal` finds nothing.
 """
@@ -25,9 +25,8 @@ from __future__ import annotations
 
 import time
 
-from mlsemreg_ros.core.alignment import AlignmentCloud
-from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.fine_alignment import (
+from mlsemreg_ros.core.alignment.alignment import AlignmentCloud
+from mlsemreg_ros.core.alignment.fine_alignment import (
     alignment_cloud,
     Candidate,
     InlierHistory,
@@ -36,6 +35,7 @@ from mlsemreg_ros.core.fine_alignment import (
     relative_inlier_refusal,
     tracking_refusal,
 )
+from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry.local_map import LocalMap
 from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.steps import Decision

@@ -15,7 +15,7 @@
 """
 The search of the matcher: descriptor nearest neighbours under the Mask Matching masks.
 
-The engine of :func:`mlsemreg_ros.core.matching.semantic_match` (paper eq. 6-8; the steps
+The engine of :func:`mlsemreg_ros.core.matching.matching.semantic_match` (paper eq. 6-8; the steps
 are listed in that module's docstring): the scene similarity built per chunk of source
 rows from the targets' BMR-SS patterns, the sparse candidates of the restrictive rows
 (:func:`_masked_candidates`), the dense nearest neighbours of the permissive ones

@@ -21,7 +21,7 @@ rule accepted). The first keyframe is fixed by a tight prior. Odometry edges get
 deviations proportional to the distance travelled (``map.odometry_sigma_*`` per metre,
 at least 0.1 m worth); loop edges ``map.loop_sigma_*`` (Gaussian: a loop edge is only
 added after the confidence rule accepted its registration and its pose lay within
-``map.loop_search_radius`` of the drifting one, core/mapping.py; a robust kernel would
+``map.loop_search_radius`` of the drifting one, core/maps/mapping.py; a robust kernel would
 let the odometry keep part of the drift it is meant to remove). The solver is GTSAM's
 Levenberg-Marquardt.
 """

@@ -22,7 +22,7 @@ give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in
 - **sparse**: at least ``estimator.min_inliers`` inliers and an inlier ratio (inliers /
   correspondences) of at least ``confidence.min_inlier_ratio``;
 - **dense** (the chosen pose applied to the voxelized scans, as hypothesis verification
-  scores it, :func:`mlsemreg_ros.core.verification.dense_scores`): at least
+  scores it, :func:`mlsemreg_ros.core.estimation.verification.dense_scores`): at least
   ``confidence.min_overlap`` of the seen surface of the source scan lies on the target
   scan, and at least ``confidence.min_label_agreement`` of those overlapping points
   carry the same (or a compatible) label;
@@ -67,7 +67,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 from mlsemreg_ros.core.config import ConfidenceConfig
-from mlsemreg_ros.core.label_model import label_refusal
+from mlsemreg_ros.core.estimation.label_model import label_refusal
 import numpy as np
 
 
@@ -88,7 +88,7 @@ class Evidence:
     rival_distinctive_overlap: float = 0.0  # largest distinctive share of a close rival
     rival: str = ''  # what the best rival is (e.g. 'zero motion', 'slide 5 m', 'bev_search')
     rival_distinctive_objects: int = 0  # most distinctive objects a close rival lines up
-    #: label agreement these labels can give (core/label_model.py); NaN: unknown
+    #: label agreement these labels can give (core/estimation/label_model.py); NaN: unknown
     label_ceiling: float = float('nan')
 
     @property
@@ -146,7 +146,8 @@ def labels_clean_enough(evidence: Evidence, config: ConfidenceConfig) -> bool:
     With noisy labels, mislabeled points of ``confidence.distinctive_classes`` on walls and
     road form source "objects" that land in the target's view and cannot line up: with 20 %
     of the source labels random, the right dev poses put 8-31 objects in view and line up
-    1-6 of them. Their label ceiling (:func:`~mlsemreg_ros.core.label_model.label_ceiling`)
+    1-6 of them. Their label ceiling
+    (:func:`~mlsemreg_ros.core.estimation.label_model.label_ceiling`)
     says so: 0.74-0.81 there, at least 0.90 on the clean dev pairs. Below
     ``confidence.contradiction_min_ceiling`` the check is skipped; an unknown (NaN) ceiling
     keeps it.

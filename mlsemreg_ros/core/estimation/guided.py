@@ -19,15 +19,15 @@ Scans 40-60 m apart share a small part of their keypoints; among thousands of gl
 nearest-neighbour matches, the few true ones do not form the densest compatible clique,
 and SC2-PCR seeds elsewhere (on dev pair 000007 it never seeds where the true inliers are).
 A pose hypothesis that does not come from the correspondences (the BEV search's peaks,
-core/bev_search.py) says where each source keypoint should land: matching it only among
+core/estimation/bev_search.py) says where each source keypoint should land: matching it only among
 the target keypoints within ``radius`` of that place (and of a compatible label) keeps
 the true matches and drops most false ones. SC2-PCR then runs again on them.
 """
 
 from __future__ import annotations
 
+from mlsemreg_ros.core.estimation.verification import LabelCompatibility
 from mlsemreg_ros.core.results import Correspondences, PreparedScan
-from mlsemreg_ros.core.verification import LabelCompatibility
 import numpy as np
 from scipy.spatial import cKDTree
 

@@ -85,7 +85,7 @@ class MovingObjectFilter:
     """
     Masks of the points ``moving_objects`` filters, on raw and on prepared scans.
 
-    ``label_map`` is the registration's :class:`~mlsemreg_ros.core.labels.LabelMap`
+    ``label_map`` is the registration's :class:`~mlsemreg_ros.core.matching.labels.LabelMap`
     (class names to learning ids, raw to learning ids).
     """
 
@@ -110,7 +110,7 @@ class MovingObjectFilter:
 
         ``labels`` are the scan's labels as they arrive (raw or learning ids, any dtype);
         ``scheme`` is ``semantic.label_scheme``. Raises
-        :class:`~mlsemreg_ros.core.labels.LabelError` for labels that cannot be read.
+        :class:`~mlsemreg_ros.core.matching.labels.LabelError` for labels that cannot be read.
         """
         if config.map_filter == 'off' or len(labels) == 0:
             return None
@@ -155,7 +155,7 @@ class MovingObjectFilter:
 
 def _semantic_ids(labels: np.ndarray) -> np.ndarray:
     """
-    Return the lower 16 bits of labels read as uint32 patterns (``core/labels.py`` rules).
+    Return the lower 16 bits of labels read as uint32 patterns (``core/matching/labels.py`` rules).
 
     Non-finite or non-integral float labels read as 0 here; the scan's preparation
     rejects them with a clear error.

@@ -19,7 +19,7 @@ Coordinate hygiene of one scan, before voxelization (issue 11, "input hygiene").
 outside ``[min_range, max_range]`` from the sensor (the origin of the scan's
 frame), and counts each kind. It is the guard of the voxel grid: with every
 kept point within ``max_range`` (at most ``1e6`` m, ``features.max_range``) the
-integer voxel keys of :func:`mlsemreg_ros.core.features.voxel_groups` cannot
+integer voxel keys of :func:`mlsemreg_ros.core.features.features.voxel_groups` cannot
 overflow, whereas one point at 1e30 collapses a 17,600-voxel scan to 32 voxels.
 """
 

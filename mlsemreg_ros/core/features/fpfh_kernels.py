@@ -14,7 +14,7 @@
 """
 Compiled FPFH passes (numba): one loop over the point pairs per step.
 
-Each kernel is the twin of a NumPy step of :mod:`mlsemreg_ros.core.fpfh`
+Each kernel is the twin of a NumPy step of :mod:`mlsemreg_ros.core.features.fpfh`
 (FPFH: Rusu et al., "Fast Point Feature Histograms (FPFH) for 3D Registration",
 ICRA 2009) and performs the same floating-point operations in the same order:
 float32 pair geometry, float64 sums accumulated in pair order as ``np.bincount``
@@ -28,7 +28,7 @@ for bit on the same machine (tested).
 
 from __future__ import annotations
 
-from mlsemreg_ros.core.kernels import jit
+from mlsemreg_ros.core.features.kernels import jit
 import numpy as np
 
 _F0 = np.float32(0.0)
@@ -77,7 +77,7 @@ def covariances(
     """
     (n, 6) neighbourhood covariances ``[c00, c01, c02, c11, c12, c22]`` (float64).
 
-    Twin of the accumulation in :func:`mlsemreg_ros.core.fpfh.estimate_normals` over the
+    Twin of the accumulation in :func:`mlsemreg_ros.core.features.fpfh.estimate_normals` over the
     offsets ``use`` of ``offset`` (3, E): ``second`` empty means one owner per offset,
     else unordered pairs (the offset leads from ``first`` to ``second``).
     """
@@ -127,7 +127,7 @@ def pair_angles(
     index_b: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """
-    Twin of :func:`mlsemreg_ros.core.fpfh.pair_feature_bins` up to its ``arctan2``.
+    Twin of :func:`mlsemreg_ros.core.features.fpfh.pair_feature_bins` up to its ``arctan2``.
 
     Pair ``e`` joins ``normals_a[:, index_a[e]]`` (at the start of ``delta[:, e]``) and
     ``normals_b[:, index_b[e]]``. Returns the arguments ``(y, x)`` (float32) of alpha's
@@ -188,7 +188,7 @@ def histograms(
     alpha: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """
-    SPFH of :func:`mlsemreg_ros.core.fpfh.simplified_histograms` as ``(counts, scale)``.
+    SPFH of :func:`mlsemreg_ros.core.features.fpfh.simplified_histograms` as ``(counts, scale)``.
 
     ``SPFH[i, k] = counts[i, k] * scale[i]`` (float64, ``scale = 100 / max(degree, 1)``):
     (n, 33) int32 counts are a quarter of the memory the neighbour sums read. Fills
@@ -273,7 +273,7 @@ def support_neighbour_sums(
     """
     Sum ``SPFH[k] / d_k^2`` over the support pairs of each support point of ``rows``.
 
-    The product of :func:`mlsemreg_ros.core.fpfh._pair_weights` with the SPFH; returns
+    The product of :func:`mlsemreg_ros.core.features.fpfh._pair_weights` with the SPFH; returns
     (len(rows), 33) float64.
     """
     position = np.full(n, -1, dtype=np.int64)
@@ -315,7 +315,7 @@ def keypoint_neighbour_sums(
 @jit
 def eigen_setup(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """
-    First half of :func:`mlsemreg_ros.core.fpfh.smallest_eigenvectors`, per (N, 6) row.
+    First half of :func:`mlsemreg_ros.core.features.fpfh.smallest_eigenvectors`, per (N, 6) row.
 
     Returns ``q`` (the mean eigenvalue), ``p`` and the numerator of the scaled determinant
     ``det = numerator / max(p, 0 -> 1) ** 3``; NumPy then takes the power, ``arccos`` and
@@ -352,7 +352,7 @@ def eigen_vectors(
     covariance: np.ndarray, q: np.ndarray, p: np.ndarray, cosine: np.ndarray, points: np.ndarray
 ) -> np.ndarray:
     """
-    Finish the solver and orient as :func:`mlsemreg_ros.core.fpfh.orient_normals` does.
+    Finish the solver and orient as :func:`mlsemreg_ros.core.features.fpfh.orient_normals` does.
 
     ``cosine`` = ``cos(phi + 2 pi / 3)`` from NumPy. Returns (3, N) float32 unit normals
     facing the origin.

@@ -18,13 +18,13 @@ Map-relative localization around the odometry: ``T_map_odom`` (docs/maps.md).
 :class:`MapLocalization` runs after every odometry step, in one of two modes:
 
 - **localization** (a map was loaded, ``map.load_path``): unlocalized at first, every scan
-  is relocalized against the map (:mod:`mlsemreg_ros.core.relocalization`) until one is
+  is relocalized against the map (:mod:`mlsemreg_ros.core.maps.relocalization`) until one is
   accepted, which gives ``T_map_odom = T_map_sensor @ inv(T_odom_sensor)``. Localized, the
   scan is registered onto the map keyframes near its predicted map pose every
   ``map.track_distance`` metres; an accepted registration within
   ``map.loop_search_radius`` of the prediction corrects ``T_map_odom``. The map stays as it
   was loaded.
-- **mapping** (no map): accepted scans feed a :class:`~mlsemreg_ros.core.mapping.Mapper`
+- **mapping** (no map): accepted scans feed a :class:`~mlsemreg_ros.core.maps.mapping.Mapper`
   (keyframes, loop closures, pose graph); ``T_map_odom`` is the mapper's (identity until
   a loop closes).
 
@@ -41,10 +41,10 @@ from dataclasses import dataclass
 import threading
 from typing import Any
 
-from mlsemreg_ros.core.keyframe_store import KeyframeStore
-from mlsemreg_ros.core.mapping import Mapper
+from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
+from mlsemreg_ros.core.maps.mapping import Mapper
+from mlsemreg_ros.core.maps.relocalization import Relocalization, Relocalizer
 from mlsemreg_ros.core.pipeline import Registration
-from mlsemreg_ros.core.relocalization import Relocalization, Relocalizer
 from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
 
@@ -249,7 +249,7 @@ class MapLocalization:
 
     def save(self, path: Any) -> Any:
         """Write the map (loaded, or mapped so far with its corrected poses) to ``path``."""
-        from mlsemreg_ros.core.map_io import save_map
+        from mlsemreg_ros.core.maps.map_io import save_map
 
         with self.lock:
             return save_map(path, self.store, self.frame_id, self.registration.config)

@@ -20,13 +20,13 @@ computed at the keypoints only, and the validity mask that drops keypoints
 whose descriptor is NaN (GEDI) or all zero (FPFH of an isolated point).
 All functions are vectorized; none loops over points in Python. The voxel
 functions take ``compiled``: None uses the numba kernels of
-:mod:`mlsemreg_ros.core.kernels` when available, False the NumPy code (the
+:mod:`mlsemreg_ros.core.features.kernels` when available, False the NumPy code (the
 reference); both give the same voxels, order, centroids and labels.
 """
 
 from __future__ import annotations
 
-from mlsemreg_ros.core import kernels
+from mlsemreg_ros.core.features import kernels
 import numpy as np
 
 #: Voxel keys at or beyond this magnitude are grouped by their float values (no int64 keys).
@@ -40,7 +40,8 @@ def voxel_groups(
     Voxel id of every point: ``(inverse (N,) int64, number of occupied voxels)``.
 
     Voxels are numbered in lexicographic order of their integer (x, y, z) keys. Points
-    must be finite (ValueError otherwise; :func:`~mlsemreg_ros.core.scan_input.sanitize_scan`
+    must be finite (ValueError otherwise;
+    :func:`~mlsemreg_ros.core.features.scan_input.sanitize_scan`
     drops the others); keys beyond the exact integer range of float64 (a point at 1e30)
     are grouped exactly by their float keys, so one absurd point cannot merge the others.
     """

@@ -39,16 +39,16 @@ square of the voxel ratio (KITTI scan 000003: 746k pairs on the 0.3 m scan grid,
 128k on a 0.5 m support).
 Neighbourhoods are pure radius neighbourhoods (no ``max_nn`` cap), as in PCL.
 
-With numba (:mod:`mlsemreg_ros.core.kernels`) the passes over the pairs run as
-compiled loops (:mod:`mlsemreg_ros.core.fpfh_kernels`) that give the same
+With numba (:mod:`mlsemreg_ros.core.features.kernels`) the passes over the pairs run as
+compiled loops (:mod:`mlsemreg_ros.core.features.fpfh_kernels`) that give the same
 descriptors bit for bit; ``compiled=False`` runs the NumPy passes below.
 The one KD-tree of the support serves the normals, the features and the snapping.
 """
 
 from __future__ import annotations
 
-from mlsemreg_ros.core import fpfh_kernels, kernels
-from mlsemreg_ros.core.features import voxel_centroids
+from mlsemreg_ros.core.features import fpfh_kernels, kernels
+from mlsemreg_ros.core.features.features import voxel_centroids
 import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree

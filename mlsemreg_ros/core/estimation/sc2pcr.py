@@ -35,7 +35,7 @@ following the stages of the authors' reference code, in NumPy/SciPy for a CPU:
    is refined by reweighted least squares on its inliers.  All hypotheses are
    returned too, most inliers first (:class:`Hypotheses`):
    :func:`~mlsemreg_ros.core.poses.distinct_hypotheses` picks the best distinct ones for hypothesis
-   verification on the dense scans (``core/verification.py``, beyond the paper).
+   verification on the dense scans (``core/estimation/verification.py``, beyond the paper).
 
 Departures from the reference code, all deliberate:
 
@@ -46,7 +46,7 @@ Departures from the reference code, all deliberate:
   the refinement threshold, 1.2 m unless the inlier threshold is 0.10);
 - non-finite correspondences are ignored (never inliers);
 - a CPU work budget may keep fewer seeds than ``seed_ratio * K`` when the
-  compatibility is dense (``core/second_order.py``).
+  compatibility is dense (``core/estimation/second_order.py``).
 
 Performance (K ~ 6000 on 2 cores): ``K x K`` matrices are never dense.  The
 length consistency is computed for the upper triangle in row blocks (float32
@@ -55,7 +55,8 @@ entries with ``c < d`` are kept, as a symmetric CSR matrix (a few percent of the
 entries for plain matches, 5-20 % for ML-SemReg matches).  The SC2 rows of the
 seeds are counted without a sparse matrix product: correspondences compatible
 with many seeds as packed bit sets, the rest by enumeration
-(:func:`~mlsemreg_ros.core.second_order.second_order_compatibility`).  Matrix products are
+(:func:`~mlsemreg_ros.core.estimation.second_order.second_order_compatibility`).  Matrix products
+are
 kept small enough for OpenBLAS to run them single-threaded.
 """
 
@@ -66,10 +67,14 @@ import dataclasses
 import time
 
 from mlsemreg_ros.core.config import EstimatorConfig
+from mlsemreg_ros.core.estimation.second_order import (
+    budget_seeds,
+    seed_consensus_sets,
+    tight_compatibility,
+)
 from mlsemreg_ros.core.poses import residuals
 from mlsemreg_ros.core.results import EstimateResult, Hypotheses
 from mlsemreg_ros.core.rigid import weighted_rigid_transform
-from mlsemreg_ros.core.second_order import budget_seeds, seed_consensus_sets, tight_compatibility
 import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree

@@ -29,7 +29,7 @@ else ``<tmp>/mlsemreg_ros-numba-<uid>``. It is chosen before numba is imported;
 when numba was imported earlier with no cache directory of its own, the choice is
 written into ``numba.config.CACHE_DIR`` (it then applies to the whole process).
 
-Start-up: :func:`mlsemreg_ros.core.warm_up.warm_up` compiles (first run: seconds) or
+Start-up: :func:`mlsemreg_ros.core.features.warm_up.warm_up` compiles (first run: seconds) or
 loads from the cache (~0.15 s) every kernel. :func:`keep_freed_memory` (opt-in,
 process-wide) stops glibc from returning freed temporaries to the system at every frame.
 """
@@ -202,7 +202,7 @@ def voxel_grid(
     Occupied voxels of ``points``: ``(inverse (N,), sums (V, 3), sizes (V,))``, or None.
 
     Voxels are numbered in lexicographic order of their integer keys
-    ``floor(p / voxel_size)``, as :func:`mlsemreg_ros.core.features.voxel_groups`;
+    ``floor(p / voxel_size)``, as :func:`mlsemreg_ros.core.features.features.voxel_groups`;
     ``sums`` are the coordinate sums in point order (so ``sums / sizes`` equals the
     NumPy centroids bit for bit). None when the key extent overflows int64 (the
     caller falls back to NumPy). Cost: one hash probe per point (one per run of

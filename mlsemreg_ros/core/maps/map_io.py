@@ -37,8 +37,8 @@ import shutil
 from typing import Any
 
 from mlsemreg_ros.core.config import ConfigError, load_yaml, RegistrationConfig
-from mlsemreg_ros.core.keyframe_store import KeyframeStore
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
+from mlsemreg_ros.core.matching.labels import LabelMap
 import numpy as np
 import yaml
 

@@ -38,11 +38,11 @@ def estimate(src: np.ndarray, dst: np.ndarray, config: EstimatorConfig) -> Estim
     ``config.max_correspondences``.
     """
     if config.kind == 'sc2pcr':
-        from mlsemreg_ros.core.sc2pcr import sc2pcr
+        from mlsemreg_ros.core.estimation.sc2pcr import sc2pcr
 
         return sc2pcr(src, dst, config)
     if config.kind == 'ransac':
-        from mlsemreg_ros.core.ransac import ransac
+        from mlsemreg_ros.core.estimation.ransac import ransac
 
         return ransac(src, dst, config)
     raise ValueError(f"unknown estimator kind {config.kind!r}; expected 'sc2pcr' or 'ransac'")

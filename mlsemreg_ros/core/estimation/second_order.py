@@ -15,7 +15,7 @@
 """
 SC2-PCR's second-order compatibility of the seeds, and the CPU work budget of that stage.
 
-The stage 3 of :mod:`mlsemreg_ros.core.sc2pcr` (Chen et al., CVPR 2022, eq. 4):
+The stage 3 of :mod:`mlsemreg_ros.core.estimation.sc2pcr` (Chen et al., CVPR 2022, eq. 4):
 ``SC2 = hard ⊙ (tight @ tight)`` with ``tight_ij = c_ij < d / 2``, counted for the seed rows
 only, without a sparse matrix product: correspondences compatible with many seeds as packed
 bit sets, the rest by enumeration (:func:`second_order_compatibility`); then the consensus

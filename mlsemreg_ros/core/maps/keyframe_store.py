@@ -17,7 +17,7 @@ The keyframe store: accepted labeled keyframes in the map frame, bounded (docs/m
 
 A keyframe keeps what a map folder holds (voxelized points in its sensor frame, learning
 ids, ``T_map_keyframe``, stamp). What is derived from it is recomputed when needed and
-cached: its place descriptor (:mod:`mlsemreg_ros.core.place_recognition`, dropped when
+cached: its place descriptor (:mod:`mlsemreg_ros.core.maps.place_recognition`, dropped when
 ``map`` or ``bev_search`` change) and its prepared scan for registration (an LRU cache of
 ``map.prepared_cache`` scans, since a prepared scan with descriptors and KD-trees is many
 times the size of its points).
@@ -33,10 +33,10 @@ import collections
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
-from mlsemreg_ros.core import bev_search
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.labels import LabelMap
-from mlsemreg_ros.core.place_recognition import describe, PlaceDescriptor, PlaceIndex
+from mlsemreg_ros.core.estimation import bev_search
+from mlsemreg_ros.core.maps.place_recognition import describe, PlaceDescriptor, PlaceIndex
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.results import PreparedScan
 from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg
 import numpy as np

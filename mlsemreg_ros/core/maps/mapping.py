@@ -23,7 +23,7 @@ since the previous keyframe as its edge. With ``map.loop_closure``:
 
 1. candidates are the keyframes the trajectory left at least ``map.loop_min_travel``
    metres ago, within ``map.loop_search_radius`` of the current pose;
-2. place recognition ranks them (:mod:`mlsemreg_ros.core.place_recognition`); at most
+2. place recognition ranks them (:mod:`mlsemreg_ros.core.maps.place_recognition`); at most
    ``map.loop_candidates`` with a scan context similarity of at least
    ``map.loop_min_similarity`` are registered onto (ML-SemReg, no initial guess);
 3. a registration the confidence rule accepts, whose pose lies within
@@ -36,10 +36,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from mlsemreg_ros.core.keyframe_store import KeyframeStore, StoredKeyframe
+from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore, StoredKeyframe
+from mlsemreg_ros.core.maps.pose_graph import PoseGraph
+from mlsemreg_ros.core.maps.relocalization import Relocalizer
 from mlsemreg_ros.core.pipeline import Registration
-from mlsemreg_ros.core.pose_graph import PoseGraph
-from mlsemreg_ros.core.relocalization import Relocalizer
 from mlsemreg_ros.core.results import PreparedScan
 from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np

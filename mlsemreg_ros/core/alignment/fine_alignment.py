@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-Every rule about a fine alignment (GICP/VGICP, ``core/alignment.py``) in one place.
+Every rule about a fine alignment (GICP/VGICP, ``core/alignment/alignment.py``) in one place.
 
 Used by the pair registration (``Registration.register``, scan to scan) and by the
 odometry (``core/odometry/tracking.py``, scan to local map). It sits below both, so
@@ -31,7 +31,7 @@ from __future__ import annotations
 import collections
 from dataclasses import dataclass
 
-from mlsemreg_ros.core.alignment import Alignment, AlignmentCloud
+from mlsemreg_ros.core.alignment.alignment import Alignment, AlignmentCloud
 from mlsemreg_ros.core.config import FineAlignmentConfig, OdometryConfig
 from mlsemreg_ros.core.poses import within_bounds
 from mlsemreg_ros.core.results import PreparedScan
@@ -51,7 +51,8 @@ def alignment_cloud(
     Return the scan's fine-alignment cloud (built once, then cached on the scan).
 
     Odometry: downsampled to ``fine.downsampling_resolution``, ``fine.num_neighbors``,
-    without the points of ``scan.map_excluded`` (moving objects, ``core/moving_objects.py``).
+    without the points of ``scan.map_excluded`` (moving objects,
+    ``core/features/moving_objects.py``).
     Pairs (``pair=True``): the prepared scan as it is, ``fine.pair_num_neighbors``.
     """
     key = (

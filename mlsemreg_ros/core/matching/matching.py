@@ -40,7 +40,7 @@ The engine (:func:`semantic_match`) is exact and avoids the dense |P| x |Q| x |b
    targets that are a candidate of some row of the chunk (rows are ordered by BMR-SS, so
    a chunk holds neighbouring keypoints). When thin landmark evidence makes more than
    ``_DENSE_FRACTION`` of a chunk candidates, the chunk is resolved densely instead (same
-   distances, same winners). Steps 2-4 are in ``core/mask_search.py``.
+   distances, same winners). Steps 2-4 are in ``core/matching/mask_search.py``.
 4. Per (row, group) the winner is the smallest packed key (distance bits << 32 | index);
    MNN checks the same keys in the other direction. The reported distance of each
    correspondence is recomputed directly, so it does not depend on the BLAS blocking.
@@ -53,7 +53,7 @@ import time
 from typing import Any
 
 from mlsemreg_ros.core.config import SemanticConfig
-from mlsemreg_ros.core.mask_search import (
+from mlsemreg_ros.core.matching.mask_search import (
     _add_time,
     _dense_bits,
     _dense_group_nn,
@@ -64,8 +64,8 @@ from mlsemreg_ros.core.mask_search import (
     _unpack,
     NO_MATCH,
 )
+from mlsemreg_ros.core.matching.signatures import binary_multi_ring_signature
 from mlsemreg_ros.core.results import Correspondences, PreparedScan
-from mlsemreg_ros.core.signatures import binary_multi_ring_signature
 import numpy as np
 import scipy.sparse as sp
 

@@ -16,7 +16,7 @@
 """
 Semantic bird's-eye-view search: pose hypotheses that do not come from correspondences.
 
-When every hypothesis of the estimator is refused (core/confidence.py), the true pose
+When every hypothesis of the estimator is refused (core/estimation/confidence.py), the true pose
 was usually never among them: on dev pair 000007 with FPFH only 54 of 7902
 correspondences are inliers, a slide along the street has ~100, and SC2-PCR seeds the
 slide. The scans themselves still hold the answer (dense overlap 0.44 at the true pose,
@@ -36,7 +36,7 @@ slide. The scans themselves still hold the answer (dense overlap 0.44 at the tru
    ``hypotheses`` become ``z``-up poses ``Rz(yaw), (tx, ty, 0)``.
 
 It assumes ``z``-up sensor frames and a mostly yaw motion (a ground vehicle); roll, pitch
-and height are left to the refinement that follows (core/verification.py). The cost does
+and height are left to the refinement that follows (core/estimation/verification.py). The cost does
 not depend on the keypoints: about ``(360 / (coarse_factor x yaw_step) + coarse_yaws x
 (coarse_factor - 1)) x channels`` FFTs of ``next_fast_len(2 (radius + max_translation) /
 cell_size)`` squared.
@@ -49,10 +49,14 @@ from dataclasses import dataclass
 import time
 
 from mlsemreg_ros.core.config import BevSearchConfig, RegistrationConfig
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.estimation.verification import (
+    LabelCompatibility,
+    refine_starts,
+    score_hypotheses,
+)
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.poses import distinct_hypotheses
 from mlsemreg_ros.core.results import PreparedScan, VerificationResult
-from mlsemreg_ros.core.verification import LabelCompatibility, refine_starts, score_hypotheses
 import numpy as np
 from scipy import fft, ndimage
 from scipy.spatial.transform import Rotation
@@ -320,7 +324,7 @@ def search_scans(
     - ``labels``: the verification's label rule; ``lookup``: :func:`channel_lookup`.
 
     Every peak is refined with SC2-PCR's post-refinement
-    (:func:`~mlsemreg_ros.core.verification.refine_starts`) and scored like the
+    (:func:`~mlsemreg_ros.core.estimation.verification.refine_starts`) and scored like the
     estimator's hypotheses; the best score wins (no ``min_gain``: no peak is preferred).
     Returns ``None`` when no peak was found; ``diagnostics`` holds ``bev_search_*``.
     """

@@ -16,7 +16,7 @@
 How much label agreement the labels of a pair can give, and a label model that learns.
 
 **The label ceiling** (docs/label_noise.md). The label agreement ``A`` of a pose
-(:func:`~mlsemreg_ros.core.verification.dense_scores`: the share of the overlapping,
+(:func:`~mlsemreg_ros.core.estimation.verification.dense_scores`: the share of the overlapping,
 labeled seen surface whose source and target labels agree) is bounded by how noisy the
 two scans' labels are. With a share ``f`` of independently mislabeled points in each scan,
 the right pose agrees on about ``(1 - f_s) (1 - f_t) A_clean``. The *self-agreement*
@@ -65,7 +65,7 @@ def _sample_rows(total: int, config: VerificationConfig) -> np.ndarray:
 
 
 def _area_weights(points: np.ndarray, exponent: float) -> np.ndarray:
-    from mlsemreg_ros.core.verification import area_weights
+    from mlsemreg_ros.core.estimation.verification import area_weights
 
     return area_weights(points, exponent)
 
@@ -75,7 +75,8 @@ def self_agreement(scan: PreparedScan, labels: Any, config: VerificationConfig) 
     Label agreement of a scan with itself: each sampled point against its nearest neighbour.
 
     The seeded sample, the range weights, the counted classes and the compatibility
-    (``labels``: a :class:`~mlsemreg_ros.core.verification.LabelCompatibility`, boolean or
+    (``labels``: a :class:`~mlsemreg_ros.core.estimation.verification.LabelCompatibility`, boolean
+    or
     weighted) are those of the dense scores; the neighbour is the nearest *other* point
     within ``overlap_distance``. NaN when no sampled point has a counted neighbour.
     """

@@ -18,7 +18,7 @@ Relocalization without an initial guess: place recognition, then registration (d
 For a query scan (sensor frame, labeled):
 
 1. its semantic scan context picks the candidate keyframes of the store
-   (:meth:`mlsemreg_ros.core.place_recognition.PlaceIndex.shortlist`: KD-tree on ring keys,
+   (:meth:`mlsemreg_ros.core.maps.place_recognition.PlaceIndex.shortlist`: KD-tree on ring keys,
    re-ranked over every yaw; at most ``map.candidates``, whatever the map size);
 2. the query is registered onto each candidate with the full pipeline (ML-SemReg +
    SC2-PCR + verification + confidence + fine alignment), no initial guess;
@@ -35,7 +35,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 import time
 
-from mlsemreg_ros.core.keyframe_store import KeyframeStore
+from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 import numpy as np

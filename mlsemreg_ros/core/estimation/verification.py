@@ -54,7 +54,8 @@ from dataclasses import dataclass
 import time
 
 from mlsemreg_ros.core.config import EstimatorConfig, VerificationConfig
-from mlsemreg_ros.core.labels import LabelMap
+from mlsemreg_ros.core.estimation.sc2pcr import count_inliers, post_refinement
+from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.poses import distinct_hypotheses, residuals, same_pose
 from mlsemreg_ros.core.results import (
     EstimateResult,
@@ -62,7 +63,6 @@ from mlsemreg_ros.core.results import (
     PreparedScan,
     VerificationResult,
 )
-from mlsemreg_ros.core.sc2pcr import count_inliers, post_refinement
 import numpy as np
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree

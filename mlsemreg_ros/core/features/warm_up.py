@@ -15,7 +15,7 @@
 """
 Start-up of the compiled kernels: compiled (first run) or loaded from the cache.
 
-Above :mod:`mlsemreg_ros.core.kernels` (which ``fpfh`` and ``features`` import), so that
+Above :mod:`mlsemreg_ros.core.features.kernels` (which ``fpfh`` and ``features`` import), so that
 module imports neither of them back.
 """
 
@@ -23,8 +23,8 @@ from __future__ import annotations
 
 import time
 
-from mlsemreg_ros.core import fpfh, kernels
-from mlsemreg_ros.core.features import voxel_downsample
+from mlsemreg_ros.core.features import fpfh, kernels
+from mlsemreg_ros.core.features.features import voxel_downsample
 import numpy as np
 
 

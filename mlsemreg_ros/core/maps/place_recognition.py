@@ -64,7 +64,7 @@ def describe(
     Return the semantic scan context of a scan (points (N, 3) sensor frame, learning ids).
 
     ``channel_of_label``: per learning id its channel (-1: left out), e.g.
-    :func:`mlsemreg_ros.core.bev_search.channel_lookup`.
+    :func:`mlsemreg_ros.core.estimation.bev_search.channel_lookup`.
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     ids = np.asarray(labels, dtype=np.int64).reshape(-1)

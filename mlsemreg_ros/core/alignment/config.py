@@ -1,0 +1,107 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The ``fine`` section of the core config (fine alignment).
+
+Assembled by :class:`~mlsemreg_ros.core.config.RegistrationConfig` (core/config.py),
+which re-exports them; fields are :func:`~mlsemreg_ros.core.settings.param` declarations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mlsemreg_ros.core.settings import param
+
+
+@dataclass
+class FineAlignmentConfig:
+    """
+    Fine alignment of the dense scans with small_gicp, after the global estimate.
+
+    GICP (Segal et al., RSS 2009) and VGICP (Koide et al., ICRA 2021) as implemented by
+    koide3/small_gicp. Pairs: the source scan onto the target scan; odometry: the scan
+    onto the local map (an LRU voxel map of the last aligned scans in the odom frame).
+    """
+
+    method: str = param(
+        'vgicp',
+        'Odometry: alignment of each scan to the local map. vgicp (voxelized GICP; '
+        'the map is a Gaussian voxel map), gicp, plane_icp (point-to-plane), icp '
+        '(point-to-point; with gicp/plane_icp/icp the map points are indexed again every '
+        'frame, slower) or off (the estimate as it is, chained scan to keyframe).',
+        choices=('vgicp', 'gicp', 'plane_icp', 'icp', 'off'),
+    )
+    pair_method: str = param(
+        'gicp',
+        'Pairs (Registration.register, mlsemreg eval-pairs): alignment of the source '
+        'scan onto the target scan, both as voxelized at features.voxel_size. gicp, vgicp, '
+        'plane_icp, icp or off (the estimate as it is).',
+        choices=('gicp', 'vgicp', 'plane_icp', 'icp', 'off'),
+    )
+    downsampling_resolution: float = param(
+        0.5,
+        'Odometry: voxel edge to which the scan (already voxelized at '
+        'features.voxel_size) is downsampled for the map alignment (0: as it is).',
+        unit='m',
+        low=0.0,
+        high=5.0,
+    )
+    voxel_size: float = param(
+        1.0,
+        'VGICP voxel edge: of the local map and of the target scan of a pair; with '
+        "gicp/plane_icp/icp, the edge of the local map's point cells.",
+        unit='m',
+        low=0.05,
+        high=10.0,
+    )
+    num_neighbors: int = param(
+        10,
+        'Odometry: neighbours of each alignment point for its covariance and normal '
+        '(simulated drives: 10 drifted less than 20 at strides 10 and 20, and costs less).',
+        low=5,
+        high=200,
+    )
+    pair_num_neighbors: int = param(
+        20,
+        'Pairs: neighbours of each point for its covariance and normal (KITTI dev pairs: '
+        'rotation error 0.24 deg with 20, 0.28 deg with 10).',
+        low=5,
+        high=200,
+    )
+    max_correspondence_distance: float = param(
+        1.0,
+        'Maximum distance of a point to its correspondence (its inlier bound).',
+        unit='m',
+        low=0.05,
+        high=20.0,
+    )
+    max_iterations: int = param(20, 'Maximum Gauss-Newton iterations.', low=1, high=1000)
+    rotation_epsilon: float = param(
+        0.01,
+        'Convergence: the iterations stop once an update turns less than this (and '
+        'moves less than fine.translation_epsilon); the small_gicp default of 0.1 deg leaves '
+        'up to ~0.1 deg of error, which drifts at large strides.',
+        unit='deg',
+        low=1e-6,
+        high=10.0,
+    )
+    translation_epsilon: float = param(
+        1e-4,
+        'Convergence: the iterations stop once an update moves less than this.',
+        unit='m',
+        low=1e-8,
+        high=1.0,
+    )
