@@ -107,7 +107,8 @@ def test_player_delivers_every_message_to_a_subscriber(
         assert player.returncode == 0, output
     assert len(received['points']) == N_CLOUDS, output
     assert len(received['odom']) == N_CLOUDS
-    assert len(received['clock']) >= N_CLOUDS
+    # /clock is matched by discovery on its own: under load its first ticks can be missed
+    assert len(received['clock']) >= 3
     for k, msg in enumerate(received['points']):
         cloud = pointcloud2_to_arrays(msg)
         np.testing.assert_array_equal(cloud.xyz, clouds[k])
@@ -116,6 +117,7 @@ def test_player_delivers_every_message_to_a_subscriber(
     assert [m.pose.pose.position.x for m in received['odom']] == list(range(N_CLOUDS))
     clock_ns = [c.clock.sec * 10**9 + c.clock.nanosec for c in received['clock']]
     assert min(clock_ns) >= START_NS and clock_ns == sorted(clock_ns)
+    assert max(clock_ns) >= START_NS + (N_CLOUDS - 1) * 20_000_000  # it reached the last cloud
 
 
 def test_pace_topic_holds_playback_until_a_slow_consumer_answered(
