@@ -65,7 +65,12 @@ import time
 
 from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud, Candidate
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, sweep_motion, SweepMotion
+from mlsemreg_ros.core.features.deskew import (
+    MAX_DESKEW_WINDOW,
+    PiecewiseSweepMotion,
+    sweep_motion,
+    SweepMotion,
+)
 from mlsemreg_ros.core.features.moving_objects import MovingObjectFilter
 from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
@@ -217,7 +222,7 @@ class Odometry:
         index = self._count
         self._count += 1
         prediction = self._prediction(stamp_ns)
-        motion = self._sweep_motion(prediction, stamp_ns)
+        motion = self._sweep_motion(prediction, stamp_ns, point_times)
         raw = self._preprocess(points, labels, point_times, motion)
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
             return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
@@ -240,19 +245,34 @@ class Odometry:
             return None
         return self.motion_model.predict(stamp_ns)
 
-    def _sweep_motion(self, prediction: Prediction | None, stamp_ns: int) -> SweepMotion | None:
+    def _sweep_motion(
+        self, prediction: Prediction | None, stamp_ns: int, point_times: np.ndarray | None = None
+    ) -> SweepMotion | PiecewiseSweepMotion | None:
         """
         Return the motion within the sweep: an earlier accepted pose -> the prediction.
 
         The twist spans ``preprocess.deskew_window`` accepted poses back: a twist from the
         last pose only (window 1) feeds each pose's error into the next deskew with gain 1,
-        a marginally stable loop (``docs/field.md``).
+        a marginally stable loop (``docs/field.md``). With a gyro over the sweep
+        (``motion_model.sweep_rotations``) the rotation follows it sample by sample, and
+        the twist gives only the translation: a turn that starts or ends within the sweep
+        is not averaged away.
         """
         window = self.config.preprocess.deskew_window
         if prediction is None or not self._accepted:
             return None
         pose, stamp = self._accepted[-min(window, len(self._accepted))]
-        return sweep_motion(pose, stamp, prediction.T_odom_current, stamp_ns)
+        motion = sweep_motion(pose, stamp, prediction.T_odom_current, stamp_ns)
+        gyro = getattr(self.motion_model, 'sweep_rotations', None)
+        if motion is None or gyro is None or point_times is None or not np.size(point_times):
+            return motion
+        times = np.asarray(point_times, dtype=np.float64)
+        if not np.all(np.isfinite(times)):
+            return motion
+        rotations = gyro(stamp_ns, float(times.min()), float(times.max()))
+        if rotations is None:
+            return motion
+        return PiecewiseSweepMotion.from_rotations(*rotations, motion.velocity)
 
     def _preprocess(
         self,

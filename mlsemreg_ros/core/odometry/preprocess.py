@@ -56,7 +56,7 @@ class Preprocessor:
         self,
         points: np.ndarray,
         point_times: np.ndarray | None,
-        motion: deskew.SweepMotion | None = None,
+        motion: deskew.SweepMotion | deskew.PiecewiseSweepMotion | None = None,
     ) -> np.ndarray:
         """
         Motion-compensate ``points`` (N, 3) by their ``point_times`` (N,), seconds.
@@ -83,7 +83,7 @@ class Preprocessor:
         points: np.ndarray,
         labels: np.ndarray,
         point_times: np.ndarray | None = None,
-        motion: deskew.SweepMotion | None = None,
+        motion: deskew.SweepMotion | deskew.PiecewiseSweepMotion | None = None,
     ) -> PreprocessedScan:
         """Deskew and prepare lazily (descriptors on demand, :meth:`Registration.complete`)."""
         why = self.refusal(points, point_times, motion)
