@@ -126,7 +126,7 @@ class PiecewiseSweepMotion:
         steps = Rotation.from_matrix(np.einsum('nji,njk->nik', rotations[:-1], rotations[1:]))
         omegas = steps.as_rotvec() / dt[:, None]
         poses = [np.eye(4)]
-        for omega, duration in zip(omegas, dt):
+        for omega, duration in zip(omegas, dt, strict=True):
             poses.append(poses[-1] @ se3_exp(SweepMotion(omega, velocity), float(duration)))
         poses = np.stack(poses)
         origin = int(np.argmin(np.abs(times)))

@@ -27,6 +27,7 @@ constant-velocity model's.
 
 from __future__ import annotations
 
+import itertools
 import threading
 
 from mlsemreg_ros.core.config import RegistrationConfig
@@ -173,7 +174,7 @@ class PriorMotionModel:
             nodes = np.unique(np.concatenate([[start, stamp_ns, end], inside]).astype(np.int64))
             gyro, accel = values[:, :3], values[:, 3:]
             at_nodes = [np.eye(3)]
-            for t0, t1 in zip(nodes[:-1], nodes[1:]):  # one short integration per sample
+            for t0, t1 in itertools.pairwise(nodes):  # one short integration per sample
                 step = integrate_imu(stamps, gyro, accel, int(t0), int(t1), bias).rotation
                 at_nodes.append(at_nodes[-1] @ step)
         rotations = np.stack(at_nodes)  # R_start_node
