@@ -21,6 +21,7 @@ from typing import Any
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features.deskew import (
     deskew,
+    PiecewiseSweepMotion,
     se3_log,
     sweep_motion,
     SweepMotion,
@@ -97,6 +98,51 @@ def test_a_sweep_with_a_known_motion_is_straightened_below_1_cm(name: str) -> No
     assert before > 0.5  # the skew is real (metres at the sweep end)
     assert after.max() < 0.01, f'{name}: {after.max():.4f} m'
     assert after.max() < 1e-6  # exact for a constant twist
+
+
+def test_a_turn_that_starts_within_the_sweep_is_straightened_by_the_gyros_rotations() -> None:
+    # 8 m/s straight for the first 40 ms, then a 45 deg/s turn (a yaw-rate step, as at the
+    # start of a turn): one constant twist over the sweep cannot follow it, the gyro can.
+    velocity, rate, step_s = np.array([8.0, 0.0, 0.0]), np.radians(45.0), 0.04
+    straight, turn = np.zeros(3), np.array([0.0, 0.0, rate])
+
+    def pose(t: float) -> np.ndarray:
+        if t <= step_s:
+            return _pose(t, straight, velocity)
+        return _pose(step_s, straight, velocity) @ _pose(t - step_s, turn, velocity)
+
+    rng = np.random.default_rng(3)
+    n = 3000
+    times = np.sort(rng.uniform(0.0, PERIOD_S, n))
+    azimuth = 2 * np.pi * times / PERIOD_S
+    ranges = rng.uniform(5.0, 60.0, n)
+    world = np.stack(
+        [ranges * np.cos(azimuth), ranges * np.sin(azimuth), rng.uniform(-2.0, 3.0, n)], axis=1
+    )
+    skewed = np.empty_like(world)
+    for k, t in enumerate(times):
+        T = pose(t)
+        skewed[k] = (world[k] - T[:3, 3]) @ T[:3, :3]
+    nodes = np.linspace(0.0, PERIOD_S, 21)  # a 200 Hz gyro; the step falls on a node
+    rotations = np.stack([pose(t)[:3, :3] for t in nodes])
+    gyro = PiecewiseSweepMotion.from_rotations(nodes, rotations, velocity)
+    after_gyro = np.linalg.norm(deskew(skewed, times, gyro) - world, axis=1).max()
+    average = sweep_motion(np.eye(4), STAMP_NS, pose(PERIOD_S), STAMP_NS + int(PERIOD_S * 1e9))
+    after_twist = np.linalg.norm(deskew(skewed, times, average) - world, axis=1).max()
+    assert after_gyro < 1e-6  # exact: a constant twist on every segment
+    assert after_twist > 0.1  # one twist over the sweep leaves decimetres
+
+
+def test_piecewise_motion_of_one_twist_is_that_twist() -> None:
+    omega, velocity = MOTIONS['aggressive 60 deg/s, pitch, 14 m/s']
+    world, times, skewed = _sweep(omega, velocity)
+    nodes = np.array([-0.01, 0.0, 0.013, 0.05, 0.1])  # uneven, one before the stamp
+    rotations = np.stack([_pose(t, omega, velocity)[:3, :3] for t in nodes])
+    piecewise = PiecewiseSweepMotion.from_rotations(nodes, rotations, velocity)
+    np.testing.assert_allclose(
+        piecewise.poses, np.stack([_pose(t, omega, velocity) for t in nodes]), atol=1e-9
+    )
+    np.testing.assert_allclose(deskew(skewed, times, piecewise), world, atol=1e-6)
 
 
 def test_the_odometry_deskews_with_the_motion_models_prediction() -> None:

@@ -101,6 +101,20 @@ def test_the_prior_rotation_from_a_simulated_imu_matches_the_truth() -> None:
     np.testing.assert_allclose(model.bias.offset_odom, gravity, atol=0.02)
 
 
+def test_the_gyro_rotations_within_a_sweep_match_the_truth() -> None:
+    model, _, _ = _imu_model(_quiet_imu())
+    stamp = T0_NS + 3 * SCAN_NS  # 0.3 s into the drive
+    times, rotations = model.sweep_rotations(stamp, 0.0, 0.1)
+    assert times[0] == 0.0 and abs(times[-1] - 0.1) < 1e-9 and len(times) >= 20  # 200 Hz
+    poses = _Drive().poses(0.3 + times)
+    truth = np.einsum('ji,njk->nik', poses[0, :3, :3], poses[:, :3, :3])  # R_stamp_node
+    error = Rotation.from_matrix(np.einsum('nji,njk->nik', truth, rotations)).magnitude()
+    assert np.degrees(error).max() < 1e-3  # deg, over a sweep turning about 5 deg
+    assert model.sweep_rotations(stamp, 0.0, 60.0) is None  # beyond the IMU's samples
+    wheels = PriorMotionModel(model_config('wheel'))
+    assert wheels.sweep_rotations(stamp, 0.0, 0.1) is None  # no gyro
+
+
 def test_integrated_rotation_of_a_constant_rate_is_its_exponential() -> None:
     rate = np.array([0.3, -0.2, 1.1])  # rad/s
     stamps = np.arange(0, 21) * 5_000_000  # 200 Hz over 0.1 s

@@ -88,6 +88,61 @@ class SweepMotion:
     velocity: np.ndarray  # (3,) the SE(3) log's translational part per second, m/s
 
 
+@dataclass(frozen=True)
+class PiecewiseSweepMotion:
+    """
+    The sensor's poses at a few times of the sweep (an IMU's), constant twist between them.
+
+    ``poses[k]`` (4, 4) is the pose at ``stamp + times[k]`` in the sensor frame at the stamp
+    (``times`` (K,) increasing, K >= 2, seconds). Between two nodes the motion is the
+    constant twist ``log(poses[k]^-1 poses[k + 1]) / (times[k + 1] - times[k])``; before the
+    first and after the last node the nearest segment's twist is held. A yaw rate that
+    changes within the sweep (the start or end of a turn) is followed to the node spacing,
+    where one constant twist over the sweep (:class:`SweepMotion`) is wrong by the change.
+    """
+
+    times: np.ndarray  # (K,) s after the stamp
+    poses: np.ndarray  # (K, 4, 4) T_stamp_(stamp + times[k])
+
+    @classmethod
+    def from_rotations(
+        cls, times: np.ndarray, rotations: np.ndarray, velocity: np.ndarray
+    ) -> PiecewiseSweepMotion:
+        """
+        Build the poses from rotations at the nodes (a gyro's) and one body velocity.
+
+        ``rotations`` (K, 3, 3) are ``R_stamp_node``, one node at ``times == 0``;
+        ``velocity`` (3,) is the translational part of the body twist (m/s, the sensor
+        frame), held through the sweep: segment ``k`` is the twist ``(omega_k, velocity)``
+        with ``omega_k = log(R_k^T R_k+1) / dt_k``. The rotation follows the gyro; the
+        translation comes from the accepted poses, which a velocity integrated from the
+        accelerometer over a sweep would not improve.
+        """
+        from scipy.spatial.transform import Rotation
+
+        times = np.asarray(times, dtype=np.float64)
+        rotations = np.asarray(rotations, dtype=np.float64)
+        dt = np.diff(times)
+        steps = Rotation.from_matrix(np.einsum('nji,njk->nik', rotations[:-1], rotations[1:]))
+        omegas = steps.as_rotvec() / dt[:, None]
+        poses = [np.eye(4)]
+        for omega, duration in zip(omegas, dt, strict=True):
+            poses.append(poses[-1] @ se3_exp(SweepMotion(omega, velocity), float(duration)))
+        poses = np.stack(poses)
+        origin = int(np.argmin(np.abs(times)))
+        return cls(times, np.linalg.solve(poses[origin], poses))
+
+    def segments(self) -> list[tuple[float, np.ndarray, SweepMotion]]:
+        """Return ``(t_k, poses[k], twist_k)`` of every segment."""
+        out = []
+        for k in range(len(self.times) - 1):
+            dt = float(self.times[k + 1] - self.times[k])
+            relative = np.linalg.solve(self.poses[k], self.poses[k + 1])
+            phi, rho = se3_log(relative)
+            out.append((float(self.times[k]), self.poses[k], SweepMotion(phi / dt, rho / dt)))
+        return out
+
+
 def se3_log(transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Return the SE(3) logarithm ``(phi, rho)`` of ``transform`` (4, 4): rotation vector, rho."""
     from scipy.spatial.transform import Rotation
@@ -122,6 +177,19 @@ def sweep_motion(
     return SweepMotion(phi / dt, rho / dt)
 
 
+def se3_exp(motion: SweepMotion, duration: float) -> np.ndarray:
+    """Return ``exp(duration * twist)`` (4, 4)."""
+    from scipy.spatial.transform import Rotation
+
+    angles, translations = motion_at(motion, np.array([duration]))
+    out = np.eye(4)
+    rate = float(np.linalg.norm(motion.omega))
+    if rate > 0.0:
+        out[:3, :3] = Rotation.from_rotvec(motion.omega / rate * angles[0]).as_matrix()
+    out[:3, 3] = translations[0]
+    return out
+
+
 def motion_at(motion: SweepMotion, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     Return ``exp(tau * twist)`` for every ``tau`` in ``times`` (N,): rotations and translations.
@@ -145,17 +213,43 @@ def motion_at(motion: SweepMotion, times: np.ndarray) -> tuple[np.ndarray, np.nd
     return angles, rho + a[:, None] * cross1 + b[:, None] * cross2
 
 
-def deskew(points: np.ndarray, times: np.ndarray, motion: SweepMotion) -> np.ndarray:
+def deskew(
+    points: np.ndarray, times: np.ndarray, motion: SweepMotion | PiecewiseSweepMotion
+) -> np.ndarray:
     """
     Map ``points`` (N, 3), each taken at ``times`` (N,) s after the stamp, to the stamp.
 
     ``p' = R(tau) p + t(tau)`` with ``(R, t)(tau) = exp(tau * twist)``: the pose at
     ``stamp + tau`` in the frame at the stamp. Vectorised (Rodrigues about the twist's axis).
+    A :class:`PiecewiseSweepMotion` maps the points of each segment by
+    ``poses[k] exp((tau - t_k) twist_k)`` (one vectorised call per segment).
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     times = np.asarray(times, dtype=np.float64).reshape(-1)
     if times.shape[0] != points.shape[0]:
         raise ValueError(f'{times.shape[0]} point times for {points.shape[0]} points')
+    if isinstance(motion, PiecewiseSweepMotion):
+        return _deskew_piecewise(points, times, motion)
+    return _deskew_constant(points, times, motion)
+
+
+def _deskew_piecewise(
+    points: np.ndarray, times: np.ndarray, motion: PiecewiseSweepMotion
+) -> np.ndarray:
+    """Deskew segment by segment (points before/after the nodes use the end segments)."""
+    segments = motion.segments()
+    index = np.clip(np.searchsorted(motion.times, times, side='right') - 1, 0, len(segments) - 1)
+    out = np.empty_like(points)
+    for k, (start, pose, twist) in enumerate(segments):
+        rows = np.flatnonzero(index == k)
+        if rows.size:
+            local = _deskew_constant(points[rows], times[rows] - start, twist)
+            out[rows] = local @ pose[:3, :3].T + pose[:3, 3]
+    return out
+
+
+def _deskew_constant(points: np.ndarray, times: np.ndarray, motion: SweepMotion) -> np.ndarray:
+    """Map ``points`` by ``exp(tau * twist)`` (the constant-twist case of :func:`deskew`)."""
     angles, translations = motion_at(motion, times)
     rate = float(np.linalg.norm(motion.omega))
     if rate == 0.0 or not np.any(angles):

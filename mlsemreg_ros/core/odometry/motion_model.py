@@ -19,6 +19,10 @@ The seam (``docs/extending.md``): a :class:`MotionModel` predicts ``T_odom_curre
 stamp and hears of every accepted pose. :func:`make_motion_model` builds the one named in
 :data:`MOTION_MODELS`; an implementation joins that table with :func:`motion_model`.
 :class:`ConstantVelocityModel` is registered through exactly that decorator.
+
+Optional: ``sweep_rotations(stamp_ns, first_s, last_s)`` returns a gyro's rotations within a
+sweep, ``(times (K,), R_stamp_node (K, 3, 3))`` or None; the deskew then follows them
+(``PriorMotionModel``, ``docs/field.md``). A model without it is deskewed by one twist.
 """
 
 from __future__ import annotations

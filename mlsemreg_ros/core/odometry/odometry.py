@@ -65,7 +65,12 @@ import time
 
 from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud, Candidate
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, sweep_motion, SweepMotion
+from mlsemreg_ros.core.features.deskew import (
+    MAX_DESKEW_WINDOW,
+    PiecewiseSweepMotion,
+    sweep_motion,
+    SweepMotion,
+)
 from mlsemreg_ros.core.features.moving_objects import MovingObjectFilter
 from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
@@ -93,6 +98,10 @@ from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
 
+#: Rounds of deskew and alignment of the scan after a start (the motion follows the pose).
+START_DESKEW_ROUNDS = 3
+#: ... until the alignment moves the pose by less than this (m).
+START_DESKEW_TOLERANCE = 0.01
 #: Sections whose change makes the cached keyframe be prepared again.
 _PREPARE_SECTIONS = ('semantic', 'features', 'keypoints', 'moving_objects')
 
@@ -217,8 +226,12 @@ class Odometry:
         index = self._count
         self._count += 1
         prediction = self._prediction(stamp_ns)
-        motion = self._sweep_motion(prediction, stamp_ns)
+        motion = self._sweep_motion(prediction, stamp_ns, point_times)
+        rotation_only = motion is None and prediction is None
+        if rotation_only:  # no velocity yet: the gyro's rotation alone (if there is an IMU)
+            motion = self._gyro_motion(stamp_ns, point_times, np.zeros(3))
         raw = self._preprocess(points, labels, point_times, motion)
+        raw.rotation_only = rotation_only and raw.deskewed
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
             return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
         timings: dict[str, float] = {}
@@ -240,19 +253,46 @@ class Odometry:
             return None
         return self.motion_model.predict(stamp_ns)
 
-    def _sweep_motion(self, prediction: Prediction | None, stamp_ns: int) -> SweepMotion | None:
+    def _sweep_motion(
+        self, prediction: Prediction | None, stamp_ns: int, point_times: np.ndarray | None = None
+    ) -> SweepMotion | PiecewiseSweepMotion | None:
         """
         Return the motion within the sweep: an earlier accepted pose -> the prediction.
 
         The twist spans ``preprocess.deskew_window`` accepted poses back: a twist from the
         last pose only (window 1) feeds each pose's error into the next deskew with gain 1,
-        a marginally stable loop (``docs/field.md``).
+        a marginally stable loop (``docs/field.md``). With a gyro over the sweep
+        (``motion_model.sweep_rotations``) the rotation follows it sample by sample, and
+        the twist gives only the translation: a turn that starts or ends within the sweep
+        is not averaged away.
         """
         window = self.config.preprocess.deskew_window
         if prediction is None or not self._accepted:
             return None
         pose, stamp = self._accepted[-min(window, len(self._accepted))]
-        return sweep_motion(pose, stamp, prediction.T_odom_current, stamp_ns)
+        motion = sweep_motion(pose, stamp, prediction.T_odom_current, stamp_ns)
+        if motion is None:
+            return None
+        return self._gyro_motion(stamp_ns, point_times, motion.velocity) or motion
+
+    def _gyro_motion(
+        self, stamp_ns: int, point_times: np.ndarray | None, velocity: np.ndarray
+    ) -> PiecewiseSweepMotion | None:
+        """
+        Return the gyro's rotation within the sweep with the body ``velocity`` (m/s), or None.
+
+        None when the motion model has no gyro over the sweep (no IMU, constant velocity).
+        """
+        gyro = getattr(self.motion_model, 'sweep_rotations', None)
+        if gyro is None or point_times is None or not np.size(point_times):
+            return None
+        times = np.asarray(point_times, dtype=np.float64)
+        if not np.all(np.isfinite(times)):
+            return None
+        rotations = gyro(stamp_ns, float(times.min()), float(times.max()))
+        if rotations is None:
+            return None
+        return PiecewiseSweepMotion.from_rotations(*rotations, velocity)
 
     def _preprocess(
         self,
@@ -404,7 +444,8 @@ class Odometry:
         self, index: int, stamp_ns: int, raw: PreprocessedScan, chosen: Decision
     ) -> OdometryStep:
         """Move the pose, feed the map, move the keyframe; the step of an accepted frame."""
-        keyframe, current, pose = self.keyframe, raw.scan, chosen.pose
+        raw, pose = self._deskew_start(raw, chosen.pose, stamp_ns)
+        keyframe, current = self.keyframe, raw.scan
         relative = invert_transform(keyframe.pose) @ pose
         twist, twist_cov = twist_between(
             *self._last_accepted, pose, stamp_ns, chosen.frame_covariance
@@ -423,7 +464,6 @@ class Odometry:
         ) and not self.keyframe_refusal(current)
         if new_keyframe:
             self.keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, current, pose.copy())
-        self._deskew_start(raw, pose, stamp_ns)
         return OdometryStep(
             index=index,
             stamp_ns=stamp_ns,
@@ -487,37 +527,66 @@ class Odometry:
         self._failures = 0
         self._start_scan = (raw, pose.copy(), stamp_ns)
 
-    def _deskew_start(self, raw: PreprocessedScan, pose: np.ndarray, stamp_ns: int) -> None:
+    def _deskew_start(
+        self, raw: PreprocessedScan, pose: np.ndarray, stamp_ns: int
+    ) -> tuple[PreprocessedScan, np.ndarray]:
         """
         Deskew the scan the odometry started on and the next one, once their motion is known.
 
-        Neither had a prediction, so neither was deskewed. A map of skewed scans would bias
-        every deskewed scan aligned to it (and, through the velocity, the next deskew), so
-        both are deskewed with the motion estimated between them, prepared again, and
-        become the map and the keyframe (``docs/field.md``).
+        Neither had a prediction, so neither was deskewed (or only by the gyro's rotation).
+        A map of skewed scans would bias every deskewed scan aligned to it (and, through the
+        velocity, the next deskew), and the next one's pose was registered on two skewed
+        sweeps. So both are deskewed with the motion estimated between them (the gyro's
+        rotation when there is an IMU), prepared again, and the next one is aligned again
+        to the first, :data:`START_DESKEW_ROUNDS` times at most (the motion follows the
+        pose). Returns the scan and pose to accept; the map holds the first scan
+        (``docs/field.md``).
         """
         start, self._start_scan = self._start_scan, None
-        if start is None or raw.deskewed:
-            return
+        if start is None or (raw.deskewed and not raw.rotation_only):
+            return raw, pose
         first, first_pose, first_stamp = start
-        motion = sweep_motion(first_pose, first_stamp, pose, stamp_ns)
         refusal = self.preprocessor.refusal
-        if refusal(first.points, first.point_times, motion) or refusal(
-            raw.points, raw.point_times, motion
+        still = SweepMotion(np.zeros(3), np.zeros(3))
+        if refusal(first.points, first.point_times, still) or refusal(
+            raw.points, raw.point_times, still
         ):
-            return  # no times (the clean world), deskew off, or no duration: nothing to redo
-        redone = [
-            (self._preprocess(r.points, r.labels, r.point_times, motion), p)
-            for r, p in ((first, first_pose), (raw, pose))
-        ]
-        if not all(r.deskewed for r, _ in redone):
-            return
-        self.map.clear()
-        for r, p in redone:
-            self._insert(r.scan, p)
+            return raw, pose  # no times (the clean world), deskew off: nothing to redo
+        cfg = self.config
+        redone, current = (first, raw), pose
+        for _ in range(START_DESKEW_ROUNDS):
+            twist = sweep_motion(first_pose, first_stamp, current, stamp_ns)
+            if twist is None:
+                break
+            attempt = []
+            for scan, stamp in ((first, first_stamp), (raw, stamp_ns)):
+                motion = self._gyro_motion(stamp, scan.point_times, twist.velocity) or twist
+                points = scan.input_points if scan.input_points is not None else scan.points
+                attempt.append(self._preprocess(points, scan.labels, scan.point_times, motion))
+            if not all(r.deskewed for r in attempt):
+                break
+            redone = tuple(attempt)
+            self.map.clear()
+            self._insert(redone[0].scan, first_pose)
+            again = self.tracker.candidate(
+                'start', current, alignment_cloud(redone[1].scan, cfg.fine), cfg
+            )
+            if not again.acceptable:
+                break
+            moved = again.alignment.correction
+            current = again.alignment.T_target_source
+            if np.linalg.norm(moved[:3, 3]) < START_DESKEW_TOLERANCE:
+                break
+        if redone[0] is first:
+            return raw, pose
+        if self.map.empty or redone[1] is raw:
+            self.map.clear()
+            self._insert(redone[0].scan, first_pose)
         keyframe = self.keyframe
-        r = redone[0][0] if keyframe.points is first.points else redone[1][0]
-        keyframe.points, keyframe.labels, keyframe.prepared = r.points, r.labels, r.scan
+        if keyframe.stamp_ns == first_stamp:
+            r = redone[0]
+            keyframe.points, keyframe.labels, keyframe.prepared = r.points, r.labels, r.scan
+        return redone[1], current
 
     def _count_failure(self, step: OdometryStep, raw: PreprocessedScan) -> None:
         """After ``keyframe.max_failures`` rejections in a row, re-initialise on this scan."""

@@ -43,6 +43,8 @@ class PreprocessedScan:
     deskewed: bool = False  # the points were motion-compensated
     point_times: np.ndarray | None = None  # (N,) s after the stamp, as given
     deskew_note: str = ''  # why not, when preprocess.deskew is on
+    input_points: np.ndarray | None = None  # (N, 3) as given, when deskewed
+    rotation_only: bool = False  # deskewed by the gyro's rotation alone (no velocity yet)
 
 
 class Preprocessor:
@@ -56,7 +58,7 @@ class Preprocessor:
         self,
         points: np.ndarray,
         point_times: np.ndarray | None,
-        motion: deskew.SweepMotion | None = None,
+        motion: deskew.SweepMotion | deskew.PiecewiseSweepMotion | None = None,
     ) -> np.ndarray:
         """
         Motion-compensate ``points`` (N, 3) by their ``point_times`` (N,), seconds.
@@ -83,10 +85,11 @@ class Preprocessor:
         points: np.ndarray,
         labels: np.ndarray,
         point_times: np.ndarray | None = None,
-        motion: deskew.SweepMotion | None = None,
+        motion: deskew.SweepMotion | deskew.PiecewiseSweepMotion | None = None,
     ) -> PreprocessedScan:
         """Deskew and prepare lazily (descriptors on demand, :meth:`Registration.complete`)."""
         why = self.refusal(points, point_times, motion)
+        given = points
         points = self.deskew(points, point_times, None if why else motion)
         scan = self.registration.prepare(points, labels, lazy=True)
         on = self.registration.config.preprocess.deskew == 'on'
@@ -97,4 +100,5 @@ class Preprocessor:
             deskewed=not why,
             point_times=point_times,
             deskew_note=f'not deskewed: {why}' if why and on else '',
+            input_points=None if why else np.asarray(given),
         )

@@ -27,6 +27,7 @@ constant-velocity model's.
 
 from __future__ import annotations
 
+import itertools
 import threading
 
 from mlsemreg_ros.core.config import RegistrationConfig
@@ -143,6 +144,42 @@ class PriorMotionModel:
         self._cv.reset()
         self._accepted = []
         self.bias.reset()
+
+    def sweep_rotations(
+        self, stamp_ns: int, first_s: float, last_s: float
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """
+        Return the gyro's rotations within a sweep ``[stamp + first_s, stamp + last_s]``.
+
+        ``(times (K,), R (K, 3, 3))``: ``R[k]`` is the sensor's rotation at ``stamp +
+        times[k]`` in the frame at the stamp (bias removed); the nodes are the sweep's ends,
+        the stamp and every IMU sample in between. None without IMU samples over the sweep.
+        The deskew takes the rotation from here and the translation from the accepted
+        poses (``core/features/deskew.py``, :class:`PiecewiseSweepMotion`).
+        """
+        if self.cfg.source not in ('imu', 'auto'):
+            return None
+        start = min(stamp_ns + round(first_s * 1e9), stamp_ns)
+        end = max(stamp_ns + round(last_s * 1e9), stamp_ns)
+        if end <= start:
+            return None
+        with self._lock:
+            if not self._imu.covers(start, end, self._slack()):
+                return None
+            first = max(int(np.searchsorted(self._imu.stamps, start)) - 1, 0)
+            last = int(np.searchsorted(self._imu.stamps, end, side='right')) + 1
+            stamps, values = self._imu.stamps[first:last], self._imu.values[first:last]
+            bias = self.bias.gyro_bias
+            inside = stamps[(stamps > start) & (stamps < end) & (stamps != stamp_ns)]
+            nodes = np.unique(np.concatenate([[start, stamp_ns, end], inside]).astype(np.int64))
+            gyro, accel = values[:, :3], values[:, 3:]
+            at_nodes = [np.eye(3)]
+            for t0, t1 in itertools.pairwise(nodes):  # one short integration per sample
+                step = integrate_imu(stamps, gyro, accel, int(t0), int(t1), bias).rotation
+                at_nodes.append(at_nodes[-1] @ step)
+        rotations = np.stack(at_nodes)  # R_start_node
+        at_stamp = rotations[int(np.searchsorted(nodes, stamp_ns))]
+        return (nodes - stamp_ns) * 1e-9, np.einsum('ji,njk->nik', at_stamp, rotations)
 
     # -- the prior -----------------------------------------------------------------
     def relative_prior(self, stamp_ns: int) -> RelativePrior | None:
