@@ -328,6 +328,91 @@ def test_the_mapper_closes_a_loop_on_a_drifting_out_and_back_drive() -> None:
         assert np.linalg.norm((invert_transform(true) @ loop.T_match_current)[:3, 3]) < 0.3
 
 
+def test_a_loop_registration_a_metre_off_is_corrected_by_the_submap_and_refused(
+    street_store: KeyframeStore,
+) -> None:
+    """The submap refinement finds the true pose; moving the edge that far refuses it."""
+    from mlsemreg_ros.core.maps.loop_verification import refine_loop
+
+    config = street_store.config
+    world, labels = street_scene(seed=STREET_SEED)
+    query_pose = motion(180.0, (7.0, -3.0, 0.0))  # between keyframes 2 and 3, other lane
+    points, _ = scan_at(world, labels, query_pose, seed=900, max_points=15000)
+    match = street_store.ids[2]
+    true = invert_transform(street_store[match].T_map_keyframe) @ query_pose
+    ids = set(street_store.ids)
+    for offset, accepted in (
+        (motion(0.3, (0.1, 0.05, 0.0)), True),
+        (motion(3.0, (0.9, 0.3, 0.0)), False),
+    ):
+        check = refine_loop(
+            street_store, match, points, true @ offset, ids, config.map, config.fine
+        )
+        error = invert_transform(true) @ check.T_match_current
+        assert (
+            np.linalg.norm(error[:3, 3]) < 0.05
+            and rotation_error_deg(error[:3, :3], np.eye(3)) < 0.2
+        )
+        assert check.accepted is accepted, check.reason
+        assert check.submap_keyframes == 5  # the match and (up to) 3 neighbours on each side
+
+
+class _LoopsOffBy:
+    """A registration whose every answer is the truth moved by ``offset`` (a biased loop)."""
+
+    def __init__(self, registration: Registration, offset: np.ndarray) -> None:
+        self.registration, self.offset = registration, offset
+        self.config = registration.config
+        self.truth: dict[int, np.ndarray] = {}  # id(prepared scan) -> its true pose
+
+    def prepare(self, points: np.ndarray, labels: np.ndarray, lazy: bool = False):
+        return self.registration.prepare(points, labels, lazy=lazy)
+
+    def register(self, source, target, **_):
+        from types import SimpleNamespace
+
+        true = invert_transform(self.truth[id(target)]) @ self.truth[id(source)]
+        return SimpleNamespace(success=True, transform=true @ self.offset)
+
+
+@pytest.mark.parametrize(('offset_m', 'loops_kept'), [(0.1, True), (1.0, False)])
+def test_a_loop_edge_a_metre_off_never_enters_the_pose_graph(
+    offset_m: float, loops_kept: bool
+) -> None:
+    """An accepted loop registration 1 m / 3 deg off the truth: refused (fails without the
+    submap check of map.loop_refine); one 0.1 m off: kept, and refined to the truth."""
+    from mlsemreg_ros.core.maps.mapping import Mapper
+
+    config = RegistrationConfig().replace(
+        {'map.keyframe_distance': 4.0, 'map.loop_min_travel': 30.0, 'map.loop_candidates': 1}
+    )
+    world, labels = street_scene(seed=STREET_SEED)
+    xs = [*np.arange(-20.0, 21.0, 5.0), *np.arange(20.0, -21.0, -5.0)]
+    truth = [
+        motion(0.0 if i < 9 else 180.0, (x, 0.0 if i < 9 else -3.0, 0.0)) for i, x in enumerate(xs)
+    ]
+    yaw = 3.0 if offset_m > 0.5 else 0.3
+    registration = _LoopsOffBy(Registration(config), motion(yaw, (offset_m, 0.3 * offset_m, 0.0)))
+    mapper = Mapper(registration)  # type: ignore[arg-type]
+    odometry, drift = truth[0].copy(), motion(0.3, (0.05, 0.02, 0.0))
+    for k, pose in enumerate(truth):
+        if k:
+            odometry = odometry @ invert_transform(truth[k - 1]) @ pose @ drift
+        points, scan_labels = scan_at(world, labels, pose, seed=400 + k, max_points=15000)
+        prepared = registration.prepare(points, scan_labels, lazy=True)
+        registration.truth[id(prepared)] = pose
+        mapper.add(points, scan_labels, odometry, k, prepared=prepared)
+    ids = mapper.store.ids
+    assert len(ids) == len(truth)
+    tried = mapper.loops + mapper.refused
+    assert len(tried) >= 3  # the way back revisits the way out
+    for loop in mapper.loops:
+        true = invert_transform(truth[ids.index(loop.match)]) @ truth[ids.index(loop.current)]
+        error = invert_transform(true) @ loop.T_match_current
+        assert np.linalg.norm(error[:3, 3]) < 0.1  # the submap's pose (drifted by the odometry)
+    assert bool(mapper.loops) is loops_kept and bool(mapper.refused) is not loops_kept
+
+
 def test_copies_of_one_place_do_not_crowd_other_places_out_of_the_shortlist(
     street_store: KeyframeStore,
 ) -> None:

@@ -162,6 +162,38 @@ class MapConfig:
         low=0.0,
         high=1.0,
     )
+    loop_refine: bool = param(
+        True,
+        'Refine each loop registration against a submap of the matched keyframe and its '
+        'neighbours (GICP, the fine section) and keep the loop only if the refinement '
+        'agrees (core/maps/loop_verification.py).',
+    )
+    loop_submap_keyframes: int = param(
+        3,
+        'Keyframes on each side of the matched one in the submap a loop is refined against.',
+        low=0,
+        high=1000,
+    )
+    loop_min_inlier_fraction: float = param(
+        0.5,
+        'A loop whose submap refinement keeps less of the scan as inliers is refused.',
+        low=0.0,
+        high=1.0,
+    )
+    loop_max_correction_translation: float = param(
+        0.3,
+        'A loop whose submap refinement moves the registration further is refused.',
+        unit='m',
+        low=0.0,
+        high=1000.0,
+    )
+    loop_max_correction_rotation: float = param(
+        1.5,
+        '... or turns it more.',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
     odometry_sigma_translation: float = param(
         0.05,
         'Pose graph: standard deviation of an odometry edge per metre travelled.',
