@@ -332,7 +332,7 @@ def test_a_loop_registration_a_metre_off_is_corrected_by_the_submap_and_refused(
     street_store: KeyframeStore,
 ) -> None:
     """The submap refinement finds the true pose; moving the edge that far refuses it."""
-    from mlsemreg_ros.core.maps.loop_verification import refine_loop
+    from mlsemreg_ros.core.maps.submap_check import refine_on_submap
 
     config = street_store.config
     world, labels = street_scene(seed=STREET_SEED)
@@ -345,7 +345,7 @@ def test_a_loop_registration_a_metre_off_is_corrected_by_the_submap_and_refused(
         (motion(0.3, (0.1, 0.05, 0.0)), True),
         (motion(3.0, (0.9, 0.3, 0.0)), False),
     ):
-        check = refine_loop(
+        check = refine_on_submap(
             street_store, match, points, true @ offset, ids, config.map, config.fine
         )
         error = invert_transform(true) @ check.T_match_current

@@ -136,6 +136,7 @@ def build_map(
     progress: bool = False,
 ) -> dict[str, Any]:
     """Map a scan source; returns the mapper and a summary (keyframes, loops, ATE)."""
+    from mlsemreg_ros.core.maps.localization import awaits_deskew
     from mlsemreg_ros.core.maps.mapping import Mapper
     from mlsemreg_ros.core.metrics import ate_rmse
     from mlsemreg_ros.core.odometry import Odometry
@@ -150,25 +151,25 @@ def build_map(
     odometry = Odometry(registration) if poses == 'odometry' else None
     truth: dict[int, np.ndarray] = {}  # keyframe id -> ground truth
     scans = accepted = trials = 0
-    previous = None  # ground truth: the last posed scan, whose motion deskews the next
     total = len(source) if max_frames is None else min(len(source), max_frames)
-    for scan in tqdm(
-        source.scans(max_frames=max_frames),
-        total=total,
-        desc='map',
-        unit='scan',
-        file=sys.stderr,
-        disable=not progress,
-    ):
-        if scan.labels is None:
-            continue
+    labeled = (
+        scan
+        for scan in tqdm(
+            source.scans(max_frames=max_frames),
+            total=total,
+            desc='map',
+            unit='scan',
+            file=sys.stderr,
+            disable=not progress,
+        )
+        if scan.labels is not None
+    )
+    if odometry is None:  # ground truth: only the posed scans, deskewed by the truth
+        labeled = _deskewed_by_truth((scan for scan in labeled if scan.pose is not None), config)
+    for scan in labeled:
         scans += 1
         if odometry is None:
-            if scan.pose is None:
-                continue
-            points = _deskewed_by_truth(scan, previous, config)
-            previous = scan
-            step = mapper.add(points, scan.labels, scan.pose, scan.stamp_ns)
+            step = mapper.add(scan.xyz, scan.labels, scan.pose, scan.stamp_ns)
         else:
             moved = odometry.process(
                 scan.xyz, scan.labels, scan.stamp_ns, point_times=scan.point_times
@@ -176,6 +177,8 @@ def build_map(
             if not moved.accepted:
                 continue
             accepted += 1
+            if awaits_deskew(moved, scan.point_times, config):
+                continue  # the odometry's first scans: skewed, no keyframe of them
             step = mapper.add(
                 scan.xyz, scan.labels, moved.pose, scan.stamp_ns, prepared=moved.prepared
             )
@@ -208,25 +211,39 @@ def build_map(
     return {'mapper': mapper, 'summary': summary}
 
 
-def _deskewed_by_truth(scan: Any, previous: Any, config: Any) -> Any:
+def _deskewed_by_truth(scans: Any, config: Any) -> Any:
     """
-    The scan's points at its stamp, deskewed with the ground-truth twist since ``previous``.
+    The posed scans with their points deskewed to their stamps by the ground-truth motion.
 
     A map with ground-truth poses gets the motion compensation that the odometry gives
-    its keyframes (``preprocess.deskew``, ``core/features/deskew.py``; the constant twist
-    from the previous scan's pose to this one's); scans without point times stay as they are.
+    its keyframes (``preprocess.deskew``, ``core/features/deskew.py``): the constant twist
+    from the previous scan's pose to this one's; the first scan takes the twist to the
+    second. Scans without point times stay as they are.
     """
+    from dataclasses import replace
+
     from mlsemreg_ros.core.features.deskew import deskew, sweep_motion
 
-    if (
-        config.preprocess.deskew == 'off'
-        or scan.point_times is None
-        or previous is None
-        or previous.pose is None
-    ):
-        return scan.xyz
-    motion = sweep_motion(previous.pose, previous.stamp_ns, scan.pose, scan.stamp_ns)
-    return scan.xyz if motion is None else deskew(scan.xyz, scan.point_times, motion)
+    def moved(scan: Any, a: Any, b: Any) -> Any:
+        if config.preprocess.deskew == 'off' or scan.point_times is None:
+            return scan
+        motion = sweep_motion(a.pose, a.stamp_ns, b.pose, b.stamp_ns)
+        if motion is None:
+            return scan
+        return replace(scan, xyz=deskew(scan.xyz, scan.point_times, motion))
+
+    first = previous = None
+    for scan in scans:
+        if previous is None:
+            first = previous = scan  # held until the next scan gives its motion
+            continue
+        if first is not None:
+            yield moved(first, first, scan)
+            first = None
+        yield moved(scan, previous, scan)
+        previous = scan
+    if first is not None:  # a single posed scan: no motion to deskew it with
+        yield first
 
 
 def _loop_edge(loop: Any, truth: dict[int, Any], store: Any) -> dict[str, Any]:

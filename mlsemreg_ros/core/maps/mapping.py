@@ -29,7 +29,7 @@ since the previous keyframe as its edge. With ``map.loop_closure``:
 3. a registration the confidence rule accepts, whose pose lies within
    ``map.loop_search_radius`` of the drifting one, is refined against a submap of the
    matched keyframe and its neighbours (``map.loop_refine``,
-   :mod:`mlsemreg_ros.core.maps.loop_verification`); if the refinement agrees, its pose
+   :mod:`mlsemreg_ros.core.maps.submap_check`); if the refinement agrees, its pose
    becomes a loop edge; GTSAM optimizes the
    graph, the store's keyframes move to the optimized poses and ``T_map_odom`` is
    updated so that later poses continue from the corrected one.
@@ -40,9 +40,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore, StoredKeyframe
-from mlsemreg_ros.core.maps.loop_verification import LoopCheck, refine_loop
 from mlsemreg_ros.core.maps.pose_graph import PoseGraph
 from mlsemreg_ros.core.maps.relocalization import Relocalizer
+from mlsemreg_ros.core.maps.submap_check import refine_on_submap, static_points, SubmapCheck
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan
 from mlsemreg_ros.core.rigid import invert_transform
@@ -57,7 +57,7 @@ class LoopClosure:
     match: int
     T_match_current: np.ndarray
     correction_m: float  # how far the loop moved the current keyframe
-    check: LoopCheck | None = None  # the submap refinement (map.loop_refine)
+    check: SubmapCheck | None = None  # the submap refinement (map.loop_refine)
 
 
 @dataclass
@@ -157,10 +157,10 @@ class Mapper:
                 continue
             check = None
             if cfg.loop_refine:
-                check = refine_loop(
+                check = refine_on_submap(
                     self.store,
                     match,
-                    _static_points(prepared),
+                    static_points(prepared),
                     T_match_current,
                     allowed,
                     cfg,
@@ -198,10 +198,3 @@ class Mapper:
     def keyframe_odometry(self) -> dict[int, np.ndarray]:
         """``T_odom_keyframe`` of every keyframe (the poses before any loop closure)."""
         return dict(self._odom)
-
-
-def _static_points(scan: PreparedScan) -> np.ndarray:
-    """The scan's points without those marked as moving objects (``scan.map_excluded``)."""
-    if scan.map_excluded is None:
-        return scan.points
-    return scan.points[~scan.map_excluded]
