@@ -26,10 +26,11 @@ labels (its errors are anchored in the world, so both drives share them, as a re
 network's would; the per-sweep flicker is drawn for sweep numbers that the first drive
 does not use).
 
-A query is written at the sweep's start (its header stamp). With ``deskew``, its points
-are motion-compensated to that instant with the twist over the previous sweep period (what
-the odometry's constant-velocity deskew would use, ``core/features/deskew.py``); without,
-they are the raw skewed sweep that a node relocalizing its first scan would see.
+A query is written at the sweep's start (its header stamp), its points motion-compensated
+to that instant (``core/features/deskew.py``) as ``deskew`` says: ``previous``, the twist
+over the previous sweep period (what the odometry's constant-velocity prediction gives;
+wrong where the turn rate changes within a period); ``sweep``, the twist over the sweep
+itself (what an IMU-aided deskew comes close to); ``off``, the raw skewed sweep.
 
 :func:`field_other_drive` gives the loop route of the same seed instead (``mlsemreg
 simulate --realism field --route loop``): the same city, mostly other streets; the
@@ -77,11 +78,22 @@ def field_other_drive(config: FieldConfig) -> tuple[FieldSimulation, FieldSimula
     return FieldSimulation(config), FieldSimulation(replace(config, route='loop', frames=0))
 
 
-def _deskewed(scan: FieldScan, drive: ContinuousDrive, t0: float, period: float) -> np.ndarray:
-    """The sweep's points at its start, with the twist over the previous period."""
-    before, at = drive.poses(np.array([t0 - period, t0]))
-    motion = sweep_motion(before, 1, at, 1 + round(period * 1e9))
+#: How a query sweep is motion-compensated: the twist over the previous period (as the
+#: odometry's constant-velocity prediction), over the sweep itself (as an IMU-aided deskew),
+#: or not at all.
+DESKEW_MODES = ('previous', 'sweep', 'off')
+
+
+def _deskewed(
+    scan: FieldScan, drive: ContinuousDrive, t0: float, period: float, mode: str
+) -> np.ndarray:
+    """The sweep's points at its start, deskewed as ``mode`` says (:data:`DESKEW_MODES`)."""
     points = scan.points.astype(np.float64)
+    if mode == 'off':
+        return points
+    span = (t0 - period, t0) if mode == 'previous' else (t0, t0 + period)
+    a, b = drive.poses(np.array(span))
+    motion = sweep_motion(a, 1, b, 1 + round(period * 1e9))
     return points if motion is None else deskew_points(points, scan.times, motion)
 
 
@@ -91,7 +103,7 @@ def render_field_queries(
     starts: np.ndarray,
     indices: np.ndarray,
     noise_seed: int,
-    deskew: bool,
+    deskew: str,
 ) -> Iterator[QueryScan]:
     """Render the sweeps ``indices`` of ``drive`` in ``sim``'s world, poses in its map frame."""
     period = sim.model.period
@@ -107,7 +119,7 @@ def render_field_queries(
             labels = scan.labels
             if sim.label_model is not None:
                 labels = sim.label_model.predict(scan, FLICKER_OFFSET + int(index))
-            points = _deskewed(scan, drive, t0, period) if deskew else scan.points
+            points = _deskewed(scan, drive, t0, period, deskew)
             pose = origin_inv @ drive.poses(np.array([t0]))[0]
             yield QueryScan(int(index), points.astype(np.float32), labels.astype(np.int32), pose)
     finally:
@@ -115,7 +127,7 @@ def render_field_queries(
 
 
 def render_other_queries(
-    sim: FieldSimulation, other: FieldSimulation, indices: np.ndarray, deskew: bool
+    sim: FieldSimulation, other: FieldSimulation, indices: np.ndarray, deskew: str
 ) -> Iterator[QueryScan]:
     """Render sweeps ``indices`` of the ``other`` drive, poses in ``sim``'s map frame."""
     origin_inv = np.linalg.inv(sim.world_poses[0])
@@ -123,6 +135,6 @@ def render_other_queries(
     for index in np.asarray(indices, dtype=np.int64):
         frame = other.frame(int(index))
         t0 = float(other.sweep_starts[index])
-        points = _deskewed(frame.scan, other.drive, t0, period) if deskew else frame.scan.points
+        points = _deskewed(frame.scan, other.drive, t0, period, deskew)
         pose = origin_inv @ other.world_poses[index]
         yield QueryScan(int(index), points.astype(np.float32), frame.labels.astype(np.int32), pose)

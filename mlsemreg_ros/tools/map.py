@@ -216,9 +216,10 @@ def _deskewed_by_truth(scans: Any, config: Any) -> Any:
     The posed scans with their points deskewed to their stamps by the ground-truth motion.
 
     A map with ground-truth poses gets the motion compensation that the odometry gives
-    its keyframes (``preprocess.deskew``, ``core/features/deskew.py``): the constant twist
-    from the previous scan's pose to this one's; the first scan takes the twist to the
-    second. Scans without point times stay as they are.
+    its keyframes (``preprocess.deskew``, ``core/features/deskew.py``), with the true
+    motion: the constant twist from the scan's pose to the next scan's (its own sweep);
+    the last scan takes the twist from the one before. Scans without point times stay as
+    they are.
     """
     from dataclasses import replace
 
@@ -232,18 +233,13 @@ def _deskewed_by_truth(scans: Any, config: Any) -> Any:
             return scan
         return replace(scan, xyz=deskew(scan.xyz, scan.point_times, motion))
 
-    first = previous = None
+    before = held = None
     for scan in scans:
-        if previous is None:
-            first = previous = scan  # held until the next scan gives its motion
-            continue
-        if first is not None:
-            yield moved(first, first, scan)
-            first = None
-        yield moved(scan, previous, scan)
-        previous = scan
-    if first is not None:  # a single posed scan: no motion to deskew it with
-        yield first
+        if held is not None:
+            yield moved(held, held, scan)  # the motion over its own sweep, to the next stamp
+        before, held = held, scan
+    if held is not None:  # the last scan: the motion from the one before (none: as it is)
+        yield held if before is None else moved(held, before, held)
 
 
 def _loop_edge(loop: Any, truth: dict[int, Any], store: Any) -> dict[str, Any]:
@@ -378,12 +374,13 @@ def sim_queries(
         ),
     ] = 'clean',
     deskew: Annotated[
-        bool,
+        Literal['previous', 'sweep', 'off'],
         typer.Option(
             help='field: motion-compensate each sweep to its start with the twist over the '
-            'previous period (as the odometry would); else the raw skewed sweep'
+            'previous period (as the constant-velocity odometry), over the sweep itself (as '
+            'an IMU-aided deskew), or not (the raw skewed sweep)'
         ),
-    ] = True,
+    ] = 'previous',
     force: ForceOption = False,
 ) -> int:
     """Write relocalization queries from a second simulated drive."""
@@ -438,7 +435,7 @@ def _field_queries(
     start_offset: float,
     min_distance: float,
     noise_seed: int,
-    deskew: bool,
+    deskew: str,
 ) -> int:
     """Write the queries of a second field-mode drive (simulation/field_revisit.py)."""
     from mlsemreg_ros.simulation.field import FieldConfig
