@@ -413,6 +413,22 @@ def test_a_loop_edge_a_metre_off_never_enters_the_pose_graph(
     assert bool(mapper.loops) is loops_kept and bool(mapper.refused) is not loops_kept
 
 
+def test_a_timed_scan_the_odometry_left_skewed_is_not_mapped_or_relocalized() -> None:
+    """The odometry's first scans keep their skew (up to 1 m at 10 m/s): they wait."""
+    from types import SimpleNamespace
+
+    from mlsemreg_ros.core.maps.localization import awaits_deskew
+
+    config = RegistrationConfig()
+    times = np.linspace(0.0, 0.1, 100)
+    skewed, deskewed = SimpleNamespace(deskewed=False), SimpleNamespace(deskewed=True)
+    assert awaits_deskew(skewed, times, config)
+    assert not awaits_deskew(deskewed, times, config)
+    assert not awaits_deskew(skewed, None, config)  # no times: nothing to wait for
+    assert not awaits_deskew(skewed, np.zeros(100), config)  # times that cannot deskew
+    assert not awaits_deskew(skewed, times, config.replace({'preprocess.deskew': 'off'}))
+
+
 def test_copies_of_one_place_do_not_crowd_other_places_out_of_the_shortlist(
     street_store: KeyframeStore,
 ) -> None:
