@@ -379,8 +379,12 @@ class _LoopsOffBy:
 def test_a_loop_edge_a_metre_off_never_enters_the_pose_graph(
     offset_m: float, loops_kept: bool
 ) -> None:
-    """An accepted loop registration 1 m / 3 deg off the truth: refused (fails without the
-    submap check of map.loop_refine); one 0.1 m off: kept, and refined to the truth."""
+    """
+    Refuse accepted loop registrations 1 m / 3 deg off the truth; keep those 0.1 m off.
+
+    The 1 m case fails without the submap check (map.loop_refine); the kept edges are the
+    submap's refined poses.
+    """
     from mlsemreg_ros.core.maps.mapping import Mapper
 
     config = RegistrationConfig().replace(

@@ -60,7 +60,7 @@ def field_reverse_drive(
     start_offset: float = 0.5,
     noise_seed: int = 1000,
 ) -> tuple[FieldSimulation, ContinuousDrive, np.ndarray]:
-    """The first drive, the drive back along its streets, and its sweep start times (s)."""
+    """Return the first drive, the drive back along its streets, and its sweep starts (s)."""
     sim = FieldSimulation(config)
     period = sim.model.period
     driven = float(sim.drive.arc_length(np.array([sim.sweep_starts[-1] + period]))[0])
@@ -74,7 +74,7 @@ def field_reverse_drive(
 
 
 def field_other_drive(config: FieldConfig) -> tuple[FieldSimulation, FieldSimulation]:
-    """The first drive and the loop route of the same seed (the same city, other streets)."""
+    """Return the first drive and the loop route of its seed (the same city, other streets)."""
     return FieldSimulation(config), FieldSimulation(replace(config, route='loop', frames=0))
 
 
@@ -87,7 +87,7 @@ DESKEW_MODES = ('previous', 'sweep', 'off')
 def _deskewed(
     scan: FieldScan, drive: ContinuousDrive, t0: float, period: float, mode: str
 ) -> np.ndarray:
-    """The sweep's points at its start, deskewed as ``mode`` says (:data:`DESKEW_MODES`)."""
+    """Return the sweep's points at its start, deskewed as ``mode`` says (:data:`DESKEW_MODES`)."""
     points = scan.points.astype(np.float64)
     if mode == 'off':
         return points

@@ -213,7 +213,7 @@ def build_map(
 
 def _deskewed_by_truth(scans: Any, config: Any) -> Any:
     """
-    The posed scans with their points deskewed to their stamps by the ground-truth motion.
+    Yield the posed scans with their points deskewed to their stamps by the true motion.
 
     A map with ground-truth poses gets the motion compensation that the odometry gives
     its keyframes (``preprocess.deskew``, ``core/features/deskew.py``), with the true
@@ -243,7 +243,7 @@ def _deskewed_by_truth(scans: Any, config: Any) -> Any:
 
 
 def _loop_edge(loop: Any, truth: dict[int, Any], store: Any) -> dict[str, Any]:
-    """A loop edge against the ground truth: its error, whether it is right, its check."""
+    """Return a loop edge against the ground truth: its error, whether it is right, its check."""
     from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg
     import numpy as np
 

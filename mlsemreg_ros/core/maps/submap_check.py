@@ -80,7 +80,9 @@ def submap_points(
     ids = store.ids
     at = ids.index(match)
     chosen = [
-        k for k in ids[max(at - neighbours, 0) : at + neighbours + 1] if k == match or k in allowed
+        k
+        for k in ids[slice(max(at - neighbours, 0), at + neighbours + 1)]
+        if k == match or k in allowed
     ]
     T_match_map = invert_transform(store[match].T_map_keyframe)
     clouds = []
@@ -140,7 +142,7 @@ def refine_on_submap(
 
 
 def static_points(scan: PreparedScan) -> np.ndarray:
-    """The scan's points without those marked as moving objects (``scan.map_excluded``)."""
+    """Return the scan's points without those marked as moving objects (``scan.map_excluded``)."""
     if scan.map_excluded is None:
         return scan.points
     return scan.points[~scan.map_excluded]
