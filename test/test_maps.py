@@ -433,6 +433,36 @@ def test_a_timed_scan_the_odometry_left_skewed_is_not_mapped_or_relocalized() ->
     assert not awaits_deskew(skewed, times, config.replace({'preprocess.deskew': 'off'}))
 
 
+def test_a_ground_truth_map_deskews_every_scan_with_its_true_motion() -> None:
+    """Deskew each scan by its own sweep's motion; the last one by the motion before it."""
+    from mlsemreg_ros.datasets.source import Scan
+    from mlsemreg_ros.tools.map import _deskewed_by_truth
+
+    config = RegistrationConfig()
+    points, times = np.array([[10.0, 0.0, 0.0], [0.0, 5.0, 0.0]]), np.array([0.1, 0.0])
+    x = np.array([0.0, 1.0, 1.5])  # 10 m/s, then 5 m/s
+    scans = [
+        Scan(
+            k,
+            1_000_000_000 + k * 100_000_000,
+            points.copy(),
+            np.zeros(2),
+            None,
+            's',
+            motion(0.0, (x[k], 0.0, 0.0)),
+            times.copy(),
+        )
+        for k in range(3)
+    ]
+    out = list(_deskewed_by_truth(iter(scans), config))
+    assert [scan.index for scan in out] == [0, 1, 2]
+    # a point seen 0.1 s after the stamp, 1 m (0.5 m for the last scan) further on
+    for scan, moved in zip(out, (1.0, 0.5, 0.5), strict=True):
+        assert np.allclose(scan.xyz, [[10.0 + moved, 0.0, 0.0], [0.0, 5.0, 0.0]], atol=1e-9)
+    off = list(_deskewed_by_truth(iter(scans), config.replace({'preprocess.deskew': 'off'})))
+    assert all(np.array_equal(scan.xyz, points) for scan in off)
+
+
 def test_copies_of_one_place_do_not_crowd_other_places_out_of_the_shortlist(
     street_store: KeyframeStore,
 ) -> None:
