@@ -328,6 +328,141 @@ def test_the_mapper_closes_a_loop_on_a_drifting_out_and_back_drive() -> None:
         assert np.linalg.norm((invert_transform(true) @ loop.T_match_current)[:3, 3]) < 0.3
 
 
+def test_a_loop_registration_a_metre_off_is_corrected_by_the_submap_and_refused(
+    street_store: KeyframeStore,
+) -> None:
+    """The submap refinement finds the true pose; moving the edge that far refuses it."""
+    from mlsemreg_ros.core.maps.submap_check import refine_on_submap
+
+    config = street_store.config
+    world, labels = street_scene(seed=STREET_SEED)
+    query_pose = motion(180.0, (7.0, -3.0, 0.0))  # between keyframes 2 and 3, other lane
+    points, _ = scan_at(world, labels, query_pose, seed=900, max_points=15000)
+    match = street_store.ids[2]
+    true = invert_transform(street_store[match].T_map_keyframe) @ query_pose
+    ids = set(street_store.ids)
+    for offset, accepted in (
+        (motion(0.3, (0.1, 0.05, 0.0)), True),
+        (motion(3.0, (0.9, 0.3, 0.0)), False),
+    ):
+        check = refine_on_submap(
+            street_store, match, points, true @ offset, ids, config.map, config.fine
+        )
+        error = invert_transform(true) @ check.T_match_current
+        assert (
+            np.linalg.norm(error[:3, 3]) < 0.05
+            and rotation_error_deg(error[:3, :3], np.eye(3)) < 0.2
+        )
+        assert check.accepted is accepted, check.reason
+        assert check.submap_keyframes == 5  # the match and (up to) 3 neighbours on each side
+
+
+class _LoopsOffBy:
+    """A registration whose every answer is the truth moved by ``offset`` (a biased loop)."""
+
+    def __init__(self, registration: Registration, offset: np.ndarray) -> None:
+        self.registration, self.offset = registration, offset
+        self.config = registration.config
+        self.truth: dict[int, np.ndarray] = {}  # id(prepared scan) -> its true pose
+
+    def prepare(self, points: np.ndarray, labels: np.ndarray, lazy: bool = False):
+        return self.registration.prepare(points, labels, lazy=lazy)
+
+    def register(self, source, target, **_):
+        from types import SimpleNamespace
+
+        true = invert_transform(self.truth[id(target)]) @ self.truth[id(source)]
+        return SimpleNamespace(success=True, transform=true @ self.offset)
+
+
+@pytest.mark.parametrize(('offset_m', 'loops_kept'), [(0.1, True), (1.0, False)])
+def test_a_loop_edge_a_metre_off_never_enters_the_pose_graph(
+    offset_m: float, loops_kept: bool
+) -> None:
+    """
+    Refuse accepted loop registrations 1 m / 3 deg off the truth; keep those 0.1 m off.
+
+    The 1 m case fails without the submap check (map.loop_refine); the kept edges are the
+    submap's refined poses.
+    """
+    from mlsemreg_ros.core.maps.mapping import Mapper
+
+    config = RegistrationConfig().replace(
+        {'map.keyframe_distance': 4.0, 'map.loop_min_travel': 30.0, 'map.loop_candidates': 1}
+    )
+    world, labels = street_scene(seed=STREET_SEED)
+    xs = [*np.arange(-20.0, 21.0, 5.0), *np.arange(20.0, -21.0, -5.0)]
+    truth = [
+        motion(0.0 if i < 9 else 180.0, (x, 0.0 if i < 9 else -3.0, 0.0)) for i, x in enumerate(xs)
+    ]
+    yaw = 3.0 if offset_m > 0.5 else 0.3
+    registration = _LoopsOffBy(Registration(config), motion(yaw, (offset_m, 0.3 * offset_m, 0.0)))
+    mapper = Mapper(registration)  # type: ignore[arg-type]
+    odometry, drift = truth[0].copy(), motion(0.3, (0.05, 0.02, 0.0))
+    for k, pose in enumerate(truth):
+        if k:
+            odometry = odometry @ invert_transform(truth[k - 1]) @ pose @ drift
+        points, scan_labels = scan_at(world, labels, pose, seed=400 + k, max_points=15000)
+        prepared = registration.prepare(points, scan_labels, lazy=True)
+        registration.truth[id(prepared)] = pose
+        mapper.add(points, scan_labels, odometry, k, prepared=prepared)
+    ids = mapper.store.ids
+    assert len(ids) == len(truth)
+    tried = mapper.loops + mapper.refused
+    assert len(tried) >= 3  # the way back revisits the way out
+    for loop in mapper.loops:
+        true = invert_transform(truth[ids.index(loop.match)]) @ truth[ids.index(loop.current)]
+        error = invert_transform(true) @ loop.T_match_current
+        assert np.linalg.norm(error[:3, 3]) < 0.1  # the submap's pose (drifted by the odometry)
+    assert bool(mapper.loops) is loops_kept and bool(mapper.refused) is not loops_kept
+
+
+def test_a_timed_scan_the_odometry_left_skewed_is_not_mapped_or_relocalized() -> None:
+    """The odometry's first scans keep their skew (up to 1 m at 10 m/s): they wait."""
+    from types import SimpleNamespace
+
+    from mlsemreg_ros.core.maps.localization import awaits_deskew
+
+    config = RegistrationConfig()
+    times = np.linspace(0.0, 0.1, 100)
+    skewed, deskewed = SimpleNamespace(deskewed=False), SimpleNamespace(deskewed=True)
+    assert awaits_deskew(skewed, times, config)
+    assert not awaits_deskew(deskewed, times, config)
+    assert not awaits_deskew(skewed, None, config)  # no times: nothing to wait for
+    assert not awaits_deskew(skewed, np.zeros(100), config)  # times that cannot deskew
+    assert not awaits_deskew(skewed, times, config.replace({'preprocess.deskew': 'off'}))
+
+
+def test_a_ground_truth_map_deskews_every_scan_with_its_true_motion() -> None:
+    """Deskew each scan by its own sweep's motion; the last one by the motion before it."""
+    from mlsemreg_ros.datasets.source import Scan
+    from mlsemreg_ros.tools.map import _deskewed_by_truth
+
+    config = RegistrationConfig()
+    points, times = np.array([[10.0, 0.0, 0.0], [0.0, 5.0, 0.0]]), np.array([0.1, 0.0])
+    x = np.array([0.0, 1.0, 1.5])  # 10 m/s, then 5 m/s
+    scans = [
+        Scan(
+            k,
+            1_000_000_000 + k * 100_000_000,
+            points.copy(),
+            np.zeros(2),
+            None,
+            's',
+            motion(0.0, (x[k], 0.0, 0.0)),
+            times.copy(),
+        )
+        for k in range(3)
+    ]
+    out = list(_deskewed_by_truth(iter(scans), config))
+    assert [scan.index for scan in out] == [0, 1, 2]
+    # a point seen 0.1 s after the stamp, 1 m (0.5 m for the last scan) further on
+    for scan, moved in zip(out, (1.0, 0.5, 0.5), strict=True):
+        assert np.allclose(scan.xyz, [[10.0 + moved, 0.0, 0.0], [0.0, 5.0, 0.0]], atol=1e-9)
+    off = list(_deskewed_by_truth(iter(scans), config.replace({'preprocess.deskew': 'off'})))
+    assert all(np.array_equal(scan.xyz, points) for scan in off)
+
+
 def test_copies_of_one_place_do_not_crowd_other_places_out_of_the_shortlist(
     street_store: KeyframeStore,
 ) -> None:

@@ -81,7 +81,9 @@ class MapServices:
             localization.store.config = config.core
         if step.source == 'first' and step.index == 0:
             localization.reset()  # the odometry (re)started at identity
-        update = localization.update(self.odometry, step, scan.xyz, scan.labels)
+        update = localization.update(
+            self.odometry, step, scan.xyz, scan.labels, getattr(scan, 'point_times', None)
+        )
         if update.message and update.event in ('relocalized', 'recovered', 'loop'):
             self.node.get_logger().info(update.message)
         elif update.event == 'refused':

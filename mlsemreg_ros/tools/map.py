@@ -136,11 +136,11 @@ def build_map(
     progress: bool = False,
 ) -> dict[str, Any]:
     """Map a scan source; returns the mapper and a summary (keyframes, loops, ATE)."""
+    from mlsemreg_ros.core.maps.localization import awaits_deskew
     from mlsemreg_ros.core.maps.mapping import Mapper
     from mlsemreg_ros.core.metrics import ate_rmse
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
-    from mlsemreg_ros.core.rigid import invert_transform
     import numpy as np
     from tqdm import tqdm
 
@@ -152,26 +152,33 @@ def build_map(
     truth: dict[int, np.ndarray] = {}  # keyframe id -> ground truth
     scans = accepted = trials = 0
     total = len(source) if max_frames is None else min(len(source), max_frames)
-    for scan in tqdm(
-        source.scans(max_frames=max_frames),
-        total=total,
-        desc='map',
-        unit='scan',
-        file=sys.stderr,
-        disable=not progress,
-    ):
-        if scan.labels is None:
-            continue
+    labeled = (
+        scan
+        for scan in tqdm(
+            source.scans(max_frames=max_frames),
+            total=total,
+            desc='map',
+            unit='scan',
+            file=sys.stderr,
+            disable=not progress,
+        )
+        if scan.labels is not None
+    )
+    if odometry is None:  # ground truth: only the posed scans, deskewed by the truth
+        labeled = _deskewed_by_truth((scan for scan in labeled if scan.pose is not None), config)
+    for scan in labeled:
         scans += 1
         if odometry is None:
-            if scan.pose is None:
-                continue
             step = mapper.add(scan.xyz, scan.labels, scan.pose, scan.stamp_ns)
         else:
-            moved = odometry.process(scan.xyz, scan.labels, scan.stamp_ns)
+            moved = odometry.process(
+                scan.xyz, scan.labels, scan.stamp_ns, point_times=scan.point_times
+            )
             if not moved.accepted:
                 continue
             accepted += 1
+            if awaits_deskew(moved, scan.point_times, config):
+                continue  # the odometry's first scans: skewed, no keyframe of them
             step = mapper.add(
                 scan.xyz, scan.labels, moved.pose, scan.stamp_ns, prepared=moved.prepared
             )
@@ -194,30 +201,78 @@ def build_map(
         odom = mapper.keyframe_odometry()
         summary['ate_m'] = ate_rmse(np.stack([store[i].T_map_keyframe for i in ids]), gt)
         summary['ate_odometry_m'] = ate_rmse(np.stack([odom[i] for i in ids]), gt)
-        right = wrong = 0
-        loops = []
-        for loop in mapper.loops:
-            true_motion = invert_transform(truth[loop.match]) @ truth[loop.current]
-            error = invert_transform(true_motion) @ loop.T_match_current
-            te = float(np.linalg.norm(error[:3, 3]))
-            re = float(np.degrees(np.arccos(np.clip((np.trace(error[:3, :3]) - 1) / 2, -1, 1))))
-            ok = te <= 0.6 and re <= 5.0
-            right, wrong = right + int(ok), wrong + int(not ok)
-            distance = float(np.linalg.norm(true_motion[:3, 3]))
-            loops.append(
-                {
-                    'current': int(loop.current),
-                    'match': int(loop.match),
-                    'distance_m': distance,
-                    'te_m': te,
-                    're_deg': re,
-                    'right': bool(ok),
-                }
-            )
+        loops = [_loop_edge(loop, truth, store) for loop in mapper.loops]
+        right = sum(edge['right'] for edge in loops)
+        wrong = len(loops) - right
         summary['loop_edges'] = loops
+        summary['loops_refused'] = [_loop_edge(loop, truth, store) for loop in mapper.refused]
         summary['loops_true'], summary['loops_wrong'] = right, wrong
         summary['revisits'] = int(count_revisits(gt, config.map))
     return {'mapper': mapper, 'summary': summary}
+
+
+def _deskewed_by_truth(scans: Any, config: Any) -> Any:
+    """
+    Yield the posed scans with their points deskewed to their stamps by the true motion.
+
+    A map with ground-truth poses gets the motion compensation that the odometry gives
+    its keyframes (``preprocess.deskew``, ``core/features/deskew.py``), with the true
+    motion: the constant twist from the scan's pose to the next scan's (its own sweep);
+    the last scan takes the twist from the one before. Scans without point times stay as
+    they are.
+    """
+    from dataclasses import replace
+
+    from mlsemreg_ros.core.features.deskew import deskew, sweep_motion
+
+    def moved(scan: Any, a: Any, b: Any) -> Any:
+        if config.preprocess.deskew == 'off' or scan.point_times is None:
+            return scan
+        motion = sweep_motion(a.pose, a.stamp_ns, b.pose, b.stamp_ns)
+        if motion is None:
+            return scan
+        return replace(scan, xyz=deskew(scan.xyz, scan.point_times, motion))
+
+    before = held = None
+    for scan in scans:
+        if held is not None:
+            yield moved(held, held, scan)  # the motion over its own sweep, to the next stamp
+        before, held = held, scan
+    if held is not None:  # the last scan: the motion from the one before (none: as it is)
+        yield held if before is None else moved(held, before, held)
+
+
+def _loop_edge(loop: Any, truth: dict[int, Any], store: Any) -> dict[str, Any]:
+    """Return a loop edge against the ground truth: its error, whether it is right, its check."""
+    from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg
+    import numpy as np
+
+    true_motion = invert_transform(truth[loop.match]) @ truth[loop.current]
+    error = invert_transform(true_motion) @ loop.T_match_current
+    te, re = float(np.linalg.norm(error[:3, 3])), rotation_angle_deg(error)
+    edge = {
+        'current': int(loop.current),
+        'match': int(loop.match),
+        'current_stamp_ns': int(store[loop.current].stamp_ns),
+        'match_stamp_ns': int(store[loop.match].stamp_ns),
+        'distance_m': float(np.linalg.norm(true_motion[:3, 3])),
+        'te_m': te,
+        're_deg': re,
+        'right': bool(te <= 0.6 and re <= 5.0),
+        'T_match_current': np.asarray(loop.T_match_current).tolist(),
+    }
+    if loop.check is not None:
+        coarse = invert_transform(true_motion) @ loop.check.T_registration
+        edge['refinement'] = {
+            'registration_te_m': float(np.linalg.norm(coarse[:3, 3])),
+            'registration_re_deg': rotation_angle_deg(coarse),
+            'correction_m': loop.check.correction_m,
+            'correction_deg': loop.check.correction_deg,
+            'inlier_fraction': loop.check.inlier_fraction,
+            'submap_keyframes': loop.check.submap_keyframes,
+            'reason': loop.check.reason,
+        }
+    return edge
 
 
 def count_revisits(gt: Any, map_config: Any) -> int:
@@ -311,6 +366,21 @@ def sim_queries(
         typer.Option(min=0.0, help='other: keep scans at least this far from the mapped drive, m'),
     ] = 80.0,
     noise_seed: Annotated[int, typer.Option(min=0, help='seed of the sensor noise')] = 1000,
+    realism: Annotated[
+        Literal['clean', 'field'],
+        typer.Option(
+            help='the world of `mlsemreg simulate --realism`: clean, or field (HDL-64 skewed '
+            'sweeps, moving objects, network labels; --drive other is the loop route)'
+        ),
+    ] = 'clean',
+    deskew: Annotated[
+        Literal['previous', 'sweep', 'off'],
+        typer.Option(
+            help='field: motion-compensate each sweep to its start with the twist over the '
+            'previous period (as the constant-velocity odometry), over the sweep itself (as '
+            'an IMU-aided deskew), or not (the raw skewed sweep)'
+        ),
+    ] = 'previous',
     force: ForceOption = False,
 ) -> int:
     """Write relocalization queries from a second simulated drive."""
@@ -321,6 +391,21 @@ def sim_queries(
     from scipy.spatial import cKDTree
 
     replace_output(out, force)
+    if realism == 'field':
+        written = _field_queries(
+            out,
+            seed,
+            frames,
+            drive,
+            every,
+            lane_change,
+            start_offset,
+            min_distance,
+            noise_seed,
+            deskew,
+        )
+        print_text(f'wrote {written} queries ({drive} field drive) to {out}')
+        return 0
     config = SimulationConfig(seed=seed, frames=frames)
     if drive == 'reverse':
         sim, world_poses = reverse_drive(config, lane_change, start_offset, noise_seed)
@@ -338,6 +423,48 @@ def sim_queries(
         )
     print_text(f'wrote {len(indices)} queries ({drive} drive) to {out}')
     return 0
+
+
+def _field_queries(
+    out: Path,
+    seed: int,
+    frames: int,
+    drive: str,
+    every: int,
+    lane_change: float,
+    start_offset: float,
+    min_distance: float,
+    noise_seed: int,
+    deskew: str,
+) -> int:
+    """Write the queries of a second field-mode drive (simulation/field_revisit.py)."""
+    from mlsemreg_ros.simulation.field import FieldConfig
+    from mlsemreg_ros.simulation.field_revisit import (
+        field_other_drive,
+        field_reverse_drive,
+        render_field_queries,
+        render_other_queries,
+    )
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    config = FieldConfig(seed=seed, frames=frames)
+    if drive == 'reverse':
+        sim, reverse, starts = field_reverse_drive(config, lane_change, start_offset, noise_seed)
+        indices = np.arange(0, len(starts), every)
+        queries = render_field_queries(sim, reverse, starts, indices, noise_seed, deskew)
+    else:
+        sim, other = field_other_drive(config)
+        distance = cKDTree(sim.world_poses[:, :2, 3]).query(other.world_poses[:, :2, 3])[0]
+        indices = np.arange(0, len(other), every)
+        indices = indices[distance[indices] >= min_distance]
+        queries = render_other_queries(sim, other, indices, deskew)
+    out.mkdir(parents=True)
+    for query in queries:
+        _write_query(
+            out / f'{query.index:06d}.npz', query.points, query.labels, query.T_map_scan, 0
+        )
+    return len(indices)
 
 
 @app.command(

@@ -162,6 +162,46 @@ class MapConfig:
         low=0.0,
         high=1.0,
     )
+    loop_refine: bool = param(
+        True,
+        'Refine each loop registration against a submap of the matched keyframe and its '
+        'neighbours (GICP, the fine section) and keep the loop only if the refinement '
+        'agrees (map.submap_*, core/maps/submap_check.py).',
+    )
+    relocalize_refine: bool = param(
+        True,
+        'The same check for a relocalization: the accepted registration is refined against '
+        'the submap of its keyframe and refused unless the refinement agrees (map.submap_*).',
+    )
+    submap_keyframes: int = param(
+        3,
+        'Keyframes on each side of the matched one in the submap a loop or a relocalization '
+        'is refined against.',
+        low=0,
+        high=1000,
+    )
+    submap_min_inlier_fraction: float = param(
+        0.5,
+        'A loop or relocalization whose submap refinement keeps less of the scan as '
+        'inliers is refused.',
+        low=0.0,
+        high=1.0,
+    )
+    submap_max_correction_translation: float = param(
+        0.3,
+        'A loop or relocalization whose submap refinement moves the registration further '
+        'is refused.',
+        unit='m',
+        low=0.0,
+        high=1000.0,
+    )
+    submap_max_correction_rotation: float = param(
+        1.5,
+        '... or turns it more.',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
     odometry_sigma_translation: float = param(
         0.05,
         'Pose graph: standard deviation of an odometry edge per metre travelled.',

@@ -41,12 +41,30 @@ from dataclasses import dataclass
 import threading
 from typing import Any
 
+from mlsemreg_ros.core.features.deskew import time_span_refusal
 from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
 from mlsemreg_ros.core.maps.mapping import Mapper
 from mlsemreg_ros.core.maps.relocalization import Relocalization, Relocalizer
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
+
+
+def awaits_deskew(step: Any, point_times: np.ndarray | None, config: Any) -> bool:
+    """
+    Whether a scan with per-point times was left skewed by the odometry (its first scans).
+
+    The odometry deskews a scan only once it knows the motion (``preprocess.deskew``); its
+    first scans keep the skew of the sweep, up to the distance driven in one period. A
+    relocalization or a keyframe of such a scan is off by about half that (docs/maps.md:
+    1 m at 10 m/s on the simulated field drives), so they wait for a deskewed scan. With
+    ``preprocess.deskew`` off, or scans without usable times, nothing waits.
+    """
+    if point_times is None or config.preprocess.deskew == 'off':
+        return False
+    if getattr(step, 'deskewed', False):
+        return False
+    return not time_span_refusal(point_times, len(point_times))  # times that could deskew
 
 
 @dataclass
@@ -115,17 +133,34 @@ class MapLocalization:
         self._last_position = None
 
     def update(
-        self, odometry: Any, step: Any, points: np.ndarray, labels: np.ndarray
+        self,
+        odometry: Any,
+        step: Any,
+        points: np.ndarray,
+        labels: np.ndarray,
+        point_times: np.ndarray | None = None,
     ) -> LocalizationUpdate:
-        """Take one odometry step (``odometry``: the :class:`Odometry` that made it)."""
+        """
+        Take one odometry step (``odometry``: the :class:`Odometry` that made it).
+
+        ``point_times``: the scan's per-point times, if it has them; a timed scan that the
+        odometry could not deskew is neither relocalized nor mapped (:func:`awaits_deskew`).
+        """
         with self.lock:
-            return self._update(odometry, step, points, labels)
+            return self._update(odometry, step, points, labels, point_times)
 
     def _update(
-        self, odometry: Any, step: Any, points: np.ndarray, labels: np.ndarray
+        self,
+        odometry: Any,
+        step: Any,
+        points: np.ndarray,
+        labels: np.ndarray,
+        point_times: np.ndarray | None = None,
     ) -> LocalizationUpdate:
         cfg = self.store.config.map
         self._failures = 0 if step.accepted else self._failures + 1
+        if awaits_deskew(step, point_times, self.store.config):
+            return self._state('', 'scan not deskewed (no motion yet): not relocalized or mapped')
         lost = (
             cfg.relocalize_after_failures > 0
             and self._failures >= cfg.relocalize_after_failures

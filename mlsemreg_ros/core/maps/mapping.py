@@ -27,7 +27,10 @@ since the previous keyframe as its edge. With ``map.loop_closure``:
    ``map.loop_candidates`` with a scan context similarity of at least
    ``map.loop_min_similarity`` are registered onto (ML-SemReg, no initial guess);
 3. a registration the confidence rule accepts, whose pose lies within
-   ``map.loop_search_radius`` of the drifting one, becomes a loop edge; GTSAM optimizes the
+   ``map.loop_search_radius`` of the drifting one, is refined against a submap of the
+   matched keyframe and its neighbours (``map.loop_refine``,
+   :mod:`mlsemreg_ros.core.maps.submap_check`); if the refinement agrees, its pose
+   becomes a loop edge; GTSAM optimizes the
    graph, the store's keyframes move to the optimized poses and ``T_map_odom`` is
    updated so that later poses continue from the corrected one.
 """
@@ -39,6 +42,7 @@ from dataclasses import dataclass, field
 from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore, StoredKeyframe
 from mlsemreg_ros.core.maps.pose_graph import PoseGraph
 from mlsemreg_ros.core.maps.relocalization import Relocalizer
+from mlsemreg_ros.core.maps.submap_check import refine_on_submap, static_points, SubmapCheck
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan
 from mlsemreg_ros.core.rigid import invert_transform
@@ -53,6 +57,7 @@ class LoopClosure:
     match: int
     T_match_current: np.ndarray
     correction_m: float  # how far the loop moved the current keyframe
+    check: SubmapCheck | None = None  # the submap refinement (map.loop_refine)
 
 
 @dataclass
@@ -75,6 +80,7 @@ class Mapper:
         self.relocalizer = Relocalizer(registration, self.store)
         self.T_map_odom = np.eye(4)
         self.loops: list[LoopClosure] = []
+        self.refused: list[LoopClosure] = []  # accepted registrations the refinement refused
         self._odom: dict[int, np.ndarray] = {}  # T_odom_keyframe of every keyframe
         self._travel: dict[int, float] = {}  # distance travelled when it was added
         self._travelled = 0.0
@@ -144,17 +150,37 @@ class Mapper:
             result = self.registration.register(prepared, target)
             if not (result.success and np.all(np.isfinite(result.transform))):
                 continue
-            T_map_current = self.store[match].T_map_keyframe @ result.transform
+            T_match_current = result.transform
+            T_map_current = self.store[match].T_map_keyframe @ T_match_current
             moved = float(np.linalg.norm(T_map_current[:3, 3] - here))
             if cfg.loop_search_radius > 0 and moved > cfg.loop_search_radius:
                 continue
-            self.graph.add_loop(match, keyframe.keyframe_id, result.transform)
+            check = None
+            if cfg.loop_refine:
+                check = refine_on_submap(
+                    self.store,
+                    match,
+                    static_points(prepared),
+                    T_match_current,
+                    allowed,
+                    cfg,
+                    self.store.config.fine,
+                )
+                if not check.accepted:
+                    self.refused.append(
+                        LoopClosure(
+                            keyframe.keyframe_id, match, T_match_current.copy(), moved, check
+                        )
+                    )
+                    continue
+                T_match_current = check.T_match_current
+            self.graph.add_loop(match, keyframe.keyframe_id, T_match_current)
             optimized = self.graph.optimize()
             self.store.set_poses(optimized)
             self.T_map_odom = optimized[keyframe.keyframe_id] @ invert_transform(
                 self._odom[keyframe.keyframe_id]
             )
-            loop = LoopClosure(keyframe.keyframe_id, match, result.transform.copy(), moved)
+            loop = LoopClosure(keyframe.keyframe_id, match, T_match_current.copy(), moved, check)
             self.loops.append(loop)
             step.loop = loop
             return

@@ -22,8 +22,10 @@ For a query scan (sensor frame, labeled):
    re-ranked over every yaw; at most ``map.candidates``, whatever the map size);
 2. the query is registered onto each candidate with the full pipeline (ML-SemReg +
    SC2-PCR + verification + confidence + fine alignment), no initial guess;
-3. a registration the confidence rule accepts (``RegistrationResult.success``) gives
-   ``T_map_sensor = T_map_keyframe @ T_keyframe_query``. With
+3. a registration the confidence rule accepts (``RegistrationResult.success``) is refined
+   against a submap of the keyframe and its neighbours and refused unless the refinement
+   agrees (``map.relocalize_refine``, :mod:`mlsemreg_ros.core.maps.submap_check`); the
+   refined pose gives ``T_map_sensor = T_map_keyframe @ T_keyframe_query``. With
    ``map.stop_at_first_accepted`` the first accepted candidate (best scan context first)
    is the answer; else the accepted one with the most sparse inliers.
 
@@ -36,6 +38,7 @@ from dataclasses import dataclass, field
 import time
 
 from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
+from mlsemreg_ros.core.maps.submap_check import refine_on_submap, static_points
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 import numpy as np
@@ -115,24 +118,37 @@ class Relocalizer:
             result = self.registration.register(prepared, target)
             accepted = bool(result.success) and bool(np.all(np.isfinite(result.transform)))
             inliers = int(np.count_nonzero(result.inlier_mask))
+            T_keyframe_query, message = result.transform, result.message
+            if accepted and cfg.relocalize_refine:
+                check = refine_on_submap(
+                    self.store,
+                    keyframe_id,
+                    static_points(prepared),
+                    result.transform,
+                    set(ids) if allowed is None else allowed,
+                    cfg,
+                    self.store.config.fine,
+                )
+                accepted, T_keyframe_query = check.accepted, check.T_match_current
+                message = check.reason or message
             trials.append(
                 CandidateTrial(
                     keyframe_id,
                     candidate.similarity,
                     accepted,
                     inliers,
-                    result.message,
+                    message,
                     1e3 * (time.perf_counter() - began),
                 )
             )
             if accepted and (best is None or inliers > int(np.count_nonzero(best[1].inlier_mask))):
-                best = (keyframe_id, result)
+                best = (keyframe_id, result, T_keyframe_query)
                 if cfg.stop_at_first_accepted:
                     break
         timings['registration_ms'] = 1e3 * (time.perf_counter() - tic)
         timings['total_ms'] = 1e3 * (time.perf_counter() - start)
         if best is None:
             return Relocalization(False, None, -1, trials, None, timings)
-        keyframe_id, result = best
-        T_map_sensor = self.store[keyframe_id].T_map_keyframe @ result.transform
+        keyframe_id, result, T_keyframe_query = best
+        T_map_sensor = self.store[keyframe_id].T_map_keyframe @ T_keyframe_query
         return Relocalization(True, T_map_sensor, keyframe_id, trials, result, timings)
