@@ -362,12 +362,15 @@ class Registration:
         # (core/estimation/confidence.py, docs/hard_pairs.md)
         with _timed(timings, 'confidence_ms'):
             measure = functools.partial(self._distinctive_of, source=source, target=target)
+            ceiling = label_model.label_ceiling(
+                source, target, self._label_compatibility, cfg.verification
+            )
             pool = _Pool.of(verified, measure)
-            chosen = pool.decide(pool.incumbent, cfg) if pool else None
+            chosen = pool.decide(pool.incumbent, cfg, ceiling) if pool else None
             if chosen is not None:
                 transform = pool.hypotheses[chosen].T_target_source
             inliers, evidence = self._evidence(
-                transform, src_pts, dst_pts, pool, chosen, source, target
+                transform, src_pts, dst_pts, pool, chosen, source, target, ceiling
             )
         refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
         # 2d. refused or weak: search the scans themselves (core/estimation/bev_search.py); 2e.
@@ -396,10 +399,10 @@ class Registration:
             for found in stages:
                 with _timed(timings, 'confidence_ms'):
                     pool = pool.extended(found, measure)
-                    chosen = pool.decide(chosen, cfg)
+                    chosen = pool.decide(chosen, cfg, ceiling)
                     transform = pool.hypotheses[chosen].T_target_source
                     inliers, evidence = self._evidence(
-                        transform, src_pts, dst_pts, pool, chosen, source, target
+                        transform, src_pts, dst_pts, pool, chosen, source, target, ceiling
                     )
                 refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
                 if refused and found is searched and cfg.bev_search.guided_peaks > 0:
@@ -466,6 +469,7 @@ class Registration:
         chosen: int | None,
         source: PreparedScan,
         target: PreparedScan,
+        ceiling: float | None = None,
     ) -> tuple[np.ndarray, confidence.Evidence]:
         """
         Inlier mask and the evidence of ``transform`` (``pool.hypotheses[chosen]`` or new).
@@ -551,8 +555,12 @@ class Registration:
             rival_share,
             rival,
             rival_objects,
-            label_model.label_ceiling(
-                source, target, self._label_compatibility, self.config.verification
+            (
+                label_model.label_ceiling(
+                    source, target, self._label_compatibility, self.config.verification
+                )
+                if ceiling is None
+                else ceiling
             ),
         )
 
@@ -808,7 +816,9 @@ class _Pool:
         """Where candidate ``index`` came from ('estimator' or 'bev_search')."""
         return self.hypotheses[index].origin
 
-    def decide(self, incumbent: int, config: RegistrationConfig) -> int:
+    def decide(
+        self, incumbent: int, config: RegistrationConfig, ceiling: float = float('nan')
+    ) -> int:
         """
         Return the candidate to keep: the best score, then the distinctive structure decides.
 
@@ -819,7 +829,9 @@ class _Pool:
         the target view) replace an undecided winner, and one that lines up more objects
         replaces a decided winner (most objects first, then the best score): at 40 m the
         zero-motion slide overlaps more than the truth, but lines up none of its poles
-        (docs/hard_pairs.md).
+        (docs/hard_pairs.md). Only while the labels' ``ceiling`` trusts the objects
+        (:func:`~mlsemreg_ros.core.estimation.confidence.objects_trusted`; NaN: unknown,
+        trusted): with noisy labels they line up by chance, and the best score decides.
         """
         conf, scores = config.confidence, self.scores()
         best = int(np.argmax(scores))
@@ -828,8 +840,10 @@ class _Pool:
             if scores[best] > scores[incumbent] * (1.0 + config.verification.min_gain)
             else incumbent
         )
-        decided = (self.points >= conf.min_distinctive_objects) & (
-            self.points >= conf.min_distinctive_fraction * self.views
+        decided = (
+            (self.points >= conf.min_distinctive_objects)
+            & (self.points >= conf.min_distinctive_fraction * self.views)
+            & confidence.objects_trusted(ceiling, conf)
         )
         eligible = decided & (scores >= (1.0 - conf.decide_margin) * scores[winner])
         if eligible.any() and not decided[winner]:
