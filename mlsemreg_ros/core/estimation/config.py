@@ -452,12 +452,16 @@ class ConfidenceConfig:
     )
     contradiction_min_ceiling: float = param(
         0.85,
-        'The contradiction check (confidence.contradicting_objects) applies only when the '
+        'The distinctive objects count only when the '
         "labels' ceiling (the geometric mean of the two scans' label self-agreement, "
-        'core/estimation/label_model.py) reaches this: noisier labels make objects of mislabeled '
-        'distinctive points that cannot line up. Dev pairs: >= 0.90 clean, 0.74-0.81 with '
-        '20 % of the source labels random (right poses: 1-6 of 8-31 objects in view lined '
-        'up). 0: always; an unknown ceiling keeps the check (docs/label_noise.md).',
+        'core/estimation/label_model.py) reaches this: they contradict a pose '
+        '(confidence.contradicting_objects), decide an ambiguity and choose among the '
+        'candidates (confidence.decide_margin). Noisier labels make objects of mislabeled '
+        'distinctive points that cannot line up, or line up by chance. Dev pairs: >= 0.90 '
+        'clean, 0.74-0.81 with 20 % of the source labels random (right poses: 1-6 of 8-31 '
+        'objects in view lined up), 0.78-0.83 with 10 % flipped (a pose 4.7 m off lined up 2 '
+        'of 4 and replaced the right one). 0: always; an unknown ceiling keeps them '
+        '(docs/label_noise.md).',
         low=0.0,
         high=1.0,
     )
