@@ -131,22 +131,36 @@ def _pool_of_000008() -> tuple[Any, RegistrationConfig]:
     return pool, RegistrationConfig()
 
 
-@pytest.mark.parametrize(('ceiling', 'chosen'), [(0.95, 1), (np.nan, 1), (0.81, 0)])
-def test_with_noisy_labels_the_objects_do_not_choose_among_the_candidates(ceiling, chosen) -> None:
+@pytest.mark.parametrize(('trusted', 'chosen'), [(True, 1), (False, 0)])
+def test_with_flipped_labels_the_objects_do_not_choose_among_the_candidates(
+    trusted, chosen
+) -> None:
     """
     Clean labels: 2 of 4 objects lined up win within confidence.decide_margin. Noisy: the score.
 
     Measured (2026-12-03): the 4.7 m pose lined up 2 of 4 objects by chance and replaced
     the right pose (1 of 6, 1.4 times the score); pair 000008 was then neither right nor
-    accepted (FPFH, flip:0.1, ceiling 0.809).
+    accepted (FPFH, flip:0.1, distinctive ceiling 0.11, label ceiling 0.809).
     """
     pool, config = _pool_of_000008()
-    assert pool.decide(0, config, ceiling) == chosen
-    assert pool.decide(0, config) == 1  # no ceiling given: unknown, the objects count
+    assert pool.decide(0, config, trusted) == chosen
+    assert pool.decide(0, config) == 1  # trusted unless told
 
 
-@pytest.mark.parametrize(('ceiling', 'ambiguous'), [(0.95, False), (np.nan, False), (0.8, True)])
-def test_with_noisy_labels_the_objects_do_not_decide_an_ambiguity(ceiling, ambiguous) -> None:
+@pytest.mark.parametrize(
+    ('ceiling', 'distinctive', 'ambiguous'),
+    [
+        (0.95, np.nan, False),  # unknown distinctive ceiling: the labels' ceiling decides
+        (np.nan, np.nan, False),
+        (0.8, np.nan, True),
+        (0.7, 0.9, False),  # 30 % confusions: the distinctive classes are untouched
+        (0.8, 0.3, True),  # 10 % flips
+        (0.95, 0.3, True),
+    ],
+)
+def test_with_flipped_labels_the_objects_do_not_decide_an_ambiguity(
+    ceiling, distinctive, ambiguous
+) -> None:
     config = ConfidenceConfig()
     evidence = confidence.Evidence(
         **BASE,
@@ -157,6 +171,64 @@ def test_with_noisy_labels_the_objects_do_not_decide_an_ambiguity(ceiling, ambig
         distinctive_in_view=4,
         distinctive_overlap=0.4,
         label_ceiling=ceiling,
+        distinctive_ceiling=distinctive,
     )
     assert bool(evidence.ambiguity(config)) is ambiguous
-    assert confidence.objects_trusted(ceiling, config) is not ambiguous
+    assert confidence.objects_trusted(ceiling, distinctive, config) is not ambiguous
+    off = ConfidenceConfig(min_distinctive_ceiling=0.0)  # 0: the labels' ceiling alone
+    assert confidence.objects_trusted(ceiling, distinctive, off) is (
+        not (np.isfinite(ceiling) and ceiling < off.contradiction_min_ceiling)
+    )
+
+
+def test_the_distinctive_ceiling_tells_flipped_labels_from_confused_ones() -> None:
+    """A street with poles: confusions of road/building leave it, 10 % flips sink it."""
+    from mlsemreg_ros.core.estimation.label_model import distinctive_ceiling
+    from mlsemreg_ros.core.matching.labels import LabelMap
+    from mlsemreg_ros.core.results import Landmarks, PreparedScan
+    from mlsemreg_ros.evaluation.label_noise import LabelNoise
+
+    labels_map = LabelMap.load()
+    rng = np.random.default_rng(11)
+    ground = np.column_stack(
+        [rng.uniform(-20, 20, 20000), rng.uniform(-8, 8, 20000), np.zeros(20000)]
+    )
+    wall = np.column_stack(
+        [rng.uniform(-20, 20, 8000), np.full(8000, 8.0), rng.uniform(0, 6, 8000)]
+    )
+    poles = np.concatenate(
+        [
+            np.column_stack([np.full(40, x), np.full(40, 6.0), np.linspace(0, 4, 40)])
+            for x in (-12, 0, 12)
+        ]
+    )
+    points = np.vstack([ground, wall, poles])
+    ids = {n: labels_map.id_of(n) for n in ('road', 'building', 'pole')}
+    labels = np.r_[
+        np.full(20000, ids['road']), np.full(8000, ids['building']), np.full(120, ids['pole'])
+    ]
+    distinctive = np.zeros(labels_map.num_classes, bool)
+    distinctive[ids['pole']] = True
+
+    def ceiling(noise: str) -> float:
+        scans = []
+        for seed in (0, 1):
+            noisy = LabelNoise.parse(noise).apply(labels, labels_map, np.random.default_rng(seed))
+            empty = np.zeros((0, 3))
+            scans.append(
+                PreparedScan(
+                    points,
+                    noisy.astype(np.int32),
+                    empty,
+                    np.zeros(0, dtype=np.int64),
+                    np.zeros((0, 0), np.float32),
+                    np.zeros((0, labels_map.num_classes), bool),
+                    Landmarks.empty(),
+                )
+            )
+        return distinctive_ceiling(*scans, distinctive, 0.6)
+
+    config = ConfidenceConfig()
+    assert ceiling('none') > 0.9
+    assert ceiling('confuse:0.5') > 0.9
+    assert ceiling('flip:0.1') < config.min_distinctive_ceiling

@@ -47,9 +47,9 @@ give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in
   distinctive source objects in the target's view and lines up fewer than
   ``confidence.contradicted_fraction`` of them is refused
   (a flip of a symmetric street, a slide: their poles land beside the target's), as long
-  as the labels' ceiling reaches ``confidence.contradiction_min_ceiling`` (noisy labels
-  make objects of mislabeled points, :func:`objects_trusted`; nor do the objects decide
-  an ambiguity then); below
+  as the distinctive classes' labels are clean enough (flipped labels make objects of
+  mislabeled points, :func:`objects_trusted`; nor do the objects decide an ambiguity
+  then); below
   ``confidence.min_label_ceiling`` the labels vouch for no pose at all;
 - **well constrained** (after the fine alignment, :func:`localizability`): the
   alignment's Gauss-Newton Hessian constrains every translation direction (Zhang et al.
@@ -91,6 +91,8 @@ class Evidence:
     rival_distinctive_objects: int = 0  # most distinctive objects a close rival lines up
     #: label agreement these labels can give (core/estimation/label_model.py); NaN: unknown
     label_ceiling: float = float('nan')
+    #: the same for the distinctive classes only (label_model.distinctive_ceiling); NaN: unknown
+    distinctive_ceiling: float = float('nan')
 
     @property
     def inlier_ratio(self) -> float:
@@ -141,29 +143,35 @@ def tilt_deg(transform: np.ndarray) -> float:
     return float(np.degrees(np.arccos(cos))) if np.isfinite(cos) else float('nan')
 
 
-def objects_trusted(ceiling: float, config: ConfidenceConfig) -> bool:
+def objects_trusted(
+    label_ceiling: float, distinctive_ceiling: float, config: ConfidenceConfig
+) -> bool:
     """
-    Whether labels of this ``ceiling`` are clean enough for the distinctive objects to count.
+    Whether the distinctive objects count: the labels of their classes are clean enough.
 
-    With noisy labels, mislabeled points of ``confidence.distinctive_classes`` on walls and
-    road form source "objects" that land in the target's view and cannot line up: with 20 %
-    of the source labels random, the right dev poses put 8-31 objects in view and line up
-    1-6 of them. They also line up by chance: with 10 % of the labels flipped, a pose of
-    FPFH dev pair 000008 4.7 m off lined up 2 of 4 objects and replaced the right pose that
-    scored 1.4 times higher and lined up 1 of 6 (docs/label_noise.md). The label ceiling
-    (:func:`~mlsemreg_ros.core.estimation.label_model.label_ceiling`) says how noisy the
-    labels are: 0.74-0.83 there, at least 0.90 on every clean pair. Below
-    ``confidence.contradiction_min_ceiling`` the objects neither contradict a pose
-    (:func:`refusal`), nor decide an ambiguity (:meth:`Evidence.ambiguity`), nor choose
-    among the candidates (``_Pool.decide`` in ``core/pipeline.py``): the verification
-    score alone does. An unknown (NaN) ceiling trusts them.
+    With flipped labels, mislabeled points of ``confidence.distinctive_classes`` on walls
+    and road form source "objects" that land in the target's view and cannot line up (20 %
+    of the source labels random: the right dev poses put 8-31 objects in view and line up
+    1-6), or that line up by chance (10 % flips: a pose of FPFH dev pair 000008 4.7 m off
+    lined up 2 of 4 objects and replaced the right pose, which scored 1.4 times higher and
+    lined up 1 of 6; docs/label_noise.md). The ``distinctive_ceiling``
+    (:func:`~mlsemreg_ros.core.estimation.label_model.distinctive_ceiling`) measures the
+    labels of exactly those classes: 0.65-0.96 on clean labels and under confusions of
+    other classes, 0.06-0.34 with 10-30 % flips; below ``confidence.min_distinctive_ceiling``
+    the objects neither contradict a pose (:func:`refusal`), nor decide an ambiguity
+    (:meth:`Evidence.ambiguity`), nor choose among the candidates (``_Pool.decide`` in
+    ``core/pipeline.py``): the verification score alone does. When it cannot tell (NaN, or
+    the parameter 0), the labels' ``label_ceiling`` must reach
+    ``confidence.contradiction_min_ceiling`` (an unknown one trusts the objects).
     """
-    return not (np.isfinite(ceiling) and ceiling < config.contradiction_min_ceiling)
+    if config.min_distinctive_ceiling > 0 and np.isfinite(distinctive_ceiling):
+        return bool(distinctive_ceiling >= config.min_distinctive_ceiling)
+    return not (np.isfinite(label_ceiling) and label_ceiling < config.contradiction_min_ceiling)
 
 
 def labels_clean_enough(evidence: Evidence, config: ConfidenceConfig) -> bool:
     """Tell whether the distinctive objects of ``evidence`` count (:func:`objects_trusted`)."""
-    return objects_trusted(evidence.label_ceiling, config)
+    return objects_trusted(evidence.label_ceiling, evidence.distinctive_ceiling, config)
 
 
 def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> str:
