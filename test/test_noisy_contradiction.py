@@ -24,6 +24,7 @@ ceiling reaches ``confidence.contradiction_min_ceiling``.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 from dev_pairs import dev_pair_files
@@ -148,20 +149,19 @@ def test_with_flipped_labels_the_objects_do_not_choose_among_the_candidates(
 
 
 @pytest.mark.parametrize(
-    ('ceiling', 'distinctive', 'ambiguous'),
+    ('ceiling', 'distinctive', 'ambiguous', 'contradicted'),
     [
-        (0.95, np.nan, False),  # unknown distinctive ceiling: the labels' ceiling decides
-        (np.nan, np.nan, False),
-        (0.8, np.nan, True),
-        (0.7, 0.9, False),  # 30 % confusions: the distinctive classes are untouched
-        (0.8, 0.3, True),  # 10 % flips
-        (0.95, 0.3, True),
+        (0.95, np.nan, False, True),  # unknown distinctive ceiling: the objects count
+        (0.95, 0.9, False, True),  # clean labels
+        (0.7, 0.9, False, False),  # 30 % confusions: the labels' ceiling stops the contradiction
+        (0.8, 0.3, True, False),  # 10 % flips
+        (0.95, 0.3, True, False),
     ],
 )
-def test_with_flipped_labels_the_objects_do_not_decide_an_ambiguity(
-    ceiling, distinctive, ambiguous
+def test_with_flipped_labels_the_objects_neither_decide_nor_contradict(
+    ceiling, distinctive, ambiguous, contradicted
 ) -> None:
-    config = ConfidenceConfig()
+    config = ConfidenceConfig(label_rule='fixed')
     evidence = confidence.Evidence(
         **BASE,
         score=0.3,
@@ -174,11 +174,11 @@ def test_with_flipped_labels_the_objects_do_not_decide_an_ambiguity(
         distinctive_ceiling=distinctive,
     )
     assert bool(evidence.ambiguity(config)) is ambiguous
-    assert confidence.objects_trusted(ceiling, distinctive, config) is not ambiguous
-    off = ConfidenceConfig(min_distinctive_ceiling=0.0)  # 0: the labels' ceiling alone
-    assert confidence.objects_trusted(ceiling, distinctive, off) is (
-        not (np.isfinite(ceiling) and ceiling < off.contradiction_min_ceiling)
-    )
+    assert confidence.objects_trusted(distinctive, config) is not ambiguous
+    against = dataclasses.replace(evidence, distinctive_objects=0, distinctive_in_view=13)
+    assert ('contradicted' in confidence.refusal(against, config, 40)) is contradicted
+    off = ConfidenceConfig(min_distinctive_ceiling=0.0)  # 0: the objects always count
+    assert confidence.objects_trusted(distinctive, off)
 
 
 def test_the_distinctive_ceiling_tells_flipped_labels_from_confused_ones() -> None:

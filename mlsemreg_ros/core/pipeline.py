@@ -363,7 +363,7 @@ class Registration:
         with _timed(timings, 'confidence_ms'):
             measure = functools.partial(self._distinctive_of, source=source, target=target)
             ceilings = self._ceilings(source, target)
-            trusted = confidence.objects_trusted(*ceilings, cfg.confidence)
+            trusted = confidence.objects_trusted(ceilings[1], cfg.confidence)
             pool = _Pool.of(verified, measure)
             chosen = pool.decide(pool.incumbent, cfg, trusted) if pool else None
             if chosen is not None:
