@@ -113,7 +113,7 @@ def test_labels_too_noisy_vouch_for_no_pose(ceiling, refused) -> None:
 
 
 def _pool_of_000008() -> tuple[Any, RegistrationConfig]:
-    """The two candidates of FPFH dev pair 000008 with 10 % of the labels flipped."""
+    """Return the two candidates of FPFH dev pair 000008 with 10 % of the labels flipped."""
     from mlsemreg_ros.core.pipeline import _Pool
     from mlsemreg_ros.core.results import HypothesisScore, VerificationResult
 

@@ -558,7 +558,7 @@ class Registration:
         )
 
     def _ceilings(self, source: PreparedScan, target: PreparedScan) -> tuple[float, float]:
-        """The labels' ceiling and the distinctive classes' (core/estimation/label_model.py)."""
+        """Return the labels' ceiling and the distinctive classes' (estimation/label_model.py)."""
         cfg = self.config.verification
         return (
             label_model.label_ceiling(source, target, self._label_compatibility, cfg),
