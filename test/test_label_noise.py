@@ -225,7 +225,6 @@ def test_a_dev_pair_with_30_percent_confused_labels_is_accepted_at_its_pose_not_
     """000007 with confusions: the fixed 0.6 rule refuses its right pose, the relative one not."""
     from dev_pairs import dev_pair_files
     from mlsemreg_ros.core.config import RegistrationConfig
-    from mlsemreg_ros.core.estimation import confidence
     from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
     from mlsemreg_ros.core.pipeline import Registration
     from mlsemreg_ros.datasets.pairs import load_pair
@@ -265,6 +264,12 @@ def test_a_dev_pair_with_30_percent_confused_labels_is_accepted_at_its_pose_not_
 
     slide = pair.trans_gt.copy()
     slide[:3, 3] += pair.trans_gt[:3, :3] @ np.array([0.0, 2.0, 0.0])  # 2 m across the street
+    evidence, refused = registration.judge(
+        source, target, slide, None, result.source_points, result.target_points
+    )
+    assert refused  # the slide, judged as the pipeline judges its choice (relative rule)
+    assert evidence.label_ceiling == pytest.approx(ceiling)
+    assert label_refusal(evidence.label_agreement, ceiling, config.confidence)  # labels alone
     overlap, slid_agreement = dense_scores(
         slide[None],
         source,
@@ -273,16 +278,5 @@ def test_a_dev_pair_with_30_percent_confused_labels_is_accepted_at_its_pose_not_
         label_compatibility(LABELS, config.verification),
         config.verification,
     )
-    residual = np.linalg.norm(
-        result.source_points @ slide[:3, :3].T + slide[:3, 3] - result.target_points, axis=1
-    )
-    evidence = confidence.Evidence(
-        int((residual < config.estimator.inlier_threshold).sum()),
-        len(residual),
-        float(overlap[0]),
-        float(slid_agreement[0]),
-        confidence.tilt_deg(slide),
-        ceiling,
-    )
-    assert confidence.refusal(evidence, config.confidence, config.estimator.min_inliers)
-    assert label_refusal(evidence.label_agreement, ceiling, config.confidence)  # labels alone
+    assert slid_agreement[0] == pytest.approx(evidence.label_agreement)
+    assert overlap[0] == pytest.approx(evidence.overlap)

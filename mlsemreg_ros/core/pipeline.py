@@ -362,12 +362,14 @@ class Registration:
         # (core/estimation/confidence.py, docs/hard_pairs.md)
         with _timed(timings, 'confidence_ms'):
             measure = functools.partial(self._distinctive_of, source=source, target=target)
+            ceilings = self._ceilings(source, target)
+            trusted = confidence.objects_trusted(ceilings[1], cfg.confidence)
             pool = _Pool.of(verified, measure)
-            chosen = pool.decide(pool.incumbent, cfg) if pool else None
+            chosen = pool.decide(pool.incumbent, cfg, trusted) if pool else None
             if chosen is not None:
                 transform = pool.hypotheses[chosen].T_target_source
             inliers, evidence = self._evidence(
-                transform, src_pts, dst_pts, pool, chosen, source, target
+                transform, src_pts, dst_pts, pool, chosen, source, target, ceilings
             )
         refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
         # 2d. refused or weak: search the scans themselves (core/estimation/bev_search.py); 2e.
@@ -396,10 +398,10 @@ class Registration:
             for found in stages:
                 with _timed(timings, 'confidence_ms'):
                     pool = pool.extended(found, measure)
-                    chosen = pool.decide(chosen, cfg)
+                    chosen = pool.decide(chosen, cfg, trusted)
                     transform = pool.hypotheses[chosen].T_target_source
                     inliers, evidence = self._evidence(
-                        transform, src_pts, dst_pts, pool, chosen, source, target
+                        transform, src_pts, dst_pts, pool, chosen, source, target, ceilings
                     )
                 refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
                 if refused and found is searched and cfg.bev_search.guided_peaks > 0:
@@ -466,6 +468,7 @@ class Registration:
         chosen: int | None,
         source: PreparedScan,
         target: PreparedScan,
+        ceilings: tuple[float, float] | None = None,
     ) -> tuple[np.ndarray, confidence.Evidence]:
         """
         Inlier mask and the evidence of ``transform`` (``pool.hypotheses[chosen]`` or new).
@@ -551,8 +554,16 @@ class Registration:
             rival_share,
             rival,
             rival_objects,
-            label_model.label_ceiling(
-                source, target, self._label_compatibility, self.config.verification
+            *(self._ceilings(source, target) if ceilings is None else ceilings),
+        )
+
+    def _ceilings(self, source: PreparedScan, target: PreparedScan) -> tuple[float, float]:
+        """Return the labels' ceiling and the distinctive classes' (estimation/label_model.py)."""
+        cfg = self.config.verification
+        return (
+            label_model.label_ceiling(source, target, self._label_compatibility, cfg),
+            label_model.distinctive_ceiling(
+                source, target, self._distinctive, cfg.overlap_distance
             ),
         )
 
@@ -808,7 +819,7 @@ class _Pool:
         """Where candidate ``index`` came from ('estimator' or 'bev_search')."""
         return self.hypotheses[index].origin
 
-    def decide(self, incumbent: int, config: RegistrationConfig) -> int:
+    def decide(self, incumbent: int, config: RegistrationConfig, trusted: bool = True) -> int:
         """
         Return the candidate to keep: the best score, then the distinctive structure decides.
 
@@ -819,7 +830,9 @@ class _Pool:
         the target view) replace an undecided winner, and one that lines up more objects
         replaces a decided winner (most objects first, then the best score): at 40 m the
         zero-motion slide overlaps more than the truth, but lines up none of its poles
-        (docs/hard_pairs.md).
+        (docs/hard_pairs.md). Only while the objects are ``trusted``
+        (:func:`~mlsemreg_ros.core.estimation.confidence.objects_trusted`): with flipped
+        labels they line up by chance, and the best score decides.
         """
         conf, scores = config.confidence, self.scores()
         best = int(np.argmax(scores))
@@ -828,8 +841,10 @@ class _Pool:
             if scores[best] > scores[incumbent] * (1.0 + config.verification.min_gain)
             else incumbent
         )
-        decided = (self.points >= conf.min_distinctive_objects) & (
-            self.points >= conf.min_distinctive_fraction * self.views
+        decided = (
+            (self.points >= conf.min_distinctive_objects)
+            & (self.points >= conf.min_distinctive_fraction * self.views)
+            & trusted
         )
         eligible = decided & (scores >= (1.0 - conf.decide_margin) * scores[winner])
         if eligible.any() and not decided[winner]:

@@ -47,8 +47,10 @@ give 11-50 "inliers" of ~2600 correspondences by chance, and a cloud mirrored in
   distinctive source objects in the target's view and lines up fewer than
   ``confidence.contradicted_fraction`` of them is refused
   (a flip of a symmetric street, a slide: their poles land beside the target's), as long
-  as the labels' ceiling reaches ``confidence.contradiction_min_ceiling`` (noisy labels
-  make objects of mislabeled points, :func:`labels_clean_enough`); below
+  as the labels' ceiling reaches ``confidence.contradiction_min_ceiling`` and the
+  distinctive classes' labels are clean enough (noisy labels make objects of mislabeled
+  points, :func:`labels_clean_enough`, :func:`objects_trusted`; nor do flipped labels'
+  objects decide an ambiguity or choose a candidate); below
   ``confidence.min_label_ceiling`` the labels vouch for no pose at all;
 - **well constrained** (after the fine alignment, :func:`localizability`): the
   alignment's Gauss-Newton Hessian constrains every translation direction (Zhang et al.
@@ -90,6 +92,8 @@ class Evidence:
     rival_distinctive_objects: int = 0  # most distinctive objects a close rival lines up
     #: label agreement these labels can give (core/estimation/label_model.py); NaN: unknown
     label_ceiling: float = float('nan')
+    #: the same for the distinctive classes only (label_model.distinctive_ceiling); NaN: unknown
+    distinctive_ceiling: float = float('nan')
 
     @property
     def inlier_ratio(self) -> float:
@@ -110,7 +114,8 @@ class Evidence:
         ):
             return ''
         decided = (
-            self.distinctive_objects >= config.min_distinctive_objects
+            objects_trusted(self.distinctive_ceiling, config)
+            and self.distinctive_objects >= config.min_distinctive_objects
             and self.distinctive_objects
             >= config.min_distinctive_fraction * self.distinctive_in_view
             and (
@@ -139,6 +144,31 @@ def tilt_deg(transform: np.ndarray) -> float:
     return float(np.degrees(np.arccos(cos))) if np.isfinite(cos) else float('nan')
 
 
+def objects_trusted(distinctive_ceiling: float, config: ConfidenceConfig) -> bool:
+    """
+    Whether the distinctive objects count: the labels of their classes are clean enough.
+
+    With flipped labels, scattered points of ``confidence.distinctive_classes`` on walls
+    and road form "objects" that line up by chance: with 10 % flips, a pose of FPFH dev
+    pair 000008 4.7 m off lined up 2 of 4 objects and replaced the right pose, which scored
+    1.4 times higher and lined up 1 of 6 (docs/label_noise.md). The
+    ``distinctive_ceiling``
+    (:func:`~mlsemreg_ros.core.estimation.label_model.distinctive_ceiling`) measures the
+    labels of exactly those classes: 0.65-0.96 on the dev pairs and their 40/60 m
+    compositions, also under confusions of other classes, 0.06-0.34 with 10-30 % flips,
+    about 0.6-0.7 per scan with the simulated network labels of the field drives. Below
+    ``confidence.min_distinctive_ceiling`` the objects neither choose among the candidates
+    (``_Pool.decide`` in ``core/pipeline.py``), nor decide an ambiguity
+    (:meth:`Evidence.ambiguity`), nor contradict a pose (:func:`labels_clean_enough`): the
+    verification score alone decides. Unknown (NaN) or the parameter 0: they count.
+    """
+    return not (
+        config.min_distinctive_ceiling > 0
+        and np.isfinite(distinctive_ceiling)
+        and distinctive_ceiling < config.min_distinctive_ceiling
+    )
+
+
 def labels_clean_enough(evidence: Evidence, config: ConfidenceConfig) -> bool:
     """
     Whether the labels are clean enough for the contradiction check (docs/label_noise.md).
@@ -147,13 +177,15 @@ def labels_clean_enough(evidence: Evidence, config: ConfidenceConfig) -> bool:
     road form source "objects" that land in the target's view and cannot line up: with 20 %
     of the source labels random, the right dev poses put 8-31 objects in view and line up
     1-6 of them. Their label ceiling
-    (:func:`~mlsemreg_ros.core.estimation.label_model.label_ceiling`)
-    says so: 0.74-0.81 there, at least 0.90 on the clean dev pairs. Below
-    ``confidence.contradiction_min_ceiling`` the check is skipped; an unknown (NaN) ceiling
-    keeps it.
+    (:func:`~mlsemreg_ros.core.estimation.label_model.label_ceiling`) says so: 0.74-0.81
+    there, at least 0.90 on the clean dev pairs. Below
+    ``confidence.contradiction_min_ceiling`` the check is skipped (an unknown, NaN,
+    ceiling keeps it), and so it is while the objects are not trusted
+    (:func:`objects_trusted`).
     """
     ceiling = evidence.label_ceiling
-    return not (np.isfinite(ceiling) and ceiling < config.contradiction_min_ceiling)
+    clean = not (np.isfinite(ceiling) and ceiling < config.contradiction_min_ceiling)
+    return clean and objects_trusted(evidence.distinctive_ceiling, config)
 
 
 def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> str:

@@ -454,10 +454,25 @@ class ConfidenceConfig:
         0.85,
         'The contradiction check (confidence.contradicting_objects) applies only when the '
         "labels' ceiling (the geometric mean of the two scans' label self-agreement, "
-        'core/estimation/label_model.py) reaches this: noisier labels make objects of mislabeled '
-        'distinctive points that cannot line up. Dev pairs: >= 0.90 clean, 0.74-0.81 with '
-        '20 % of the source labels random (right poses: 1-6 of 8-31 objects in view lined '
-        'up). 0: always; an unknown ceiling keeps the check (docs/label_noise.md).',
+        'core/estimation/label_model.py) reaches this (and confidence.min_distinctive_ceiling '
+        'trusts the objects): noisier labels make objects of mislabeled distinctive points '
+        'that cannot line up. Dev pairs: >= 0.90 clean, 0.74-0.81 with 20 % of the source '
+        'labels random (right poses: 1-6 of 8-31 objects in view lined up). 0: always; an '
+        'unknown ceiling keeps the check (docs/label_noise.md).',
+        low=0.0,
+        high=1.0,
+    )
+    min_distinctive_ceiling: float = param(
+        0.5,
+        'The distinctive objects choose among the candidates, decide an ambiguity and '
+        "contradict a pose only while their classes' label ceiling reaches this: the share "
+        'of the points of confidence.distinctive_classes whose nearest other point is one '
+        'too, geometric mean of both scans (core/estimation/label_model.py). Dev pairs and '
+        'their 40/60 m compositions: 0.65-0.96 with the given labels and with 30-50 % '
+        'confusions, 0.06-0.34 with 10-30 % of the labels flipped (10 % flips: a pose 4.7 m '
+        'off lined up 2 of 4 objects by chance and replaced the right one); simulated '
+        'network labels of the field drives: about 0.6-0.7 per scan. 0: always; an unknown '
+        'value (fewer than two such points) trusts them (docs/label_noise.md).',
         low=0.0,
         high=1.0,
     )
