@@ -437,6 +437,13 @@ class Registration:
             doubtful = correction_refusal(alignment, bounds)
             if doubtful and success:  # the coarse pose was not right to the bounds
                 success, message = False, doubtful + (f'; {message}' if message else '')
+            if refused and not success and self._refinement_holds(
+                alignment.T_target_source, transform, source, target
+            ):
+                # a refused registration returns the best pose it found: at 40 m the
+                # true overlap keeps under odometry.min_inlier_fraction (docs/hard_pairs.md)
+                diagnostics['fine_refused_kept'] = True
+                refused = ''
             if not refused:
                 transform = alignment.T_target_source
                 alignment, degenerate = self._degeneracy(alignment, diagnostics)
@@ -650,6 +657,32 @@ class Registration:
         best = max(found, key=lambda h: h.score)
         diagnostics['guided_best_score'] = best.score
         return VerificationResult(found, 0)
+
+    def _refinement_holds(
+        self,
+        refined: np.ndarray,
+        coarse: np.ndarray,
+        source: PreparedScan,
+        target: PreparedScan,
+    ) -> bool:
+        """
+        Tell whether ``refined`` scores about as high as ``coarse`` on the dense scans, or higher.
+
+        About: lower by at most ``verification.min_gain`` (the verification's own notion of
+        the same score). A refinement that runs away to another place loses more.
+        """
+        if not np.all(np.isfinite(refined)):
+            return False
+        overlap, agreement = dense_scores(
+            np.stack([coarse, refined]),
+            source,
+            target.points_tree(),
+            target.labels,
+            self._label_compatibility,
+            self.config.verification,
+        )
+        scores = combined_score(overlap, agreement, self.config.verification)
+        return bool(scores[1] >= scores[0] * (1.0 - self.config.verification.min_gain))
 
     def _distinctive_of(
         self, transforms: np.ndarray, source: PreparedScan, target: PreparedScan
