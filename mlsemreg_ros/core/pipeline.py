@@ -46,6 +46,7 @@ from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import bev_search, confidence, label_model
 from mlsemreg_ros.core.estimation.estimation import estimate
 from mlsemreg_ros.core.estimation.guided import guided_correspondences
+from mlsemreg_ros.core.estimation.polish import polish_poses, radius_schedule
 from mlsemreg_ros.core.estimation.verification import (
     combined_score,
     dense_scores,
@@ -59,7 +60,7 @@ from mlsemreg_ros.core.features import features, fpfh
 from mlsemreg_ros.core.features.scan_input import sanitize_scan_for
 from mlsemreg_ros.core.matching import landmarks, matching, signatures
 from mlsemreg_ros.core.matching.labels import LabelMap
-from mlsemreg_ros.core.poses import same_pose
+from mlsemreg_ros.core.poses import distinct_hypotheses, same_pose
 from mlsemreg_ros.core.results import (
     Correspondences,
     HypothesisScore,
@@ -402,7 +403,17 @@ class Registration:
                         transform, src_pts, dst_pts, pool, chosen, source, target
                     )
                 refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
-                if refused and found is searched and cfg.bev_search.guided_peaks > 0:
+                if refused and found is searched and cfg.bev_search.polish_candidates > 0:
+                    with _timed(timings, 'polish_ms'):
+                        polished = self._polished(source, target, src_pts, dst_pts, pool)
+                    diagnostics['polished_candidates'] = len(polished.hypotheses)
+                    stages.append(polished)
+                if (
+                    refused
+                    and found is stages[-1]
+                    and found.hypotheses[0].origin != 'guided'
+                    and cfg.bev_search.guided_peaks > 0
+                ):
                     with _timed(timings, 'guided_ms'):
                         guided = self._guided(source, target, searched, diagnostics)
                     if guided is not None:
@@ -607,6 +618,65 @@ class Registration:
             np.asarray(transform, dtype=np.float64), src, dst, pool, None, source, target
         )
         return evidence, confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
+
+    def _polished(
+        self,
+        source: PreparedScan,
+        target: PreparedScan,
+        src_pts: np.ndarray,
+        dst_pts: np.ndarray,
+        pool: _Pool,
+    ) -> VerificationResult:
+        """
+        The pool's best candidates polished on the dense scans and scored (origin 'polished').
+
+        The ``bev_search.polish_candidates`` best distinct candidates by score and every
+        candidate lining up ``confidence.min_distinctive_objects``; each gets
+        ``bev_search.polish_iterations`` point-to-point ICP steps
+        (core/estimation/polish.py).
+        """
+        cfg = self.config
+        search, check = cfg.bev_search, cfg.verification
+        transforms, scores = pool.transforms(), pool.scores()
+        order = np.argsort(-scores, kind='stable')
+        best = order[
+            distinct_hypotheses(
+                transforms[order],
+                search.polish_candidates,
+                check.distinct_rotation,
+                check.distinct_translation,
+            )
+        ]
+        lined_up = np.flatnonzero(pool.points >= cfg.confidence.min_distinctive_objects)
+        chosen = np.union1d(best, lined_up)
+        rng = np.random.default_rng(check.seed)
+        count = len(source.points)
+        rows = (
+            rng.choice(count, search.polish_points, replace=False)
+            if count > search.polish_points
+            else np.arange(count)
+        )
+        polished = polish_poses(
+            transforms[chosen],
+            source.points[rows],
+            target.points_tree(),
+            target.points,
+            radius_schedule(
+                search.polish_radius, check.overlap_distance, search.polish_iterations
+            ),
+        )
+        return score_hypotheses(
+            polished,
+            chosen,
+            src_pts,
+            dst_pts,
+            source,
+            target,
+            dataclasses.replace(check, min_gain=0.0),
+            cfg.estimator,
+            self._label_compatibility,
+            origin='polished',
+        )
 
     def _guided(
         self,
