@@ -31,7 +31,6 @@ one batched weighted Kabsch (:func:`~mlsemreg_ros.core.rigid.weighted_rigid_tran
 from __future__ import annotations
 
 from mlsemreg_ros.core import threads
-from mlsemreg_ros.core.rigid import weighted_rigid_transform
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -48,6 +47,11 @@ def polish_poses(
 ) -> np.ndarray:
     """
     Refine ``(N, 4, 4)`` poses ``T_target_source`` by point-to-point ICP, all at once.
+
+    Each step turns a pose about the target's ``z`` axis and shifts it
+    (:func:`yaw_rigid_transform`): the tilt of the pose stays as it came. With a free
+    rotation, a thousand points of a 40 m pair pull the roll by 2-3 deg, and the fine
+    alignment that follows then settles 5 deg off (composed dev pair 000008_000009).
 
     - ``source_points``: ``(n, 3)`` source points (a sample of the scan).
     - ``target_tree``: KD-tree of ``target_points`` ``(M, 3)``.
@@ -68,10 +72,35 @@ def polish_poses(
         )
         matched = np.isfinite(distance).reshape(len(poses), -1)
         nearest = np.where(matched.ravel(), nearest, 0).reshape(len(poses), -1)
-        step = weighted_rigid_transform(moved, target_points[nearest], matched.astype(float))
+        step = yaw_rigid_transform(moved, target_points[nearest], matched.astype(float))
         step[matched.sum(axis=1) < MIN_MATCHES] = np.eye(4)
         poses = step @ poses
     return poses
+
+
+def yaw_rigid_transform(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """
+    Weighted least-squares rotation about ``z`` and translation mapping ``src`` onto ``dst``.
+
+    ``src``, ``dst``: ``(N, n, 3)``; ``weights``: ``(N, n)`` (a set whose weights sum to
+    zero gets the identity). On centred points the yaw is
+    ``atan2(sum w (x_p y_q - y_p x_q), sum w (x_p x_q + y_p y_q))``, then
+    ``t = mean_q - Rz mean_p`` (the planar case of Umeyama 1991). Returns ``(N, 4, 4)``.
+    """
+    total = weights.sum(axis=1)
+    safe = np.where(total > 0, total, 1.0)[:, None]
+    mean_p = np.einsum('sn,snk->sk', weights, src) / safe
+    mean_q = np.einsum('sn,snk->sk', weights, dst) / safe
+    p, q = src - mean_p[:, None], dst - mean_q[:, None]
+    sin = np.einsum('sn,sn->s', weights, p[..., 0] * q[..., 1] - p[..., 1] * q[..., 0])
+    cos = np.einsum('sn,sn->s', weights, p[..., 0] * q[..., 0] + p[..., 1] * q[..., 1])
+    yaw = np.arctan2(sin, cos)
+    out = np.broadcast_to(np.eye(4), (len(src), 4, 4)).copy()
+    out[:, 0, 0], out[:, 0, 1] = np.cos(yaw), -np.sin(yaw)
+    out[:, 1, 0], out[:, 1, 1] = np.sin(yaw), np.cos(yaw)
+    out[:, :3, 3] = mean_q - np.einsum('sab,sb->sa', out[:, :3, :3], mean_p)
+    out[total <= 0] = np.eye(4)
+    return out
 
 
 def radius_schedule(start: float, end: float, steps: int) -> np.ndarray:
