@@ -335,6 +335,13 @@ class BevSearchConfig:
         low=0,
         high=1024,
     )
+    polish_fine: int = param(
+        2,
+        'After the polishing, this many best distinct candidates (polished or not) also get '
+        "the pair's fine alignment (fine.pair_method, 6-DoF) and are scored again (0: none).",
+        low=0,
+        high=64,
+    )
     polish_points: int = param(
         1000,
         'Source scan points (seeded random subset) matched in the polishing ICP.',
