@@ -410,7 +410,13 @@ class Registration:
                     stage = pending.pop(0)
                     with _timed(timings, f'{stage}_ms'):
                         extra = self._refused_stage(
-                            stage, source, target, src_pts, dst_pts, pool, searched, diagnostics
+                            stage,
+                            (source, target),
+                            (src_pts, dst_pts),
+                            pool,
+                            searched,
+                            refine,
+                            diagnostics,
                         )
                     if extra is not None and extra.hypotheses:
                         stages.append(extra)
@@ -636,22 +642,26 @@ class Registration:
     def _refused_stage(
         self,
         stage: str,
-        source: PreparedScan,
-        target: PreparedScan,
-        src_pts: np.ndarray,
-        dst_pts: np.ndarray,
+        scans: tuple[PreparedScan, PreparedScan],
+        correspondences: tuple[np.ndarray, np.ndarray],
         pool: _Pool,
         searched: VerificationResult,
+        refine: bool,
         diagnostics: dict[str, Any],
     ) -> VerificationResult | None:
-        """Run one stage of :meth:`_refused_stages`; its verified candidates (or None)."""
-        if stage == 'polish':
-            polished = self._polished(source, target, src_pts, dst_pts, pool)
-            diagnostics['polished_candidates'] = len(polished.hypotheses)
-            return polished
+        """
+        Run one stage of :meth:`_refused_stages`; its verified candidates (or None).
+
+        ``refine``: the pair's fine alignment follows (:meth:`register`).
+        """
+        (source, target), (src_pts, dst_pts) = scans, correspondences
         if stage == 'guided':
             return self._guided(source, target, searched, diagnostics)
-        return self._full_graph(source, target, src_pts, dst_pts, diagnostics)
+        if stage == 'full_graph':
+            return self._full_graph(source, target, src_pts, dst_pts, diagnostics)
+        polished = self._polished(source, target, src_pts, dst_pts, pool, refine)
+        diagnostics['polished_candidates'] = len(polished.hypotheses)
+        return polished
 
     def _full_graph(
         self,
@@ -691,6 +701,7 @@ class Registration:
         src_pts: np.ndarray,
         dst_pts: np.ndarray,
         pool: _Pool,
+        refine: bool = True,
     ) -> VerificationResult:
         """
         The pool's best candidates polished on the dense scans and scored (origin 'polished').
@@ -698,7 +709,8 @@ class Registration:
         The ``bev_search.polish_candidates`` best distinct candidates by score and every
         candidate lining up ``confidence.min_distinctive_objects``; each gets
         ``bev_search.polish_iterations`` point-to-point ICP steps
-        (core/estimation/polish.py).
+        (core/estimation/polish.py). With ``refine`` (the pair's fine alignment follows), the
+        ``bev_search.polish_fine`` best distinct candidates also get that fine alignment.
         """
         cfg = self.config
         search, check = cfg.bev_search, cfg.verification
@@ -730,7 +742,7 @@ class Registration:
                 search.polish_radius, check.overlap_distance, search.polish_iterations
             ),
         )
-        if search.polish_fine > 0 and cfg.fine.pair_method != 'off':
+        if refine and search.polish_fine > 0 and cfg.fine.pair_method != 'off':
             # the best few (polished or not) get the pair's fine alignment: a 6-DoF GICP
             # corrects the tilt the polishing leaves (60 m dev pair 000008_000010: 4.0 deg
             # -> 1.7 deg, and it outscores the flip it lost to)
