@@ -163,3 +163,21 @@ def test_dev_pairs_40_m_apart_register_and_accept_no_wrong_pose(reverse, descrip
         wrong_accepted += bool(result.success and not metrics.success)
     assert wrong_accepted == 0
     assert right >= 7, f'{right} of {len(pairs)} right'  # RR >= 70 %: measured 7 in all four
+
+
+def test_dev_pair_60_m_apart_is_found_by_the_refused_stages():
+    """
+    000008_000010 (GEDI): 79 true correspondences in 7657, 5 of them in the sampled graph.
+
+    Only SC2-PCR on the full graph finds the pose (4 deg, 1 m off), and only the polishing's
+    fine alignment makes it outscore a 148 deg flip (docs/hard_pairs.md).
+    """
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.evaluation.pairs import run_pair
+    from mlsemreg_ros.evaluation.settings import EvaluationConfig
+
+    pairs = chain_pairs([load_pair(p) for p in dev_pair_files()], 3)
+    pair = next(p for p in pairs if p.name.startswith('000008_000010'))
+    result, metrics, _ = run_pair(Registration(), pair, 'gedi', EvaluationConfig())
+    assert metrics.success, (metrics.rotation_error_deg, metrics.translation_error_cm)
+    assert result.diagnostics['chosen_origin'] in ('polished', 'full_graph')
