@@ -31,7 +31,7 @@ def _pose(yaw_deg: float, t: tuple[float, float, float], roll_deg: float = 0.0) 
 
 
 def _scene(rng: np.random.Generator) -> np.ndarray:
-    """A street corner: ground, two facades at a right angle, a few poles (metres)."""
+    """Build a street corner: ground, two facades at a right angle, a few poles (metres)."""
     ground = np.column_stack([rng.uniform(-30, 30, (4000, 2)), rng.normal(-1.7, 0.02, 4000)])
     wall_a = np.column_stack(
         [rng.uniform(-30, 30, 2000), np.full(2000, 8.0), rng.uniform(-1.7, 6, 2000)]

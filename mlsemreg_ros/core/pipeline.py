@@ -622,7 +622,7 @@ class Registration:
         return evidence, confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
 
     def _refused_stages(self, estimated: EstimateResult, correspondences: int) -> list[str]:
-        """The stages that may follow a refused BEV search, in order (the enabled ones)."""
+        """Return the stages that may follow a refused BEV search, in order (the enabled ones)."""
         cfg = self.config
         sampled = estimated.diagnostics.get('graph_correspondences', correspondences)
         stages = []
@@ -704,7 +704,7 @@ class Registration:
         refine: bool = True,
     ) -> VerificationResult:
         """
-        The pool's best candidates polished on the dense scans and scored (origin 'polished').
+        Polish the pool's best candidates on the dense scans and score them (origin 'polished').
 
         The ``bev_search.polish_candidates`` best distinct candidates by score and every
         candidate lining up ``confidence.min_distinctive_objects``; each gets

@@ -104,7 +104,7 @@ def yaw_rigid_transform(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -
 
 
 def radius_schedule(start: float, end: float, steps: int) -> np.ndarray:
-    """``steps`` radii from ``start`` down to ``end`` over the first half, then ``end``."""
+    """Return ``steps`` radii: ``start`` down to ``end`` over the first half, then ``end``."""
     if steps <= 0:
         return np.zeros(0)
     shrinking = max(1, steps // 2)
