@@ -172,7 +172,9 @@ def test_without_the_search_useless_correspondences_give_no_pose(street_far_apar
     result = _register(street_far_apart, **{'bev_search.enabled': False})
     assert not result.success
     assert 'bev_search_ms' not in result.timings_ms
-    re, te = _errors(result.transform, street_far_apart['truth'])
+    # the coarse pose: a refused registration keeps its fine alignment when that holds the
+    # dense score, and here GICP pulls the 7.9 deg / 1.2 m pose onto the truth (still refused)
+    re, te = _errors(result.estimate, street_far_apart['truth'])
     assert re > 5.0 or te > 0.6
 
 

@@ -319,6 +319,46 @@ class BevSearchConfig:
         low=0,
         high=64,
     )
+    full_graph: bool = param(
+        True,
+        'When the best pose is still refused after the guided re-matching and the estimator '
+        'built its graph on a sample (estimator.graph_size): SC2-PCR again on every '
+        'correspondence, verified (a 60 m dev pair keeps 5 of its 79 true correspondences '
+        'in the sample).',
+    )
+    polish_candidates: int = param(
+        16,
+        'When the best pose is still refused after the search: this many best distinct '
+        'candidates (by score), and every candidate lining up '
+        'confidence.min_distinctive_objects, are polished by point-to-point ICP on the dense '
+        'scans and scored again (core/estimation/polish.py; 0: off).',
+        low=0,
+        high=1024,
+    )
+    polish_fine: int = param(
+        2,
+        'After the polishing, this many best distinct candidates (polished or not) also get '
+        "the pair's fine alignment (fine.pair_method, 6-DoF) and are scored again (0: none).",
+        low=0,
+        high=64,
+    )
+    polish_points: int = param(
+        1000,
+        'Source scan points (seeded random subset) matched in the polishing ICP.',
+        low=10,
+        high=100000,
+    )
+    polish_iterations: int = param(
+        8, 'ICP steps of the polishing (bev_search.polish_candidates).', low=1, high=100
+    )
+    polish_radius: float = param(
+        2.0,
+        'Matching radius of the first polishing step; it shrinks to '
+        'verification.overlap_distance over the first half of the steps.',
+        unit='m',
+        low=0.1,
+        high=20.0,
+    )
     guided_radius: float = param(
         3.0,
         'Guided re-matching: a source keypoint is matched only among the target keypoints '
