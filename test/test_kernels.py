@@ -63,7 +63,7 @@ def test_cache_directory_falls_back_when_the_package_is_read_only(
 @needs_numba
 def test_warm_up_compiles_into_the_on_disk_cache() -> None:
     timings = warm_up()
-    assert set(timings) == {'voxel_ms', 'fpfh_ms', 'total_ms'}
+    assert set(timings) == {'voxel_ms', 'fpfh_ms', 'deskew_ms', 'total_ms'}
     folder = Path(kernels.cache_directory() or Path(kernels.__file__).parent / '__pycache__')
     names = ' '.join(p.name for p in folder.rglob('*.nbi'))
     for kernel in (
@@ -75,6 +75,7 @@ def test_warm_up_compiles_into_the_on_disk_cache() -> None:
         'covariances',
         'support_neighbour_sums',
         'keypoint_neighbour_sums',
+        '_deskew',
     ):
         assert kernel in names
 
@@ -184,3 +185,27 @@ def test_keep_freed_memory_removes_the_page_faults_of_repeated_allocations() -> 
     ]
     assert faults[0] > 1000, faults  # at least some fresh pages per array (huge pages: fewer)
     assert faults[1] < faults[0] / 10, faults
+
+
+@needs_numba
+@pytest.mark.parametrize(
+    'omega',
+    [np.array([0.1, -0.4, 1.2]), np.zeros(3), np.array([0.0, 0.0, 1e-9])],
+    ids=['turning', 'straight', 'series'],
+)
+def test_compiled_deskew_equals_numpy(omega: np.ndarray, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The one-pass deskew kernel gives NumPy's points (to the last bits of a dot product)."""
+    from mlsemreg_ros.core.features import deskew
+
+    rng = np.random.default_rng(4)
+    points = _scan_like(4, 5000)
+    times = np.repeat(np.sort(rng.uniform(-0.01, 0.1, 500)), 10)  # columns: times repeat
+    times[rng.integers(0, 5000, 20)] = 0.0
+    motion = deskew.SweepMotion(omega, np.array([9.0, -1.0, 0.3]))
+    monkeypatch.setenv(kernels.ENV_SWITCH, 'numpy')
+    expected = deskew.deskew(points, times, motion)
+    monkeypatch.setenv(kernels.ENV_SWITCH, 'numba')
+    compiled = deskew.deskew(points, times, motion)
+    np.testing.assert_allclose(compiled, expected, rtol=0.0, atol=1e-12)
+    assert np.mean(compiled == expected) > 0.99
+    assert not np.array_equal(expected, points)  # it did move them

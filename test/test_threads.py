@@ -108,3 +108,27 @@ def test_checking_a_config_changes_no_thread_count():
     with pytest.raises(ConfigError, match='lamppost'):
         Registration(bad)
     assert threads.workers() == before
+
+
+def test_openmp_threads_wait_passively_before_small_gicp_loads():
+    """small_gicp's OpenMP runtime reads OMP_WAIT_POLICY when it loads: set before, not over."""
+    import os
+    import subprocess
+    import sys
+
+    probe = '\n'.join(
+        [
+            'import os, sys',
+            'class Spy:',  # prints the policy as the import of small_gicp begins
+            '    def find_spec(self, name, path=None, target=None):',
+            "        if name == 'small_gicp': print(os.environ.get('OMP_WAIT_POLICY'))",
+            'sys.meta_path.insert(0, Spy())',
+            'import mlsemreg_ros.core.odometry',
+        ]
+    )
+    env = {k: v for k, v in os.environ.items() if k != 'OMP_WAIT_POLICY'}
+    run = subprocess.run([sys.executable, '-c', probe], env=env, capture_output=True, text=True)
+    assert run.stdout.strip() == 'PASSIVE', run.stderr
+    env['OMP_WAIT_POLICY'] = 'active'  # the user's choice stays
+    run = subprocess.run([sys.executable, '-c', probe], env=env, capture_output=True, text=True)
+    assert run.stdout.strip() == 'active', run.stderr

@@ -34,7 +34,8 @@ def warm_up() -> dict[str, float]:
 
     Call it once at start-up (e.g. the node before its first scan) so the first frame
     does not pay the JIT. Without numba (or with ``MLSEMREG_KERNELS=numpy``) it
-    returns ``{}``. Keys: ``voxel_ms``, ``fpfh_ms`` (both FPFH variants), ``total_ms``.
+    returns ``{}``. Keys: ``voxel_ms``, ``fpfh_ms`` (both FPFH variants), ``deskew_ms``,
+    ``total_ms``.
     """
     if not kernels.enabled():
         return {}
@@ -51,5 +52,9 @@ def warm_up() -> dict[str, float]:
     fpfh.fpfh_at_keypoints(points, indices, 0.9, 1.5, 0.5, snap=False, compiled=True)
     end = time.perf_counter()
     timings['fpfh_ms'] = 1e3 * (end - middle)
-    timings['total_ms'] = 1e3 * (end - start)
+    axes = np.eye(3)
+    times = np.linspace(0.0, 0.1, 200)
+    kernels.deskew_points(points, times, axes[0], 1.0, axes[2], axes[0], axes[1], False, 1e-6)
+    timings['deskew_ms'] = 1e3 * (time.perf_counter() - end)
+    timings['total_ms'] = 1e3 * (time.perf_counter() - start)
     return timings

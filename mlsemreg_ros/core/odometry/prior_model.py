@@ -78,6 +78,7 @@ class PriorMotionModel:
         self._cv = ConstantVelocityModel(config)
         self._lock = threading.Lock()
         self._imu = SampleBuffer((6,))  # gyro (rad/s), specific force (m/s^2)
+        self._segments: tuple = (None, None, {})  # (stamps, values, {interval: segment})
         self._wheel = SampleBuffer((4, 4))  # T_odom_child
         self.T_child_sensor = np.eye(4)  # wheel odometry child frame -> sensor frame
         self.bias = ImuBiasEstimator()
@@ -201,10 +202,22 @@ class PriorMotionModel:
         return round(self.cfg.max_extrapolation * 1e9)
 
     def _segment(self, t0: int, t1: int):
-        values = self._imu.values
-        return integrate_imu(
-            self._imu.stamps, values[:, :3], values[:, 3:], t0, t1, self.bias.gyro_bias
-        )
+        """
+        Return the IMU integrated over ``[t0, t1]``, memoised while the samples stay.
+
+        A scan asks for each interval up to three times (the prediction, the velocity,
+        the learning); the same interval, samples and gyro bias give the same segment.
+        The buffer's arrays are replaced, never written, when samples come or go.
+        """
+        imu, bias = self._imu, self.bias.gyro_bias
+        if self._segments[0] is not imu.stamps or self._segments[1] is not imu.values:
+            self._segments = (imu.stamps, imu.values, {})
+        known = self._segments[2]
+        key = (t0, t1, np.asarray(bias, dtype=np.float64).tobytes())
+        if key not in known:
+            values = imu.values
+            known[key] = integrate_imu(imu.stamps, values[:, :3], values[:, 3:], t0, t1, bias)
+        return known[key]
 
     def _offset(self, pose: np.ndarray, stamp_ns: int) -> np.ndarray:
         """Return the acceleration offset in odom (initialised from the accelerometer at rest)."""
