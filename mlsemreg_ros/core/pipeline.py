@@ -348,16 +348,7 @@ class Registration:
         verified = None
         if cfg.verification.enabled:
             with _timed(timings, 'verification_ms'):
-                verified = verify_hypotheses(
-                    estimate_result,
-                    src_pts,
-                    dst_pts,
-                    source,
-                    target,
-                    cfg.verification,
-                    cfg.estimator,
-                    self._label_compatibility,
-                )
+                verified = self._verify(estimate_result, src_pts, dst_pts, source, target)
             transform = verified.T_target_source
             diagnostics.update(verified.diagnostics)
         # 2c. confidence: sparse and dense evidence must agree, no rival may come close
@@ -517,14 +508,7 @@ class Registration:
         fresh = (
             np.concatenate([transform[None], *extra]) if chosen is None else np.concatenate(extra)
         )
-        overlap, agreement = dense_scores(
-            fresh,
-            source,
-            target.points_tree(),
-            target.labels,
-            self._label_compatibility,
-            cfg.verification,
-        )
+        overlap, agreement = self._dense(fresh, source, target)
         scores = combined_score(overlap, agreement, cfg.verification)
         shares, points, views = self._distinctive_of(fresh, source, target)
         if chosen is None:
@@ -692,16 +676,7 @@ class Registration:
         cfg = self.config
         estimated = estimate(src_pts, dst_pts, dataclasses.replace(cfg.estimator, graph_size=0))
         diagnostics['full_graph_inliers'] = estimated.num_inliers
-        verified = verify_hypotheses(
-            estimated,
-            src_pts,
-            dst_pts,
-            source,
-            target,
-            cfg.verification,
-            cfg.estimator,
-            self._label_compatibility,
-        )
+        verified = self._verify(estimated, src_pts, dst_pts, source, target)
         hypotheses = [dataclasses.replace(h, origin='full_graph') for h in verified.hypotheses]
         return VerificationResult(hypotheses, verified.chosen)
 
@@ -794,6 +769,27 @@ class Registration:
             origin='polished',
         )
 
+    def _verify(
+        self,
+        estimated: EstimateResult,
+        src_pts: np.ndarray,
+        dst_pts: np.ndarray,
+        source: PreparedScan,
+        target: PreparedScan,
+    ) -> VerificationResult:
+        """:func:`verify_hypotheses` of ``estimated`` on these scans with this config."""
+        cfg = self.config
+        return verify_hypotheses(
+            estimated,
+            src_pts,
+            dst_pts,
+            source,
+            target,
+            cfg.verification,
+            cfg.estimator,
+            self._label_compatibility,
+        )
+
     def _dense(
         self, transforms: np.ndarray, source: PreparedScan, target: PreparedScan
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -840,16 +836,7 @@ class Registration:
                 continue
             p, q = source.keypoints[corr.source], target.keypoints[corr.target]
             estimated = estimate(p, q, cfg.estimator)
-            verified = verify_hypotheses(
-                estimated,
-                p,
-                q,
-                source,
-                target,
-                cfg.verification,
-                cfg.estimator,
-                self._label_compatibility,
-            )
+            verified = self._verify(estimated, p, q, source, target)
             found += [dataclasses.replace(h, origin='guided') for h in verified.hypotheses]
         diagnostics['guided_peaks'] = len(peaks)
         diagnostics['guided_correspondences'] = int(np.sum(counts)) if counts else 0
@@ -874,14 +861,7 @@ class Registration:
         """
         if not np.all(np.isfinite(refined)):
             return False
-        overlap, agreement = dense_scores(
-            np.stack([coarse, refined]),
-            source,
-            target.points_tree(),
-            target.labels,
-            self._label_compatibility,
-            self.config.verification,
-        )
+        overlap, agreement = self._dense(np.stack([coarse, refined]), source, target)
         scores = combined_score(overlap, agreement, self.config.verification)
         return bool(scores[1] >= scores[0] * (1.0 - self.config.verification.min_gain))
 
