@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from mlsemreg_ros.core.alignment.config import FineAlignmentConfig
+from mlsemreg_ros.core.alignment.config import FineAlignmentConfig, SweepAlignmentConfig
 from mlsemreg_ros.core.estimation.config import (
     BevSearchConfig,
     ConfidenceConfig,
@@ -288,6 +288,7 @@ class RegistrationConfig(Settings):
     bev_search: BevSearchConfig = field(default_factory=BevSearchConfig)
     confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
     fine: FineAlignmentConfig = field(default_factory=FineAlignmentConfig)
+    sweep_alignment: SweepAlignmentConfig = field(default_factory=SweepAlignmentConfig)
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
     keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-The ``fine`` section of the core config (fine alignment).
+The ``fine`` and ``sweep_alignment`` sections of the core config (fine alignment).
 
 Assembled by :class:`~mlsemreg_ros.core.config.RegistrationConfig` (core/config.py),
 which re-exports them; fields are :func:`~mlsemreg_ros.core.settings.param` declarations.
@@ -104,4 +104,56 @@ class FineAlignmentConfig:
         unit='m',
         low=1e-8,
         high=1.0,
+    )
+
+
+@dataclass
+class SweepAlignmentConfig:
+    """Continuous-time alignment of a sweep deskewed without a gyro (docs/field.md)."""
+
+    mode: str = param(
+        'auto',
+        'auto: a scan deskewed by a constant twist from the poses (no gyro over the sweep) '
+        'is aligned once more to the local map with the motion within its sweep free (the '
+        'pose at the stamp and the sweep twist, as CT-ICP); when that twist bends the scan '
+        'by more than sweep_alignment.min_change, the scan is deskewed with it and aligned '
+        'again. off: the deskew twist is kept.',
+        choices=('auto', 'off'),
+    )
+    points: int = param(
+        2000,
+        'Raw points in the sweep alignment (every k-th point of the sweep, movable classes '
+        'left out).',
+        low=100,
+        high=1000000,
+    )
+    iterations: int = param(8, 'Gauss-Newton steps of the sweep alignment.', low=1, high=100)
+    max_distance: float = param(
+        1.0,
+        'A point pairs with its nearest map voxel mean only within this distance.',
+        unit='m',
+        low=0.05,
+        high=20.0,
+    )
+    rate_sigma: float = param(
+        1.0,
+        'Prior standard deviation of the sweep angular rate about the deskew twist.',
+        unit='rad/s',
+        low=1e-4,
+        high=100.0,
+    )
+    velocity_sigma: float = param(
+        1.0,
+        'Prior standard deviation of the sweep velocity about the deskew twist.',
+        unit='m/s',
+        low=1e-4,
+        high=100.0,
+    )
+    min_change: float = param(
+        0.25,
+        'The scan is deskewed with the estimated twist and aligned again only when that '
+        'twist moves some point of the subset by more than this.',
+        unit='m',
+        low=0.0,
+        high=10.0,
     )

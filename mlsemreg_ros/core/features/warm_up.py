@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import time
 
+from mlsemreg_ros.core.alignment import sweep_kernels
 from mlsemreg_ros.core.features import fpfh, kernels
 from mlsemreg_ros.core.features.features import voxel_downsample
 import numpy as np
@@ -35,7 +36,7 @@ def warm_up() -> dict[str, float]:
     Call it once at start-up (e.g. the node before its first scan) so the first frame
     does not pay the JIT. Without numba (or with ``MLSEMREG_KERNELS=numpy``) it
     returns ``{}``. Keys: ``voxel_ms``, ``fpfh_ms`` (both FPFH variants), ``deskew_ms``,
-    ``total_ms``.
+    ``sweep_ms`` (the sweep alignment's normal equations), ``total_ms``.
     """
     if not kernels.enabled():
         return {}
@@ -55,6 +56,10 @@ def warm_up() -> dict[str, float]:
     axes = np.eye(3)
     times = np.linspace(0.0, 0.1, 200)
     kernels.deskew_points(points, times, axes[0], 1.0, axes[2], axes[0], axes[1], False, 1e-6)
-    timings['deskew_ms'] = 1e3 * (time.perf_counter() - end)
+    deskewed = time.perf_counter()
+    timings['deskew_ms'] = 1e3 * (deskewed - end)
+    covariances = np.broadcast_to(np.eye(3), (200, 3, 3))
+    sweep_kernels.normal_equations(points, times, points, covariances, axes, 0.01, 1.0)
+    timings['sweep_ms'] = 1e3 * (time.perf_counter() - deskewed)
     timings['total_ms'] = 1e3 * (time.perf_counter() - start)
     return timings

@@ -110,6 +110,27 @@ class LocalMap:
             return np.zeros((0, 3))
         return np.asarray(self._map.voxel_points(), dtype=np.float64)[:, :3]
 
+    def gaussians(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """
+        Return the map's Gaussians: means (V, 3) and covariances (V, 3, 3), odom frame.
+
+        ``vgicp``: the voxels' own; point maps: the indexed points' (None when empty).
+        """
+        if len(self) == 0:
+            return None
+        if isinstance(self._map, small_gicp.GaussianVoxelMap):
+            means = np.asarray(self._map.voxel_points(), dtype=np.float64)[:, :3]
+            covariances = np.asarray(self._map.voxel_covs(), dtype=np.float64)
+            covariances = covariances.reshape(-1, 4, 4)[:, :3, :3]
+            return means, covariances
+        if self._indexed is None:
+            self._indexed = AlignmentCloud.build(self.points(), 0.0, self.fine.num_neighbors)
+        cloud = self._indexed.cloud
+        return (
+            np.asarray(cloud.points(), dtype=np.float64)[:, :3],
+            np.asarray(cloud.covs(), dtype=np.float64).reshape(-1, 4, 4)[:, :3, :3],
+        )
+
     def insert(self, scan: AlignmentCloud, T_map_scan: np.ndarray) -> None:
         """Add an aligned scan at its pose ``T_map_scan`` (also advances the LRU clock)."""
         if len(scan) == 0:

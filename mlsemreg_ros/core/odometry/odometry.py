@@ -38,6 +38,9 @@ Per scan (:meth:`Odometry.process`)::
     else:
       global = register(current, keyframe)     ML-SemReg + SC2-PCR: T_keyframe_current
       decide(global, predicted)                agreement, or the candidate with most inliers
+    align_sweep(current, pose)                 no gyro: the sweep's own twist (CT-ICP-like,
+                                               core/alignment/sweep_alignment.py); if it bends
+                                               the scan, deskewed with it and aligned again
     map.insert(current, pose)                  only an accepted, aligned scan
     keyframe <- current                        per the keyframe policy
 
@@ -64,6 +67,7 @@ from collections import deque
 import time
 
 from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud, Candidate
+from mlsemreg_ros.core.alignment.sweep_alignment import align_sweep, MapGaussians, sweep_subset
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features.deskew import (
     MAX_DESKEW_WINDOW,
@@ -102,6 +106,8 @@ import numpy as np
 START_DESKEW_ROUNDS = 3
 #: ... until the alignment moves the pose by less than this (m).
 START_DESKEW_TOLERANCE = 0.01
+#: The sweep alignment needs a local map of at least this many voxels.
+MIN_SWEEP_MAP_VOXELS = 100
 #: Sections whose change makes the cached keyframe be prepared again.
 _PREPARE_SECTIONS = ('semantic', 'features', 'keypoints', 'moving_objects')
 
@@ -136,6 +142,7 @@ class Odometry:
         self._failures = 0  # rejected frames in a row
         self._last_stamp = 0  # stamp of the last scan (0: none or unstamped)
         self._start_scan: tuple[PreprocessedScan, np.ndarray, int] | None = None  # to deskew
+        self._sweep_twist: tuple[SweepMotion, int] | None = None  # (twist, stamp) of a sweep
 
     @property
     def config(self) -> RegistrationConfig:
@@ -192,6 +199,7 @@ class Odometry:
         self._failures = 0
         self._last_stamp = 0
         self._start_scan = None
+        self._sweep_twist = None
 
     def keyframe_refusal(self, scan: PreparedScan) -> str:
         """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
@@ -264,7 +272,11 @@ class Odometry:
         a marginally stable loop (``docs/field.md``). With a gyro over the sweep
         (``motion_model.sweep_rotations``) the rotation follows it sample by sample, and
         the twist gives only the translation: a turn that starts or ends within the sweep
-        is not averaged away.
+        is not averaged away. Without a gyro, the twist the sweep alignment estimated over
+        the last accepted sweep (``sweep_alignment``) is the most recent measure of the
+        rotation rate within a sweep, and is used instead. The velocity stays the poses': the
+        sweep's own estimate leans on its prior where the scene leaves the forward speed
+        free, so fed forward it would lag an acceleration scan after scan.
         """
         window = self.config.preprocess.deskew_window
         if prediction is None or not self._accepted:
@@ -273,7 +285,17 @@ class Odometry:
         motion = sweep_motion(pose, stamp, prediction.T_odom_current, stamp_ns)
         if motion is None:
             return None
-        return self._gyro_motion(stamp_ns, point_times, motion.velocity) or motion
+        gyro = self._gyro_motion(stamp_ns, point_times, motion.velocity)
+        if gyro is not None:
+            return gyro
+        last = self._sweep_twist
+        if (
+            last is not None
+            and last[1] == self._accepted[-1][1]
+            and self.config.sweep_alignment.mode != 'off'
+        ):
+            return SweepMotion(last[0].omega, motion.velocity)
+        return motion
 
     def _gyro_motion(
         self, stamp_ns: int, point_times: np.ndarray | None, velocity: np.ndarray
@@ -445,6 +467,9 @@ class Odometry:
     ) -> OdometryStep:
         """Move the pose, feed the map, move the keyframe; the step of an accepted frame."""
         raw, pose = self._deskew_start(raw, chosen.pose, stamp_ns)
+        raw, pose, sweep_note = self._align_sweep(raw, pose, stamp_ns)
+        if sweep_note:
+            chosen.reason = '; '.join(r for r in (chosen.reason, sweep_note) if r)
         keyframe, current = self.keyframe, raw.scan
         relative = invert_transform(keyframe.pose) @ pose
         twist, twist_cov = twist_between(
@@ -526,6 +551,7 @@ class Odometry:
         self.tracker.restart()
         self._failures = 0
         self._start_scan = (raw, pose.copy(), stamp_ns)
+        self._sweep_twist = None
 
     def _deskew_start(
         self, raw: PreprocessedScan, pose: np.ndarray, stamp_ns: int
@@ -587,6 +613,54 @@ class Odometry:
             r = redone[0]
             keyframe.points, keyframe.labels, keyframe.prepared = r.points, r.labels, r.scan
         return redone[1], current
+
+    def _align_sweep(
+        self, raw: PreprocessedScan, pose: np.ndarray, stamp_ns: int
+    ) -> tuple[PreprocessedScan, np.ndarray, str]:
+        """
+        Estimate the motion within the sweep from the sweep itself (no gyro), if it bends it.
+
+        A scan deskewed by a constant twist from the poses is aligned to the local map with
+        its sweep twist free (``core/alignment/sweep_alignment.py``). When the estimated
+        twist moves some point by more than ``sweep_alignment.min_change``, the scan is
+        deskewed with it, prepared again and aligned again from the joint estimate; the
+        result replaces the pose if the map accepts it. Returns the scan, the pose and a note.
+        """
+        cfg = self.config
+        motion = raw.motion
+        if (
+            cfg.sweep_alignment.mode == 'off'
+            or cfg.fine.method == 'off'
+            or not isinstance(motion, SweepMotion)
+            or raw.input_points is None
+            or raw.point_times is None
+            or self.map.empty
+        ):
+            return raw, pose, ''
+        gaussians = self.map.gaussians()
+        if gaussians is None or len(gaussians[0]) < MIN_SWEEP_MAP_VOXELS:
+            return raw, pose, ''
+        points, times = raw.input_points, np.asarray(raw.point_times, dtype=np.float64)
+        moving = self._moving_mask(points, raw.labels)
+        if moving is not None and len(moving) == len(points):
+            points, times = points[~moving], times[~moving]
+        points, times = sweep_subset(points, times, cfg.sweep_alignment.points)
+        result = align_sweep(
+            points, times, MapGaussians(*gaussians), pose, motion, cfg.sweep_alignment
+        )
+        if result.change_m <= cfg.sweep_alignment.min_change:
+            self._sweep_twist = (result.motion, stamp_ns)
+            return raw, pose, ''
+        redone = self._preprocess(raw.input_points, raw.labels, raw.point_times, result.motion)
+        if not redone.deskewed:
+            return raw, pose, ''
+        again = self.tracker.candidate(
+            'sweep', result.T_target_source, alignment_cloud(redone.scan, cfg.fine), cfg
+        )
+        if not again.acceptable:
+            return raw, pose, f'{result.summary(motion)}: not kept ({again.refusal})'
+        self._sweep_twist = (result.motion, stamp_ns)
+        return redone, again.alignment.T_target_source, result.summary(motion)
 
     def _count_failure(self, step: OdometryStep, raw: PreprocessedScan) -> None:
         """After ``keyframe.max_failures`` rejections in a row, re-initialise on this scan."""

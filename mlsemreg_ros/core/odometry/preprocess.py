@@ -45,6 +45,7 @@ class PreprocessedScan:
     deskew_note: str = ''  # why not, when preprocess.deskew is on
     input_points: np.ndarray | None = None  # (N, 3) as given, when deskewed
     rotation_only: bool = False  # deskewed by the gyro's rotation alone (no velocity yet)
+    motion: Any = None  # the SweepMotion / PiecewiseSweepMotion it was deskewed with
 
 
 class Preprocessor:
@@ -101,4 +102,5 @@ class Preprocessor:
             point_times=point_times,
             deskew_note=f'not deskewed: {why}' if why and on else '',
             input_points=None if why else np.asarray(given),
+            motion=None if why else motion,
         )
