@@ -112,6 +112,15 @@ MIN_SWEEP_MAP_VOXELS = 100
 _PREPARE_SECTIONS = ('semantic', 'features', 'keypoints', 'moving_objects')
 
 
+def _next_sweep(last_stamp_ns: int, stamp_ns: int, point_times: np.ndarray | None) -> bool:
+    """Whether ``stamp_ns`` follows ``last_stamp_ns`` by at most 1.5 sweep spans (no skip)."""
+    if point_times is None or not np.size(point_times) or not last_stamp_ns or not stamp_ns:
+        return False
+    times = np.asarray(point_times, dtype=np.float64)
+    span = float(np.nanmax(times) - np.nanmin(times))
+    return 0.0 < 1e-9 * (stamp_ns - last_stamp_ns) <= 1.5 * span
+
+
 class Odometry:
     """Registers every scan onto a keyframe and refines it against a local map."""
 
@@ -274,9 +283,10 @@ class Odometry:
         the twist gives only the translation: a turn that starts or ends within the sweep
         is not averaged away. Without a gyro, the twist the sweep alignment estimated over
         the last accepted sweep (``sweep_alignment``) is the most recent measure of the
-        rotation rate within a sweep, and is used instead. The velocity stays the poses': the
-        sweep's own estimate leans on its prior where the scene leaves the forward speed
-        free, so fed forward it would lag an acceleration scan after scan.
+        rotation rate within a sweep, and is used instead when this scan is the next sweep
+        (its stamp at most 1.5 sweep spans later; after a skip the rate is too old). The
+        velocity stays the poses': the sweep's own estimate leans on its prior where the
+        scene leaves the forward speed free, so fed forward it would lag an acceleration.
         """
         window = self.config.preprocess.deskew_window
         if prediction is None or not self._accepted:
@@ -293,6 +303,7 @@ class Odometry:
             last is not None
             and last[1] == self._accepted[-1][1]
             and self.config.sweep_alignment.mode != 'off'
+            and _next_sweep(last[1], stamp_ns, point_times)
         ):
             return SweepMotion(last[0].omega, motion.velocity)
         return motion
