@@ -193,3 +193,13 @@ def test_turns_starting_and_ending_within_a_sweep_without_imu(tmp_path: Path) ->
         errors[mode] = worst
     assert errors['auto'] < 0.4, errors  # measured 0.29 m
     assert errors['off'] > 0.6, errors  # measured 0.79 m: the failure is still there without it
+
+
+def test_the_sweep_rate_is_fed_forward_only_to_the_next_sweep() -> None:
+    from mlsemreg_ros.core.odometry.odometry import _next_sweep
+
+    times = np.linspace(0.0, 0.1, 50)
+    assert _next_sweep(1_000_000_000, 1_100_000_000, times)  # the next sweep
+    assert not _next_sweep(1_000_000_000, 1_200_000_000, times)  # one skipped
+    assert not _next_sweep(1_000_000_000, 1_100_000_000, None)  # no times
+    assert not _next_sweep(1_000_000_000, 1_000_000_000, times)  # same stamp

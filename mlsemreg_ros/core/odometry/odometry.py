@@ -478,7 +478,9 @@ class Odometry:
     ) -> OdometryStep:
         """Move the pose, feed the map, move the keyframe; the step of an accepted frame."""
         raw, pose = self._deskew_start(raw, chosen.pose, stamp_ns)
+        tic = time.perf_counter()
         raw, pose, sweep_note = self._align_sweep(raw, pose, stamp_ns)
+        chosen.timings_ms['sweep_alignment_ms'] = 1e3 * (time.perf_counter() - tic)
         if sweep_note:
             chosen.reason = '; '.join(r for r in (chosen.reason, sweep_note) if r)
         keyframe, current = self.keyframe, raw.scan
