@@ -96,15 +96,18 @@ class PiecewiseSweepMotion:
     The sensor's poses at a few times of the sweep (an IMU's), constant twist between them.
 
     ``poses[k]`` (4, 4) is the pose at ``stamp + times[k]`` in the sensor frame at the stamp
-    (``times`` (K,) increasing, K >= 2, seconds). Between two nodes the motion is the
-    constant twist ``log(poses[k]^-1 poses[k + 1]) / (times[k + 1] - times[k])``; before the
-    first and after the last node the nearest segment's twist is held. A yaw rate that
-    changes within the sweep (the start or end of a turn) is followed to the node spacing,
-    where one constant twist over the sweep (:class:`SweepMotion`) is wrong by the change.
+    (``times`` (K,) increasing, K >= 2, seconds). Between two nodes the motion is a constant
+    twist: ``twists[k]`` (``(omega, velocity)``, (K - 1, 6)) when the poses were built from
+    twists (:meth:`from_rotations` keeps them), else ``log(poses[k]^-1 poses[k + 1]) /
+    (times[k + 1] - times[k])``; before the first and after the last node the nearest
+    segment's twist is held. A yaw rate that changes within the sweep (the start or end of
+    a turn) is followed to the node spacing, where one constant twist over the sweep
+    (:class:`SweepMotion`) is wrong by the change.
     """
 
     times: np.ndarray  # (K,) s after the stamp
     poses: np.ndarray  # (K, 4, 4) T_stamp_(stamp + times[k])
+    twists: np.ndarray | None = None  # (K - 1, 6) (omega, velocity) per segment; None: logs
 
     @classmethod
     def from_rotations(
@@ -130,10 +133,18 @@ class PiecewiseSweepMotion:
         exps = _se3_exps(omegas, np.asarray(velocity, dtype=np.float64), dt)
         poses = np.stack(list(itertools.accumulate(exps, np.matmul, initial=np.eye(4))))
         origin = int(np.argmin(np.abs(times)))
-        return cls(times, np.linalg.solve(poses[origin], poses))
+        twists = np.concatenate([omegas, np.broadcast_to(velocity, omegas.shape)], axis=1)
+        return cls(times, np.linalg.solve(poses[origin], poses), twists)
 
     def segments(self) -> list[tuple[float, np.ndarray, SweepMotion]]:
-        """Return ``(t_k, poses[k], twist_k)`` of every segment."""
+        """Return ``(t_k, poses[k], twist_k)`` of every segment (the kept twists, else logs)."""
+        if self.twists is not None:
+            return [
+                (float(start), pose, SweepMotion(twist[:3], twist[3:]))
+                for start, pose, twist in zip(
+                    self.times[:-1], self.poses[:-1], self.twists, strict=True
+                )
+            ]
         out = []
         for k in range(len(self.times) - 1):
             dt = float(self.times[k + 1] - self.times[k])
