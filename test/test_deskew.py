@@ -145,6 +145,23 @@ def test_piecewise_motion_of_one_twist_is_that_twist() -> None:
     np.testing.assert_allclose(deskew(skewed, times, piecewise), world, atol=1e-6)
 
 
+def test_piecewise_motion_keeps_the_twists_it_was_built_from() -> None:
+    omega, velocity = MOTIONS['aggressive 60 deg/s, pitch, 14 m/s']
+    nodes = np.array([-0.01, 0.0, 0.013, 0.05, 0.1])
+    rotations = np.stack([_pose(t, omega, velocity)[:3, :3] for t in nodes])
+    piecewise = PiecewiseSweepMotion.from_rotations(nodes, rotations, velocity)
+    for *_, twist in piecewise.segments():  # the twists themselves, no log
+        assert np.array_equal(twist.velocity, velocity)
+        np.testing.assert_allclose(twist.omega, omega, atol=1e-9)
+    # built from poses alone: the twists are their logs, the same motion
+    from_poses = PiecewiseSweepMotion(piecewise.times, piecewise.poses)
+    for kept, logged in zip(piecewise.segments(), from_poses.segments(), strict=True):
+        np.testing.assert_allclose(logged[2].omega, kept[2].omega, atol=1e-9)
+        np.testing.assert_allclose(logged[2].velocity, kept[2].velocity, atol=1e-9)
+    world, times, skewed = _sweep(omega, velocity)
+    np.testing.assert_allclose(deskew(skewed, times, from_poses), world, atol=1e-6)
+
+
 def test_the_odometry_deskews_with_the_motion_models_prediction() -> None:
     omega, velocity = MOTIONS['turn 30 deg/s at 8 m/s']
     world, times, skewed = _sweep(omega, velocity, n=600)

@@ -13,6 +13,7 @@
 # limitations under the License.
 """The compiled kernels (core/features/kernels.py): switch, cache, voxel grid equal to NumPy's."""
 
+import itertools
 from pathlib import Path
 import subprocess
 import sys
@@ -22,6 +23,7 @@ from mlsemreg_ros.core.features.features import voxel_centroids, voxel_downsampl
 from mlsemreg_ros.core.features.warm_up import warm_up
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 needs_numba = pytest.mark.skipif(not kernels.AVAILABLE, reason='numba is not installed')
 
@@ -76,6 +78,7 @@ def test_warm_up_compiles_into_the_on_disk_cache() -> None:
         'support_neighbour_sums',
         'keypoint_neighbour_sums',
         '_deskew',
+        '_deskew_piecewise',
     ):
         assert kernel in names
 
@@ -209,3 +212,45 @@ def test_compiled_deskew_equals_numpy(omega: np.ndarray, monkeypatch: pytest.Mon
     np.testing.assert_allclose(compiled, expected, rtol=0.0, atol=1e-12)
     assert np.mean(compiled == expected) > 0.99
     assert not np.array_equal(expected, points)  # it did move them
+
+
+@needs_numba
+def test_compiled_piecewise_deskew_equals_numpy_and_the_per_segment_maps(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """One pass over all segments = NumPy's one pass = each segment mapped on its own."""
+    from mlsemreg_ros.core.features import deskew
+
+    rng = np.random.default_rng(5)
+    points = _scan_like(5, 6000)
+    times = np.repeat(np.sort(rng.uniform(-0.02, 0.12, 600)), 10)  # beyond both end nodes
+    nodes = np.array([-0.01, 0.0, 0.02, 0.05, 0.08, 0.1])
+    rates = np.array([[0.1, -0.4, 1.2], [0.0, 0.0, 0.0], [0.0, 0.0, 1e-12], [0.3, 0.1, -0.8]])
+    steps = [
+        Rotation.from_rotvec(w * d).as_matrix()
+        for w, d in zip(rates, np.diff(nodes[1:]), strict=True)
+    ]
+    rotations = np.stack([np.eye(3), np.eye(3), *itertools.accumulate(steps, np.matmul)])
+    motion = deskew.PiecewiseSweepMotion.from_rotations(
+        nodes, rotations, np.array([9.0, 1.0, 0.2])
+    )
+    monkeypatch.setenv(kernels.ENV_SWITCH, 'numpy')
+    expected = deskew.deskew(points, times, motion)
+    monkeypatch.setenv(kernels.ENV_SWITCH, 'numba')
+    compiled = deskew.deskew(points, times, motion)
+    np.testing.assert_allclose(compiled, expected, rtol=0.0, atol=1e-12)
+    segments = motion.segments()
+    index = np.clip(np.searchsorted(nodes, times, side='right') - 1, 0, len(segments) - 1)
+    separately = np.empty_like(points)
+    for k, (start, pose, twist) in enumerate(segments):
+        rows = index == k
+        local = deskew.deskew(points[rows], times[rows] - start, twist)
+        separately[rows] = local @ pose[:3, :3].T + pose[:3, 3]
+    np.testing.assert_allclose(compiled, separately, rtol=0.0, atol=1e-12)
+    assert np.mean(compiled == separately) > 0.5  # the pose product may round differently
+    assert not np.array_equal(expected, points)
+    order = rng.permutation(len(points))  # any order: the runs of equal times break up
+    for switch in ('numpy', 'numba'):
+        monkeypatch.setenv(kernels.ENV_SWITCH, switch)
+        shuffled = deskew.deskew(points[order], times[order], motion)
+        np.testing.assert_allclose(shuffled, separately[order], rtol=0.0, atol=1e-12)

@@ -16,6 +16,7 @@
 
 from __future__ import annotations
 
+import itertools
 from typing import Any
 
 from mlsemreg_ros.core.config import RegistrationConfig
@@ -31,6 +32,7 @@ from mlsemreg_ros.core.odometry import (
     Odometry,
     PriorMotionModel,
 )
+from mlsemreg_ros.core.odometry.prior_model import node_rotations
 from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg
 from mlsemreg_ros.datasets.prior_topics import PriorTopics, sweep_end_ns
 from mlsemreg_ros.simulation.inertial import ImuConfig, simulate_imu
@@ -113,6 +115,36 @@ def test_the_gyro_rotations_within_a_sweep_match_the_truth() -> None:
     assert model.sweep_rotations(stamp, 0.0, 60.0) is None  # beyond the IMU's samples
     wheels = PriorMotionModel(model_config('wheel'))
     assert wheels.sweep_rotations(stamp, 0.0, 0.1) is None  # no gyro
+
+
+@pytest.mark.parametrize(
+    'nodes',
+    [
+        [-2_000_000, 0, 5_000_000, 10_000_000, 12_500_000, 15_000_000, 20_000_000, 23_000_000],
+        [3_000_000, 5_000_000, 7_000_000],  # the stamp between two samples
+        [20_000_000, 24_000_000, 31_000_000],  # past the last sample: its rate is held
+        [-9_000_000, -4_000_000, 0],  # before the first sample: its rate is held
+    ],
+)
+def test_node_rotations_are_integrate_imu_interval_by_interval_to_the_bit(
+    nodes: list[int],
+) -> None:
+    rng = np.random.default_rng(4)
+    stamps = np.arange(0, 5) * 5_000_000 + T0_NS  # 200 Hz
+    gyro, accel = rng.normal(0.0, 0.8, (5, 3)), rng.normal(0.0, 9.0, (5, 3))
+    bias = np.array([0.01, -0.02, 0.005])
+    nodes_ns = np.asarray(nodes, dtype=np.int64) + T0_NS
+    expected = [
+        integrate_imu(stamps, gyro, accel, int(t0), int(t1), bias).rotation
+        for t0, t1 in itertools.pairwise(nodes_ns)
+    ]
+    np.testing.assert_array_equal(node_rotations(stamps, gyro, nodes_ns, bias), expected)
+    one = node_rotations(stamps[:1], gyro[:1], nodes_ns, bias)  # a single sample: held
+    single = [
+        integrate_imu(stamps[:1], gyro[:1], accel[:1], int(t0), int(t1), bias).rotation
+        for t0, t1 in itertools.pairwise(nodes_ns)
+    ]
+    np.testing.assert_array_equal(one, single)
 
 
 def test_integrated_rotation_of_a_constant_rate_is_its_exponential() -> None:

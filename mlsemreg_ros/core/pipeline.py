@@ -45,8 +45,7 @@ from mlsemreg_ros.core.alignment.fine_alignment import (
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import bev_search, confidence, label_model
 from mlsemreg_ros.core.estimation.estimation import estimate
-from mlsemreg_ros.core.estimation.guided import guided_correspondences
-from mlsemreg_ros.core.estimation.polish import polish_poses, radius_schedule
+from mlsemreg_ros.core.estimation.refused_path import RefusedPath
 from mlsemreg_ros.core.estimation.verification import (
     combined_score,
     dense_scores,
@@ -60,7 +59,7 @@ from mlsemreg_ros.core.features import features, fpfh
 from mlsemreg_ros.core.features.scan_input import sanitize_scan_for
 from mlsemreg_ros.core.matching import landmarks, matching, signatures
 from mlsemreg_ros.core.matching.labels import LabelMap
-from mlsemreg_ros.core.poses import distinct_hypotheses, same_pose
+from mlsemreg_ros.core.poses import same_pose
 from mlsemreg_ros.core.results import (
     Correspondences,
     EstimateResult,
@@ -389,7 +388,8 @@ class Registration:
                 diagnostics.update(searched.diagnostics)
                 stages.append(searched)
             # still refused: the next stage, cheapest first (docs/hard_pairs.md)
-            pending = self._refused_stages(estimate_result, len(src_pts))
+            refused_path = self._refused_path()
+            pending = refused_path.stages(estimate_result, len(src_pts))
             for found in stages:
                 with _timed(timings, 'confidence_ms'):
                     pool = pool.extended(found, measure)
@@ -402,7 +402,7 @@ class Registration:
                 while refused and pending and found is stages[-1]:
                     stage = pending.pop(0)
                     with _timed(timings, f'{stage}_ms'):
-                        extra = self._refused_stage(
+                        extra = refused_path.run(
                             stage,
                             (source, target),
                             (src_pts, dst_pts),
@@ -443,7 +443,7 @@ class Registration:
             doubtful = correction_refusal(alignment, bounds)
             if doubtful and success:  # the coarse pose was not right to the bounds
                 success, message = False, doubtful + (f'; {message}' if message else '')
-            if refused and self._refinement_holds(
+            if refused and self._refused_path().refinement_holds(
                 alignment.T_target_source, transform, source, target
             ):
                 # the refinement is the best pose found when it holds the dense score: at
@@ -616,158 +616,9 @@ class Registration:
         )
         return evidence, confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
 
-    def _refused_stages(self, estimated: EstimateResult, correspondences: int) -> list[str]:
-        """Return the stages that may follow a refused BEV search, in order (the enabled ones)."""
-        cfg = self.config
-        sampled = estimated.diagnostics.get('graph_correspondences', correspondences)
-        stages = []
-        if cfg.bev_search.guided_peaks > 0:
-            stages.append('guided')
-        if (
-            cfg.bev_search.full_graph
-            and cfg.estimator.kind == 'sc2pcr'
-            and sampled < correspondences
-            and not estimated.diagnostics.get('graph_retried', False)
-        ):
-            stages.append('full_graph')
-        if cfg.bev_search.polish_candidates > 0:
-            stages.append('polish')
-        return stages
-
-    def _refused_stage(
-        self,
-        stage: str,
-        scans: tuple[PreparedScan, PreparedScan],
-        correspondences: tuple[np.ndarray, np.ndarray],
-        pool: _Pool,
-        searched: VerificationResult,
-        refine: bool,
-        diagnostics: dict[str, Any],
-    ) -> VerificationResult | None:
-        """
-        Run one stage of :meth:`_refused_stages`; its verified candidates (or None).
-
-        ``refine``: the pair's fine alignment follows (:meth:`register`).
-        """
-        (source, target), (src_pts, dst_pts) = scans, correspondences
-        if stage == 'guided':
-            return self._guided(source, target, searched, diagnostics)
-        if stage == 'full_graph':
-            return self._full_graph(source, target, src_pts, dst_pts, diagnostics)
-        polished = self._polished(source, target, src_pts, dst_pts, pool, refine)
-        diagnostics['polished_candidates'] = len(polished.hypotheses)
-        return polished
-
-    def _full_graph(
-        self,
-        source: PreparedScan,
-        target: PreparedScan,
-        src_pts: np.ndarray,
-        dst_pts: np.ndarray,
-        diagnostics: dict[str, Any],
-    ) -> VerificationResult:
-        """
-        SC2-PCR again on every correspondence (no ``estimator.graph_size`` sample), verified.
-
-        At 60 m a pair can hold 79 true correspondences in 7657 (1 %): a sample of 500
-        keeps five, too few to seed, while its best wrong hypothesis has enough inliers
-        (66) to skip ``estimator.graph_retry_inliers``. Origin ``'full_graph'``.
-        """
-        cfg = self.config
-        estimated = estimate(src_pts, dst_pts, dataclasses.replace(cfg.estimator, graph_size=0))
-        diagnostics['full_graph_inliers'] = estimated.num_inliers
-        verified = self._verify(estimated, src_pts, dst_pts, source, target)
-        hypotheses = [dataclasses.replace(h, origin='full_graph') for h in verified.hypotheses]
-        return VerificationResult(hypotheses, verified.chosen)
-
-    def _polished(
-        self,
-        source: PreparedScan,
-        target: PreparedScan,
-        src_pts: np.ndarray,
-        dst_pts: np.ndarray,
-        pool: _Pool,
-        refine: bool = True,
-    ) -> VerificationResult:
-        """
-        Polish the pool's best candidates on the dense scans and score them (origin 'polished').
-
-        The ``bev_search.polish_candidates`` best distinct candidates by score and every
-        candidate lining up ``confidence.min_distinctive_objects``; each gets
-        ``bev_search.polish_iterations`` point-to-point ICP steps
-        (core/estimation/polish.py). With ``refine`` (the pair's fine alignment follows), the
-        ``bev_search.polish_fine`` best distinct candidates also get that fine alignment.
-        """
-        cfg = self.config
-        search, check = cfg.bev_search, cfg.verification
-        transforms, scores = pool.transforms(), pool.scores()
-        order = np.argsort(-scores, kind='stable')
-        best = order[
-            distinct_hypotheses(
-                transforms[order],
-                search.polish_candidates,
-                check.distinct_rotation,
-                check.distinct_translation,
-            )
-        ]
-        lined_up = np.flatnonzero(pool.points >= cfg.confidence.min_distinctive_objects)
-        chosen = np.union1d(best, lined_up)
-        rng = np.random.default_rng(check.seed)
-        count = len(source.points)
-        rows = (
-            rng.choice(count, search.polish_points, replace=False)
-            if count > search.polish_points
-            else np.arange(count)
-        )
-        polished = polish_poses(
-            transforms[chosen],
-            source.points[rows],
-            target.points_tree(),
-            target.points,
-            radius_schedule(
-                search.polish_radius, check.overlap_distance, search.polish_iterations
-            ),
-        )
-        if refine and search.polish_fine > 0 and cfg.fine.pair_method != 'off':
-            # the best few (polished or not) get the pair's fine alignment: a 6-DoF GICP
-            # corrects the tilt the polishing leaves (60 m dev pair 000008_000010: 4.0 deg
-            # -> 1.7 deg, and it outscores the flip it lost to)
-            every = np.concatenate([transforms, polished])
-            order = np.argsort(-combined_score(*self._dense(every, source, target), check))
-            best = order[
-                distinct_hypotheses(
-                    every[order],
-                    search.polish_fine,
-                    check.distinct_rotation,
-                    check.distinct_translation,
-                )
-            ]
-            aligned = [
-                align_pair(
-                    alignment_cloud(source, cfg.fine),  # downsampled: a third of the time
-                    alignment_cloud(target, cfg.fine, pair=True),
-                    every[i],
-                    cfg.fine,
-                    cfg.fine.pair_method,
-                ).T_target_source
-                for i in best
-            ]
-            aligned = [T for T in aligned if np.all(np.isfinite(T))]
-            if aligned:
-                polished = np.concatenate([polished, np.stack(aligned)])
-                chosen = np.concatenate([chosen, best[: len(aligned)]])
-        return score_hypotheses(
-            polished,
-            chosen,
-            src_pts,
-            dst_pts,
-            source,
-            target,
-            dataclasses.replace(check, min_gain=0.0),
-            cfg.estimator,
-            self._label_compatibility,
-            origin='polished',
-        )
+    def _refused_path(self) -> RefusedPath:
+        """Return the refused-path stages with this config (core/estimation/refused_path.py)."""
+        return RefusedPath(self.config, self._label_compatibility, self._verify, self._dense)
 
     def _verify(
         self,
@@ -802,68 +653,6 @@ class Registration:
             self._label_compatibility,
             self.config.verification,
         )
-
-    def _guided(
-        self,
-        source: PreparedScan,
-        target: PreparedScan,
-        searched: VerificationResult,
-        diagnostics: dict[str, Any],
-    ) -> VerificationResult | None:
-        """
-        Guided re-matching around the ``bev_search.guided_peaks`` best searched poses.
-
-        For each, correspondences only within ``bev_search.guided_radius`` of where the pose
-        puts a source keypoint (compatible labels), then the estimator and the verification
-        again (core/estimation/guided.py). Returns their verified hypotheses (origin ``'guided'``),
-        None when no peak gave three correspondences. Adds ``guided_*`` diagnostics.
-        """
-        cfg = self.config
-        scores = np.array([h.score for h in searched.hypotheses])
-        peaks = np.argsort(-scores, kind='stable')[: cfg.bev_search.guided_peaks]
-        found: list[HypothesisScore] = []
-        counts = []
-        for peak in peaks:
-            corr = guided_correspondences(
-                source,
-                target,
-                searched.hypotheses[peak].T_target_source,
-                cfg.bev_search.guided_radius,
-                self._label_compatibility,
-            )
-            counts.append(len(corr))
-            if len(corr) < 3:
-                continue
-            p, q = source.keypoints[corr.source], target.keypoints[corr.target]
-            estimated = estimate(p, q, cfg.estimator)
-            verified = self._verify(estimated, p, q, source, target)
-            found += [dataclasses.replace(h, origin='guided') for h in verified.hypotheses]
-        diagnostics['guided_peaks'] = len(peaks)
-        diagnostics['guided_correspondences'] = int(np.sum(counts)) if counts else 0
-        if not found:
-            return None
-        best = max(found, key=lambda h: h.score)
-        diagnostics['guided_best_score'] = best.score
-        return VerificationResult(found, 0)
-
-    def _refinement_holds(
-        self,
-        refined: np.ndarray,
-        coarse: np.ndarray,
-        source: PreparedScan,
-        target: PreparedScan,
-    ) -> bool:
-        """
-        Tell whether ``refined`` scores about as high as ``coarse`` on the dense scans, or higher.
-
-        About: lower by at most ``verification.min_gain`` (the verification's own notion of
-        the same score). A refinement that runs away to another place loses more.
-        """
-        if not np.all(np.isfinite(refined)):
-            return False
-        overlap, agreement = self._dense(np.stack([coarse, refined]), source, target)
-        scores = combined_score(overlap, agreement, self.config.verification)
-        return bool(scores[1] >= scores[0] * (1.0 - self.config.verification.min_gain))
 
     def _distinctive_of(
         self, transforms: np.ndarray, source: PreparedScan, target: PreparedScan

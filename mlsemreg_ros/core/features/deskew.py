@@ -34,6 +34,7 @@ through ``MotionModel.predict`` (``docs/extending.md``).
 from __future__ import annotations
 
 from dataclasses import dataclass
+import itertools
 
 from mlsemreg_ros.core.features import kernels
 from mlsemreg_ros.core.settings import param
@@ -95,15 +96,18 @@ class PiecewiseSweepMotion:
     The sensor's poses at a few times of the sweep (an IMU's), constant twist between them.
 
     ``poses[k]`` (4, 4) is the pose at ``stamp + times[k]`` in the sensor frame at the stamp
-    (``times`` (K,) increasing, K >= 2, seconds). Between two nodes the motion is the
-    constant twist ``log(poses[k]^-1 poses[k + 1]) / (times[k + 1] - times[k])``; before the
-    first and after the last node the nearest segment's twist is held. A yaw rate that
-    changes within the sweep (the start or end of a turn) is followed to the node spacing,
-    where one constant twist over the sweep (:class:`SweepMotion`) is wrong by the change.
+    (``times`` (K,) increasing, K >= 2, seconds). Between two nodes the motion is a constant
+    twist: ``twists[k]`` (``(omega, velocity)``, (K - 1, 6)) when the poses were built from
+    twists (:meth:`from_rotations` keeps them), else ``log(poses[k]^-1 poses[k + 1]) /
+    (times[k + 1] - times[k])``; before the first and after the last node the nearest
+    segment's twist is held. A yaw rate that changes within the sweep (the start or end of
+    a turn) is followed to the node spacing, where one constant twist over the sweep
+    (:class:`SweepMotion`) is wrong by the change.
     """
 
     times: np.ndarray  # (K,) s after the stamp
     poses: np.ndarray  # (K, 4, 4) T_stamp_(stamp + times[k])
+    twists: np.ndarray | None = None  # (K - 1, 6) (omega, velocity) per segment; None: logs
 
     @classmethod
     def from_rotations(
@@ -126,15 +130,21 @@ class PiecewiseSweepMotion:
         dt = np.diff(times)
         steps = Rotation.from_matrix(np.einsum('nji,njk->nik', rotations[:-1], rotations[1:]))
         omegas = steps.as_rotvec() / dt[:, None]
-        poses = [np.eye(4)]
-        for omega, duration in zip(omegas, dt, strict=True):
-            poses.append(poses[-1] @ se3_exp(SweepMotion(omega, velocity), float(duration)))
-        poses = np.stack(poses)
+        exps = _se3_exps(omegas, np.asarray(velocity, dtype=np.float64), dt)
+        poses = np.stack(list(itertools.accumulate(exps, np.matmul, initial=np.eye(4))))
         origin = int(np.argmin(np.abs(times)))
-        return cls(times, np.linalg.solve(poses[origin], poses))
+        twists = np.concatenate([omegas, np.broadcast_to(velocity, omegas.shape)], axis=1)
+        return cls(times, np.linalg.solve(poses[origin], poses), twists)
 
     def segments(self) -> list[tuple[float, np.ndarray, SweepMotion]]:
-        """Return ``(t_k, poses[k], twist_k)`` of every segment."""
+        """Return ``(t_k, poses[k], twist_k)`` of every segment (the kept twists, else logs)."""
+        if self.twists is not None:
+            return [
+                (float(start), pose, SweepMotion(twist[:3], twist[3:]))
+                for start, pose, twist in zip(
+                    self.times[:-1], self.poses[:-1], self.twists, strict=True
+                )
+            ]
         out = []
         for k in range(len(self.times) - 1):
             dt = float(self.times[k + 1] - self.times[k])
@@ -191,6 +201,34 @@ def se3_exp(motion: SweepMotion, duration: float) -> np.ndarray:
     return out
 
 
+def _se3_exps(omegas: np.ndarray, velocity: np.ndarray, durations: np.ndarray) -> np.ndarray:
+    """
+    Return ``se3_exp(SweepMotion(omegas[k], velocity), durations[k])`` for every k: (K, 4, 4).
+
+    All at once, with :func:`motion_at`'s arithmetic row by row (the same bits as K calls).
+    """
+    from scipy.spatial.transform import Rotation
+
+    rates = np.array([float(np.linalg.norm(omega)) for omega in omegas])
+    angles = durations * rates
+    rho = durations[:, None] * velocity
+    out = np.tile(np.eye(4), (len(durations), 1, 1))
+    turning = rates > 0.0
+    with np.errstate(divide='ignore', invalid='ignore'):  # rate 0: no rotation, tau * rho
+        axis = omegas / rates[:, None]
+        cross1 = np.cross(axis, velocity)
+        cross2 = np.cross(axis, cross1)
+        a = np.where(np.abs(angles) < SMALL_ANGLE, 0.0, 1.0 - np.cos(angles)) / rates
+        b = (angles - np.sin(angles)) / rates
+    series = rates * np.abs(durations) < SMALL_ANGLE
+    shifted = rho + a[:, None] * cross1 + b[:, None] * cross2
+    out[:, :3, 3] = np.where(series[:, None], rho, shifted)
+    if turning.any():
+        rotvecs = axis[turning] * angles[turning, None]
+        out[turning, :3, :3] = Rotation.from_rotvec(rotvecs).as_matrix()
+    return out
+
+
 def motion_at(motion: SweepMotion, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     Return ``exp(tau * twist)`` for every ``tau`` in ``times`` (N,): rotations and translations.
@@ -223,7 +261,7 @@ def deskew(
     ``p' = R(tau) p + t(tau)`` with ``(R, t)(tau) = exp(tau * twist)``: the pose at
     ``stamp + tau`` in the frame at the stamp. Vectorised (Rodrigues about the twist's axis).
     A :class:`PiecewiseSweepMotion` maps the points of each segment by
-    ``poses[k] exp((tau - t_k) twist_k)`` (one vectorised call per segment).
+    ``poses[k] exp((tau - t_k) twist_k)`` (all segments in one vectorised pass).
     """
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     times = np.asarray(times, dtype=np.float64).reshape(-1)
@@ -237,16 +275,110 @@ def deskew(
 def _deskew_piecewise(
     points: np.ndarray, times: np.ndarray, motion: PiecewiseSweepMotion
 ) -> np.ndarray:
-    """Deskew segment by segment (points before/after the nodes use the end segments)."""
+    """
+    Deskew every point by its own segment in one pass (before/after the nodes: end segments).
+
+    Each point gets its segment by a search in the node times; the compiled kernel reads
+    the segment's twist and start pose per point (the NumPy pass gathers them).
+    """
     segments = motion.segments()
+    starts = np.array([start for start, _, _ in segments])
     index = np.clip(np.searchsorted(motion.times, times, side='right') - 1, 0, len(segments) - 1)
-    out = np.empty_like(points)
-    for k, (start, pose, twist) in enumerate(segments):
-        rows = np.flatnonzero(index == k)
-        if rows.size:
-            local = _deskew_constant(points[rows], times[rows] - start, twist)
-            out[rows] = local @ pose[:3, :3].T + pose[:3, 3]
-    return out
+    twists = [_twist_terms(twist) for _, _, twist in segments]
+    velocity, rate, axis, cross1, cross2 = (
+        np.array(column) for column in zip(*twists, strict=True)
+    )
+    poses = np.stack([pose for _, pose, _ in segments])
+    rotation, offset = poses[:, :3, :3], poses[:, :3, 3]
+    if kernels.enabled():
+        return kernels.deskew_piecewise_points(
+            points,
+            times,
+            index,
+            starts,
+            velocity,
+            rate,
+            axis,
+            cross1,
+            cross2,
+            rotation,
+            offset,
+            SMALL_ANGLE,
+        )
+    return _deskew_piecewise_numpy(
+        points, times, index, starts, velocity, rate, axis, cross1, cross2, rotation, offset
+    )
+
+
+def _deskew_piecewise_numpy(
+    points: np.ndarray,
+    times: np.ndarray,
+    index: np.ndarray,
+    starts: np.ndarray,
+    velocity: np.ndarray,
+    rate: np.ndarray,
+    axis: np.ndarray,
+    cross1: np.ndarray,
+    cross2: np.ndarray,
+    rotation: np.ndarray,
+    offset: np.ndarray,
+) -> np.ndarray:
+    """
+    Map every point by its segment in NumPy, one pass: ``R_k exp(tau twist_k) p + t_k``.
+
+    A sweep's points come column by column, so consecutive points share their time: the
+    map (a 3x3 matrix and a translation) is built once per run of equal time and segment
+    (Rodrigues' matrix, the left Jacobian's closed form), repeated along the run and
+    applied to all points at once.
+    """
+    count = len(times)
+    if count == 0:
+        return points.copy()
+    new_run = np.empty(count, dtype=bool)
+    new_run[0] = True
+    new_run[1:] = (times[1:] != times[:-1]) | (index[1:] != index[:-1])
+    first = np.flatnonzero(new_run)
+    lengths = np.diff(np.append(first, count))
+    k = index[first]
+    tau = times[first] - starts[k]
+    angles = tau * rate[k]
+    # per segment, as _deskew_constant decides for its points: any rotation, the series
+    longest = np.zeros(len(starts))
+    np.maximum.at(longest, k, np.abs(tau))
+    rotates = np.zeros(len(starts), dtype=bool)
+    np.logical_or.at(rotates, k, angles != 0.0)
+    series = (rate * longest < SMALL_ANGLE)[k]
+    with np.errstate(divide='ignore', invalid='ignore'):  # rate 0: the series, no rotation
+        a = np.where(np.abs(angles) < SMALL_ANGLE, 0.0, 1.0 - np.cos(angles)) / rate[k]
+        b = (angles - np.sin(angles)) / rate[k]
+    a, b = np.where(series, 0.0, a), np.where(series, 0.0, b)
+    turning = rotates[k]
+    cos = np.where(turning, np.cos(angles), 1.0)[:, None, None]
+    sin = np.where(turning, np.sin(angles), 0.0)[:, None, None]
+    e = axis[k]
+    hat = np.zeros((len(k), 3, 3))
+    hat[:, 0, 1], hat[:, 0, 2], hat[:, 1, 2] = -e[:, 2], e[:, 1], -e[:, 0]
+    hat -= hat.transpose(0, 2, 1)
+    rodrigues = cos * np.eye(3) + sin * hat + (1.0 - cos) * e[:, :, None] * e[:, None, :]
+    local = tau[:, None] * velocity[k] + a[:, None] * cross1[k] + b[:, None] * cross2[k]
+    matrices = rotation[k] @ rodrigues
+    shifts = np.einsum('rij,rj->ri', rotation[k], local) + offset[k]
+    per_point = np.repeat(matrices, lengths, axis=0)
+    return np.einsum('nij,nj->ni', per_point, points) + np.repeat(shifts, lengths, axis=0)
+
+
+def _twist_terms(
+    motion: SweepMotion,
+) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+    """Return ``(velocity, rate, axis, axis x velocity, axis x (axis x velocity))`` of a twist."""
+    velocity = np.asarray(motion.velocity, dtype=np.float64)
+    rate = float(np.linalg.norm(motion.omega))
+    axis = cross1 = cross2 = np.zeros(3)
+    if rate > 0.0:
+        axis = motion.omega / rate
+        cross1 = np.cross(axis, velocity)
+        cross2 = np.cross(axis, cross1)
+    return velocity, rate, axis, cross1, cross2
 
 
 def _deskew_constant(points: np.ndarray, times: np.ndarray, motion: SweepMotion) -> np.ndarray:
@@ -267,14 +399,8 @@ def _deskew_constant(points: np.ndarray, times: np.ndarray, motion: SweepMotion)
 
 def _deskew_compiled(points: np.ndarray, times: np.ndarray, motion: SweepMotion) -> np.ndarray:
     """:func:`deskew` by the compiled kernel: the same steps, one pass over the points."""
-    velocity = np.asarray(motion.velocity, dtype=np.float64)
-    rate = float(np.linalg.norm(motion.omega))
+    velocity, rate, axis, cross1, cross2 = _twist_terms(motion)
     series = rate * float(np.max(np.abs(times), initial=0.0)) < SMALL_ANGLE
-    axis = cross1 = cross2 = np.zeros(3)
-    if rate > 0.0:
-        axis = motion.omega / rate
-        cross1 = np.cross(axis, velocity)
-        cross2 = np.cross(axis, cross1)
     return kernels.deskew_points(
         points, times, velocity, rate, axis, cross1, cross2, series, SMALL_ANGLE
     )

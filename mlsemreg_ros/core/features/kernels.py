@@ -340,6 +340,109 @@ def deskew_points(
     )
 
 
+@jit
+def _deskew_piecewise(
+    points: np.ndarray,
+    times: np.ndarray,
+    segment: np.ndarray,
+    starts: np.ndarray,
+    velocity: np.ndarray,
+    rate: np.ndarray,
+    axis: np.ndarray,
+    cross1: np.ndarray,
+    cross2: np.ndarray,
+    rotation: np.ndarray,
+    offset: np.ndarray,
+    small_angle: float,
+) -> np.ndarray:
+    n, m = points.shape[0], starts.shape[0]
+    # per segment, as _deskew decides for its points: any rotation, the translation's series
+    longest = np.zeros(m)
+    rotate = np.zeros(m, dtype=np.bool_)
+    for i in range(n):
+        k = segment[i]
+        tau = times[i] - starts[k]
+        longest[k] = max(longest[k], abs(tau))
+        if rate[k] != 0.0 and tau * rate[k] != 0.0:
+            rotate[k] = True
+    series = np.empty(m, dtype=np.bool_)
+    for k in range(m):
+        series[k] = rate[k] * longest[k] < small_angle
+    out = np.empty((n, 3))
+    t_last, k_last, cos, sin, tx, ty, tz = np.nan, -1, 1.0, 0.0, 0.0, 0.0, 0.0
+    for i in range(n):
+        k = segment[i]
+        t = times[i] - starts[k]
+        if t != t_last or k != k_last:  # times repeat along a sweep column
+            t_last, k_last = t, k
+            angle = t * rate[k]
+            v, c1, c2 = velocity[k], cross1[k], cross2[k]
+            tx, ty, tz = t * v[0], t * v[1], t * v[2]
+            if not series[k]:
+                a = (0.0 if abs(angle) < small_angle else 1.0 - np.cos(angle)) / rate[k]
+                b = (angle - np.sin(angle)) / rate[k]
+                tx = tx + a * c1[0] + b * c2[0]
+                ty = ty + a * c1[1] + b * c2[1]
+                tz = tz + a * c1[2] + b * c2[2]
+            cos, sin = np.cos(angle), np.sin(angle)
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        if rotate[k]:
+            e = axis[k]
+            dot = x * e[0] + y * e[1] + z * e[2]
+            one_minus = 1.0 - cos
+            lx = x * cos + (e[1] * z - e[2] * y) * sin + dot * e[0] * one_minus + tx
+            ly = y * cos + (e[2] * x - e[0] * z) * sin + dot * e[1] * one_minus + ty
+            lz = z * cos + (e[0] * y - e[1] * x) * sin + dot * e[2] * one_minus + tz
+        else:
+            lx, ly, lz = x + tx, y + ty, z + tz
+        R, o = rotation[k], offset[k]
+        out[i, 0] = R[0, 0] * lx + R[0, 1] * ly + R[0, 2] * lz + o[0]
+        out[i, 1] = R[1, 0] * lx + R[1, 1] * ly + R[1, 2] * lz + o[1]
+        out[i, 2] = R[2, 0] * lx + R[2, 1] * ly + R[2, 2] * lz + o[2]
+    return out
+
+
+def deskew_piecewise_points(
+    points: np.ndarray,
+    times: np.ndarray,
+    segment: np.ndarray,
+    starts: np.ndarray,
+    velocity: np.ndarray,
+    rate: np.ndarray,
+    axis: np.ndarray,
+    cross1: np.ndarray,
+    cross2: np.ndarray,
+    rotation: np.ndarray,
+    offset: np.ndarray,
+    small_angle: float,
+) -> np.ndarray:
+    """
+    Run :func:`deskew_points` for every segment of a piecewise motion, in one loop.
+
+    Point ``i`` belongs to segment ``segment[i]`` (M segments); on segment ``k`` it is
+    mapped by ``exp((tau - starts[k]) twist_k)`` (``velocity``, ``rate``, ``axis``,
+    ``cross1``, ``cross2``: (M, 3) or (M,), as for :func:`deskew_points`), then by the
+    segment's start pose ``(rotation[k] (3, 3), offset[k] (3,))``. Whether a segment
+    rotates and whether its translation takes the series are decided from its own points,
+    as :func:`deskew_points` decides them for a call. Returns (N, 3) float64.
+    """
+    f64 = np.float64
+    return _deskew_piecewise(
+        np.ascontiguousarray(points, dtype=f64),
+        np.ascontiguousarray(times, dtype=f64),
+        np.ascontiguousarray(segment, dtype=np.int64),
+        np.ascontiguousarray(starts, dtype=f64),
+        np.ascontiguousarray(velocity, dtype=f64),
+        np.ascontiguousarray(rate, dtype=f64),
+        np.ascontiguousarray(axis, dtype=f64),
+        np.ascontiguousarray(cross1, dtype=f64),
+        np.ascontiguousarray(cross2, dtype=f64),
+        np.ascontiguousarray(rotation, dtype=f64),
+        np.ascontiguousarray(offset, dtype=f64),
+        float(small_angle),
+    )
+
+
 _M_TRIM_THRESHOLD, _M_MMAP_THRESHOLD = -1, -3  # glibc mallopt parameters
 
 

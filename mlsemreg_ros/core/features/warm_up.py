@@ -35,8 +35,9 @@ def warm_up() -> dict[str, float]:
 
     Call it once at start-up (e.g. the node before its first scan) so the first frame
     does not pay the JIT. Without numba (or with ``MLSEMREG_KERNELS=numpy``) it
-    returns ``{}``. Keys: ``voxel_ms``, ``fpfh_ms`` (both FPFH variants), ``deskew_ms``,
-    ``sweep_ms`` (the sweep alignment's normal equations), ``total_ms``.
+    returns ``{}``. Keys: ``voxel_ms``, ``fpfh_ms`` (both FPFH variants), ``deskew_ms``
+    (constant and piecewise), ``sweep_ms`` (the sweep alignment's normal equations),
+    ``total_ms``.
     """
     if not kernels.enabled():
         return {}
@@ -56,6 +57,21 @@ def warm_up() -> dict[str, float]:
     axes = np.eye(3)
     times = np.linspace(0.0, 0.1, 200)
     kernels.deskew_points(points, times, axes[0], 1.0, axes[2], axes[0], axes[1], False, 1e-6)
+    segment = (times > 0.05).astype(np.int64)  # two segments of a piecewise (gyro) motion
+    kernels.deskew_piecewise_points(
+        points,
+        times,
+        segment,
+        np.array([0.0, 0.05]),
+        axes[:2],
+        np.ones(2),
+        axes[1:],
+        axes[:2],
+        axes[1:],
+        np.stack([axes, axes]),
+        axes[:2],
+        1e-6,
+    )
     deskewed = time.perf_counter()
     timings['deskew_ms'] = 1e3 * (deskewed - end)
     covariances = np.broadcast_to(np.eye(3), (200, 3, 3))

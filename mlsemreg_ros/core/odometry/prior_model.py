@@ -173,12 +173,9 @@ class PriorMotionModel:
             bias = self.bias.gyro_bias
             inside = stamps[(stamps > start) & (stamps < end) & (stamps != stamp_ns)]
             nodes = np.unique(np.concatenate([[start, stamp_ns, end], inside]).astype(np.int64))
-            gyro, accel = values[:, :3], values[:, 3:]
-            at_nodes = [np.eye(3)]
-            for t0, t1 in itertools.pairwise(nodes):  # one short integration per sample
-                step = integrate_imu(stamps, gyro, accel, int(t0), int(t1), bias).rotation
-                at_nodes.append(at_nodes[-1] @ step)
-        rotations = np.stack(at_nodes)  # R_start_node
+            steps = node_rotations(stamps, values[:, :3], nodes, bias)  # one pass, all nodes
+        # R_start_node: the running product, in the order integrate_imu's callers compose
+        rotations = np.stack(list(itertools.accumulate(steps, np.matmul, initial=np.eye(3))))
         at_stamp = rotations[int(np.searchsorted(nodes, stamp_ns))]
         return (nodes - stamp_ns) * 1e-9, np.einsum('ji,njk->nik', at_stamp, rotations)
 
@@ -323,6 +320,43 @@ class PriorMotionModel:
     def _count(self, source: str) -> None:
         if source:
             self.counts[source] = self.counts.get(source, 0) + 1
+
+
+def node_rotations(
+    stamps_ns: np.ndarray, gyro: np.ndarray, nodes_ns: np.ndarray, gyro_bias: np.ndarray
+) -> np.ndarray:
+    """
+    Return the gyro's rotation over each interval between consecutive nodes, all at once.
+
+    ``(K - 1, 3, 3)``: ``R_node[k]_node[k + 1]`` for nodes (K,) ns increasing, with no sample
+    stamp strictly between two nodes (:meth:`PriorMotionModel.sweep_rotations`). Each is
+    what :func:`~mlsemreg_ros.core.motion_prior.integrate_imu` gives over that interval, to
+    the last bit: the rate linearly interpolated at the interval's midpoint in times
+    relative to its start (``np.interp``'s arithmetic: held past the first or last
+    sample), bias removed, ``exp(w dt)`` through a unit quaternion.
+    """
+    from scipy.spatial.transform import Rotation
+
+    starts = nodes_ns[:-1]
+    dt = (nodes_ns[1:] - starts) * 1e-9  # the interval's end in seconds after its start
+    tau = 0.5 * (dt + 0.0)  # the midpoint, as integrate_imu rounds it
+    relative = (np.asarray(stamps_ns, dtype=np.int64)[None, :] - starts[:, None]) * 1e-9
+    last = relative.shape[1] - 1
+    below = np.count_nonzero(relative <= tau[:, None], axis=1) - 1  # np.interp's bracket
+    j = np.clip(below, 0, max(last - 1, 0))
+    rows = np.arange(len(tau))
+    x0, x1 = relative[rows, j], relative[rows, np.minimum(j + 1, last)]
+    y0, y1 = gyro[j], gyro[np.minimum(j + 1, last)]
+    with np.errstate(divide='ignore', invalid='ignore'):
+        slope = (y1 - y0) / (x1 - x0)[:, None]
+        rate = slope * (tau - x0)[:, None] + y0
+    held = (below < 0)[:, None]
+    rate = np.where(held, gyro[0], rate)
+    at_sample = ((below >= last) | (x0 == tau))[:, None]  # past the last sample, or on one
+    rate = np.where(at_sample & ~held, gyro[np.clip(below, 0, last)], rate)
+    w = rate - gyro_bias
+    increments = Rotation.from_rotvec(w * dt[:, None])
+    return Rotation.from_quat(increments.as_quat()).as_matrix()
 
 
 def span_s(t0_ns: int, t1_ns: int) -> float:
