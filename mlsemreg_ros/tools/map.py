@@ -424,12 +424,12 @@ def sim_queries(
             f'wrote {written} queries ({drive} field drive, deskew {deskew}{note}) to {out}'
         )
         return 0
-    config = SimulationConfig(seed=seed, frames=frames)
+    clean = SimulationConfig(seed=seed, frames=frames)
     if drive == 'reverse':
-        sim, world_poses = reverse_drive(config, lane_change, start_offset, noise_seed)
+        sim, world_poses = reverse_drive(clean, lane_change, start_offset, noise_seed)
         indices = np.arange(0, len(world_poses), every)
     else:
-        sim, world_poses = other_drive(config, route_seed, route_frames)
+        sim, world_poses = other_drive(clean, route_seed, route_frames)
         mapped = sim.world_poses[:, :2, 3]
         distance = cKDTree(mapped).query(world_poses[:, :2, 3])[0]
         indices = np.arange(0, len(world_poses), every)
