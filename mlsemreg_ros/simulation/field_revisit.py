@@ -27,10 +27,14 @@ network's would; the per-sweep flicker is drawn for sweep numbers that the first
 does not use).
 
 A query is written at the sweep's start (its header stamp), its points motion-compensated
-to that instant (``core/features/deskew.py``) as ``deskew`` says: ``previous``, the twist
-over the previous sweep period (what the odometry's constant-velocity prediction gives;
-wrong where the turn rate changes within a period); ``sweep``, the twist over the sweep
-itself (what an IMU-aided deskew comes close to); ``off``, the raw skewed sweep.
+to that instant (``core/features/deskew.py``) as ``deskew`` says: ``odometry``, by the
+odometry itself (:mod:`.field_odometry_queries`: every sweep goes through it, as in the
+node, which relocalizes the scan the odometry deskewed); ``previous``, the twist over the
+previous sweep period (what a constant-velocity prediction gives; wrong where the turn rate
+changes within a period); ``sweep``, the true twist over the sweep itself (what an
+IMU-aided deskew comes close to); ``off``, the raw skewed sweep.
+:func:`field_reverse_sweeps` and :func:`field_other_sweeps` give the sweeps as a bag holds
+them (float32 points and times, raw labels), for the odometry.
 
 :func:`field_other_drive` gives the loop route of the same seed instead (``mlsemreg
 simulate --realism field --route loop``): the same city, mostly other streets; the
@@ -40,11 +44,11 @@ queries kept are those far from the first drive, which a map of it has not seen.
 from __future__ import annotations
 
 from collections.abc import Iterator
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 from mlsemreg_ros.core.features.deskew import deskew as deskew_points
 from mlsemreg_ros.core.features.deskew import sweep_motion
-from mlsemreg_ros.simulation.field import FieldConfig, FieldSimulation
+from mlsemreg_ros.simulation.field import FieldConfig, FieldFrame, FieldSimulation
 from mlsemreg_ros.simulation.field_lidar import FieldScan
 from mlsemreg_ros.simulation.motion import ContinuousDrive
 from mlsemreg_ros.simulation.revisit import clip_path, clip_path_from, QueryScan, reversed_path
@@ -78,16 +82,81 @@ def field_other_drive(config: FieldConfig) -> tuple[FieldSimulation, FieldSimula
     return FieldSimulation(config), FieldSimulation(replace(config, route='loop', frames=0))
 
 
-#: How a query sweep is motion-compensated: the twist over the previous period (as the
-#: odometry's constant-velocity prediction), over the sweep itself (as an IMU-aided deskew),
-#: or not at all.
-DESKEW_MODES = ('previous', 'sweep', 'off')
+#: How a query sweep is motion-compensated: by the odometry (as in the node), by the true
+#: twist over the previous period (as a constant-velocity prediction) or over the sweep
+#: itself (as an IMU-aided deskew), or not at all.
+DESKEW_MODES = ('odometry', 'previous', 'sweep', 'off')
+
+
+@dataclass
+class TimedSweep:
+    """A sweep as a bag holds it (what the node's odometry gets), with its ground truth."""
+
+    index: int
+    stamp_ns: int  # header stamp = sweep start
+    points: np.ndarray  # (N, 3) float64 of float32 values, sensor frame at each point's time
+    times: np.ndarray  # (N,) float64 of float32 values, s after the stamp
+    labels: np.ndarray  # (N,) int64 raw labels of the network (moving ids, instance bits)
+    T_map_scan: np.ndarray  # (4, 4) at the stamp, in the first drive's map frame
+
+
+def _timed(sim: FieldSimulation, frame: FieldFrame, T_map_scan: np.ndarray) -> TimedSweep:
+    """Return ``frame`` as the bag of ``mlsemreg simulate`` would give it to the odometry."""
+    labels, _ = sim.raw_labels(frame)
+    return TimedSweep(
+        frame.index,
+        frame.stamp_ns,
+        frame.scan.points.astype(np.float32).astype(np.float64),
+        frame.scan.times.astype(np.float32).astype(np.float64),
+        labels.astype(np.int64),
+        T_map_scan,
+    )
+
+
+def field_reverse_sweeps(
+    sim: FieldSimulation, drive: ContinuousDrive, starts: np.ndarray, count: int, noise_seed: int
+) -> Iterator[TimedSweep]:
+    """Render the first ``count`` sweeps of ``drive`` in order, poses in ``sim``'s map frame."""
+    origin_inv = np.linalg.inv(sim.world_poses[0])
+    first_drive = sim.drive
+    try:
+        sim.drive = drive  # the actors are placed around the drive that is rendered
+        for index in range(min(count, len(starts))):
+            t0 = float(starts[index])
+            scan, labels = _render(sim, drive, t0, index, noise_seed)
+            pose = origin_inv @ drive.poses(np.array([t0]))[0]
+            frame = FieldFrame(index, int(sim.stamp_ns(t0)), pose, scan, labels)
+            yield _timed(sim, frame, pose)
+    finally:
+        sim.drive = first_drive
+
+
+def field_other_sweeps(
+    sim: FieldSimulation, other: FieldSimulation, count: int
+) -> Iterator[TimedSweep]:
+    """Render the first ``count`` sweeps of the ``other`` drive, poses in ``sim``'s map frame."""
+    origin_inv = np.linalg.inv(sim.world_poses[0])
+    for index in range(min(count, len(other))):
+        yield _timed(other, other.frame(index), origin_inv @ other.world_poses[index])
+
+
+def _render(
+    sim: FieldSimulation, drive: ContinuousDrive, t0: float, index: int, noise_seed: int
+) -> tuple[FieldScan, np.ndarray]:
+    """Render sweep ``index`` of ``drive`` at ``t0`` in ``sim``'s world: the scan, its labels."""
+    dynamic = sim.actors.dynamic_mesh(t0, sim) if sim.actors is not None else None
+    rng = np.random.default_rng([noise_seed, 5, int(index)])
+    scan = sim.lidar.sweep(drive, t0, rng, dynamic)
+    labels = scan.labels
+    if sim.label_model is not None:
+        labels = sim.label_model.predict(scan, FLICKER_OFFSET + int(index))
+    return scan, labels
 
 
 def _deskewed(
     scan: FieldScan, drive: ContinuousDrive, t0: float, period: float, mode: str
 ) -> np.ndarray:
-    """Return the sweep's points at its start, deskewed as ``mode`` says (:data:`DESKEW_MODES`)."""
+    """Return the sweep's points at its start, deskewed by the truth (``previous|sweep|off``)."""
     points = scan.points.astype(np.float64)
     if mode == 'off':
         return points
@@ -113,12 +182,7 @@ def render_field_queries(
         sim.drive = drive  # the actors are placed around the drive that is rendered
         for index in np.asarray(indices, dtype=np.int64):
             t0 = float(starts[index])
-            dynamic = sim.actors.dynamic_mesh(t0, sim) if sim.actors is not None else None
-            rng = np.random.default_rng([noise_seed, 5, int(index)])
-            scan = sim.lidar.sweep(drive, t0, rng, dynamic)
-            labels = scan.labels
-            if sim.label_model is not None:
-                labels = sim.label_model.predict(scan, FLICKER_OFFSET + int(index))
+            scan, labels = _render(sim, drive, t0, int(index), noise_seed)
             points = _deskewed(scan, drive, t0, period, deskew)
             pose = origin_inv @ drive.poses(np.array([t0]))[0]
             yield QueryScan(int(index), points.astype(np.float32), labels.astype(np.int32), pose)

@@ -22,7 +22,9 @@
   ground truth (``T_map_scan``: the bag's ground-truth frame);
 - ``mlsemreg map sim-queries OUT --drive reverse|other``: scans of a second simulated drive
   through the world of ``mlsemreg simulate --seed S`` (the opposite direction in the other
-  lane, or a route of another seed kept where it is far from the first drive).
+  lane, or a route of another seed kept where it is far from the first drive); in the field
+  world ``--deskew odometry`` (the default) runs the odometry over every sweep and writes
+  the scans it deskewed, the points the node relocalizes.
 """
 
 from __future__ import annotations
@@ -289,13 +291,15 @@ def count_revisits(gt: Any, map_config: Any) -> int:
     return count
 
 
-def _write_query(path: Path, points: Any, labels: Any, pose: Any, stamp_ns: int) -> None:
+def _write_query(
+    path: Path, points: Any, labels: Any, pose: Any, stamp_ns: int, dtype: Any = 'float32'
+) -> None:
     import numpy as np
 
     extra = {} if pose is None else {'T_map_scan': np.asarray(pose, dtype=np.float64)}
     np.savez_compressed(
         path,
-        points=np.asarray(points, dtype=np.float32),
+        points=np.asarray(points, dtype=dtype),
         labels=np.asarray(labels).astype(np.uint32),
         stamp_ns=np.int64(stamp_ns),
         **extra,
@@ -374,13 +378,17 @@ def sim_queries(
         ),
     ] = 'clean',
     deskew: Annotated[
-        Literal['previous', 'sweep', 'off'],
+        Literal['odometry', 'previous', 'sweep', 'off'],
         typer.Option(
-            help='field: motion-compensate each sweep to its start with the twist over the '
-            'previous period (as the constant-velocity odometry), over the sweep itself (as '
-            'an IMU-aided deskew), or not (the raw skewed sweep)'
+            help='field: odometry runs the odometry (--config/--set, no IMU) over every sweep '
+            'and writes the scans it deskewed (what the node relocalizes; sweeps it rejected '
+            'or left skewed are skipped); or motion-compensate each sweep to its start with '
+            'the true twist over the previous period (as a constant-velocity prediction), '
+            'over the sweep itself (as an IMU-aided deskew), or not (the raw skewed sweep)'
         ),
-    ] = 'previous',
+    ] = 'odometry',
+    config: ConfigOption = None,
+    overrides: SetOption = None,
     force: ForceOption = False,
 ) -> int:
     """Write relocalization queries from a second simulated drive."""
@@ -392,7 +400,14 @@ def sim_queries(
 
     replace_output(out, force)
     if realism == 'field':
-        written = _field_queries(
+        registration = None
+        if deskew == 'odometry':
+            from mlsemreg_ros.core.config import RegistrationConfig
+            from mlsemreg_ros.core.pipeline import Registration
+
+            (core,) = settings((RegistrationConfig,), config, overrides)
+            registration = Registration(core)
+        written, note = _field_queries(
             out,
             seed,
             frames,
@@ -403,15 +418,18 @@ def sim_queries(
             min_distance,
             noise_seed,
             deskew,
+            registration,
         )
-        print_text(f'wrote {written} queries ({drive} field drive) to {out}')
+        print_text(
+            f'wrote {written} queries ({drive} field drive, deskew {deskew}{note}) to {out}'
+        )
         return 0
-    config = SimulationConfig(seed=seed, frames=frames)
+    clean = SimulationConfig(seed=seed, frames=frames)
     if drive == 'reverse':
-        sim, world_poses = reverse_drive(config, lane_change, start_offset, noise_seed)
+        sim, world_poses = reverse_drive(clean, lane_change, start_offset, noise_seed)
         indices = np.arange(0, len(world_poses), every)
     else:
-        sim, world_poses = other_drive(config, route_seed, route_frames)
+        sim, world_poses = other_drive(clean, route_seed, route_frames)
         mapped = sim.world_poses[:, :2, 3]
         distance = cKDTree(mapped).query(world_poses[:, :2, 3])[0]
         indices = np.arange(0, len(world_poses), every)
@@ -436,12 +454,23 @@ def _field_queries(
     min_distance: float,
     noise_seed: int,
     deskew: str,
-) -> int:
-    """Write the queries of a second field-mode drive (simulation/field_revisit.py)."""
+    registration: Any = None,
+) -> tuple[int, str]:
+    """
+    Write the queries of a second field-mode drive (simulation/field_revisit.py).
+
+    Returns the number written and a note on the sweeps skipped (``--deskew odometry``).
+    """
     from mlsemreg_ros.simulation.field import FieldConfig
+    from mlsemreg_ros.simulation.field_odometry_queries import (
+        odometry_queries,
+        OdometryQueryCount,
+    )
     from mlsemreg_ros.simulation.field_revisit import (
         field_other_drive,
+        field_other_sweeps,
         field_reverse_drive,
+        field_reverse_sweeps,
         render_field_queries,
         render_other_queries,
     )
@@ -452,19 +481,45 @@ def _field_queries(
     if drive == 'reverse':
         sim, reverse, starts = field_reverse_drive(config, lane_change, start_offset, noise_seed)
         indices = np.arange(0, len(starts), every)
-        queries = render_field_queries(sim, reverse, starts, indices, noise_seed, deskew)
     else:
         sim, other = field_other_drive(config)
         distance = cKDTree(sim.world_poses[:, :2, 3]).query(other.world_poses[:, :2, 3])[0]
         indices = np.arange(0, len(other), every)
         indices = indices[distance[indices] >= min_distance]
+    count = OdometryQueryCount()
+    if deskew == 'odometry':  # every sweep up to the last query goes through the odometry
+        last = int(indices[-1]) + 1 if len(indices) else 0
+        sweeps = (
+            field_reverse_sweeps(sim, reverse, starts, last, noise_seed)
+            if drive == 'reverse'
+            else field_other_sweeps(sim, other, last)
+        )
+        queries = odometry_queries(sweeps, {int(i) for i in indices}, registration, count)
+    elif drive == 'reverse':
+        queries = render_field_queries(sim, reverse, starts, indices, noise_seed, deskew)
+    else:
         queries = render_other_queries(sim, other, indices, deskew)
     out.mkdir(parents=True)
+    written = 0
+    dtype = 'float64' if deskew == 'odometry' else 'float32'  # the odometry's points, exactly
     for query in queries:
         _write_query(
-            out / f'{query.index:06d}.npz', query.points, query.labels, query.T_map_scan, 0
+            out / f'{query.index:06d}.npz',
+            query.points,
+            query.labels,
+            query.T_map_scan,
+            0,
+            dtype,
         )
-    return len(indices)
+        written += 1
+    note = ''
+    if deskew == 'odometry':
+        note = (
+            f': {count.sweeps} sweeps through the odometry, {count.accepted} accepted; of '
+            f'{count.wanted} queries, {count.rejected} rejected and {count.skewed} not '
+            'deskewed by it, skipped'
+        )
+    return written, note
 
 
 @app.command(

@@ -520,6 +520,8 @@ class Odometry:
             twist=twist,
             twist_covariance=twist_cov,
             map_voxels=len(self.map),
+            points=raw.points,
+            labels=raw.labels,
         )
 
     def _rejected(
@@ -703,6 +705,8 @@ class Odometry:
     ) -> OdometryStep:
         if raw is not None:
             step.deskewed = raw.deskewed
+            if step.points is None:  # an accepted scan carries the one it was aligned as
+                step.points, step.labels = raw.points, raw.labels
             if raw.deskew_note:
                 step.reason = '; '.join(r for r in (step.reason, raw.deskew_note) if r)
         step.latency_ms = 1e3 * (time.perf_counter() - start)

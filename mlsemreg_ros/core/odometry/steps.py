@@ -67,6 +67,10 @@ class OdometryStep:
     candidates: list[Candidate] = field(default_factory=list)
     map_voxels: int = 0  # local map size after this frame
     deskewed: bool = False  # the scan was motion-compensated (core/features/deskew.py)
+    points: np.ndarray | None = None  # (N, 3) the scan's points as the odometry kept them:
+    #                             deskewed (by the sweep twist if it bent them), moving objects
+    #                             dropped (moving_objects.matching): the input of ``prepared``
+    labels: np.ndarray | None = None  # (N,) their raw labels
 
 
 @dataclass
