@@ -663,6 +663,11 @@ class Odometry:
         result = align_sweep(
             points, times, MapGaussians(*gaussians), pose, motion, cfg.sweep_alignment
         )
+        finite = np.all(np.isfinite(result.T_target_source)) and np.all(
+            np.isfinite(np.concatenate([result.motion.omega, result.motion.velocity]))
+        )
+        if not finite or not np.isfinite(result.change_m):
+            return raw, pose, 'sweep alignment diverged: the deskew twist is kept'
         if result.change_m <= cfg.sweep_alignment.min_change:
             self._sweep_twist = (result.motion, stamp_ns)
             return raw, pose, ''
