@@ -203,3 +203,22 @@ def test_the_sweep_rate_is_fed_forward_only_to_the_next_sweep() -> None:
     assert not _next_sweep(1_000_000_000, 1_200_000_000, times)  # one skipped
     assert not _next_sweep(1_000_000_000, 1_100_000_000, None)  # no times
     assert not _next_sweep(1_000_000_000, 1_000_000_000, times)  # same stamp
+
+
+@pytest.mark.parametrize('method', ['vgicp', 'gicp'])
+def test_the_local_map_gives_its_gaussians(street, method: str) -> None:
+    """Voxel Gaussians (vgicp) or the indexed points' covariances (point maps), odom frame."""
+    from mlsemreg_ros.core.config import FineAlignmentConfig, LocalMapConfig
+    from mlsemreg_ros.core.odometry.local_map import LocalMap
+
+    world, _ = street
+    local_map = LocalMap(FineAlignmentConfig(method=method), LocalMapConfig())
+    assert local_map.gaussians() is None  # empty
+    shift = np.eye(4)
+    shift[:3, 3] = [100.0, 0.0, 0.0]
+    local_map.insert(AlignmentCloud.build(world, 0.5, 10), shift)
+    means, covariances = local_map.gaussians()
+    assert means.shape[1] == 3 and covariances.shape == (len(means), 3, 3)
+    assert means[:, 0].min() > 55.0  # moved by the insertion pose (the street spans -40..40)
+    np.testing.assert_allclose(covariances, covariances.transpose(0, 2, 1), atol=1e-9)
+    assert np.all(np.linalg.eigvalsh(covariances)[:, 0] > -1e-9)

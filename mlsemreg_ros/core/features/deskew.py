@@ -130,7 +130,9 @@ class PiecewiseSweepMotion:
         dt = np.diff(times)
         steps = Rotation.from_matrix(np.einsum('nji,njk->nik', rotations[:-1], rotations[1:]))
         omegas = steps.as_rotvec() / dt[:, None]
-        exps = _se3_exps(omegas, np.asarray(velocity, dtype=np.float64), dt)
+        exps = [
+            se3_exp(SweepMotion(w, velocity), float(d)) for w, d in zip(omegas, dt, strict=True)
+        ]
         poses = np.stack(list(itertools.accumulate(exps, np.matmul, initial=np.eye(4))))
         origin = int(np.argmin(np.abs(times)))
         twists = np.concatenate([omegas, np.broadcast_to(velocity, omegas.shape)], axis=1)
@@ -201,34 +203,6 @@ def se3_exp(motion: SweepMotion, duration: float) -> np.ndarray:
     return out
 
 
-def _se3_exps(omegas: np.ndarray, velocity: np.ndarray, durations: np.ndarray) -> np.ndarray:
-    """
-    Return ``se3_exp(SweepMotion(omegas[k], velocity), durations[k])`` for every k: (K, 4, 4).
-
-    All at once, with :func:`motion_at`'s arithmetic row by row (the same bits as K calls).
-    """
-    from scipy.spatial.transform import Rotation
-
-    rates = np.array([float(np.linalg.norm(omega)) for omega in omegas])
-    angles = durations * rates
-    rho = durations[:, None] * velocity
-    out = np.tile(np.eye(4), (len(durations), 1, 1))
-    turning = rates > 0.0
-    with np.errstate(divide='ignore', invalid='ignore'):  # rate 0: no rotation, tau * rho
-        axis = omegas / rates[:, None]
-        cross1 = np.cross(axis, velocity)
-        cross2 = np.cross(axis, cross1)
-        a = np.where(np.abs(angles) < SMALL_ANGLE, 0.0, 1.0 - np.cos(angles)) / rates
-        b = (angles - np.sin(angles)) / rates
-    series = rates * np.abs(durations) < SMALL_ANGLE
-    shifted = rho + a[:, None] * cross1 + b[:, None] * cross2
-    out[:, :3, 3] = np.where(series[:, None], rho, shifted)
-    if turning.any():
-        rotvecs = axis[turning] * angles[turning, None]
-        out[turning, :3, :3] = Rotation.from_rotvec(rotvecs).as_matrix()
-    return out
-
-
 def motion_at(motion: SweepMotion, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     Return ``exp(tau * twist)`` for every ``tau`` in ``times`` (N,): rotations and translations.
@@ -276,95 +250,47 @@ def _deskew_piecewise(
     points: np.ndarray, times: np.ndarray, motion: PiecewiseSweepMotion
 ) -> np.ndarray:
     """
-    Deskew every point by its own segment in one pass (before/after the nodes: end segments).
+    Deskew every point by its own segment (before/after the nodes: the end segments).
 
-    Each point gets its segment by a search in the node times; the compiled kernel reads
-    the segment's twist and start pose per point (the NumPy pass gathers them).
+    Each point gets its segment by a search in the node times; the compiled kernel maps all
+    points in one pass, reading its segment's twist and start pose per point.
     """
     segments = motion.segments()
-    starts = np.array([start for start, _, _ in segments])
     index = np.clip(np.searchsorted(motion.times, times, side='right') - 1, 0, len(segments) - 1)
-    twists = [_twist_terms(twist) for _, _, twist in segments]
+    if not kernels.enabled():
+        return _deskew_piecewise_numpy(points, times, index, segments)
     velocity, rate, axis, cross1, cross2 = (
-        np.array(column) for column in zip(*twists, strict=True)
+        np.array(column)
+        for column in zip(*(_twist_terms(twist) for _, _, twist in segments), strict=True)
     )
     poses = np.stack([pose for _, pose, _ in segments])
-    rotation, offset = poses[:, :3, :3], poses[:, :3, 3]
-    if kernels.enabled():
-        return kernels.deskew_piecewise_points(
-            points,
-            times,
-            index,
-            starts,
-            velocity,
-            rate,
-            axis,
-            cross1,
-            cross2,
-            rotation,
-            offset,
-            SMALL_ANGLE,
-        )
-    return _deskew_piecewise_numpy(
-        points, times, index, starts, velocity, rate, axis, cross1, cross2, rotation, offset
+    return kernels.deskew_piecewise_points(
+        points,
+        times,
+        index,
+        np.array([start for start, _, _ in segments]),
+        velocity,
+        rate,
+        axis,
+        cross1,
+        cross2,
+        poses[:, :3, :3],
+        poses[:, :3, 3],
+        SMALL_ANGLE,
     )
 
 
 def _deskew_piecewise_numpy(
-    points: np.ndarray,
-    times: np.ndarray,
-    index: np.ndarray,
-    starts: np.ndarray,
-    velocity: np.ndarray,
-    rate: np.ndarray,
-    axis: np.ndarray,
-    cross1: np.ndarray,
-    cross2: np.ndarray,
-    rotation: np.ndarray,
-    offset: np.ndarray,
+    points: np.ndarray, times: np.ndarray, index: np.ndarray, segments: list
 ) -> np.ndarray:
-    """
-    Map every point by its segment in NumPy, one pass: ``R_k exp(tau twist_k) p + t_k``.
-
-    A sweep's points come column by column, so consecutive points share their time: the
-    map (a 3x3 matrix and a translation) is built once per run of equal time and segment
-    (Rodrigues' matrix, the left Jacobian's closed form), repeated along the run and
-    applied to all points at once.
-    """
-    count = len(times)
-    if count == 0:
-        return points.copy()
-    new_run = np.empty(count, dtype=bool)
-    new_run[0] = True
-    new_run[1:] = (times[1:] != times[:-1]) | (index[1:] != index[:-1])
-    first = np.flatnonzero(new_run)
-    lengths = np.diff(np.append(first, count))
-    k = index[first]
-    tau = times[first] - starts[k]
-    angles = tau * rate[k]
-    # per segment, as _deskew_constant decides for its points: any rotation, the series
-    longest = np.zeros(len(starts))
-    np.maximum.at(longest, k, np.abs(tau))
-    rotates = np.zeros(len(starts), dtype=bool)
-    np.logical_or.at(rotates, k, angles != 0.0)
-    series = (rate * longest < SMALL_ANGLE)[k]
-    with np.errstate(divide='ignore', invalid='ignore'):  # rate 0: the series, no rotation
-        a = np.where(np.abs(angles) < SMALL_ANGLE, 0.0, 1.0 - np.cos(angles)) / rate[k]
-        b = (angles - np.sin(angles)) / rate[k]
-    a, b = np.where(series, 0.0, a), np.where(series, 0.0, b)
-    turning = rotates[k]
-    cos = np.where(turning, np.cos(angles), 1.0)[:, None, None]
-    sin = np.where(turning, np.sin(angles), 0.0)[:, None, None]
-    e = axis[k]
-    hat = np.zeros((len(k), 3, 3))
-    hat[:, 0, 1], hat[:, 0, 2], hat[:, 1, 2] = -e[:, 2], e[:, 1], -e[:, 0]
-    hat -= hat.transpose(0, 2, 1)
-    rodrigues = cos * np.eye(3) + sin * hat + (1.0 - cos) * e[:, :, None] * e[:, None, :]
-    local = tau[:, None] * velocity[k] + a[:, None] * cross1[k] + b[:, None] * cross2[k]
-    matrices = rotation[k] @ rodrigues
-    shifts = np.einsum('rij,rj->ri', rotation[k], local) + offset[k]
-    per_point = np.repeat(matrices, lengths, axis=0)
-    return np.einsum('nij,nj->ni', per_point, points) + np.repeat(shifts, lengths, axis=0)
+    """The NumPy reference: segment by segment, ``poses[k] exp((tau - t_k) twist_k) p``."""
+    out = np.empty_like(points)
+    for k, (start, pose, twist) in enumerate(segments):  # ~20 segments, not points
+        rows = np.flatnonzero(index == k)
+        if rows.size:
+            local = _deskew_constant(points[rows], times[rows] - start, twist)
+            out[rows] = local @ pose[:3, :3].T + pose[:3, 3]
+    return out
 
 
 def _twist_terms(

@@ -646,9 +646,7 @@ class Odometry:
         if (
             cfg.sweep_alignment.mode == 'off'
             or cfg.fine.method == 'off'
-            or not isinstance(motion, SweepMotion)
-            or raw.input_points is None
-            or raw.point_times is None
+            or not isinstance(motion, SweepMotion)  # deskewed by a twist: points and times
             or self.map.empty
         ):
             return raw, pose, ''
@@ -656,9 +654,10 @@ class Odometry:
         if gaussians is None or len(gaussians[0]) < MIN_SWEEP_MAP_VOXELS:
             return raw, pose, ''
         points, times = raw.input_points, np.asarray(raw.point_times, dtype=np.float64)
-        moving = self._moving_mask(points, raw.labels)
-        if moving is not None and len(moving) == len(points):
-            points, times = points[~moving], times[~moving]
+        if cfg.moving_objects.matching != 'drop':  # 'drop' took them out before the deskew
+            moving = self._moving_mask(points, raw.labels)
+            if moving is not None and len(moving) == len(points):
+                points, times = points[~moving], times[~moving]
         points, times = sweep_subset(points, times, cfg.sweep_alignment.points)
         result = align_sweep(
             points, times, MapGaussians(*gaussians), pose, motion, cfg.sweep_alignment
@@ -710,7 +709,7 @@ class Odometry:
     ) -> OdometryStep:
         if raw is not None:
             step.deskewed = raw.deskewed
-            if step.points is None:  # an accepted scan carries the one it was aligned as
+            if step.points is None:  # _accept set the scan it aligned (perhaps redone)
                 step.points, step.labels = raw.points, raw.labels
             if raw.deskew_note:
                 step.reason = '; '.join(r for r in (step.reason, raw.deskew_note) if r)

@@ -329,34 +329,20 @@ def node_rotations(
     Return the gyro's rotation over each interval between consecutive nodes, all at once.
 
     ``(K - 1, 3, 3)``: ``R_node[k]_node[k + 1]`` for nodes (K,) ns increasing, with no sample
-    stamp strictly between two nodes (:meth:`PriorMotionModel.sweep_rotations`). Each is
-    what :func:`~mlsemreg_ros.core.motion_prior.integrate_imu` gives over that interval, to
-    the last bit: the rate linearly interpolated at the interval's midpoint in times
-    relative to its start (``np.interp``'s arithmetic: held past the first or last
-    sample), bias removed, ``exp(w dt)`` through a unit quaternion.
+    stamp strictly between two nodes (:meth:`PriorMotionModel.sweep_rotations`): on each
+    interval the rate is interpolated at its midpoint (held past the first or last
+    sample), bias removed, ``exp(w dt)``. This is what
+    :func:`~mlsemreg_ros.core.motion_prior.integrate_imu` computes over one interval, with
+    the times taken from the first node instead of each interval's start (equal to 1e-12).
     """
     from scipy.spatial.transform import Rotation
 
-    starts = nodes_ns[:-1]
-    dt = (nodes_ns[1:] - starts) * 1e-9  # the interval's end in seconds after its start
-    tau = 0.5 * (dt + 0.0)  # the midpoint, as integrate_imu rounds it
-    relative = (np.asarray(stamps_ns, dtype=np.int64)[None, :] - starts[:, None]) * 1e-9
-    last = relative.shape[1] - 1
-    below = np.count_nonzero(relative <= tau[:, None], axis=1) - 1  # np.interp's bracket
-    j = np.clip(below, 0, max(last - 1, 0))
-    rows = np.arange(len(tau))
-    x0, x1 = relative[rows, j], relative[rows, np.minimum(j + 1, last)]
-    y0, y1 = gyro[j], gyro[np.minimum(j + 1, last)]
-    with np.errstate(divide='ignore', invalid='ignore'):
-        slope = (y1 - y0) / (x1 - x0)[:, None]
-        rate = slope * (tau - x0)[:, None] + y0
-    held = (below < 0)[:, None]
-    rate = np.where(held, gyro[0], rate)
-    at_sample = ((below >= last) | (x0 == tau))[:, None]  # past the last sample, or on one
-    rate = np.where(at_sample & ~held, gyro[np.clip(below, 0, last)], rate)
-    w = rate - gyro_bias
-    increments = Rotation.from_rotvec(w * dt[:, None])
-    return Rotation.from_quat(increments.as_quat()).as_matrix()
+    origin = int(nodes_ns[0])
+    sample_s = (np.asarray(stamps_ns, dtype=np.int64) - origin) * 1e-9
+    node_s = (np.asarray(nodes_ns, dtype=np.int64) - origin) * 1e-9
+    middle = 0.5 * (node_s[1:] + node_s[:-1])
+    rate = np.stack([np.interp(middle, sample_s, gyro[:, k]) for k in range(3)], axis=1)
+    return Rotation.from_rotvec((rate - gyro_bias) * np.diff(node_s)[:, None]).as_matrix()
 
 
 def span_s(t0_ns: int, t1_ns: int) -> float:
