@@ -77,7 +77,6 @@ def test_warm_up_compiles_into_the_on_disk_cache() -> None:
         'covariances',
         'support_neighbour_sums',
         'keypoint_neighbour_sums',
-        '_deskew',
         '_deskew_piecewise',
     ):
         assert kernel in names

@@ -326,10 +326,7 @@ def _deskew_constant(points: np.ndarray, times: np.ndarray, motion: SweepMotion)
 def _deskew_compiled(points: np.ndarray, times: np.ndarray, motion: SweepMotion) -> np.ndarray:
     """:func:`deskew` by the compiled kernel: the same steps, one pass over the points."""
     velocity, rate, axis, cross1, cross2 = _twist_terms(motion)
-    series = rate * float(np.max(np.abs(times), initial=0.0)) < SMALL_ANGLE
-    return kernels.deskew_points(
-        points, times, velocity, rate, axis, cross1, cross2, series, SMALL_ANGLE
-    )
+    return kernels.deskew_points(points, times, velocity, rate, axis, cross1, cross2, SMALL_ANGLE)
 
 
 def time_span_refusal(times: np.ndarray | None, count: int) -> str:

@@ -260,52 +260,6 @@ def majority(
 
 # ----------------------------------------------------------------------------------
 # Deskew: exp(tau * twist) p for every point, in one pass (core/features/deskew.py).
-@jit
-def _deskew(
-    points: np.ndarray,
-    times: np.ndarray,
-    velocity: np.ndarray,
-    rate: float,
-    axis: np.ndarray,
-    cross1: np.ndarray,
-    cross2: np.ndarray,
-    series: bool,
-    small_angle: float,
-) -> np.ndarray:
-    n = points.shape[0]
-    rotate = False
-    if rate != 0.0:
-        for i in range(n):
-            if times[i] * rate != 0.0:
-                rotate = True
-                break
-    out = np.empty((n, 3))
-    t_last, cos, sin, tx, ty, tz = np.nan, 1.0, 0.0, 0.0, 0.0, 0.0
-    for i in range(n):
-        t = times[i]
-        if t != t_last:  # a sweep's points come column by column: times repeat
-            t_last = t
-            angle = t * rate
-            tx, ty, tz = t * velocity[0], t * velocity[1], t * velocity[2]
-            if not series:
-                a = (0.0 if abs(angle) < small_angle else 1.0 - np.cos(angle)) / rate
-                b = (angle - np.sin(angle)) / rate
-                tx = tx + a * cross1[0] + b * cross2[0]
-                ty = ty + a * cross1[1] + b * cross2[1]
-                tz = tz + a * cross1[2] + b * cross2[2]
-            cos, sin = np.cos(angle), np.sin(angle)
-        x, y, z = points[i, 0], points[i, 1], points[i, 2]
-        if not rotate:
-            out[i, 0], out[i, 1], out[i, 2] = x + tx, y + ty, z + tz
-            continue
-        dot = x * axis[0] + y * axis[1] + z * axis[2]
-        one_minus = 1.0 - cos
-        out[i, 0] = x * cos + (axis[1] * z - axis[2] * y) * sin + dot * axis[0] * one_minus + tx
-        out[i, 1] = y * cos + (axis[2] * x - axis[0] * z) * sin + dot * axis[1] * one_minus + ty
-        out[i, 2] = z * cos + (axis[0] * y - axis[1] * x) * sin + dot * axis[2] * one_minus + tz
-    return out
-
-
 def deskew_points(
     points: np.ndarray,
     times: np.ndarray,
@@ -314,29 +268,35 @@ def deskew_points(
     axis: np.ndarray,
     cross1: np.ndarray,
     cross2: np.ndarray,
-    series: bool,
     small_angle: float,
 ) -> np.ndarray:
     """
     Run the NumPy passes of :func:`mlsemreg_ros.core.features.deskew.deskew` in one loop.
 
     ``p' = R(tau) p + t(tau)`` for every point (Rodrigues about ``axis``, the left
-    Jacobian's closed form with ``cross1 = axis x v`` and ``cross2 = axis x cross1``;
-    ``series``: the translation is ``tau v`` alone). The trigonometry and the translation
-    are computed once per distinct time of a run: consecutive points of a sweep column
-    share their time. The same operations in the same order as the NumPy code, up to the
-    last bit of ``sin``/``cos`` and of the dot product. Returns (N, 3) float64.
+    Jacobian's closed form with ``cross1 = axis x v`` and ``cross2 = axis x cross1``; when
+    ``rate * max |tau|`` is below ``small_angle`` the translation is ``tau v`` alone): the
+    one-segment case of :func:`deskew_piecewise_points`, whose start pose is the identity
+    (exact for finite points). The same operations in the same order as the NumPy code,
+    up to the last bit of ``sin``/``cos`` and of the dot product. Returns (N, 3) float64.
     """
-    return _deskew(
-        np.ascontiguousarray(points, dtype=np.float64),
-        np.ascontiguousarray(times, dtype=np.float64),
-        np.ascontiguousarray(velocity, dtype=np.float64),
-        float(rate),
-        np.ascontiguousarray(axis, dtype=np.float64),
-        np.ascontiguousarray(cross1, dtype=np.float64),
-        np.ascontiguousarray(cross2, dtype=np.float64),
-        bool(series),
-        float(small_angle),
+
+    def as_row(values: np.ndarray) -> np.ndarray:
+        return np.asarray(values, dtype=np.float64).reshape(1, 3)
+
+    return deskew_piecewise_points(
+        points,
+        times,
+        np.zeros(len(times), dtype=np.int64),
+        np.zeros(1),
+        as_row(velocity),
+        np.array([float(rate)]),
+        as_row(axis),
+        as_row(cross1),
+        as_row(cross2),
+        np.eye(3)[None],
+        np.zeros((1, 3)),
+        small_angle,
     )
 
 
@@ -356,7 +316,7 @@ def _deskew_piecewise(
     small_angle: float,
 ) -> np.ndarray:
     n, m = points.shape[0], starts.shape[0]
-    # per segment, as _deskew decides for its points: any rotation, the translation's series
+    # per segment, from its points: any rotation, the translation's series
     longest = np.zeros(m)
     rotate = np.zeros(m, dtype=np.bool_)
     for i in range(n):
@@ -417,14 +377,15 @@ def deskew_piecewise_points(
     small_angle: float,
 ) -> np.ndarray:
     """
-    Run :func:`deskew_points` for every segment of a piecewise motion, in one loop.
+    Deskew every point by its segment of a piecewise motion, in one loop.
 
     Point ``i`` belongs to segment ``segment[i]`` (M segments); on segment ``k`` it is
     mapped by ``exp((tau - starts[k]) twist_k)`` (``velocity``, ``rate``, ``axis``,
     ``cross1``, ``cross2``: (M, 3) or (M,), as for :func:`deskew_points`), then by the
     segment's start pose ``(rotation[k] (3, 3), offset[k] (3,))``. Whether a segment
-    rotates and whether its translation takes the series are decided from its own points,
-    as :func:`deskew_points` decides them for a call. Returns (N, 3) float64.
+    rotates and whether its translation takes the series are decided from its own points.
+    The trigonometry and the translation are computed once per run of equal time: a
+    sweep's points come column by column. Returns (N, 3) float64.
     """
     f64 = np.float64
     return _deskew_piecewise(

@@ -56,7 +56,6 @@ def warm_up() -> dict[str, float]:
     timings['fpfh_ms'] = 1e3 * (end - middle)
     axes = np.eye(3)
     times = np.linspace(0.0, 0.1, 200)
-    kernels.deskew_points(points, times, axes[0], 1.0, axes[2], axes[0], axes[1], False, 1e-6)
     segment = (times > 0.05).astype(np.int64)  # two segments of a piecewise (gyro) motion
     kernels.deskew_piecewise_points(
         points,
