@@ -222,3 +222,25 @@ def test_the_local_map_gives_its_gaussians(street, method: str) -> None:
     assert means[:, 0].min() > 55.0  # moved by the insertion pose (the street spans -40..40)
     np.testing.assert_allclose(covariances, covariances.transpose(0, 2, 1), atol=1e-9)
     assert np.all(np.linalg.eigvalsh(covariances)[:, 0] > -1e-9)
+
+
+def test_the_last_sweep_rate_deskews_the_next_sweep_only() -> None:
+    """The sweep's estimated rotation rate replaces the poses' for the next sweep, not later."""
+    from mlsemreg_ros.core.odometry import Odometry
+    from mlsemreg_ros.core.odometry.motion_model import Prediction
+    from mlsemreg_ros.core.pipeline import Registration
+
+    odometry = Odometry(Registration(RegistrationConfig()))
+    last_stamp = 1_000_000_000
+    straight = np.eye(4)
+    odometry._accepted.append((straight, last_stamp))
+    estimated = SweepMotion(np.array([0.0, 0.0, -0.7]), np.array([5.0, 0.0, 0.0]))
+    odometry._sweep_twist = (estimated, last_stamp)
+    ahead = np.eye(4)
+    ahead[0, 3] = 1.0  # 1 m straight ahead in 0.1 s: the poses say no turn
+    times = np.linspace(0.0, 0.1, 100)
+    motion = odometry._sweep_motion(Prediction(ahead, 1.0), last_stamp + 100_000_000, times)
+    np.testing.assert_allclose(motion.omega, estimated.omega)  # the sweep's rate
+    np.testing.assert_allclose(motion.velocity, [10.0, 0.0, 0.0])  # the poses' velocity
+    later = odometry._sweep_motion(Prediction(ahead, 2.0), last_stamp + 200_000_000, times)
+    np.testing.assert_allclose(later.omega, 0.0, atol=1e-12)  # a sweep skipped: the poses'
