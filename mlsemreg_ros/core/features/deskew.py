@@ -283,7 +283,7 @@ def _deskew_piecewise(
 def _deskew_piecewise_numpy(
     points: np.ndarray, times: np.ndarray, index: np.ndarray, segments: list
 ) -> np.ndarray:
-    """The NumPy reference: segment by segment, ``poses[k] exp((tau - t_k) twist_k) p``."""
+    """Map the points segment by segment in NumPy: ``poses[k] exp((tau - t_k) twist_k) p``."""
     out = np.empty_like(points)
     for k, (start, pose, twist) in enumerate(segments):  # ~20 segments, not points
         rows = np.flatnonzero(index == k)
