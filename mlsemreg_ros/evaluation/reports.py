@@ -79,7 +79,7 @@ def write_results(
     extra: dict[str, np.ndarray] | None = None,
 ) -> None:
     """Write the results folder (see the module docstring); ``extra``: more trajectories."""
-    from mlsemreg_ros.datasets.pose_files import write_kitti_poses, write_tum_poses
+    from mlsemreg_ros.codec.pose_files import write_kitti_poses, write_tum_poses
 
     out.mkdir(parents=True, exist_ok=True)
     (out / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')

@@ -42,6 +42,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 
 from mlsemreg_ros.core.matching.labels import LabelMap
+from mlsemreg_ros.simulation.actors import Actors
 from mlsemreg_ros.simulation.field_lidar import FieldLidar, FieldScan, LabeledMesh
 from mlsemreg_ros.simulation.inertial import (
     ImuConfig,
@@ -156,8 +157,6 @@ class FieldSimulation:
             np.zeros(self.world.num_triangles, dtype=bool),
         )
         if cfg.moving_objects:
-            from mlsemreg_ros.simulation.actors import Actors
-
             self.actors = Actors.generate(self, np.random.default_rng([cfg.seed, 40]))
             static = self.actors.static_mesh(static)
         self.lidar = FieldLidar(static, self.model)

@@ -72,7 +72,7 @@ def write_field_bag(
     out: Path, config: FieldConfig, layout: BagLayout | None = None, progress: bool = True
 ) -> FieldReport:
     """Simulate ``config`` in field mode and write the bag folder ``out`` (must not exist)."""
-    from mlsemreg_ros.datasets.pose_files import write_kitti_poses
+    from mlsemreg_ros.codec.pose_files import write_kitti_poses
     from tqdm import tqdm
 
     layout = layout or BagLayout()

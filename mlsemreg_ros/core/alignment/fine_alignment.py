@@ -30,13 +30,17 @@ from __future__ import annotations
 
 import collections
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.alignment import Alignment, AlignmentCloud
-from mlsemreg_ros.core.config import FineAlignmentConfig, OdometryConfig
+from mlsemreg_ros.core.alignment.config import FineAlignmentConfig
 from mlsemreg_ros.core.poses import within_bounds
 from mlsemreg_ros.core.results import PreparedScan
 from mlsemreg_ros.core.rigid import rotation_angle_deg
 import numpy as np
+
+if TYPE_CHECKING:
+    from mlsemreg_ros.core.config import OdometryConfig
 
 #: Accepted frames whose median inlier fraction is the typical one.
 FRACTION_HISTORY = 10

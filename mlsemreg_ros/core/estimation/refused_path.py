@@ -30,11 +30,10 @@ from __future__ import annotations
 from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.alignment import align_pair
 from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud
-from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation.estimation import estimate
 from mlsemreg_ros.core.estimation.guided import guided_correspondences
 from mlsemreg_ros.core.estimation.polish import polish_poses, radius_schedule
@@ -51,6 +50,9 @@ from mlsemreg_ros.core.results import (
     VerificationResult,
 )
 import numpy as np
+
+if TYPE_CHECKING:
+    from mlsemreg_ros.core.config import RegistrationConfig
 
 #: ``verify(estimated, src_pts, dst_pts, source, target)``: the registration's verification.
 Verify = Callable[

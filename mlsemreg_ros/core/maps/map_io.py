@@ -141,7 +141,7 @@ def save_map(
 
 
 def _write_tum(path: Path, keyframes: list) -> None:
-    from mlsemreg_ros.datasets.pose_files import write_tum_poses
+    from mlsemreg_ros.codec.pose_files import write_tum_poses
 
     poses = np.array([k.T_map_keyframe for k in keyframes]).reshape(-1, 4, 4)
     stamps = np.array([k.stamp_ns for k in keyframes], dtype=np.int64)
