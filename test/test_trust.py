@@ -26,7 +26,7 @@ ODOMETRY = RegistrationConfig().odometry
 
 
 def _alignment(shift_m: float, inliers: int, points: int = 1000) -> Alignment:
-    """An alignment that moved the identity guess by ``shift_m`` along x."""
+    """Return an alignment that moved the identity guess by ``shift_m`` along x."""
     refined = np.eye(4)
     refined[0, 3] = shift_m
     return Alignment(refined, np.eye(4), True, 5, inliers, points, 1.0, np.eye(6))
