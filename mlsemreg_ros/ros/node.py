@@ -114,6 +114,7 @@ class Scan:
     received: float  # time.perf_counter() when the message reached the callback
     dropped_nonfinite: int
     point_times: np.ndarray | None = None  # (N,) float64 s after the stamp (deskew)
+    time_warning: str = ''  # a time field that is there but not used for deskew: why
 
 
 class StampGaps:
@@ -264,6 +265,7 @@ class MlSemRegNode(GuardedCallbacks, Node):
                 received,
                 cloud.dropped_nonfinite,
                 cloud.point_times,
+                cloud.time_warning,
             )
         )
 
@@ -539,6 +541,12 @@ class MlSemRegNode(GuardedCallbacks, Node):
             values['latency_p50_ms'] = float(np.median(self._latencies))
         values.update({f'stage.{k}': float(v) for k, v in step.timings_ms.items()})
         values.update({'pose_source': step.source, 'local_map_voxels': step.map_voxels})
+        if step.prior_refusal:  # the prior disagreed with the scan (core/odometry/prior_guard.py)
+            self._count('prior_refused')
+            values['prior_refusal'] = step.prior_refusal
+        if scan.time_warning:  # registered without deskew: a warning (docs/ros_interface.md)
+            values['point_times_warning'] = scan.time_warning
+            level, message = ('warn' if level == 'ok' else level), f'{message}; not deskewed'
         if step.prepared is not None:  # dropped points, label scheme, out-of-scheme labels
             values.update({f'input.{k}': v for k, v in step.prepared.input_stats.items()})
         for candidate in step.candidates:
