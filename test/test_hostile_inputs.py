@@ -313,3 +313,102 @@ def test_the_guarded_spin_goes_on_after_a_raising_callback() -> None:
     executor, drops = Executor(), DropCounter()
     spin_guarded(executor, lambda: executor.calls < 5, drops)
     assert executor.calls == 5 and drops.count('callback_errors.executor') == 1
+
+
+#: A time field of any datatype, offset, count and values on a small cloud.
+time_fields = st.fixed_dictionaries(
+    {
+        'datatype': st.integers(0, 10),
+        'count': st.integers(0, 3),
+        'offset': st.integers(-4, 24),
+        'name': st.sampled_from(['time', 't', 'timestamp', 'time_stamp', 'offset_time']),
+        'values': st.lists(floats, min_size=4, max_size=4),
+        'stamp': stamps,
+        'unit': st.sampled_from(['auto', 's', 'ms', 'us', 'ns', 'hours']),
+    }
+)
+
+
+@PROPERTY
+@given(time_fields)
+def test_a_time_field_converts_to_one_sweep_near_the_stamp_or_says_why(spec: dict) -> None:
+    from mlsemreg_ros.codec.pointcloud2 import (
+        DATATYPES,
+        decode_point_times,
+        pointcloud2_to_arrays,
+        PointCloudError,
+    )
+    from msg_stubs import Cloud, Field
+
+    n, step = 4, 24  # x, y, z float32 at 0..12, then 12 bytes for the time field
+    data = np.zeros((n, step), dtype=np.uint8)
+    data[:, :12] = np.arange(1, 13, dtype=np.float32).view(np.uint8)[: 12 * n].reshape(n, 12)
+    dtype = DATATYPES.get(spec['datatype'])
+    offset = spec['offset']
+    if dtype is not None and 0 <= offset and offset + dtype.itemsize <= step:
+        with np.errstate(all='ignore'):
+            raw = np.asarray(spec['values']).astype(dtype)
+        data[:, offset:offset + dtype.itemsize] = raw.view(np.uint8).reshape(n, -1)
+    fields = [Field(a, 4 * k, 7, 1) for k, a in enumerate('xyz')]
+    fields.append(Field(spec['name'], offset, spec['datatype'], spec['count']))
+    stamp = spec['stamp']
+    msg = Cloud(
+        header=SimpleNamespace(stamp=stamp, frame_id='lidar'),
+        width=n,
+        fields=fields,
+        point_step=step,
+        row_step=step * n,
+        data=data.tobytes(),
+    )
+    times, note = decode_point_times(msg, '', spec['unit'])  # never raises
+    assert note
+    if times is not None:
+        assert times.shape == (n,) and np.all(np.isfinite(times))
+        assert float(times.max() - times.min()) <= 1.0 and np.abs(times).max() <= 1.0
+    try:
+        cloud = pointcloud2_to_arrays(msg, require_labels=False, time_unit=spec['unit'])
+    except PointCloudError as error:  # only a time field past the point step is malformed
+        assert 'does not fit' in str(error) and spec['name'] in str(error)
+        return
+    if cloud.point_times is None:
+        assert cloud.time_note
+    else:
+        np.testing.assert_array_equal(cloud.point_times, times)
+
+
+def test_the_prior_guard_flags_a_prior_far_from_the_registration() -> None:
+    from mlsemreg_ros.core.features.deskew import PiecewiseSweepMotion
+    from mlsemreg_ros.core.odometry.motion_model import Prediction
+    from mlsemreg_ros.core.odometry.prior_guard import (
+        better_without_prior,
+        prior_disagreement,
+        sweep_disagreement_deg,
+    )
+
+    def turn(deg: float) -> np.ndarray:
+        out = np.eye(4)
+        out[:3, :3] = Rotation.from_euler('z', deg, degrees=True).as_matrix()
+        return out
+
+    stamp, last = 10**9, (np.eye(4), 10**9 - 100_000_000)  # 0.1 s before
+    chosen = SimpleNamespace(accepted=True, pose=turn(5.0), inlier_fraction=0.8)
+    model = SimpleNamespace(last_source='imu')
+    agrees = prior_disagreement(Prediction(turn(4.0), 1), chosen, None, model, last, stamp, 3.0)
+    assert agrees == ''
+    why = prior_disagreement(Prediction(turn(9.0), 1), chosen, None, model, last, stamp, 3.0)
+    assert "prior's rotation is 4.00 deg" in why
+    cv = SimpleNamespace(last_source='constant_velocity')  # no prior: never flagged
+    assert prior_disagreement(Prediction(turn(30.0), 1), chosen, None, cv, last, stamp, 3.0) == ''
+    rejected = SimpleNamespace(accepted=False, pose=None, inlier_fraction=None)
+    assert 'rejected' in prior_disagreement(None, rejected, None, model, last, stamp, 3.0)
+    # the gyro within a 0.1 s sweep: 5 deg expected (the registration's rate), 5 or 15 deg seen
+    times = np.array([-0.1, 0.0])
+    for gyro_deg, expected in ((5.0, 0.0), (15.0, 10.0)):
+        rotations = np.stack([turn(-gyro_deg)[:3, :3], np.eye(3)])
+        motion = PiecewiseSweepMotion.from_rotations(times, rotations, np.zeros(3))
+        assert abs(sweep_disagreement_deg(motion, last, turn(5.0), stamp) - expected) < 1e-6
+        assert sweep_disagreement_deg(motion, (np.eye(4), 0), turn(5.0), stamp) == 0.0  # 1 s
+    # the registration without the prior is kept when it aligns at least as well
+    worse = SimpleNamespace(accepted=True, inlier_fraction=0.7)
+    assert not better_without_prior(chosen, worse) and better_without_prior(worse, chosen)
+    assert better_without_prior(rejected, worse) and not better_without_prior(chosen, rejected)
