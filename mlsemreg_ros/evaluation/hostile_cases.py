@@ -66,7 +66,8 @@ class Case:
     imu: list[Message] = field(default_factory=list)  # hostile IMU messages, added
     wheel: list[Message] = field(default_factory=list)  # hostile wheel messages, added
     modify: dict[str, Modifier] = field(default_factory=dict)  # stream -> its good stream
-    cloud: dict[str, Any] | None = None  # a hostile time field on the keyframe, sent first
+    cloud: dict[str, Any] | None = None  # a hostile time field: on the keyframe's points,
+    #                                      sent first, or (``moved``) on the moved scan
     streams: tuple[str, ...] = ('imu', 'wheel')  # good streams around the scans
 
 
@@ -313,6 +314,9 @@ def cases(timeline: Timeline, rng: np.random.Generator) -> list[Case]:
     for label, name, dtype, values, extra in TIME_FIELD_CASES:
         spec = {'name': name, 'dtype': dtype, 'values': values, **extra}
         out.append(Case(f'time field: {label}', 'time field', cloud=spec))
+    for label, name, dtype, values, extra in TIME_FIELD_CASES:  # on the moved scan itself
+        spec = {'name': name, 'dtype': dtype, 'values': values, 'moved': True, **extra}
+        out.append(Case(f'moved scan, time field: {label}', 'time field (moved)', cloud=spec))
     return out
 
 

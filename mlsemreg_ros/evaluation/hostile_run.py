@@ -167,19 +167,10 @@ def run_case(
         priors.publish(stream, messages)
     clouds, answered, last = 0, 0, None
     notes = []
-    if case.cloud is not None:
+    moved = case.cloud is not None and case.cloud.get('moved', False)
+    if case.cloud is not None and not moved:
         stamp = probe.stamp(timeline.t0 - timeline.interval)
-        from std_msgs.msg import Header
-
-        msg = hostile_cloud(
-            probe._msg_classes,
-            Header(stamp=stamp, frame_id='velodyne'),
-            pair.pts_dst,
-            np.asarray(pair.label_dst).astype(np.uint32),
-            case.cloud,
-            rng,
-        )
-        probe.publish(msg)
+        probe.publish(_hostile(probe, stamp, pair.pts_dst, pair.label_dst, case.cloud, rng))
         clouds += 1
         status = probe.status_for(stamp, timeout_s)
         if status is not None:
@@ -189,9 +180,14 @@ def run_case(
     good_right, wrong = 0, 0
     scans = [(pair.pts_dst, pair.label_dst)] * 2 + [(pair.pts_src, pair.label_src)]
     truths = [np.eye(4), np.eye(4), pair.trans_gt]
-    for t, (points, labels), truth in zip(timeline.scans, scans, truths, strict=True):
+    for k, (t, (points, labels), truth) in enumerate(
+        zip(timeline.scans, scans, truths, strict=True)
+    ):
         stamp = probe.stamp(t)
-        probe.publish(probe.cloud(points, np.asarray(labels).astype(np.uint32), stamp))
+        if moved and k == 2:  # the hostile cloud itself: answered, and right if published
+            probe.publish(_hostile(probe, stamp, points, labels, case.cloud, rng))
+        else:
+            probe.publish(probe.cloud(points, np.asarray(labels).astype(np.uint32), stamp))
         clouds += 1
         status = probe.status_for(stamp, timeout_s)
         if status is None:
@@ -199,6 +195,8 @@ def run_case(
             continue
         answered += 1
         last = status
+        if moved and k == 2:
+            notes.append(f'moved scan: {status["message"][:90]}')
         if status['message'].startswith('first scan'):
             odometry = probe.wait_for('odometry', stamp, 5.0)
             good_right += odometry is not None and _right(_matrix(odometry.pose.pose), truth)
@@ -208,7 +206,7 @@ def run_case(
             notes.append(f'{t:.2f} s: {status["message"][:90]}')
             continue
         if _right(_matrix(transform.transform), truth):
-            good_right += 1
+            good_right += not (moved and k == 2)
         else:
             wrong += 1
             notes.append(f'{t:.2f} s wrong: {status["message"][:90]}')
@@ -223,10 +221,21 @@ def run_case(
         not alive(),
         clouds,
         answered,
-        3,
+        2 if moved else 3,
         good_right,
         wrong,
         added,
         '; '.join(notes),
     )
     return result, after
+
+
+def _hostile(
+    probe: Any, stamp: Any, points: np.ndarray, labels: np.ndarray, spec: dict, rng: Any
+) -> Any:
+    """Return the case's cloud with a hostile time field."""
+    from std_msgs.msg import Header
+
+    header = Header(stamp=stamp, frame_id='velodyne')
+    labels = np.asarray(labels).astype(np.uint32)
+    return hostile_cloud(probe._msg_classes, header, points, labels, spec, rng)
