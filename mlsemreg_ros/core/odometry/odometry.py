@@ -87,6 +87,7 @@ from mlsemreg_ros.core.odometry.local_map import (
 )
 from mlsemreg_ros.core.odometry.motion_model import make_motion_model, Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
+from mlsemreg_ros.core.odometry.prior_guard import better_without_prior, prior_disagreement
 from mlsemreg_ros.core.odometry.prior_model import motion_model_name
 from mlsemreg_ros.core.odometry.steps import (
     Decision,
@@ -253,7 +254,21 @@ class Odometry:
             return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
         timings: dict[str, float] = {}
         chosen = self._estimate(raw.scan, stamp_ns, timings, prediction)
+        refusal = prior_disagreement(  # core/odometry/prior_guard.py
+            prediction,
+            chosen,
+            raw.motion,
+            self.motion_model,
+            self._last_accepted,
+            stamp_ns,
+            self.config.motion_prior.max_disagreement,
+        )
+        if refusal:
+            raw, chosen, refusal = self._without_prior(
+                (points, labels, point_times, stamp_ns), raw, chosen, refusal, timings
+            )
         step = self._apply(index, stamp_ns, raw, chosen)
+        step.prior_refusal = refusal
         self._count_failure(step, raw)
         registered = chosen.result.timings_ms if chosen.result is not None else {}
         step.timings_ms = {
@@ -263,6 +278,30 @@ class Odometry:
             **step.timings_ms,
         }
         return self._finish(step, start, raw)
+
+    def _without_prior(
+        self,
+        scan: tuple[np.ndarray, np.ndarray, np.ndarray | None, int],
+        raw: PreprocessedScan,
+        chosen: Decision,
+        refusal: str,
+        timings: dict[str, float],
+    ) -> tuple[PreprocessedScan, Decision, str]:
+        """Register the scan again without the prior; keep the better (``prior_guard.py``)."""
+        points, labels, point_times, stamp_ns = scan
+        constant = getattr(self.motion_model, 'constant_velocity', None)
+        prediction = constant(stamp_ns) if constant is not None else None
+        motion = self._sweep_motion(prediction, stamp_ns, None)  # the poses' twist, no gyro
+        tracked = self.tracker.tracked_in_a_row
+        again = self._preprocess(points, labels, point_times, motion)
+        other = self._estimate(again.scan, stamp_ns, timings, prediction)
+        if better_without_prior(chosen, other):
+            other.reason = '; '.join(r for r in (other.reason, f'prior not used: {refusal}') if r)
+            if other.source == chosen.source == 'prediction':
+                self.tracker.tracked_in_a_row -= 1  # one scan, tracked once
+            return again, other, f'not used: {refusal}'
+        self.tracker.tracked_in_a_row = tracked
+        return raw, chosen, f'kept (registered without it too, aligned worse): {refusal}'
 
     def _prediction(self, stamp_ns: int) -> Prediction | None:
         """Return the motion model's prediction at ``stamp_ns`` if the odometry uses one."""
