@@ -90,7 +90,7 @@ class GeometricLabels:
         """Share of the points of each raw id."""
         ids, counts = np.unique(self.raw, return_counts=True)
         total = max(int(self.raw.shape[0]), 1)
-        return {int(i): float(c) / total for i, c in zip(ids, counts)}
+        return {int(i): float(c) / total for i, c in zip(ids, counts, strict=True)}
 
 
 def _zones(config: GeometricLabelsConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -195,12 +195,10 @@ class GeometricLabeler:
         linear, planar, scatter = per_point[:, 0], per_point[:, 1], per_point[:, 2]
         normal_z, axis_z = per_point[:, 3], per_point[:, 4]
         # columns of a dense ground grid around the sensor
-        side = int(math.ceil(2.0 * cfg.max_range / cfg.cell_size))
+        side = math.ceil(2.0 * cfg.max_range / cfg.cell_size)
         ix = np.floor((above[:, 0] + cfg.max_range) / cfg.cell_size).astype(np.int64)
         iy = np.floor((above[:, 1] + cfg.max_range) / cfg.cell_size).astype(np.int64)
-        column = np.where(
-            (ix >= 0) & (ix < side) & (iy >= 0) & (iy < side), ix * side + iy, -1
-        )
+        column = np.where((ix >= 0) & (ix < side) & (iy >= 0) & (iy < side), ix * side + iy, -1)
         everything = np.ones(rows.shape[0], dtype=bool)
         top, base = gk.column_extent(column, h, everything, side * side)
         is_scatter = described & (scatter >= SCATTER)
@@ -248,9 +246,7 @@ class GeometricLabeler:
         keep = np.zeros(count + 1, dtype=bool)
         for index, box in enumerate(ndimage.find_objects(clusters), start=1):
             length = max(box[0].stop - box[0].start, box[1].stop - box[1].start)
-            keep[index] = VEHICLE_MIN_LENGTH <= length * cfg.cell_size <= (
-                cfg.vehicle_max_length
-            )
+            keep[index] = VEHICLE_MIN_LENGTH <= length * cfg.cell_size <= (cfg.vehicle_max_length)
         flat_clusters = clusters.reshape(-1)
         point_cluster = np.where(column >= 0, flat_clusters[np.maximum(column, 0)], 0)
         # smooth surfaces: the cluster's mean scatter of its described points stays low

@@ -61,8 +61,8 @@ class GeometricLabelsConfig:
     )
     ground_distance: float = param(
         0.2,
-        'Largest distance of a ground point from its bin\'s fitted plane (also the seeds\' '
-        'height above the bin\'s lowest points).',
+        "Largest distance of a ground point from its bin's fitted plane (also the seeds' "
+        "height above the bin's lowest points).",
         unit='m',
         low=0.02,
         high=1.0,

@@ -43,8 +43,10 @@ def eigen3(
     p = math.sqrt(p2 / 6.0)
     b00, b11, b22 = (c00 - q) / p, (c11 - q) / p, (c22 - q) / p
     b01, b02, b12 = c01 / p, c02 / p, c12 / p
-    det = b00 * (b11 * b22 - b12 * b12) - b01 * (b01 * b22 - b12 * b02) + b02 * (
-        b01 * b12 - b11 * b02
+    det = (
+        b00 * (b11 * b22 - b12 * b12)
+        - b01 * (b01 * b22 - b12 * b02)
+        + b02 * (b01 * b12 - b11 * b02)
     )
     r = min(max(det / 2.0, -1.0), 1.0)
     phi = math.acos(r) / 3.0
