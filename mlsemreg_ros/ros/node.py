@@ -244,6 +244,7 @@ class MlSemRegNode(Node):
             cloud = pointcloud2_to_arrays(
                 msg,
                 params.node.label_field,
+                require_labels=params.core.label_source == 'field',  # else: label_source
                 time_field=params.core.preprocess.time_field,
                 time_unit=params.core.preprocess.time_unit,
             )
@@ -530,6 +531,7 @@ class MlSemRegNode(Node):
         values.update({'pose_source': step.source, 'local_map_voxels': step.map_voxels})
         if step.prepared is not None:  # dropped points, label scheme, out-of-scheme labels
             values.update({f'input.{k}': v for k, v in step.prepared.input_stats.items()})
+            values['label_source'] = step.prepared.input_stats.get('label_source', '')
         for candidate in step.candidates:
             values[f'fine.{candidate.name}.inlier_fraction'] = candidate.alignment.inlier_fraction
             if candidate.refusal:

@@ -55,7 +55,7 @@ import numpy as np
 from scipy import ndimage
 
 # SemanticKITTI raw ids (config/labels/semantic_kitti.yaml)
-UNLABELED, CAR, ROAD, BUILDING, FENCE = 0, 10, 40, 50, 51
+UNLABELED, CAR, ROAD, BUILDING = 0, 10, 40, 50
 VEGETATION, TRUNK, TERRAIN, POLE = 70, 71, 72, 80
 
 #: The concentric zone model of Patchwork++: rings and sectors of each zone, and where each
@@ -70,10 +70,13 @@ NEAR_ZONES = 2  # the zones whose ground heights estimate the sensor height
 GRADE = 0.08  # rise of the ground per metre outwards that a bin may add to its inner one
 RISE_MARGIN = 0.3  # metres of rise every ring step may add besides the grade
 # eigenvalue-feature rules
-PLANAR, LINEAR, SCATTER = 0.45, 0.6, 0.12
-VERTICAL_NORMAL, HORIZONTAL_NORMAL, VERTICAL_AXIS = 0.35, 0.8, 0.8
+LINEAR, SCATTER = 0.7, 0.07
+VERTICAL_NORMAL, HORIZONTAL_NORMAL, VERTICAL_AXIS = 0.3, 0.8, 0.9
+ALONE = 2.0  # a pole's 3 x 3 columns hold at most this many times its own column's points
+ROOF_HEIGHT = 3.0  # horizontal surfaces this high above the ground are building
 # vehicle clusters
-VEHICLE_LOW, VEHICLE_HIGH, VEHICLE_MIN_LENGTH, VEHICLE_MAX_BASE = 0.7, 2.6, 1.5, 0.8
+VEHICLE_LOW, VEHICLE_HIGH, VEHICLE_MIN_LENGTH, VEHICLE_MAX_BASE = 1.0, 2.2, 2.5, 0.6
+VEHICLE_MAX_WIDTH = 3.0
 VEHICLE_RANGE = 50.0
 TRUNK_CANOPY = 1.0  # vegetation at least this far above a vertical line makes it a trunk
 
@@ -192,7 +195,7 @@ class GeometricLabeler:
         features, counts = gk.cell_features(above, inverse, int(grid[2].shape[0]))
         per_point = features[inverse]
         described = counts[inverse] >= 3
-        linear, planar, scatter = per_point[:, 0], per_point[:, 1], per_point[:, 2]
+        linear, scatter = per_point[:, 0], per_point[:, 2]
         normal_z, axis_z = per_point[:, 3], per_point[:, 4]
         # columns of a dense ground grid around the sensor
         side = math.ceil(2.0 * cfg.max_range / cfg.cell_size)
@@ -201,25 +204,29 @@ class GeometricLabeler:
         column = np.where((ix >= 0) & (ix < side) & (iy >= 0) & (iy < side), ix * side + iy, -1)
         everything = np.ones(rows.shape[0], dtype=bool)
         top, base = gk.column_extent(column, h, everything, side * side)
-        is_scatter = described & (scatter >= SCATTER)
-        canopy, _ = gk.column_extent(column, h, is_scatter, side * side)
+        canopy, _ = gk.column_extent(column, h, described & (scatter >= SCATTER), side * side)
         inside = column >= 0
-        column_top = np.where(inside, top[np.maximum(column, 0)], -np.inf)
         column_canopy = np.where(inside, canopy[np.maximum(column, 0)], -np.inf)
 
         labels = np.full(rows.shape[0], UNLABELED, dtype=np.uint32)
-        labels[is_scatter] = VEGETATION
-        flat = described & (planar >= PLANAR) & ~is_scatter
-        vertical_plane = flat & (normal_z < VERTICAL_NORMAL)
-        labels[vertical_plane] = np.where(
-            column_top[vertical_plane] >= cfg.building_height, BUILDING, FENCE
-        )
-        labels[flat & (normal_z > HORIZONTAL_NORMAL) & (h >= cfg.building_height)] = BUILDING
-        line = described & (linear >= LINEAR) & (axis_z >= VERTICAL_AXIS) & ~is_scatter
+        is_scatter = described & (scatter >= SCATTER)
+        labels[described] = VEGETATION  # scatter, and what no rule below claims
+        # vertical lines standing alone in their 3 x 3 columns: pole, or trunk under a canopy
+        crowd = ndimage.uniform_filter(
+            np.bincount(column[inside], minlength=side * side)
+            .reshape(side, side)
+            .astype(np.float64),
+            size=3,
+            mode='constant',
+        ).reshape(-1)
+        own = np.bincount(column[inside], minlength=side * side)
+        alone = np.zeros(rows.shape[0], dtype=bool)
+        alone[inside] = 9.0 * crowd[column[inside]] <= ALONE * own[column[inside]]
+        line = described & ~is_scatter & (linear >= LINEAR) & (axis_z >= VERTICAL_AXIS) & alone
+        surface = described & ~is_scatter & ~line
+        labels[surface & (normal_z < VERTICAL_NORMAL)] = BUILDING
+        labels[surface & (normal_z > HORIZONTAL_NORMAL) & (h >= ROOF_HEIGHT)] = BUILDING
         labels[line] = np.where(column_canopy[line] >= h[line] + TRUNK_CANOPY, TRUNK, POLE)
-        # leftover described cells (curved or tilted surfaces): vegetation when rough
-        leftover = described & (labels == UNLABELED) & (scatter >= 0.5 * SCATTER)
-        labels[leftover] = VEGETATION
         vehicle = self._vehicles(top, base, column, scatter, described, side)
         labels[vehicle & (h >= cfg.ground_distance)] = CAR
         raw[rows] = labels
@@ -245,8 +252,12 @@ class GeometricLabeler:
             return np.zeros(column.shape[0], dtype=bool)
         keep = np.zeros(count + 1, dtype=bool)
         for index, box in enumerate(ndimage.find_objects(clusters), start=1):
-            length = max(box[0].stop - box[0].start, box[1].stop - box[1].start)
-            keep[index] = VEHICLE_MIN_LENGTH <= length * cfg.cell_size <= (cfg.vehicle_max_length)
+            sides = sorted((box[0].stop - box[0].start, box[1].stop - box[1].start))
+            width, length = sides[0] * cfg.cell_size, sides[1] * cfg.cell_size
+            keep[index] = (
+                VEHICLE_MIN_LENGTH <= length <= cfg.vehicle_max_length
+                and width <= VEHICLE_MAX_WIDTH
+            )
         flat_clusters = clusters.reshape(-1)
         point_cluster = np.where(column >= 0, flat_clusters[np.maximum(column, 0)], 0)
         # smooth surfaces: the cluster's mean scatter of its described points stays low

@@ -82,14 +82,6 @@ class GeometricLabelsConfig:
         low=0.2,
         high=5.0,
     )
-    building_height: float = param(
-        2.5,
-        'A vertical plane whose column reaches this high above the ground is building, '
-        'lower ones are fence.',
-        unit='m',
-        low=0.5,
-        high=20.0,
-    )
     road_roughness: float = param(
         0.0,
         'Ground cells rougher than this (standard deviation across their plane) are '
