@@ -249,6 +249,7 @@ class MlSemRegNode(GuardedCallbacks, Node):
             cloud = pointcloud2_to_arrays(
                 msg,
                 params.node.label_field,
+                require_labels=params.core.label_source == 'field',  # else: label_source
                 time_field=params.core.preprocess.time_field,
                 time_unit=params.core.preprocess.time_unit,
             )
@@ -549,6 +550,7 @@ class MlSemRegNode(GuardedCallbacks, Node):
             level, message = ('warn' if level == 'ok' else level), f'{message}; not deskewed'
         if step.prepared is not None:  # dropped points, label scheme, out-of-scheme labels
             values.update({f'input.{k}': v for k, v in step.prepared.input_stats.items()})
+            values['label_source'] = step.prepared.input_stats.get('label_source', '')
         for candidate in step.candidates:
             values[f'fine.{candidate.name}.inlier_fraction'] = candidate.alignment.inlier_fraction
             if candidate.refusal:

@@ -76,6 +76,7 @@ from mlsemreg_ros.core.features.deskew import (
     SweepMotion,
 )
 from mlsemreg_ros.core.features.moving_objects import MovingObjectFilter
+from mlsemreg_ros.core.labeling.source import LabelSource
 from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (
@@ -137,6 +138,7 @@ class Odometry:
         self.preprocessor = Preprocessor(self.registration)
         label_map = getattr(self.registration, 'label_map', None)  # stand-ins lack it
         self.moving_objects = MovingObjectFilter(label_map) if label_map is not None else None
+        self.label_source = LabelSource(label_map)  # core/labeling/source.py
         self._check_moving_objects(cfg)
         self.motion_model = make_motion_model(cfg, motion_model_name(cfg))
         self.map = make_map(cfg)
@@ -224,7 +226,7 @@ class Odometry:
     def process(
         self,
         points: np.ndarray,
-        labels: np.ndarray,
+        labels: np.ndarray | None,
         stamp_ns: int = 0,
         *,
         point_times: np.ndarray | None = None,
@@ -232,12 +234,17 @@ class Odometry:
         """
         Register one scan (points (N, 3) metres, labels (N,)) and update the odometry.
 
+        ``labels`` is the cloud's label field, or None without one; ``label_source``
+        decides which labels the scan gets (core/labeling/source.py).
+
         ``point_times`` (N,), seconds, go to the preprocessor's deskew step. Stream rules
         (stamps of 0 mean unstamped and are exempt): a stamp equal to the last one is
         skipped; a stamp before it resets the odometry first (a bag that loops, a replay
         restarted).
         """
         start = time.perf_counter()
+        labelled = self.label_source(points, labels, self.config)  # labels None: no field
+        labels = labelled.labels
         skipped, notes = self._stream_rules(stamp_ns)
         if skipped:
             return self._finish(self._rejected(self._count, stamp_ns, None, skipped), start)
@@ -249,6 +256,8 @@ class Odometry:
         if rotation_only:  # no velocity yet: the gyro's rotation alone (if there is an IMU)
             motion = self._gyro_motion(stamp_ns, point_times, np.zeros(3))
         raw = self._preprocess(points, labels, point_times, motion)
+        raw.scan.input_stats['label_source'] = labelled.source
+        raw.scan.timings_ms['labeling_ms'] = labelled.labeling_ms
         raw.rotation_only = rotation_only and raw.deskewed
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
             return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
