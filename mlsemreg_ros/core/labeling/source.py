@@ -56,7 +56,7 @@ class LabeledScan:
 
 
 def resolve(requested: str, has_field: bool) -> str:
-    """The source ``requested`` stands for on a scan with or without a label field."""
+    """Return the source ``requested`` stands for on a scan with or without a label field."""
     if requested not in LABEL_SOURCES:
         raise LabelError(f'unknown label_source {requested!r}; use one of {LABEL_SOURCES}')
     if requested == 'auto':
@@ -114,7 +114,7 @@ class LabelSource:
         return self.label_map.raw_lut[raw.astype(np.int64) & 0xFFFF].astype(np.uint32)
 
     def labeler(self, config: Any) -> GeometricLabeler:
-        """The geometric labeler of ``config.geometric_labels`` (rebuilt when it changes)."""
+        """Return the geometric labeler of ``config.geometric_labels`` (rebuilt when it changes)."""
         section = config.geometric_labels
         if self._geometric is None or self._geometric[0] != section:
             self._geometric = (section, GeometricLabeler(section))
