@@ -34,7 +34,7 @@ def _grid(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def ground(rng: np.random.Generator, tilt: float = 0.0) -> np.ndarray:
-    """Sample a plane 1.8 m below the sensor (rising ``tilt`` m per m along x), 0.25 m grid, +-30 m."""
+    """Sample a plane 1.8 m below the sensor (rising ``tilt`` m per m along x), +-30 m."""
     x, y = _grid(np.arange(-30.0, 30.0, 0.25), np.arange(-30.0, 30.0, 0.25))
     z = -SENSOR_HEIGHT + tilt * x + rng.normal(0.0, 0.01, x.shape)
     return np.c_[x, y, z]

@@ -114,7 +114,7 @@ class LabelSource:
         return self.label_map.raw_lut[raw.astype(np.int64) & 0xFFFF].astype(np.uint32)
 
     def labeler(self, config: Any) -> GeometricLabeler:
-        """Return the geometric labeler of ``config.geometric_labels`` (rebuilt when it changes)."""
+        """Return the geometric labeler of ``config.geometric_labels`` (rebuilt on change)."""
         section = config.geometric_labels
         if self._geometric is None or self._geometric[0] != section:
             self._geometric = (section, GeometricLabeler(section))
