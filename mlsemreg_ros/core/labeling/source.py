@@ -54,6 +54,14 @@ class LabeledScan:
     source: str  # 'field', 'geometric', 'onnx' or 'none'
     labeling_ms: float  # time spent making them (0 for the field)
 
+    def note(self, scan: Any) -> None:
+        """Record the source in ``scan.input_stats`` and the time in its ``timings_ms``."""
+        stats, timings = getattr(scan, 'input_stats', None), getattr(scan, 'timings_ms', None)
+        if isinstance(stats, dict):
+            stats['label_source'] = self.source
+        if isinstance(timings, dict):
+            timings['labeling_ms'] = self.labeling_ms
+
 
 def resolve(requested: str, has_field: bool) -> str:
     """Return the source ``requested`` stands for on a scan with or without a label field."""
