@@ -256,8 +256,7 @@ class Odometry:
         if rotation_only:  # no velocity yet: the gyro's rotation alone (if there is an IMU)
             motion = self._gyro_motion(stamp_ns, point_times, np.zeros(3))
         raw = self._preprocess(points, labels, point_times, motion)
-        raw.scan.input_stats['label_source'] = labelled.source
-        raw.scan.timings_ms['labeling_ms'] = labelled.labeling_ms
+        labelled.note(raw.scan)  # the source in input_stats, its time in timings_ms
         raw.rotation_only = rotation_only and raw.deskewed
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
             return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
