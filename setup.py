@@ -72,6 +72,7 @@ setup(
             'mlsemreg-bench-node = mlsemreg_ros.tools.bench_node:main',
             'mlsemreg-confidence = mlsemreg_ros.tools.confidence:main',
             'mlsemreg-soak = mlsemreg_ros.tools.soak:main',
+            'mlsemreg-fuzz-node = mlsemreg_ros.tools.fuzz_node:main',
             'mlsemreg-cut-pairs = mlsemreg_ros.tools.cut_pairs:main',
             'mlsemreg-chain-pairs = mlsemreg_ros.tools.chain_pairs:main',
             'mlsemreg-label-noise-sweep = mlsemreg_ros.tools.label_noise_sweep:main',

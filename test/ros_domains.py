@@ -31,6 +31,7 @@ MODULES = (
     'map_node',
     'node_extrinsic',
     'transport',
+    'node_hostile',
 )
 #: Test runs whose base ids fit below Fast DDS's largest domain id, 232.
 _RUNS = (232 - 100) // len(MODULES)

@@ -45,6 +45,7 @@ from mlsemreg_ros.core.estimation.config import (
 from mlsemreg_ros.core.features.config import FeatureConfig, KeypointConfig
 from mlsemreg_ros.core.features.deskew import PreprocessConfig
 from mlsemreg_ros.core.features.moving_objects import MovingObjectsConfig
+from mlsemreg_ros.core.labeling.geometric_config import GeometricLabelsConfig, LABEL_SOURCES
 from mlsemreg_ros.core.maps.config import MapConfig
 from mlsemreg_ros.core.matching.config import MatcherConfig, SemanticConfig
 from mlsemreg_ros.core.motion_prior import MotionPriorConfig
@@ -278,6 +279,15 @@ class RegistrationConfig(Settings):
         low=0,
         high=256,
     )
+    label_source: str = param(
+        'auto',
+        "Where each scan's labels come from: auto (the cloud's label field when it has "
+        'one, else geometric), field (the label field; a cloud without one is skipped), '
+        "geometric (the built-in geometric labeler), onnx (the user's segmentation "
+        'network), none (unlabeled: matched and judged without labels). docs/labels.md.',
+        choices=LABEL_SOURCES,
+    )
+    geometric_labels: GeometricLabelsConfig = field(default_factory=GeometricLabelsConfig)
     preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
     semantic: SemanticConfig = field(default_factory=SemanticConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
@@ -310,6 +320,11 @@ class RegistrationConfig(Settings):
     def check(self) -> list[str]:
         """Cross-field rules of the core."""
         errors = []
+        if self.label_source == 'onnx':
+            from mlsemreg_ros.core.labeling.onnx_available import onnx_unavailable
+
+            if reason := onnx_unavailable():
+                errors.append(f'label_source onnx: {reason}')
         sem, est = self.semantic, self.estimator
         field_m = sem.ring_count * sem.ring_width
         if field_m > MAX_RECEPTIVE_FIELD_M:

@@ -41,7 +41,7 @@ class OdometryEstimator:
     :class:`mlsemreg_ros.core.odometry.Odometry`: the node's code path, scan by scan.
 
     Keyframe, local map, constant-velocity candidate and acceptance test are the node's
-    (same config); a scan without labels is all label 0.
+    (same config); a scan without labels is labeled by ``label_source``.
     """
 
     method = 'ML-SemReg'
@@ -55,9 +55,10 @@ class OdometryEstimator:
 
     def step(self, scan: Scan) -> FrameEstimate:
         """Process one scan with the odometry."""
-        labels = scan.labels if scan.labels is not None else np.zeros(len(scan), np.int64)
-        keyframe = self.odometry.keyframe
-        step = self.odometry.process(scan.xyz, labels, scan.stamp_ns, point_times=scan.point_times)
+        keyframe = self.odometry.keyframe  # a scan without labels: label_source decides
+        step = self.odometry.process(
+            scan.xyz, scan.labels, scan.stamp_ns, point_times=scan.point_times
+        )
         self.deskewed_scans += int(step.deskewed)
         self._bag_index.append(scan.index)
         result = step.result

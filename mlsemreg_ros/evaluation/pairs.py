@@ -146,6 +146,7 @@ def evaluate_directory(
     ``label_noise``: a :class:`~mlsemreg_ros.evaluation.label_noise.LabelNoise` applied to
     both scans of every pair first (seeded by ``noise_seed``, the pair's index and the scan).
     """
+    from mlsemreg_ros.core.labeling.source import LabelSource
     from mlsemreg_ros.core.pipeline import Registration
     from mlsemreg_ros.datasets.pairs import list_pairs, load_pair, PairFileError
     from tqdm import tqdm
@@ -157,6 +158,7 @@ def evaluate_directory(
     if not paths:
         raise EvalError(f'no pair files (*.npz) in {directory}')
     registration = Registration(config)
+    label_source = LabelSource(registration.label_map)
     rows, all_metrics = [], []
     for path in tqdm(paths, desc='pairs', unit='pair', file=sys.stderr, disable=not progress):
         try:
@@ -170,6 +172,7 @@ def evaluate_directory(
             )
         if descriptor != 'fpfh' and (pair.kpts_src is None or pair.kpts_dst is None):
             raise EvalError(f'{path} has descriptors but no keypoints (kpts_src/kpts_dst)')
+        pair = labeled_pair(pair, label_source, config)  # --labels (label_source)
         if label_noise is not None and label_noise.active:
             pair = noisy_pair(pair, label_noise, registration, noise_seed, len(rows))
         result, metrics, timings = run_pair(registration, pair, descriptor, bounds)
@@ -197,6 +200,19 @@ def evaluate_directory(
         'pairs': rows,
         'summary': summarize_pairs(all_metrics, rows),
     }
+
+
+def labeled_pair(pair: Any, label_source: Any, config: Any) -> Any:
+    """``pair`` with both scans labeled by ``config.label_source`` (``pts_src``/``pts_dst``)."""
+    from dataclasses import replace
+
+    if config.label_source in ('auto', 'field'):
+        return pair
+    return replace(
+        pair,
+        label_src=label_source(pair.pts_src, pair.label_src, config).labels,
+        label_dst=label_source(pair.pts_dst, pair.label_dst, config).labels,
+    )
 
 
 def noisy_pair(pair: Any, noise: Any, registration: Any, seed: int, index: int) -> Any:

@@ -71,12 +71,13 @@ from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.ros import messages
+from mlsemreg_ros.ros.callback_guard import DropCounter, GuardedCallbacks, spin_guarded
 from mlsemreg_ros.ros.extrinsic import ExtrinsicSource, to_base
 from mlsemreg_ros.ros.map_services import MapServices
 from mlsemreg_ros.ros.markers import correspondence_markers
 from mlsemreg_ros.ros.node_config import NodeConfig
 from mlsemreg_ros.ros.parameters import ConfigSnapshot, LiveParameters
-from mlsemreg_ros.ros.prior_inputs import PriorInbox, subscribe_prior_topics
+from mlsemreg_ros.ros.prior_inputs import PriorInbox, STREAMS, subscribe_prior_topics
 from nav_msgs.msg import Odometry, Path
 import numpy as np
 import rclpy
@@ -113,6 +114,7 @@ class Scan:
     received: float  # time.perf_counter() when the message reached the callback
     dropped_nonfinite: int
     point_times: np.ndarray | None = None  # (N,) float64 s after the stamp (deskew)
+    time_warning: str = ''  # a time field that is there but not used for deskew: why
 
 
 class StampGaps:
@@ -167,13 +169,16 @@ class LatestSlot:
             self._cond.notify_all()
 
 
-class MlSemRegNode(Node):
-    """ML-SemReg odometry: registers every labeled scan onto a keyframe."""
+class MlSemRegNode(GuardedCallbacks, Node):
+    """ML-SemReg odometry: registers every labeled scan onto a keyframe (no callback raises)."""
 
     def __init__(self, **kwargs: Any) -> None:
         """Declare parameters, create the interface and start the worker thread."""
         started = time.perf_counter()
         super().__init__(NODE_NAME, **kwargs)
+        # drops and callback errors (ros/callback_guard.py), before any callback exists
+        self.callback_drops = DropCounter(lambda text: self.get_logger().warning(text))
+        self.callback_fallbacks = {'points': self._points_failed}
         self._label_map = LabelMap.load()
         self._params = LiveParameters(self, self._label_map)
         config = self._params.snapshot()
@@ -204,7 +209,7 @@ class MlSemRegNode(Node):
         self.create_subscription(PointCloud2, 'points', self._on_points, qos)
         self.create_service(Trigger, 'mlsemreg/reset', self._on_reset)
         # the motion prior's topics and the extrinsic (docs/field_prior.md)
-        self._prior = PriorInbox()
+        self._prior = PriorInbox(self.callback_drops)
         for note in subscribe_prior_topics(self, self._prior, config, self._odometry.motion_model):
             self.get_logger().info(note)
         self._extrinsic = ExtrinsicSource(self, config.node)
@@ -244,6 +249,7 @@ class MlSemRegNode(Node):
             cloud = pointcloud2_to_arrays(
                 msg,
                 params.node.label_field,
+                require_labels=params.core.label_source == 'field',  # else: label_source
                 time_field=params.core.preprocess.time_field,
                 time_unit=params.core.preprocess.time_unit,
             )
@@ -260,8 +266,13 @@ class MlSemRegNode(Node):
                 received,
                 cloud.dropped_nonfinite,
                 cloud.point_times,
+                cloud.time_warning,
             )
         )
+
+    def _points_failed(self, error: Exception, msg: PointCloud2) -> None:
+        """Answer a cloud whose callback raised (the guard counted and logged it)."""
+        self._skip(msg.header.stamp, f'skipped PointCloud2: {type(error).__name__}: {error}')
 
     def _observe_stamp(self, stamp: Time) -> None:
         """Count clouds missing between the stamps (before the worker's slot); warn."""
@@ -305,7 +316,10 @@ class MlSemRegNode(Node):
                 self._count('errors')
                 self.get_logger().error(f'frame failed: {type(error).__name__}: {error}')
                 self.get_logger().debug(traceback.format_exc())
-                self._publish_diagnostics(scan.stamp, 'error', f'frame failed: {error}', {})
+                try:
+                    self._publish_diagnostics(scan.stamp, 'error', f'frame failed: {error}', {})
+                except Exception as again:  # the worker goes on to the next scan
+                    self.callback_drops.error('worker', again)
 
     def _process(self, scan: Scan) -> None:
         """Register the scan onto the keyframe (core odometry) and publish the outcome."""
@@ -528,8 +542,15 @@ class MlSemRegNode(Node):
             values['latency_p50_ms'] = float(np.median(self._latencies))
         values.update({f'stage.{k}': float(v) for k, v in step.timings_ms.items()})
         values.update({'pose_source': step.source, 'local_map_voxels': step.map_voxels})
+        if step.prior_refusal:  # the prior disagreed with the scan (core/odometry/prior_guard.py)
+            self._count('prior_refused')
+            values['prior_refusal'] = step.prior_refusal
+        if scan.time_warning:  # registered without deskew: a warning (docs/ros_interface.md)
+            values['point_times_warning'] = scan.time_warning
+            level, message = ('warn' if level == 'ok' else level), f'{message}; not deskewed'
         if step.prepared is not None:  # dropped points, label scheme, out-of-scheme labels
             values.update({f'input.{k}': v for k, v in step.prepared.input_stats.items()})
+            values['label_source'] = step.prepared.input_stats.get('label_source', '')
         for candidate in step.candidates:
             values[f'fine.{candidate.name}.inlier_fraction'] = candidate.alignment.inlier_fraction
             if candidate.refusal:
@@ -566,6 +587,7 @@ class MlSemRegNode(Node):
             'frames_dropped': self._slot.dropped,
             'frames_lost_estimate': self._stream.lost,
             **counts,
+            **self.callback_drops.snapshot(STREAMS),
             **values,
         }
         self._pub_diagnostics.publish(
@@ -609,8 +631,12 @@ def main(args: list[str] | None = None) -> int:
         node = MlSemRegNode()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
+        spin_guarded(  # the last line: a raising callback is logged and counted
+            executor,
+            lambda: not stop.is_set() and rclpy.ok(),
+            node.callback_drops,
+            SPIN_PERIOD_S,
+        )
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ConfigError, ParameterException) as error:

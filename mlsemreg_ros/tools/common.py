@@ -64,6 +64,23 @@ SetOption = Annotated[
         'evaluation.max_rotation_deg=15 (repeatable; values are YAML)',
     ),
 ]
+LabelsOption = Annotated[
+    Literal['field', 'geometric', 'onnx', 'none'] | None,
+    typer.Option(
+        '--labels',
+        rich_help_panel=PARAMETERS,
+        help="where the scans' labels come from: the cloud's label field, the built-in "
+        'geometric labeler, the ONNX network, or none (the label_source parameter; default: '
+        'its value, auto = the field when present, else geometric)',
+    ),
+]
+
+
+def with_labels(overrides: Sequence[str] | None, labels: str | None) -> list[str]:
+    """``--set`` overrides with ``--labels`` appended as ``label_source`` (it wins)."""
+    return [*(overrides or []), *([f'label_source={labels}'] if labels else [])]
+
+
 QuietOption = Annotated[
     bool, typer.Option('--quiet', help='no progress bar', rich_help_panel=OUTPUT)
 ]

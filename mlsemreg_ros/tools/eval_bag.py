@@ -34,10 +34,12 @@ from mlsemreg_ros.tools.common import (
     ConfigOption,
     DATA,
     invocation_argv,
+    LabelsOption,
     OUTPUT,
     QuietOption,
     SetOption,
     settings,
+    with_labels,
 )
 import typer
 
@@ -113,6 +115,7 @@ def eval_bag(
         typer.Option(min=1, help='stop after this many (strided) scans', rich_help_panel=DATA),
     ] = None,
     config: ConfigOption = None,
+    labels: LabelsOption = None,
     overrides: SetOption = None,
     plot_frame: Annotated[
         int | None,
@@ -174,7 +177,9 @@ def eval_bag(
     from mlsemreg_ros.evaluation.scoring import run_details, summarize_run
     from mlsemreg_ros.evaluation.settings import EvaluationSettings
 
-    core, evaluation = settings((RegistrationConfig, EvaluationSettings), config, overrides)
+    core, evaluation = settings(
+        (RegistrationConfig, EvaluationSettings), config, with_labels(overrides, labels)
+    )
     bounds = evaluation.evaluation
     kwargs: dict[str, Any] = {}
     if is_rosbag2(bag):

@@ -35,10 +35,12 @@ from mlsemreg_ros.tools.common import (
     config_choices,
     ConfigOption,
     JsonOption,
+    LabelsOption,
     NoProgressOption,
     PARAMETERS,
     QuietOption,
     SetOption,
+    with_labels,
 )
 import typer
 
@@ -153,6 +155,7 @@ def eval_pairs(
     ] = None,
     noise_seed: Annotated[int, typer.Option(min=0, help='seed of --label-noise')] = 0,
     config: ConfigOption = None,
+    labels: LabelsOption = None,
     overrides: SetOption = None,
     json_path: JsonOption = None,
     quiet: QuietOption = False,
@@ -178,7 +181,7 @@ def eval_pairs(
     if no_verification:
         flags['verification.enabled'] = False
     try:
-        core, evaluation = build_settings(config, flags, list(overrides or []))
+        core, evaluation = build_settings(config, flags, with_labels(overrides, labels))
     except (ConfigError, OSError) as error:
         raise CommandError(f'configuration error: {error}', 2) from None
     try:

@@ -39,10 +39,12 @@ from mlsemreg_ros.tools.common import (
     ConfigOption,
     ForceOption,
     JsonOption,
+    LabelsOption,
     QuietOption,
     replace_output,
     SetOption,
     settings,
+    with_labels,
 )
 import typer
 
@@ -76,6 +78,7 @@ def build(
     ] = None,
     frame_id: Annotated[str, typer.Option(help='frame of the map')] = 'map',
     config: ConfigOption = None,
+    labels: LabelsOption = None,
     overrides: SetOption = None,
     json_path: JsonOption = None,
     force: ForceOption = False,
@@ -88,7 +91,7 @@ def build(
     from mlsemreg_ros.datasets.source import SourceError
     from mlsemreg_ros.evaluation.tables import print_text
 
-    (core,) = settings((RegistrationConfig,), config, overrides)
+    (core,) = settings((RegistrationConfig,), config, with_labels(overrides, labels))
     replace_output(out, force)
     try:
         source = open_scan_source(bag)
@@ -138,6 +141,7 @@ def build_map(
     progress: bool = False,
 ) -> dict[str, Any]:
     """Map a scan source; returns the mapper and a summary (keyframes, loops, ATE)."""
+    from mlsemreg_ros.core.labeling.source import LabelSource
     from mlsemreg_ros.core.maps.localization import awaits_deskew
     from mlsemreg_ros.core.maps.mapping import Mapper
     from mlsemreg_ros.core.metrics import ate_rmse
@@ -164,14 +168,16 @@ def build_map(
             file=sys.stderr,
             disable=not progress,
         )
-        if scan.labels is not None
+        if scan.labels is not None or config.label_source != 'field'
     )
+    label_source = LabelSource(registration.label_map)  # --labels (label_source)
     if odometry is None:  # ground truth: only the posed scans, deskewed by the truth
         labeled = _deskewed_by_truth((scan for scan in labeled if scan.pose is not None), config)
     for scan in labeled:
         scans += 1
         if odometry is None:
-            step = mapper.add(scan.xyz, scan.labels, scan.pose, scan.stamp_ns)
+            labels = label_source(scan.xyz, scan.labels, config).labels
+            step = mapper.add(scan.xyz, labels, scan.pose, scan.stamp_ns)
         else:
             moved = odometry.process(
                 scan.xyz, scan.labels, scan.stamp_ns, point_times=scan.point_times

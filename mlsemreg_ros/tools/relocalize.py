@@ -33,8 +33,10 @@ from mlsemreg_ros.tools.common import (
     CommandError,
     ConfigOption,
     JsonOption,
+    LabelsOption,
     SetOption,
     settings,
+    with_labels,
 )
 import typer
 
@@ -58,11 +60,13 @@ def relocalize(
         ),
     ] = 1,
     config: ConfigOption = None,
+    labels: LabelsOption = None,
     overrides: SetOption = None,
     json_path: JsonOption = None,
 ) -> int:
     """Relocalize the queries against the map and print the recall (alias mlsemreg-relocalize)."""
     from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.labeling.source import LabelSource
     from mlsemreg_ros.core.maps.map_io import load_map, MapError
     from mlsemreg_ros.core.maps.relocalization import Relocalizer
     from mlsemreg_ros.core.pipeline import Registration
@@ -73,6 +77,7 @@ def relocalize(
     except MapError as error:
         raise CommandError(str(error)) from None
     base = data.config if config is None and data.config is not None else None
+    overrides = with_labels(overrides, labels)
     if base is not None and overrides:
         from mlsemreg_ros.core.config import apply_overrides, ConfigError
 
@@ -98,10 +103,12 @@ def relocalize(
     if not files:
         raise CommandError(f'{queries}: no .npz query files')
     relocalizer = Relocalizer(registration, store)
+    label_source = LabelSource(registration.label_map)
     rows, records = [], []
     for file in files:
         query = read_query(file)
-        found = relocalizer.relocalize(query['points'], query['labels'])
+        labeled = label_source(query['points'], query['labels'], core)  # --labels
+        found = relocalizer.relocalize(query['points'], labeled.labels)
         record = score(file.stem, found, query.get('T_map_scan'))
         records.append(record)
         rows.append(

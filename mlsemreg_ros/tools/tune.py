@@ -31,10 +31,12 @@ from mlsemreg_ros.tools.common import (
     CommandError,
     ConfigOption,
     DATA,
+    LabelsOption,
     OUTPUT,
     PARAMETERS,
     QuietOption,
     SetOption,
+    with_labels,
 )
 import typer
 
@@ -120,6 +122,7 @@ def tune(
         ),
     ] = None,
     config: ConfigOption = None,
+    labels: LabelsOption = None,
     overrides: SetOption = None,
     out: Annotated[
         Path,
@@ -144,7 +147,9 @@ def tune(
 
     warnings.filterwarnings('ignore', message='.*is experimental')
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    core, evaluation = settings((RegistrationConfig, EvaluationSettings), config, overrides)
+    core, evaluation = settings(
+        (RegistrationConfig, EvaluationSettings), config, with_labels(overrides, labels)
+    )
     try:
         node_values = NodeConfig.from_file(config).to_flat_dict() if config is not None else {}
     except ConfigError as error:

@@ -21,34 +21,32 @@ to each once, in order::
 
     stream rules       duplicate stamp: skip; backwards: reset
     predict            motion_model.py / prior_model.py: T_odom_current at the stamp
-    preprocess         preprocess.py: deskewed by the motion within the sweep, moving
-                       objects, lazily prepared (descriptors only if registered globally)
+    preprocess         the labels (core/labeling/source.py), then preprocess.py: deskewed by
+                       the motion within the sweep, moving objects, lazily prepared
     track or register  tracking.py: the prediction refined against the map and tracked when
-    and decide         trusted (trust.py), else registered onto the keyframe
-                       (global_registration.py) and decided (decision.py)
+    and decide         trusted (trust.py), else registered onto the keyframe and decided
+                       (decision.py); a prior that disagrees: again without it (prior_guard.py)
     align the sweep    tracking.py: the start's deskew; no gyro: the sweep's own twist
                        (core/alignment/sweep_alignment.py)
     insert             local_map.py: the aligned scan joins the map; the keyframe policy
     step               steps.py: OdometryStep, covariance and twist
 
-**Global registration on demand** (``odometry.global_registration: on_demand``, default):
-a scan is tracked by the refined prediction alone only when the trust rules allow it
-(``core/odometry/trust.py``); every other scan is registered globally. ``always``
-registers every scan. The decision never publishes a silent jump: without an acceptable
-candidate the frame is rejected, the pose, the keyframe and the map stay, and ``reason``
-says why. After ``keyframe.max_failures`` rejections in a row the odometry re-initialises
-on the current scan at the last accepted pose. **The core owns the odometry state**: pose,
-keyframe, local map, covariances, twist. With ``fine.method: off`` the odometry is the
-scan-to-keyframe chain of global registrations.
+A scan is tracked by the refined prediction alone when the trust rules allow it
+(``odometry.global_registration: on_demand``), else registered globally. Never a silent
+jump: a rejected frame moves nothing, and ``reason`` says why; after
+``keyframe.max_failures`` rejections in a row the odometry re-initialises on the scan at the
+last accepted pose. The core owns the odometry state (docs/architecture.md).
 """
 
 from __future__ import annotations
 
 from collections import deque
 import time
+from typing import Any
 
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, SweepMotion
+from mlsemreg_ros.core.labeling.source import LabelSource
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (
     insert_accepted,
@@ -59,6 +57,7 @@ from mlsemreg_ros.core.odometry.local_map import (
 )
 from mlsemreg_ros.core.odometry.motion_model import make_motion_model, Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
+from mlsemreg_ros.core.odometry.prior_guard import guard_prior
 from mlsemreg_ros.core.odometry.prior_model import motion_model_name
 from mlsemreg_ros.core.odometry.steps import (
     accepted_step,
@@ -89,6 +88,7 @@ class Odometry:
             self.registration.config = config
         cfg = self.registration.config
         # the components (seams: docs/extending.md)
+        self.label_source = LabelSource(getattr(self.registration, 'label_map', None))
         self.preprocessor = Preprocessor(self.registration)  # moving objects, deskew, prepare
         self.motion_model = make_motion_model(cfg, motion_model_name(cfg))
         self.map = make_map(cfg)
@@ -169,6 +169,10 @@ class Odometry:
         """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
         return keyframe_refusal(self.config, scan)
 
+    def sweep_state(self) -> tuple[deque[tuple[np.ndarray, int]], Any, Any]:
+        """Return what the motion within a sweep needs: accepted poses, sweep twist, model."""
+        return self._accepted, self._sweep_twist, self.motion_model
+
     def predict(self, stamp_ns: int) -> np.ndarray | None:
         """Return the motion model's ``T_odom_current`` at ``stamp_ns``, or None."""
         prediction = self.motion_model.predict(stamp_ns)
@@ -178,7 +182,7 @@ class Odometry:
     def process(
         self,
         points: np.ndarray,
-        labels: np.ndarray,
+        labels: np.ndarray | None,
         stamp_ns: int = 0,
         *,
         point_times: np.ndarray | None = None,
@@ -186,27 +190,37 @@ class Odometry:
         """
         Register one scan (points (N, 3) metres, labels (N,)) and update the odometry.
 
+        ``labels`` is the cloud's label field, or None without one; ``label_source``
+        decides which labels the scan gets (core/labeling/source.py).
+
         ``point_times`` (N,), seconds, go to the preprocessor's deskew step. Stream rules
         (stamps of 0 mean unstamped and are exempt): a stamp equal to the last one is
         skipped; a stamp before it resets the odometry first (a bag that loops, a replay
         restarted).
         """
         start = time.perf_counter()
+        labelled = self.label_source(points, labels, self.config)  # labels None: no field
+        labels = labelled.labels
         skipped, notes = self._stream_rules(stamp_ns)
         if skipped:
             return self._finish(self._rejected(self._count, stamp_ns, None, skipped), start)
         index = self._count
         self._count += 1
         prediction = self._prediction(stamp_ns)
-        state = (self._accepted, self._sweep_twist, self.motion_model)
+        state = self.sweep_state()
         raw = self.preprocessor.sweep(points, labels, point_times, prediction, stamp_ns, *state)
+        labelled.note(raw.scan)  # the source in input_stats, its time in timings_ms
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
             return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
         timings: dict[str, float] = {}
         chosen = self.tracker.estimate(
             raw.scan, prediction, self.keyframe, self.global_registration, self.config, timings
         )
+        raw, chosen, prior_refusal = guard_prior(  # core/odometry/prior_guard.py
+            self, (points, labels, point_times, stamp_ns), prediction, raw, chosen, timings
+        )
         step = self._apply(index, stamp_ns, raw, chosen)
+        step.prior_refusal = prior_refusal
         self._count_failure(step, raw)
         registered = chosen.result.timings_ms if chosen.result is not None else {}
         step.timings_ms = {

@@ -72,6 +72,7 @@ class OdometryStep:
     #                             deskewed (by the sweep twist if it bent them), moving objects
     #                             dropped (moving_objects.matching): the input of ``prepared``
     labels: np.ndarray | None = None  # (N,) their raw labels
+    prior_refusal: str = ''  # the prior disagreed with the scan: what was done, and why
 
 
 @dataclass
