@@ -23,9 +23,10 @@ within the limits). After a scan was registered with the prior's prediction and 
 - the scan was rejected;
 - the prior's rotation over the interval is more than ``motion_prior.max_disagreement``
   degrees from the registration's;
-- the gyro's rotation within the sweep (the deskew) is more than that from the rotation
-  the registration implies over the sweep (its rate over the interval; checked only over
-  intervals up to :data:`SWEEP_CHECK_MAX_INTERVAL_S`, where one rate holds).
+- the gyro's rotation within the sweep (the deskew) is more than twice that
+  (:data:`SWEEP_CHECK_FACTOR`) from the rotation the registration implies over the sweep
+  (its rate over the interval; checked only over intervals up to
+  :data:`SWEEP_CHECK_MAX_INTERVAL_S`, where one rate holds).
 
 Then the scan is registered again without the prior (constant-velocity prediction and
 deskew, :func:`register_without_prior`), and the registration whose fine alignment holds
@@ -46,6 +47,10 @@ from scipy.spatial.transform import Rotation
 
 #: The sweep check compares the gyro with the registration's rate over intervals up to this (s).
 SWEEP_CHECK_MAX_INTERVAL_S = 0.5
+#: The sweep check's bound is this many times ``motion_prior.max_disagreement``: on the field
+#: drives the gyro within a sweep differs from the registration's mean rate by up to 4.1 deg
+#: (3 of 199 sweeps above 3 deg, field_s1 stride 1), and those registrations were right.
+SWEEP_CHECK_FACTOR = 2.0
 #: Sources of a prediction that come from prior messages.
 PRIOR_SOURCES = ('imu', 'wheel')
 
@@ -99,7 +104,7 @@ def prior_disagreement(
         if angle > max_deg:
             return f"the prior's rotation is {angle:.2f} deg from the registration's"
     sweep = sweep_disagreement_deg(motion, last_accepted, chosen.pose, stamp_ns)
-    if sweep > max_deg:
+    if sweep > SWEEP_CHECK_FACTOR * max_deg:
         return f"the gyro's rotation within the sweep is {sweep:.2f} deg from the registration's"
     return ''
 
