@@ -412,3 +412,12 @@ def test_the_prior_guard_flags_a_prior_far_from_the_registration() -> None:
     worse = SimpleNamespace(accepted=True, inlier_fraction=0.7)
     assert not better_without_prior(chosen, worse) and better_without_prior(worse, chosen)
     assert better_without_prior(rejected, worse) and not better_without_prior(chosen, rejected)
+
+
+def test_a_rejection_is_retried_without_the_prior_only_after_an_accepted_scan() -> None:
+    from mlsemreg_ros.core.odometry.prior_guard import prior_disagreement
+
+    rejected = SimpleNamespace(accepted=False, pose=None, inlier_fraction=None)
+    model = SimpleNamespace(last_source='wheel')
+    assert prior_disagreement(None, rejected, None, model, None, 10**9, 3.0, 0)
+    assert prior_disagreement(None, rejected, None, model, None, 10**9, 3.0, 1) == ''

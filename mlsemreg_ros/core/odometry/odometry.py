@@ -262,6 +262,7 @@ class Odometry:
             self._last_accepted,
             stamp_ns,
             self.config.motion_prior.max_disagreement,
+            self._failures,
         )
         if refusal:
             raw, chosen, refusal = self._without_prior(

@@ -20,7 +20,7 @@ The samples that reach the motion model are checked one by one at arrival
 within the limits). After a scan was registered with the prior's prediction and deskew,
 :func:`prior_disagreement` compares them with the registration:
 
-- the scan was rejected;
+- the scan was rejected (the first rejection after an accepted scan);
 - the prior's rotation over the interval is more than ``motion_prior.max_disagreement``
   degrees from the registration's;
 - the gyro's rotation within the sweep (the deskew) is more than twice that
@@ -93,12 +93,18 @@ def prior_disagreement(
     last_accepted: tuple[np.ndarray, int] | None,
     stamp_ns: int,
     max_deg: float,
+    failures_before: int = 0,
 ) -> str:
-    """Why the prior may have cost this scan ('' if it agrees with the registration)."""
+    """
+    Why the prior may have cost this scan ('' if it agrees with the registration).
+
+    A rejection counts only after an accepted scan (``failures_before`` 0): while the
+    odometry is lost, every scan would otherwise be registered twice.
+    """
     if not prior_used(motion_model, motion):
         return ''
     if not chosen.accepted:
-        return 'the scan was rejected with the prior'
+        return 'the scan was rejected with the prior' if not failures_before else ''
     if prediction is not None and getattr(motion_model, 'last_source', '') in PRIOR_SOURCES:
         angle = rotation_angle_deg(invert_transform(prediction.T_odom_current) @ chosen.pose)
         if angle > max_deg:
