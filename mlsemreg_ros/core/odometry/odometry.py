@@ -169,6 +169,11 @@ class Odometry:
         """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
         return keyframe_refusal(self.config, scan)
 
+    @property
+    def failures_in_a_row(self) -> int:
+        """Scans rejected in a row since the last accepted one."""
+        return self._failures
+
     def sweep_state(self) -> tuple[deque[tuple[np.ndarray, int]], Any, Any]:
         """Return what the motion within a sweep needs: accepted poses, sweep twist, model."""
         return self._accepted, self._sweep_twist, self.motion_model
