@@ -184,10 +184,11 @@ def test_knn_moves_an_occluded_point_to_its_surfaces_class() -> None:
     classes = np.where(projection.image_range > 6.0, 1, 2)
     classes[np.isinf(projection.image_range)] = 0
     alone = knn_clean_up(classes, projection, 0, 5, 1.0, 1.0)
-    cleaned = knn_clean_up(classes, projection, 5, 5, 1.0, 1.0)
-    assert alone[behind] == 2 and cleaned[behind] == 1
-    assert cleaned[-1] == 2
-    assert (cleaned[:-1] == 1).all()
+    assert alone[behind] == 2
+    for compiled in (False, True):
+        cleaned = knn_clean_up(classes, projection, 5, 5, 1.0, 1.0, compiled=compiled)
+        assert cleaned[behind] == 1 and cleaned[-1] == 2
+        assert (cleaned[:-1] == 1).all()
 
 
 @settings(max_examples=30, deadline=None, derandomize=True)
@@ -207,9 +208,10 @@ def test_knn_matches_the_plain_reference(seed: int, knn: int, search: int, cutof
     projection = project(points, SMALL)
     classes = rng.integers(0, 4, (HEIGHT, WIDTH))
     knn = min(knn, search * search)
-    got = knn_clean_up(classes, projection, knn, search, 1.0, cutoff)
     expected = reference_knn(classes, projection, knn, search, 1.0, cutoff)
-    np.testing.assert_array_equal(got, expected)
+    for compiled in (False, True):
+        got = knn_clean_up(classes, projection, knn, search, 1.0, cutoff, compiled=compiled)
+        np.testing.assert_array_equal(got, expected, err_msg=f'compiled={compiled}')
 
 
 # -- the network end to end --------------------------------------------------------------

@@ -44,6 +44,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from mlsemreg_ros.core.features import kernels
 from mlsemreg_ros.core.labeling.onnx_config import OnnxLabelsConfig
 from mlsemreg_ros.core.resources import share_file
 from mlsemreg_ros.core.settings import ConfigError
@@ -97,12 +98,13 @@ def project(points: np.ndarray, section: OnnxLabelsConfig) -> RangeProjection:
     cols = np.clip(np.floor(0.5 * (yaw / np.pi + 1.0) * width), 0, width - 1)
     rows, cols = rows.astype(np.int64), cols.astype(np.int64)
     pixel = rows * width + cols
-    order = np.lexsort((ranges, pixel))  # by pixel, nearest first
-    first = np.ones(order.shape[0], dtype=bool)
-    first[1:] = pixel[order[1:]] != pixel[order[:-1]]
-    nearest = order[first]
-    pixel_point = np.full(height * width, -1, dtype=np.int64)
-    pixel_point[pixel[nearest]] = nearest
+    nearest_range = np.full(height * width, np.inf)
+    np.minimum.at(nearest_range, pixel, ranges)
+    nearest = np.flatnonzero(ranges == nearest_range[pixel])
+    count = points.shape[0]
+    pixel_point = np.full(height * width, count, dtype=np.int64)
+    np.minimum.at(pixel_point, pixel[nearest], nearest)  # the first of equally near points
+    pixel_point[pixel_point == count] = -1
     return RangeProjection(rows, cols, ranges, pixel_point.reshape(height, width))
 
 
@@ -163,46 +165,103 @@ def knn_clean_up(
     search: int,
     sigma: float,
     cutoff: float,
+    compiled: bool | None = None,
 ) -> np.ndarray:
     """
     Class index of every point (N,) int64 from the image's classes (H, W), RangeNet++'s KNN.
 
-    See the module docstring (step 4). ``knn`` 0 reads each point's own pixel.
+    See the module docstring (step 4). ``knn`` 0 reads each point's own pixel. Among equal
+    distances the earlier window pixel (row-major) is nearer; ties between classes go to the
+    smaller index, as RangeNet++'s argmax over the votes. ``compiled``: the numba kernel
+    (None: when available, core/features/kernels.py), else NumPy; both give the same classes.
     """
     pixel_classes = np.asarray(pixel_classes, dtype=np.int64)
-    height, width = pixel_classes.shape
     own = pixel_classes[projection.rows, projection.cols]
-    num_classes = int(pixel_classes.max(initial=0)) + 1
-    count = own.shape[0]
-    if knn == 0 or num_classes < 2 or count == 0:
+    if knn == 0 or own.shape[0] == 0:
         return own
     half = search // 2
-    offsets = np.arange(-half, half + 1)
-    rows = projection.rows[:, None] + np.repeat(offsets, search)  # (N, S*S), row-major
-    cols = (projection.cols[:, None] + np.tile(offsets, search)) % width  # wraps in azimuth
-    inside = (rows >= 0) & (rows < height)
-    flat = np.clip(rows, 0, height - 1) * width + cols
+    # The images padded by half a window: columns wrapped around, empty rows above and below.
+    rows, cols = ((half, half), (0, 0)), ((0, 0), (half, half))
+    image_range = np.pad(projection.image_range.astype(np.float32), cols, mode='wrap')
+    image_range = np.pad(image_range, rows, constant_values=np.inf).reshape(-1)
+    classes = np.pad(np.pad(pixel_classes, cols, mode='wrap'), rows).reshape(-1)
+    padded_width = pixel_classes.shape[1] + 2 * half
+    window = (np.arange(search)[:, None] * padded_width + np.arange(search)).reshape(-1)
+    corner = projection.rows * padded_width + projection.cols  # the window's top left
     ranges = projection.ranges.astype(np.float32)
-    neighbour_range = np.where(
-        inside, projection.image_range.astype(np.float32).reshape(-1)[flat], np.float32(np.inf)
-    )
-    neighbour_range[:, (search * search) // 2] = ranges  # the point itself
-    distance = np.abs(neighbour_range - ranges[:, None]) * window_weights(search, sigma).astype(
-        np.float32
-    )
-    nearest = np.argpartition(distance, knn - 1, axis=1)[:, :knn]
+    weights = window_weights(search, sigma).astype(np.float32)
+    # Farther neighbours do not vote, nor do empty pixels (inf) with or without a cutoff.
+    limit = np.float32(cutoff) if cutoff > 0 else np.finfo(np.float32).max
+    if kernels.use_compiled(compiled):
+        num_classes = int(pixel_classes.max()) + 1
+        return _knn_vote_kernel(
+            image_range, classes, corner, ranges, window, weights, knn, limit, own, num_classes
+        )
+    flat = corner[:, None] + window  # (N, S*S) pixels of each point's window, row-major
+    distance = image_range[flat]
+    distance[:, search * search // 2] = ranges  # the point itself
+    distance -= ranges[:, None]
+    np.abs(distance, out=distance)
+    distance *= weights
+    nearest = np.argsort(distance, axis=1, kind='stable')[:, :knn]
     nearest_distance = np.take_along_axis(distance, nearest, axis=1)
-    votes = np.take_along_axis(pixel_classes.reshape(-1)[flat], nearest, axis=1)
-    invalid = ~np.isfinite(nearest_distance)
-    if cutoff > 0:
-        invalid |= nearest_distance > cutoff
-    votes = np.where(invalid, num_classes, votes)  # an extra bin for the invalid votes
-    bins = num_classes + 1
-    counts = np.bincount(
-        (np.arange(count)[:, None] * bins + votes).reshape(-1), minlength=count * bins
-    ).reshape(count, bins)[:, 1:num_classes]  # neither unlabeled nor invalid votes
-    best = counts.argmax(axis=1) + 1
-    return np.where(counts.max(axis=1) > 0, best, own)
+    votes = classes[np.take_along_axis(flat, nearest, axis=1)]  # (N, knn)
+    valid = (nearest_distance <= limit) & (votes > 0)  # the unlabeled class does not vote
+    # The mode of each point's valid votes, the smaller class on ties.
+    support = ((votes[:, :, None] == votes[:, None, :]) & valid[:, None, :]).sum(axis=2)
+    support[~valid] = 0
+    winner = np.argmax(support * (int(pixel_classes.max()) + 1) - votes, axis=1)[:, None]
+    best = np.take_along_axis(votes, winner, axis=1)[:, 0]
+    return np.where(support.max(axis=1) > 0, best, own)
+
+
+@kernels.jit
+def _knn_vote_kernel(
+    image_range: np.ndarray,
+    classes: np.ndarray,
+    corner: np.ndarray,
+    ranges: np.ndarray,
+    window: np.ndarray,
+    weights: np.ndarray,
+    knn: int,
+    limit: np.float32,
+    own: np.ndarray,
+    num_classes: int,
+) -> np.ndarray:
+    """:func:`knn_clean_up`'s votes in one loop over the points (the same arithmetic)."""
+    size = window.shape[0]
+    center = size // 2
+    out = np.empty(corner.shape[0], dtype=np.int64)
+    near_distance = np.empty(knn, dtype=np.float32)  # the knn nearest so far, nearest first
+    near_pixel = np.empty(knn, dtype=np.int64)
+    counts = np.zeros(num_classes, dtype=np.int64)
+    for i in range(corner.shape[0]):
+        kept = 0
+        for j in range(size):
+            pixel = corner[i] + window[j]
+            value = ranges[i] if j == center else image_range[pixel]
+            distance = abs(value - ranges[i]) * weights[j]
+            if kept == knn and not distance < near_distance[knn - 1]:
+                continue  # an equal distance keeps the earlier pixel
+            slot = kept if kept < knn else knn - 1
+            while slot > 0 and distance < near_distance[slot - 1]:
+                near_distance[slot] = near_distance[slot - 1]
+                near_pixel[slot] = near_pixel[slot - 1]
+                slot -= 1
+            near_distance[slot] = distance
+            near_pixel[slot] = pixel
+            kept = min(kept + 1, knn)
+        for m in range(kept):
+            vote = classes[near_pixel[m]]
+            if near_distance[m] <= limit and vote > 0:
+                counts[vote] += 1
+        best, support = own[i], 0
+        for k in range(1, num_classes):
+            if counts[k] > support:
+                best, support = k, counts[k]
+            counts[k] = 0
+        out[i] = best
+    return out
 
 
 def load_class_map(path: str | Path | None = None) -> np.ndarray:
