@@ -333,3 +333,17 @@ def test_projection_of_a_range_projection_is_consistent() -> None:
     nearest = np.full(HEIGHT * WIDTH, np.inf)
     np.minimum.at(nearest, pixel, projection.ranges)
     np.testing.assert_array_equal(projection.image_range.reshape(-1), nearest)
+
+
+def test_the_odometry_labels_an_unlabeled_scan_with_the_network(tmp_path: Path) -> None:
+    from mlsemreg_ros.core.odometry import Odometry
+
+    model = linear_model(tmp_path / 'model.onnx', Z_WEIGHTS, HEIGHT, WIDTH)
+    config = RegistrationConfig(
+        label_source='onnx', onnx_labels=dataclasses.replace(SMALL, model=str(model))
+    )
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-20, 20, (3000, 2)), rng.uniform(-2, 3, 3000)])
+    step = Odometry(config=config).process(points, None, 1)
+    assert step.prepared.input_stats['label_source'] == 'onnx'
+    assert step.prepared.timings_ms['labeling_ms'] > 0
