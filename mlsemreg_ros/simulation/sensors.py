@@ -66,7 +66,7 @@ class SensorModel:
 
     @property
     def rosette(self) -> bool:
-        """Whether the model scans a non-repetitive rosette (solid state) instead of spinning."""
+        """Return whether the model is solid state, scanning a rosette instead of spinning."""
         return self.field_of_view_deg > 0.0
 
     def elevation_range_deg(self) -> tuple[float, float]:
@@ -96,7 +96,7 @@ class SensorModel:
 
     def directions(self, start: float, offset: float) -> np.ndarray:
         """
-        Unit ray directions (columns, beams, 3) in the sensor frame of each column's instant.
+        Return the unit rays (C, B, 3) in the sensor frame of each column's instant.
 
         ``start``: the sweep's start on the drive's clock (s), which sets the phase of a
         rosette; ``offset``: the sub-column offset of the sweep (:meth:`column_times`).

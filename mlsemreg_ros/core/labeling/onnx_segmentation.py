@@ -358,7 +358,7 @@ class OnnxSegmenter:
 
     @property
     def providers(self) -> list[str]:
-        """Execution providers the session runs on, preferred first."""
+        """Return the execution providers the session runs on, preferred first."""
         return list(self.session.get_providers())
 
     def predict(self, image: np.ndarray) -> np.ndarray:
