@@ -76,7 +76,7 @@ from mlsemreg_ros.core.features.deskew import (
     SweepMotion,
 )
 from mlsemreg_ros.core.features.moving_objects import MovingObjectFilter
-from mlsemreg_ros.core.labeling.source import LabelSource
+from mlsemreg_ros.core.labeling.source import LabeledScan, LabelSource
 from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (
@@ -138,6 +138,7 @@ class Odometry:
         label_map = getattr(self.registration, 'label_map', None)  # stand-ins lack it
         self.moving_objects = MovingObjectFilter(label_map) if label_map is not None else None
         self.label_source = LabelSource(label_map)  # core/labeling/source.py
+        self.labelled: LabeledScan | None = None  # the labels of the scan in process
         self._check_moving_objects(cfg)
         self.motion_model = make_motion_model(cfg, motion_model_name(cfg))
         self.map = make_map(cfg)
@@ -242,8 +243,8 @@ class Odometry:
         restarted).
         """
         start = time.perf_counter()
-        labelled = self.label_source(points, labels, self.config)  # labels None: no field
-        labels = labelled.labels
+        self.labelled = self.label_source(points, labels, self.config)  # None: no field
+        labels = self.labelled.labels
         skipped, notes = self._stream_rules(stamp_ns)
         if skipped:
             return self._finish(self._rejected(self._count, stamp_ns, None, skipped), start)
@@ -255,7 +256,6 @@ class Odometry:
         if rotation_only:  # no velocity yet: the gyro's rotation alone (if there is an IMU)
             motion = self._gyro_motion(stamp_ns, point_times, np.zeros(3))
         raw = self._preprocess(points, labels, point_times, motion)
-        labelled.note(raw.scan)  # the source in input_stats, its time in timings_ms
         raw.rotation_only = rotation_only and raw.deskewed
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
             return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
@@ -353,6 +353,8 @@ class Odometry:
         raw = self.preprocessor(points, labels, point_times, motion)
         if mask is not None:
             self._exclude_moving(raw.scan, raw.points, raw.labels, mask)
+        if self.labelled is not None:  # the label source in input_stats, its time in timings
+            self.labelled.note(raw.scan)
         return raw
 
     def _check_moving_objects(self, config: RegistrationConfig) -> None:
