@@ -57,6 +57,7 @@ from mlsemreg_ros.core.estimation.verification import (
 )
 from mlsemreg_ros.core.features import features, fpfh
 from mlsemreg_ros.core.features.scan_input import sanitize_scan_for
+from mlsemreg_ros.core.labeling import quality as label_quality
 from mlsemreg_ros.core.matching import landmarks, matching, signatures
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.poses import same_pose
@@ -129,6 +130,8 @@ class Registration:
         self._landmark_ids = resolved.landmark_ids
         self._ignored_ids = resolved.ignored_ids
         self._undefined_ids = resolved.undefined_ids
+        self._wildcard = np.ones(self.label_map.num_classes, dtype=bool)  # Local-SS of no labels
+        self._wildcard[np.r_[resolved.ignored_ids, resolved.undefined_ids]] = False
         self._label_compatibility = resolved.label_compatibility
         self._bev_channels = resolved.bev_channels
         self._distinctive = resolved.distinctive
@@ -322,6 +325,14 @@ class Registration:
             'source_keypoints': len(source.keypoints),
             'target_keypoints': len(target.keypoints),
         }
+        # 0. never worse than no labels: weigh the labels (core/labeling/quality.py)
+        judged = label_quality.judge(source, target, cfg, self._label_compatibility)
+        if judged.unlabeled:  # no better than chance: matched and judged as unlabeled
+            source, target = (
+                label_quality.unlabeled_view(scan, self._wildcard) for scan in (source, target)
+            )
+        cfg = judged.config(cfg)
+        diagnostics.update(judged.diagnostics)
         # 1. correspondences: ML-SemReg (GM o MM) or the plain matcher
         with _timed(timings, 'gm_mm_ms'):
             if cfg.semantic.enabled:
@@ -330,6 +341,11 @@ class Registration:
                 )
                 corr, mode, message = outcome.correspondences, outcome.mode, outcome.message
                 diagnostics.update(outcome.diagnostics)
+                if judged.widen:  # poorer labels: Group Matching widens (core/labeling/quality.py)
+                    plain = matching.match_descriptors(
+                        source.descriptors, target.descriptors, cfg.matcher.kind
+                    )
+                    corr = label_quality.widened(corr, plain)
             else:
                 corr = matching.match_descriptors(
                     source.descriptors, target.descriptors, cfg.matcher.kind
