@@ -28,14 +28,14 @@ Before a pair is matched, its labels get a weight ``w`` in ``[0, 1]`` (docs/labe
 
 Then:
 
-- **poorer labels widen Group Matching** (``0 < w < 1``): every keypoint also keeps its
-  nearest descriptor over all groups (:func:`widened`), so a keypoint whose true partner
-  carries another label is still matched;
+- **poorer labels widen Group Matching** (``0 < w < FULL_WEIGHT``, 0.75): every keypoint
+  also keeps its nearest descriptor over all groups (:func:`widened`), so a keypoint whose
+  true partner carries another label is still matched;
 - **no better than chance** (``c < c0``, or both scans unlabeled): the pair is matched
   and judged as unlabeled. Views of the two scans without labels (every keypoint in
   every group, no landmarks) go through the same pipeline, exactly as ``label_source:
   none`` would give them; before, such a pair was refused outright;
-- **poorer labels** (``w < 1``): the label checks give way to the geometric evidence
+- **poorer labels** (``w < FULL_WEIGHT``): the label checks give way to the geometric evidence
   (overlap, inliers, rivals). The label agreement needed shrinks to ``1 - (1 - w) *
   LABEL_RELIEF`` of its value (``confidence.min_relative_agreement`` and
   ``min_label_agreement``), the contradiction check is off, and below ``w = 0.5`` the
@@ -56,6 +56,8 @@ import numpy as np
 
 #: Share of the label-agreement thresholds that poor labels (w = 0) no longer need.
 LABEL_RELIEF = 0.25
+#: From this weight on the labels count in full (mild noise changes nothing).
+FULL_WEIGHT = 0.75
 #: Below this weight the distinctive objects decide nothing.
 OBJECTS_MIN_WEIGHT = 0.5
 
@@ -72,12 +74,12 @@ class LabelQuality:
 
     @property
     def widen(self) -> bool:
-        """Whether Group Matching widens: poorer labels (0 < weight < 1)."""
-        return not self.unlabeled and self.weight < 1.0
+        """Whether Group Matching widens: poorer labels (0 < weight < FULL_WEIGHT)."""
+        return not self.unlabeled and self.weight < FULL_WEIGHT
 
     def config(self, config: Any) -> Any:
         """``config`` with the label checks weighed by :attr:`weight` (itself at weight 1)."""
-        if self.unlabeled or self.weight >= 1.0:
+        if self.unlabeled or self.weight >= FULL_WEIGHT:
             return config
         conf = config.confidence
         scale = 1.0 - (1.0 - self.weight) * LABEL_RELIEF
