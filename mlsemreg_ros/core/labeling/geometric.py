@@ -72,11 +72,18 @@ RISE_MARGIN = 0.3  # metres of rise every ring step may add besides the grade
 # eigenvalue-feature rules
 LINEAR, SCATTER = 0.7, 0.07
 VERTICAL_NORMAL, HORIZONTAL_NORMAL, VERTICAL_AXIS = 0.3, 0.8, 0.9
-ALONE = 2.0  # a pole's 3 x 3 columns hold at most this many times its own column's points
+ALONE = 4  # occupied columns of a pole's 3 x 3 neighbourhood (itself included) at most
 ROOF_HEIGHT = 3.0  # horizontal surfaces this high above the ground are building
+POLE_CELL = 0.5  # columns of the standing-thing search, m
+POLE_BAND = (0.3, 2.5)  # heights above the ground of a trunk or pole's lower part, m
+POLE_MIN_EXTENT = 1.0  # vertical extent of the band points of a pole's column, m
+POLE_MAX_BASE = 1.2  # a pole's band points start this near the ground, m
+POLE_CORE = 4  # occupied columns of the 3 x 3 core at most
+POLE_RING_SHARE = 0.2  # band points in the ring around the core, per core point
 # vehicle clusters
 VEHICLE_LOW, VEHICLE_HIGH, VEHICLE_MIN_LENGTH, VEHICLE_MAX_BASE = 1.0, 2.2, 2.5, 0.6
 VEHICLE_MAX_WIDTH = 3.0
+VEHICLE_MAX_SCATTER = 0.2  # mean scatter of a vehicle's cells (box corners: 0.15)
 VEHICLE_RANGE = 50.0
 TRUNK_CANOPY = 1.0  # vegetation at least this far above a vertical line makes it a trunk
 
@@ -174,7 +181,8 @@ class GeometricLabeler:
         inside = bins >= 0
         in_accepted[inside] = accepted[bins[inside]]
         distance = cfg.ground_distance
-        near_ground = (height < distance) & (height > -3.0 * distance)
+        reach = np.einsum('ij,ij->i', points[:, :2], points[:, :2]) < cfg.max_range**2
+        near_ground = (height < distance) & (height > -3.0 * distance) & reach
         ground = np.where(in_accepted, on_plane | near_ground, near_ground)
         return height, ground, -ground_z
 
@@ -183,7 +191,8 @@ class GeometricLabeler:
     ) -> None:
         """Label the points above the ground in ``raw`` (building, fence, pole, ...)."""
         cfg = self.config
-        rows = np.flatnonzero(~ground & (height >= cfg.ground_distance))
+        reach = np.einsum('ij,ij->i', points[:, :2], points[:, :2]) < cfg.max_range**2
+        rows = np.flatnonzero(~ground & (height >= cfg.ground_distance) & reach)
         if rows.shape[0] == 0:
             return
         above = points[rows]
@@ -211,25 +220,61 @@ class GeometricLabeler:
         labels = np.full(rows.shape[0], UNLABELED, dtype=np.uint32)
         is_scatter = described & (scatter >= SCATTER)
         labels[described] = VEGETATION  # scatter, and what no rule below claims
-        # vertical lines standing alone in their 3 x 3 columns: pole, or trunk under a canopy
+        # vertical lines standing alone: few occupied columns in their 3 x 3 neighbourhood
+        occupied = np.zeros(side * side, dtype=np.float64)
+        occupied[column[inside]] = 1.0
         crowd = ndimage.uniform_filter(
-            np.bincount(column[inside], minlength=side * side)
-            .reshape(side, side)
-            .astype(np.float64),
-            size=3,
-            mode='constant',
+            occupied.reshape(side, side), size=3, mode='constant'
         ).reshape(-1)
-        own = np.bincount(column[inside], minlength=side * side)
         alone = np.zeros(rows.shape[0], dtype=bool)
-        alone[inside] = 9.0 * crowd[column[inside]] <= ALONE * own[column[inside]]
+        alone[inside] = 9.0 * crowd[column[inside]] <= ALONE + 0.5
         line = described & ~is_scatter & (linear >= LINEAR) & (axis_z >= VERTICAL_AXIS) & alone
         surface = described & ~is_scatter & ~line
         labels[surface & (normal_z < VERTICAL_NORMAL)] = BUILDING
         labels[surface & (normal_z > HORIZONTAL_NORMAL) & (h >= ROOF_HEIGHT)] = BUILDING
         labels[line] = np.where(column_canopy[line] >= h[line] + TRUNK_CANOPY, TRUNK, POLE)
+        standing = self._standing(above, h)
+        labels[standing] = np.where(
+            column_canopy[standing] >= h[standing] + TRUNK_CANOPY, TRUNK, POLE
+        )
         vehicle = self._vehicles(top, base, column, scatter, described, side)
         labels[vehicle & (h >= cfg.ground_distance)] = CAR
         raw[rows] = labels
+
+    def _standing(self, above: np.ndarray, h: np.ndarray) -> np.ndarray:
+        """
+        Points of thin things standing alone (poles, trunks, sign posts) among ``above``.
+
+        On a ground grid of ``POLE_CELL`` columns: a column whose points in the trunk band
+        (``POLE_BAND`` above the ground) reach from near the ground at least
+        ``POLE_MIN_EXTENT`` up, in a 3 x 3 core of at most ``POLE_CORE`` occupied columns,
+        with at most ``POLE_RING_SHARE`` of the core's band points in the ring of columns
+        around the core (5 x 5 minus 3 x 3).
+        """
+        cfg = self.config
+        side = math.ceil(2.0 * cfg.max_range / POLE_CELL)
+        ix = np.floor((above[:, 0] + cfg.max_range) / POLE_CELL).astype(np.int64)
+        iy = np.floor((above[:, 1] + cfg.max_range) / POLE_CELL).astype(np.int64)
+        inside = (ix >= 0) & (ix < side) & (iy >= 0) & (iy < side)
+        column = np.where(inside, ix * side + iy, 0)
+        band = inside & (h >= POLE_BAND[0]) & (h <= POLE_BAND[1])
+        counts = np.bincount(column[band], minlength=side * side).astype(np.float64)
+        low, high = gk.column_extent(np.where(band, column, -1), h, band, side * side)[::-1]
+        grid = counts.reshape(side, side)
+        core = ndimage.uniform_filter(grid, size=3, mode='constant') * 9.0
+        wide = ndimage.uniform_filter(grid, size=5, mode='constant') * 25.0
+        occupied = ndimage.uniform_filter((grid > 0).astype(np.float64), size=3, mode='constant')
+        candidate = (
+            (high - low >= POLE_MIN_EXTENT)
+            & (low <= POLE_MAX_BASE)
+            & (9.0 * occupied.reshape(-1) <= POLE_CORE + 0.5)
+            & ((wide - core).reshape(-1) <= POLE_RING_SHARE * core.reshape(-1))
+        )
+        # the candidate's own and its occupied neighbour columns, every height
+        grown = ndimage.binary_dilation(
+            candidate.reshape(side, side), structure=np.ones((3, 3), dtype=bool)
+        ).reshape(-1)
+        return inside & grown[column] & (counts[column] > 0)
 
     def _vehicles(
         self,
@@ -264,7 +309,7 @@ class GeometricLabeler:
         weights = described.astype(np.float64)
         total = np.bincount(point_cluster, weights=weights, minlength=count + 1)
         rough = np.bincount(point_cluster, weights=weights * scatter, minlength=count + 1)
-        smooth = rough <= SCATTER * np.maximum(total, 1.0)
+        smooth = rough <= VEHICLE_MAX_SCATTER * np.maximum(total, 1.0)
         keep &= smooth
         keep[0] = False
         return keep[point_cluster]

@@ -59,7 +59,7 @@ def eigen3(
 def eigenvector3(
     c00: float, c01: float, c02: float, c11: float, c12: float, c22: float, value: float
 ) -> tuple[float, float, float]:
-    """Unit eigenvector of ``value``: the largest cross product of two rows of ``C - value I``."""
+    """Return the unit eigenvector of ``value``: a cross product of rows of ``C - value I``."""
     r0 = (c00 - value, c01, c02)
     r1 = (c01, c11 - value, c12)
     r2 = (c02, c12, c22 - value)
@@ -189,7 +189,8 @@ def fit_bins(
     stats = np.zeros((num_bins, 3))
     on_plane = np.zeros(points.shape[0], dtype=np.bool_)
     for b in range(num_bins):
-        rows = order[starts[b] : starts[b + 1]]
+        first, last = starts[b], starts[b + 1]
+        rows = order[first:last]
         n = rows.shape[0]
         if n < min_points:
             continue

@@ -54,9 +54,17 @@ class LabeledScan:
     source: str  # 'field', 'geometric', 'onnx' or 'none'
     labeling_ms: float  # time spent making them (0 for the field)
 
+    def note(self, scan: Any) -> None:
+        """Record the source in ``scan.input_stats`` and the time in its ``timings_ms``."""
+        stats, timings = getattr(scan, 'input_stats', None), getattr(scan, 'timings_ms', None)
+        if isinstance(stats, dict):
+            stats['label_source'] = self.source
+        if isinstance(timings, dict):
+            timings['labeling_ms'] = self.labeling_ms
+
 
 def resolve(requested: str, has_field: bool) -> str:
-    """The source ``requested`` stands for on a scan with or without a label field."""
+    """Return the source ``requested`` stands for on a scan with or without a label field."""
     if requested not in LABEL_SOURCES:
         raise LabelError(f'unknown label_source {requested!r}; use one of {LABEL_SOURCES}')
     if requested == 'auto':
@@ -114,7 +122,7 @@ class LabelSource:
         return self.label_map.raw_lut[raw.astype(np.int64) & 0xFFFF].astype(np.uint32)
 
     def labeler(self, config: Any) -> GeometricLabeler:
-        """The geometric labeler of ``config.geometric_labels`` (rebuilt when it changes)."""
+        """Return the geometric labeler of ``config.geometric_labels`` (rebuilt on change)."""
         section = config.geometric_labels
         if self._geometric is None or self._geometric[0] != section:
             self._geometric = (section, GeometricLabeler(section))

@@ -1,0 +1,192 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The geometric labeler: hand-made scenes with known answers, and real scans of 12 sensors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mlsemreg_ros.core.features.features import voxel_downsample
+from mlsemreg_ros.core.labeling import geometric as g
+from mlsemreg_ros.core.labeling.geometric import GeometricLabeler
+from mlsemreg_ros.core.labeling.geometric_config import GeometricLabelsConfig
+import numpy as np
+import pytest
+
+SENSOR_HEIGHT = 1.8
+REAL_SCANS = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'real_sensor_scans'
+
+
+def _grid(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    u, v = np.meshgrid(a, b, indexing='ij')
+    return u.reshape(-1), v.reshape(-1)
+
+
+def ground(rng: np.random.Generator, tilt: float = 0.0) -> np.ndarray:
+    """Sample a plane 1.8 m below the sensor (rising ``tilt`` m per m along x), +-30 m."""
+    x, y = _grid(np.arange(-30.0, 30.0, 0.25), np.arange(-30.0, 30.0, 0.25))
+    z = -SENSOR_HEIGHT + tilt * x + rng.normal(0.0, 0.01, x.shape)
+    return np.c_[x, y, z]
+
+
+def pole(x: float, y: float, height: float = 6.0) -> np.ndarray:
+    """Sample a 0.2 m thick pole from the ground up: four vertical lines."""
+    z = np.arange(-SENSOR_HEIGHT + 0.1, -SENSOR_HEIGHT + height, 0.1)
+    return np.concatenate(
+        [
+            np.c_[np.full_like(z, x + dx), np.full_like(z, y + dy), z]
+            for dx, dy in ((0.1, 0), (-0.1, 0), (0, 0.1), (0, -0.1))
+        ]
+    )
+
+
+def wall(x: float) -> np.ndarray:
+    """Sample a wall 8 m high across y in [-15, 15] at ``x``."""
+    y, z = _grid(np.arange(-15.0, 15.0, 0.2), np.arange(-SENSOR_HEIGHT + 0.1, 6.0, 0.2))
+    return np.c_[np.full_like(y, x), y, z]
+
+
+def box(cx: float, cy: float, size=(4.5, 1.8, 1.5)) -> np.ndarray:
+    """Sample the surface of a car-sized box standing on the ground (not its bottom)."""
+    lx, ly, lz = size
+    step = 0.15
+    xs = np.arange(-lx / 2, lx / 2 + 1e-9, step)
+    ys = np.arange(-ly / 2, ly / 2 + 1e-9, step)
+    zs = np.arange(0.3, lz + 1e-9, step)
+    faces = []
+    u, v = _grid(xs, ys)
+    faces.append(np.c_[u, v, np.full_like(u, lz)])
+    for y0 in (-ly / 2, ly / 2):
+        u, w = _grid(xs, zs)
+        faces.append(np.c_[u, np.full_like(u, y0), w])
+    for x0 in (-lx / 2, lx / 2):
+        v, w = _grid(ys, zs)
+        faces.append(np.c_[np.full_like(v, x0), v, w])
+    pts = np.concatenate(faces)
+    return pts + np.array([cx, cy, -SENSOR_HEIGHT])
+
+
+def tree(rng: np.random.Generator, x: float, y: float) -> np.ndarray:
+    """Sample a trunk and a scattered crown (a ball of radius 2 m, 3 to 7 m up)."""
+    crown = rng.normal(0.0, 1.0, (3000, 3))
+    crown = (
+        crown
+        / np.linalg.norm(crown, axis=1, keepdims=True)
+        * 2.0
+        * rng.uniform(0, 1, (3000, 1)) ** (1 / 3)
+    )
+    crown += np.array([x, y, -SENSOR_HEIGHT + 5.0])
+    return np.concatenate([pole(x, y, 3.0), crown])
+
+
+def labeled(scene: list[np.ndarray], **config) -> tuple[np.ndarray, list[np.ndarray], float]:
+    points = np.concatenate(scene)
+    raw = np.zeros(len(points), dtype=np.int64)
+    voxels, _ = voxel_downsample(points, raw, 0.3)  # as the pipeline sees them
+    out = GeometricLabeler(GeometricLabelsConfig(**config)).label(voxels)
+    # the label of each object: the labels of the voxels nearest its points
+    from scipy.spatial import cKDTree
+
+    tree_ = cKDTree(voxels)
+    per_object = [out.raw[tree_.query(part)[1]] for part in scene]
+    return out.raw, per_object, out.sensor_height
+
+
+def majority(labels: np.ndarray) -> int:
+    values, counts = np.unique(labels, return_counts=True)
+    return int(values[np.argmax(counts)])
+
+
+def share(labels: np.ndarray, value: int) -> float:
+    return float(np.mean(labels == value))
+
+
+def test_a_plane_is_ground_and_gives_the_sensor_height() -> None:
+    rng = np.random.default_rng(0)
+    _, (plane,), height = labeled([ground(rng)])
+    assert share(plane, g.ROAD) > 0.99
+    assert height == pytest.approx(SENSOR_HEIGHT, abs=0.05)
+
+
+def test_a_sloped_road_is_still_ground() -> None:
+    rng = np.random.default_rng(1)
+    _, (plane,), _ = labeled([ground(rng, tilt=0.05)])  # a 5 % grade: +-1.5 m at 30 m
+    assert share(plane, g.ROAD) > 0.95
+
+
+def test_pole_wall_box_on_the_ground() -> None:
+    rng = np.random.default_rng(2)
+    scene = [ground(rng), pole(8.0, 3.0), wall(-14.0), box(7.0, -8.0)]
+    _, (plane, pole_, wall_, box_), _ = labeled(scene)
+    assert share(plane, g.ROAD) > 0.9
+    assert majority(pole_) == g.POLE and share(pole_, g.POLE) > 0.6
+    assert majority(wall_) == g.BUILDING and share(wall_, g.BUILDING) > 0.7
+    assert majority(box_) == g.CAR and share(box_, g.CAR) > 0.7
+
+
+def test_a_tree_is_trunk_under_vegetation() -> None:
+    rng = np.random.default_rng(3)
+    scene = [ground(rng), tree(rng, 10.0, 5.0)]
+    _, (_, tree_), _ = labeled(scene)
+    assert share(tree_, g.VEGETATION) > 0.6
+    trunk_points = tree_[: len(pole(0, 0, 3.0))]
+    assert share(trunk_points, g.TRUNK) + share(trunk_points, g.POLE) > 0.3
+
+
+def test_a_configured_sensor_height_is_used() -> None:
+    rng = np.random.default_rng(4)
+    _, _, height = labeled([ground(rng)], sensor_height=2.0)
+    assert height == 2.0
+
+
+def test_labels_are_stable_under_a_small_motion() -> None:
+    """The same scene moved by 0.3 m and 1 deg keeps >= 90 % of its labels (Mask Matching)."""
+    rng = np.random.default_rng(5)
+    scene = np.concatenate(
+        [ground(rng), pole(8.0, 3.0), wall(-14.0), box(7.0, -8.0), tree(rng, 10.0, 5.0)]
+    )
+    lab = GeometricLabeler()
+    first = lab.label(scene).raw
+    angle = np.radians(1.0)
+    rotation = np.array(
+        [[np.cos(angle), -np.sin(angle), 0], [np.sin(angle), np.cos(angle), 0], [0, 0, 1]]
+    )
+    moved = scene @ rotation.T + np.array([0.3, 0.1, 0.0])
+    second = lab.label(moved).raw
+    assert np.mean(first == second) > 0.9
+
+
+def test_empty_and_tiny_scans() -> None:
+    lab = GeometricLabeler()
+    assert lab.label(np.zeros((0, 3))).raw.shape == (0,)
+    assert lab.label(np.ones((2, 3))).raw.shape == (2,)
+    far = np.full((5, 3), 1e6)
+    assert np.all(lab.label(far).raw == g.UNLABELED)
+
+
+@pytest.mark.skipif(not REAL_SCANS.is_dir(), reason=f'no real sensor scans in {REAL_SCANS}')
+def test_twelve_real_sensors_sane() -> None:
+    """One real scan of each of 12 sensors: some ground, no class above 80 %."""
+    import open3d as o3d
+
+    files = sorted(REAL_SCANS.glob('*.pcd'))
+    assert len(files) == 12
+    lab = GeometricLabeler()
+    for file in files:
+        points = o3d.t.io.read_point_cloud(str(file)).point.positions.numpy().astype(np.float64)
+        points = points[np.isfinite(points).all(axis=1)]
+        voxels, _ = voxel_downsample(points, np.zeros(len(points), dtype=np.int64), 0.3)
+        shares = lab.label(voxels).shares()
+        assert max(shares.values()) <= 0.8, (file.name, shares)
+        assert 0.05 <= shares.get(g.ROAD, 0.0) <= 0.8, (file.name, shares)
