@@ -57,7 +57,11 @@ class OdometryEstimator:
         """Process one scan with the odometry."""
         keyframe = self.odometry.keyframe  # a scan without labels: label_source decides
         step = self.odometry.process(
-            scan.xyz, scan.labels, scan.stamp_ns, point_times=scan.point_times
+            scan.xyz,
+            scan.labels,
+            scan.stamp_ns,
+            point_times=scan.point_times,
+            intensity=scan.intensity,
         )
         self.deskewed_scans += int(step.deskewed)
         self._bag_index.append(scan.index)

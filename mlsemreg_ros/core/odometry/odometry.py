@@ -191,6 +191,7 @@ class Odometry:
         stamp_ns: int = 0,
         *,
         point_times: np.ndarray | None = None,
+        intensity: np.ndarray | None = None,
     ) -> OdometryStep:
         """
         Register one scan (points (N, 3) metres, labels (N,)) and update the odometry.
@@ -198,13 +199,14 @@ class Odometry:
         ``labels`` is the cloud's label field, or None without one; ``label_source``
         decides which labels the scan gets (core/labeling/source.py).
 
+        ``intensity`` (N,) feeds ``label_source: onnx`` (the network's remission channel).
         ``point_times`` (N,), seconds, go to the preprocessor's deskew step. Stream rules
         (stamps of 0 mean unstamped and are exempt): a stamp equal to the last one is
         skipped; a stamp before it resets the odometry first (a bag that loops, a replay
         restarted).
         """
         start = time.perf_counter()
-        labelled = self.label_source(points, labels, self.config)  # labels None: no field
+        labelled = self.label_source(points, labels, self.config, intensity)  # None: no field
         labels = labelled.labels
         self.preprocessor.labelled = labelled  # noted at every preprocessing of this scan
         skipped, notes = self._stream_rules(stamp_ns)
