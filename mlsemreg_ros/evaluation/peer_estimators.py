@@ -36,9 +36,10 @@ class GenZIcpEstimator(KissIcpEstimator):
     GenZ-ICP on the same scans, deskew on.
 
     Lee et al., "GenZ-ICP: Generalizable and Degeneracy-Robust LiDAR Odometry Using an
-    Adaptive Weighting", RA-L 2024; PyPI ``genz-icp``. Point-to-plane and point-to-point ICP weighted by the planarity of the scene.
-    Its deskew (inherited from KISS-ICP 0.x) takes times in sweep units and refers the
-    scan to time 0.5, spreading the last frame-to-frame motion over one unit. The times
+    Adaptive Weighting", RA-L 2024; PyPI ``genz-icp``. Point-to-plane and point-to-point
+    ICP weighted by the planarity of the scene. Its deskew is taken to be the one of
+    KISS-ICP 0.x it was forked from: times in sweep units, the scan referred to time 0.5,
+    the last frame-to-frame motion spread over one unit. The times
     are given as ``0.5 + (t - t_last) / gap``, with ``gap`` the time since the previous
     scan given to it (one sweep at stride 1): the scan is referred to its last point,
     as the ground truth and KISS-ICP are, and the motion spans the real gap at any stride.
@@ -81,7 +82,8 @@ class KissSlamEstimator(KissIcpEstimator):
     KISS-SLAM on the same scans, deskew on.
 
     Guadagnino et al., "KISS-SLAM: A Simple, Robust, and Accurate 3D LiDAR SLAM System With
-    Enhanced Generalization Capabilities", IROS 2025; PyPI ``kiss-slam``. KISS-ICP odometry split into local maps every 100 m, MapClosures loop detection between
+    Enhanced Generalization Capabilities", IROS 2025; PyPI ``kiss-slam``. KISS-ICP odometry
+    split into local maps every 100 m, MapClosures loop detection between
     local maps, and a pose graph. The pose of a scan is the one KISS-SLAM holds when the
     scan is processed (its current local map's optimized key pose times the odometry pose
     in it): what an online user would read. The loops it closed are in :attr:`closures`.
