@@ -140,9 +140,9 @@ def build_map(
     """Map a scan source; returns the mapper and a summary (keyframes, loops, ATE)."""
     from mlsemreg_ros.core.maps.localization import awaits_deskew
     from mlsemreg_ros.core.maps.mapping import Mapper
-    from mlsemreg_ros.core.metrics import ate_rmse
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.evaluation.trajectory import ate_rmse
     import numpy as np
     from tqdm import tqdm
 
