@@ -12,8 +12,10 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-The trajectory metrics: evo's ATE / RPE against the hand-written ATE they replaced, and the
-KITTI segment metric (our own code) on a case computed by hand.
+The trajectory metrics: evo's ATE / RPE, and the KITTI segment metric by hand.
+
+evo's ATE is checked against the hand-written ATE it replaced, the KITTI segment metric
+(our own code) on a case computed by hand.
 """
 
 import math

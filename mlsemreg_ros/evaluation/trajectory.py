@@ -36,7 +36,7 @@ RPE_DISTANCE_M = 100.0  # the RPE's long delta, metres along the ground-truth pa
 
 
 def _path(poses_or_positions: np.ndarray) -> Any:
-    """An evo ``PosePath3D`` of (F, 4, 4) poses, or of (F, 3) positions (identity rotations)."""
+    """Return evo's ``PosePath3D`` of (F, 4, 4) poses or (F, 3) positions (no rotation)."""
     from evo.core.trajectory import PosePath3D
 
     values = np.asarray(poses_or_positions, dtype=np.float64)
