@@ -144,9 +144,9 @@ def build_map(
     from mlsemreg_ros.core.labeling.source import LabelSource
     from mlsemreg_ros.core.maps.localization import awaits_deskew
     from mlsemreg_ros.core.maps.mapping import Mapper
-    from mlsemreg_ros.core.metrics import ate_rmse
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.evaluation.trajectory import ate_rmse
     import numpy as np
     from tqdm import tqdm
 
