@@ -44,7 +44,7 @@ and publishes.
 from __future__ import annotations
 
 import collections
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import signal
 import threading
 import time
@@ -76,6 +76,7 @@ from mlsemreg_ros.ros.extrinsic import ExtrinsicSource, to_base
 from mlsemreg_ros.ros.map_services import MapServices
 from mlsemreg_ros.ros.markers import correspondence_markers
 from mlsemreg_ros.ros.node_config import NodeConfig
+from mlsemreg_ros.ros.outputs import Heartbeat, RegisteredCloud
 from mlsemreg_ros.ros.parameters import ConfigSnapshot, LiveParameters
 from mlsemreg_ros.ros.prior_inputs import PriorInbox, STREAMS, subscribe_prior_topics
 from nav_msgs.msg import Odometry, Path
@@ -206,6 +207,8 @@ class MlSemRegNode(GuardedCallbacks, Node):
         self._pub_markers = self.create_publisher(MarkerArray, 'mlsemreg/correspondences', 1)
         self._pub_local_map = self.create_publisher(PointCloud2, 'mlsemreg/local_map', 1)
         self._pub_diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._cloud_registered = RegisteredCloud(self)  # ros/outputs.py
+        self._heartbeat = Heartbeat(self, self._pub_diagnostics)
         self.create_subscription(PointCloud2, 'points', self._on_points, qos)
         self.create_service(Trigger, 'mlsemreg/reset', self._on_reset)
         # the motion prior's topics and the extrinsic (docs/field_prior.md)
@@ -242,6 +245,7 @@ class MlSemRegNode(GuardedCallbacks, Node):
     def _on_points(self, msg: PointCloud2) -> None:
         """Convert the message and hand it to the worker; malformed input is skipped."""
         received = time.perf_counter()
+        self._heartbeat.note_input()
         self._count('frames_received')
         self._observe_stamp(msg.header.stamp)
         try:
@@ -339,6 +343,8 @@ class MlSemRegNode(GuardedCallbacks, Node):
             latency_ms = (
                 self._publish_step(scan, step, config) if step.accepted and not reset else None
             )
+            refused = not (step.accepted or reset)
+            predicted = refused and self._publish_predicted(scan, step, config)
         if not reset:  # map -> odom, relocalization, mapping (ros/map_services.py)
             self._map.after_step(scan, step, config)
         if reset:
@@ -370,7 +376,12 @@ class MlSemRegNode(GuardedCallbacks, Node):
             self.get_logger().warning(
                 f'frame rejected, keyframe kept: {reason}', throttle_duration_sec=LOG_THROTTLE_S
             )
-            self._diagnose(scan, 'warn', f'frame rejected: {reason}', step)
+            published = (
+                '; odometry and TF from the prediction (covariance inflated)' if predicted else ''
+            )
+            self._diagnose(
+                scan, 'warn', f'frame rejected: {reason}{published}', step, predicted=predicted
+            )
 
     def _before_scan(self, scan: Scan, node: NodeConfig) -> None:
         """Resolve the extrinsic and hand the waiting prior messages to the motion model."""
@@ -432,14 +443,34 @@ class MlSemRegNode(GuardedCallbacks, Node):
             )
             self._counts['registrations'] += 1
         self._publish_pose(scan, step, config.node)
+        self._cloud_registered.publish(
+            scan.stamp, config.node.odom_frame, step, self._T_base_sensor
+        )
         # receipt -> transform, odometry, path and TF published: their cost is counted
         latency_ms = 1e3 * (time.perf_counter() - scan.received)
         self._latencies.append(latency_ms)
         return latency_ms
 
+    def _publish_predicted(self, scan: Scan, step: OdometryStep, config: ConfigSnapshot) -> bool:
+        """Odometry and TF of a refused scan from the core's prediction (lock held)."""
+        if not config.node.publish_predicted_on_refusal or step.predicted_pose is None:
+            return False
+        predicted = replace(
+            step,
+            pose=step.predicted_pose,
+            covariance=step.predicted_covariance,
+            twist=None,
+            twist_covariance=None,
+        )
+        self._publish_pose(scan, predicted, config.node, path=False)
+        self._counts['predicted_published'] += 1
+        return True
+
     # -- publishing --------------------------------------------------------------------------
-    def _publish_pose(self, scan: Scan, step: OdometryStep, node: NodeConfig) -> None:
-        """Odometry, path and TF of the step's pose (called with the lock held)."""
+    def _publish_pose(
+        self, scan: Scan, step: OdometryStep, node: NodeConfig, path: bool = True
+    ) -> None:
+        """Odometry, path (unless ``path`` is False) and TF of the step's pose (lock held)."""
         child = node.base_frame or scan.frame_id
         twist = step.twist if step.twist is not None else np.zeros(6)
         twist_cov = (
@@ -461,6 +492,17 @@ class MlSemRegNode(GuardedCallbacks, Node):
                 base.twist_covariance,
             )
         )
+        if path:
+            self._append_path(scan, pose, node)
+        if node.publish_tf and self._tf is not None:
+            self._tf.sendTransform(
+                messages.transform_msg(scan.stamp, child, node.odom_frame, invert_transform(pose))
+                if node.invert_tf
+                else messages.transform_msg(scan.stamp, node.odom_frame, child, pose)
+            )
+
+    def _append_path(self, scan: Scan, pose: np.ndarray, node: NodeConfig) -> None:
+        """Append the pose to ``mlsemreg/path``; publish it if watched, throttled."""
         self._path.header = Header(stamp=scan.stamp, frame_id=node.odom_frame)
         self._path.poses.append(messages.pose_stamped(scan.stamp, node.odom_frame, pose))
         if node.path.max_length and len(self._path.poses) > node.path.max_length:
@@ -472,12 +514,6 @@ class MlSemRegNode(GuardedCallbacks, Node):
         ):
             self._path_published = now
             self._pub_path.publish(self._path)
-        if node.publish_tf and self._tf is not None:
-            self._tf.sendTransform(
-                messages.transform_msg(scan.stamp, child, node.odom_frame, invert_transform(pose))
-                if node.invert_tf
-                else messages.transform_msg(scan.stamp, node.odom_frame, child, pose)
-            )
 
     def _publish_local_map(self, scan: Scan, node: NodeConfig) -> None:
         """Publish the local map, at most every ``local_map_period`` s and only if watched."""
@@ -526,6 +562,7 @@ class MlSemRegNode(GuardedCallbacks, Node):
         message: str,
         step: OdometryStep,
         latency_ms: float | None = None,
+        predicted: bool = False,
     ) -> None:
         """Report one processed frame: counts, latency, stage timings, result summary."""
         values: dict[str, Any] = {'startup.' + k: v for k, v in self._startup_ms.items()}
@@ -542,6 +579,8 @@ class MlSemRegNode(GuardedCallbacks, Node):
             values['latency_p50_ms'] = float(np.median(self._latencies))
         values.update({f'stage.{k}': float(v) for k, v in step.timings_ms.items()})
         values.update({'pose_source': step.source, 'local_map_voxels': step.map_voxels})
+        if not step.accepted:  # a refused scan: what went out instead (ros/outputs.py)
+            values['published'] = 'prediction' if predicted else 'nothing'
         if step.prior_refusal:  # the prior disagreed with the scan (core/odometry/prior_guard.py)
             self._count('prior_refused')
             values['prior_refusal'] = step.prior_refusal

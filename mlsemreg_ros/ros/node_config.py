@@ -146,6 +146,13 @@ class NodeConfig(Settings):
         low=0.0,
         high=3600.0,
     )
+    publish_predicted_on_refusal: bool = param(
+        True,
+        'A refused scan still publishes mlsemreg/odometry and TF, from the prediction of '
+        'the motion model (or the IMU) with its covariance inflated by the uncertainty of '
+        'the prediction; /diagnostics says published: prediction. Never on mlsemreg/transform, '
+        'never on the path.',
+    )
     qos: QosConfig = field(default_factory=QosConfig)
     path: PathConfig = field(default_factory=PathConfig)
     T_base_sensor: ExtrinsicConfig = field(default_factory=ExtrinsicConfig)  # noqa: N815, RUF100

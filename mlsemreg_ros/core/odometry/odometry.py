@@ -94,6 +94,7 @@ from mlsemreg_ros.core.odometry.steps import (
     Decision,
     odom_covariance,
     OdometryStep,
+    prediction_covariance,
     prepare_timings,
     REINITIALIZATION_VARIANCE,
     twist_between,
@@ -155,6 +156,7 @@ class Odometry:
         self._last_stamp = 0  # stamp of the last scan (0: none or unstamped)
         self._start_scan: tuple[PreprocessedScan, np.ndarray, int] | None = None  # to deskew
         self._sweep_twist: tuple[SweepMotion, int] | None = None  # (twist, stamp) of a sweep
+        self._last_frame_covariance: np.ndarray | None = None  # of the last accepted frame
 
     @property
     def config(self) -> RegistrationConfig:
@@ -212,6 +214,7 @@ class Odometry:
         self._last_stamp = 0
         self._start_scan = None
         self._sweep_twist = None
+        self._last_frame_covariance = None
 
     def keyframe_refusal(self, scan: PreparedScan) -> str:
         """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
@@ -277,6 +280,8 @@ class Odometry:
             )
         step = self._apply(index, stamp_ns, raw, chosen)
         step.prior_refusal = refusal
+        if not step.accepted:
+            self._predict_rejected(step, prediction)
         self._count_failure(step, raw)
         registered = chosen.result.timings_ms if chosen.result is not None else {}
         step.timings_ms = {
@@ -310,6 +315,21 @@ class Odometry:
             return again, other, f'not used: {refusal}'
         self.tracker.tracked_in_a_row = tracked
         return raw, chosen, f'kept (registered without it too, aligned worse): {refusal}'
+
+    def _predict_rejected(self, step: OdometryStep, prediction: Prediction | None) -> None:
+        """Put the motion model's pose at a rejected scan's stamp, with its covariance, on it."""
+        if prediction is None and self.keyframe is not None:  # constant_velocity off
+            prediction = self.motion_model.predict(step.stamp_ns)
+        if prediction is None or self._last_accepted is None:
+            return
+        step.predicted_pose = prediction.T_odom_current.copy()
+        step.predicted_covariance = prediction_covariance(
+            self.covariance,
+            self._last_accepted[0],
+            prediction.T_odom_current,
+            self._last_frame_covariance,
+            prediction.stamp_gap,
+        )
 
     def _prediction(self, stamp_ns: int) -> Prediction | None:
         """Return the motion model's prediction at ``stamp_ns`` if the odometry uses one."""
@@ -537,6 +557,7 @@ class Odometry:
         )
         self.pose = pose.copy()
         self.covariance = self.covariance + odom_covariance(pose, chosen.frame_covariance)
+        self._last_frame_covariance = chosen.frame_covariance
         self._insert(current, pose)
         self.motion_model.update(pose, stamp_ns)
         learn_labels = getattr(self.registration, 'learn_labels', None)  # stand-ins lack it
