@@ -33,6 +33,7 @@ MODULES = (
     'transport',
     'node_hostile',
     'node_stack',
+    'node_pose',
 )
 #: Test runs whose base ids fit below Fast DDS's largest domain id, 232.
 _RUNS = (232 - 100) // len(MODULES)

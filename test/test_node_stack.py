@@ -144,6 +144,96 @@ def test_cloud_registered_is_the_scan_in_odom(probe: NodeProbe, street: Any) -> 
     assert np.median(unmoved) > 0.2  # the check can tell a pose that was not applied
 
 
+def pose_message(frame: str, T: np.ndarray, sigma_m: float = 0.5, sigma_yaw: float = 0.26) -> Any:
+    """A PoseWithCovarianceStamped of ``T`` (4, 4), as RViz's 2D Pose Estimate sends it."""
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from scipy.spatial.transform import Rotation
+
+    msg = PoseWithCovarianceStamped()
+    msg.header.frame_id = frame
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    p.x, p.y, p.z = (float(v) for v in T[:3, 3])
+    q.x, q.y, q.z, q.w = (float(v) for v in Rotation.from_matrix(T[:3, :3]).as_quat())
+    covariance = np.zeros((6, 6))
+    covariance[0, 0] = covariance[1, 1] = sigma_m**2
+    covariance[5, 5] = sigma_yaw**2
+    msg.pose.covariance = covariance.reshape(-1).tolist()
+    return msg
+
+
+def publish_pose(probe: NodeProbe, topic: str, msg: Any) -> None:
+    """Publish a pose once the node subscribes, and give it time to arrive before a scan."""
+    import time
+
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+
+    publisher = probe.node.create_publisher(PoseWithCovarianceStamped, topic, 10)
+    assert probe.wait_until(lambda: publisher.get_subscription_count() > 0, 10.0)
+    publisher.publish(msg)
+    time.sleep(1.0)  # the request waits in the node for the next scan
+    probe.node.destroy_publisher(publisher)
+
+
+def pose_of(msg: Any) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    p, q = msg.pose.pose.position, msg.pose.pose.orientation
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    T[:3, 3] = [p.x, p.y, p.z]
+    return T
+
+
+def yawed(x: float, y: float, yaw_deg: float) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler('z', yaw_deg, degrees=True).as_matrix()
+    T[:3, 3] = [x, y, 0.0]
+    return T
+
+
+@pytest.mark.parametrize('topic', ['mlsemreg/set_pose', '/initialpose'])
+def test_a_pose_without_a_map_sets_the_odometry_pose(
+    probe: NodeProbe, street: Any, topic: str
+) -> None:
+    drive(probe, street, 2)  # somewhere else first
+    given = yawed(10.0, 5.0, 30.0)
+    publish_pose(probe, topic, pose_message('odom', given))
+    stamps = drive(probe, street, 2)
+    first = probe.wait_for('odometry', stamps[0], 5.0)
+    assert first is not None
+    np.testing.assert_allclose(pose_of(first), given, atol=1e-3)
+    second = probe.wait_for('odometry', stamps[1], 5.0)
+    expected = given.copy()
+    expected[:3, 3] += given[:3, :3] @ [STEP_M, 0.0, 0.0]  # driven on from there
+    np.testing.assert_allclose(pose_of(second)[:3, 3], expected[:3, 3], atol=0.1)
+
+
+def test_a_pose_in_an_unknown_frame_is_refused(probe: NodeProbe, street: Any) -> None:
+    drive(probe, street, 1)
+    publish_pose(probe, 'mlsemreg/set_pose', pose_message('velodyne', yawed(10.0, 5.0, 30.0)))
+    stamps = drive(probe, street, 2)
+    msg = probe.wait_for('odometry', stamps[1], 5.0)
+    assert abs(pose_of(msg)[0, 3] - STEP_M) < 0.1  # the odometry went on, not restarted
+
+
+def test_reset_keeps_the_pose_when_asked(probe: NodeProbe, street: Any) -> None:
+    drive(probe, street, 3)  # at x = 2 STEP_M (the fixture's reset applied at identity)
+    assert all(r.successful for r in probe.set_parameters({'reset_keeps_pose': True}))
+    try:
+        assert probe.reset()
+        stamp = drive(probe, street, 1)[0]
+        msg = probe.wait_for('odometry', stamp, 5.0)
+        assert abs(pose_of(msg)[0, 3] - 2 * STEP_M) < 0.05
+    finally:
+        assert all(r.successful for r in probe.set_parameters({'reset_keeps_pose': False}))
+    assert probe.reset()
+    stamp = drive(probe, street, 1)[0]
+    msg = probe.wait_for('odometry', stamp, 5.0)
+    np.testing.assert_allclose(pose_of(msg), np.eye(4), atol=1e-9)
+
+
 def test_the_heartbeat_says_no_input(ros: Any) -> None:
     _, probe = ros
 

@@ -78,6 +78,7 @@ from mlsemreg_ros.ros.markers import correspondence_markers
 from mlsemreg_ros.ros.node_config import NodeConfig
 from mlsemreg_ros.ros.outputs import Heartbeat, RegisteredCloud
 from mlsemreg_ros.ros.parameters import ConfigSnapshot, LiveParameters
+from mlsemreg_ros.ros.pose_input import PoseInput
 from mlsemreg_ros.ros.prior_inputs import PriorInbox, STREAMS, subscribe_prior_topics
 from nav_msgs.msg import Odometry, Path
 import numpy as np
@@ -219,6 +220,8 @@ class MlSemRegNode(GuardedCallbacks, Node):
         self._T_base_sensor = np.eye(4)  # of the clouds' frame, set per scan
         self._tf = TransformBroadcaster(self) if TransformBroadcaster is not None else None
         self._map = MapServices(self, self._odometry, config, self._tf)  # ros/map_services.py
+        self._pose_input = PoseInput(self)  # /initialpose, mlsemreg/set_pose (ros/pose_input.py)
+        self._map_update = None  # the map's answer to the last scan (diagnostics)
         if self._tf is None:
             self.get_logger().info(
                 'tf2_ros is not importable: no TF output (mlsemreg/odometry carries the same pose)'
@@ -302,11 +305,13 @@ class MlSemRegNode(GuardedCallbacks, Node):
             )
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        """Drop the keyframe and restart the odometry at identity (from the next scan)."""
+        """Drop the keyframe; the odometry restarts from the next scan (``reset_keeps_pose``)."""
+        where = 'its current pose' if self._params.snapshot().node.reset_keeps_pose else 'identity'
         with self._lock:
             self._reset_pending, self._path = True, Path()
-        self.get_logger().info('reset: keyframe dropped, odometry restarts at identity')
-        response.success, response.message = True, 'keyframe dropped; odometry restarts'
+        self.get_logger().info(f'reset: keyframe dropped, odometry restarts at {where}')
+        response.success = True
+        response.message = f'keyframe dropped; odometry restarts at {where}'
         return response
 
     # -- worker thread ----------------------------------------------------------------------
@@ -331,6 +336,7 @@ class MlSemRegNode(GuardedCallbacks, Node):
         if not self._check_frame(scan, config.node):
             return
         self._before_scan(scan, config.node)
+        self._apply_pose_request(config.node)
         try:
             step = self._odometry.process(
                 scan.xyz, scan.labels, stamp_to_ns(scan.stamp), point_times=scan.point_times
@@ -346,7 +352,7 @@ class MlSemRegNode(GuardedCallbacks, Node):
             refused = not (step.accepted or reset)
             predicted = refused and self._publish_predicted(scan, step, config)
         if not reset:  # map -> odom, relocalization, mapping (ros/map_services.py)
-            self._map.after_step(scan, step, config)
+            self._map_update = self._map.after_step(scan, step, config)
         if reset:
             self._count('frames_dropped_by_reset')
             self._publish_diagnostics(
@@ -394,6 +400,20 @@ class MlSemRegNode(GuardedCallbacks, Node):
         self._extrinsic.warnings.clear()
         self._prior.warnings.clear()
 
+    def _apply_pose_request(self, node: NodeConfig) -> None:
+        """Apply the latest /initialpose or mlsemreg/set_pose before this scan (logged)."""
+        request = self._pose_input.take()
+        if request is None:
+            return
+        applied, message = self._pose_input.apply(
+            request, self._odometry, self._map.localization, node.odom_frame, self._T_base_sensor
+        )
+        self._count('poses_applied' if applied else 'poses_refused')
+        if applied:
+            self.get_logger().info(f'{request.kind}: {message}')
+        else:
+            self.get_logger().warning(f'{request.kind} refused: {message}')
+
     def _check_frame(self, scan: Scan, node: NodeConfig) -> bool:
         """Handle a change of the clouds' frame_id per ``frame_change`` (False: skip it)."""
         previous, self._frame_id = self._frame_id, scan.frame_id
@@ -421,7 +441,10 @@ class MlSemRegNode(GuardedCallbacks, Node):
         """Apply a pending reset and parameter changes (they hold from this frame on)."""
         with self._lock:
             if self._reset_pending:
+                pose, covariance = self._odometry.pose, self._odometry.covariance
                 self._odometry.reset()
+                if config.node.reset_keeps_pose:  # restart where the odometry was
+                    self._odometry.restart_at(pose, covariance)
                 self._reset_pending = False
         if config.core_version != self._core_version:
             self._core_version = config.core_version
@@ -579,6 +602,9 @@ class MlSemRegNode(GuardedCallbacks, Node):
             values['latency_p50_ms'] = float(np.median(self._latencies))
         values.update({f'stage.{k}': float(v) for k, v in step.timings_ms.items()})
         values.update({'pose_source': step.source, 'local_map_voxels': step.map_voxels})
+        update = self._map_update
+        if update is not None and (update.event or update.message):  # ros/map_services.py
+            values.update({'map.event': update.event, 'map.message': update.message})
         if not step.accepted:  # a refused scan: what went out instead (ros/outputs.py)
             values['published'] = 'prediction' if predicted else 'nothing'
         if step.prior_refusal:  # the prior disagreed with the scan (core/odometry/prior_guard.py)

@@ -153,6 +153,11 @@ class NodeConfig(Settings):
         'the prediction; /diagnostics says published: prediction. Never on mlsemreg/transform, '
         'never on the path.',
     )
+    reset_keeps_pose: bool = param(
+        False,
+        'mlsemreg/reset restarts the odometry at its current pose (and covariance) instead '
+        'of at identity; the keyframe and the local map are dropped either way.',
+    )
     qos: QosConfig = field(default_factory=QosConfig)
     path: PathConfig = field(default_factory=PathConfig)
     T_base_sensor: ExtrinsicConfig = field(default_factory=ExtrinsicConfig)  # noqa: N815, RUF100

@@ -216,6 +216,13 @@ class Odometry:
         self._sweep_twist = None
         self._last_frame_covariance = None
 
+    def restart_at(self, pose: np.ndarray, covariance: np.ndarray | None = None) -> None:
+        """Reset, then start the next scan at ``T_odom_current = pose`` (a set pose)."""
+        self.reset()
+        self.pose = np.asarray(pose, dtype=np.float64).copy()
+        if covariance is not None:
+            self.covariance = np.asarray(covariance, dtype=np.float64).reshape(6, 6).copy()
+
     def keyframe_refusal(self, scan: PreparedScan) -> str:
         """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
         return keyframe_refusal(self.config, scan)
