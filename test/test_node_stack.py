@@ -31,6 +31,7 @@ from mlsemreg_ros.codec.pointcloud2 import pointcloud2_to_arrays
 from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 from mlsemreg_ros.ros.probe import node_and_probe, NodeProbe, to_stamp
 import numpy as np
+from pose_messages import pose_message, pose_of, publish_pose, yawed
 import pytest
 from ros_domains import domain_id
 from scipy.spatial import cKDTree
@@ -142,55 +143,6 @@ def test_cloud_registered_is_the_scan_in_odom(probe: NodeProbe, street: Any) -> 
     assert np.median(distances) < 0.05, np.median(distances)
     unmoved, _ = cKDTree(street[0]).query(cloud.xyz - [2 * STEP_M, 0.0, 0.0])
     assert np.median(unmoved) > 0.2  # the check can tell a pose that was not applied
-
-
-def pose_message(frame: str, T: np.ndarray, sigma_m: float = 0.5, sigma_yaw: float = 0.26) -> Any:
-    """A PoseWithCovarianceStamped of ``T`` (4, 4), as RViz's 2D Pose Estimate sends it."""
-    from geometry_msgs.msg import PoseWithCovarianceStamped
-    from scipy.spatial.transform import Rotation
-
-    msg = PoseWithCovarianceStamped()
-    msg.header.frame_id = frame
-    p, q = msg.pose.pose.position, msg.pose.pose.orientation
-    p.x, p.y, p.z = (float(v) for v in T[:3, 3])
-    q.x, q.y, q.z, q.w = (float(v) for v in Rotation.from_matrix(T[:3, :3]).as_quat())
-    covariance = np.zeros((6, 6))
-    covariance[0, 0] = covariance[1, 1] = sigma_m**2
-    covariance[5, 5] = sigma_yaw**2
-    msg.pose.covariance = covariance.reshape(-1).tolist()
-    return msg
-
-
-def publish_pose(probe: NodeProbe, topic: str, msg: Any) -> None:
-    """Publish a pose once the node subscribes, and give it time to arrive before a scan."""
-    import time
-
-    from geometry_msgs.msg import PoseWithCovarianceStamped
-
-    publisher = probe.node.create_publisher(PoseWithCovarianceStamped, topic, 10)
-    assert probe.wait_until(lambda: publisher.get_subscription_count() > 0, 10.0)
-    publisher.publish(msg)
-    time.sleep(1.0)  # the request waits in the node for the next scan
-    probe.node.destroy_publisher(publisher)
-
-
-def pose_of(msg: Any) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    p, q = msg.pose.pose.position, msg.pose.pose.orientation
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = [p.x, p.y, p.z]
-    return T
-
-
-def yawed(x: float, y: float, yaw_deg: float) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler('z', yaw_deg, degrees=True).as_matrix()
-    T[:3, 3] = [x, y, 0.0]
-    return T
 
 
 @pytest.mark.parametrize('topic', ['mlsemreg/set_pose', '/initialpose'])

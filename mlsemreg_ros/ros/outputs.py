@@ -113,9 +113,7 @@ class RegisteredCloud:
         """Create the publisher on ``node``."""
         self.publisher = node.create_publisher(PointCloud2, 'mlsemreg/cloud_registered', 1)
 
-    def publish(
-        self, stamp: Any, odom_frame: str, step: Any, T_base_sensor: np.ndarray
-    ) -> bool:
+    def publish(self, stamp: Any, odom_frame: str, step: Any, T_base_sensor: np.ndarray) -> bool:
         """Publish an accepted step's points in ``odom_frame`` (False: nobody looks or none)."""
         if self.publisher.get_subscription_count() == 0 or step.points is None:
             return False

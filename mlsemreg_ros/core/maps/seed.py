@@ -69,9 +69,7 @@ class PoseSeed:
         """Return the ids of the keyframes (``keyframe_id``, ``position``) the scan can overlap."""
         reach = self.radius_m + SEED_OVERLAP_M
         here = self.T_map_sensor[:2, 3]
-        return {
-            k.keyframe_id for k in keyframes if np.linalg.norm(k.position[:2] - here) <= reach
-        }
+        return {k.keyframe_id for k in keyframes if np.linalg.norm(k.position[:2] - here) <= reach}
 
     def refusal(self, T_map_sensor: np.ndarray) -> str:
         """Why a found pose (4, 4) lies outside the seed's window ('' inside it)."""
