@@ -186,7 +186,13 @@ def _metadata(sim: FieldSimulation, layout: BagLayout) -> dict:
             'max_range_m': model.max_range,
             'min_range_m': model.min_range,
             'period_s': model.period,
-            'rotation': 'clockwise seen from above, sweep starts behind (azimuth 180 deg)',
+            'scan_interval_s': sim.interval,
+            'pattern': 'rosette (non-repetitive)' if model.rosette else 'spinning',
+            'rotation': (
+                'rosette of two counter-rotating prisms around x'
+                if model.rosette
+                else 'clockwise seen from above, sweep starts behind (azimuth 180 deg)'
+            ),
         },
         'stamps': 'header stamp = sweep start; time/t = offset of the column from it',
         'point_fields': [*fields, 'ring'],

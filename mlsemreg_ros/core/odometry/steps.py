@@ -25,9 +25,10 @@ their stamp difference, in the current frame; its covariance is the frame's / dt
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from mlsemreg_ros.core.alignment.alignment import UNKNOWN_VARIANCE
-from mlsemreg_ros.core.alignment.fine_alignment import Candidate
+from mlsemreg_ros.core.odometry.trust import Candidate
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
@@ -171,6 +172,75 @@ def sparse_inlier_covariance(result: RegistrationResult, inlier_threshold: float
     return np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
 
 
-def prepare_timings(scan: PreparedScan) -> dict[str, float]:
-    """Return the scan's preparation stages (lazy ones once computed) as ``prepare.*``."""
-    return {f'prepare.{k}': v for k, v in scan.timings_ms.items()}
+def accepted_step(
+    index: int,
+    stamp_ns: int,
+    pose: np.ndarray,
+    relative: np.ndarray,
+    chosen: Decision,
+    raw: Any,
+    keyframe: Any,
+    last_accepted: tuple[np.ndarray, int],
+    covariance: np.ndarray,
+    map_voxels: int,
+) -> OdometryStep:
+    """
+    Return the step of an accepted scan at ``pose``: its twist and the grown covariance.
+
+    ``raw``: the scan as the odometry kept it (``PreprocessedScan``); ``keyframe``: the one
+    it was registered onto; ``last_accepted``: the previous accepted ``(pose, stamp_ns)``;
+    ``covariance``: the pose covariance before this frame (odom axes).
+    """
+    twist, twist_cov = twist_between(*last_accepted, pose, stamp_ns, chosen.frame_covariance)
+    return OdometryStep(
+        index=index,
+        stamp_ns=stamp_ns,
+        pose=pose.copy(),
+        relative=relative,
+        result=chosen.result,
+        accepted=True,
+        keyframe_index=keyframe.index,
+        keyframe_stamp_ns=keyframe.stamp_ns,
+        new_keyframe=False,
+        prepared=raw.scan,
+        source=chosen.source,
+        reason=chosen.reason,
+        covariance=covariance + odom_covariance(pose, chosen.frame_covariance),
+        frame_covariance=chosen.frame_covariance,
+        twist=twist,
+        twist_covariance=twist_cov,
+        map_voxels=map_voxels,
+        points=raw.points,
+        labels=raw.labels,
+    )
+
+
+def rejected_step(
+    index: int,
+    stamp_ns: int,
+    odometry: Any,
+    current: PreparedScan | None,
+    reason: str,
+    result: RegistrationResult | None,
+    relative: np.ndarray | None,
+    timings: dict[str, float] | None,
+    map_voxels: int,
+) -> OdometryStep:
+    """Return the step of a rejected scan: the ``odometry``'s pose, keyframe and covariance."""
+    keyframe = odometry.keyframe
+    return OdometryStep(
+        index=index,
+        stamp_ns=stamp_ns,
+        pose=odometry.pose.copy(),
+        relative=relative,
+        result=result,
+        accepted=False,
+        keyframe_index=keyframe.index if keyframe else -1,
+        keyframe_stamp_ns=keyframe.stamp_ns if keyframe else 0,
+        new_keyframe=False,
+        prepared=current,
+        timings_ms=timings or {},
+        reason=reason,
+        covariance=odometry.covariance.copy(),
+        map_voxels=map_voxels,
+    )
