@@ -126,3 +126,39 @@ def test_a_wrong_seed_is_refused(probe: NodeProbe) -> None:
     # unseeded, the next scan relocalizes globally: the refusal was the seed's
     stamp, _ = send(probe, truth @ motion(0.0, (0.5, 0.0, 0.0)), 30.1, seed=914)
     assert_at(map_pose_of(probe, stamp), truth @ motion(0.0, (0.5, 0.0, 0.0)))
+
+
+def test_the_map_arrives_at_a_late_subscriber(probe: NodeProbe, map_folder: Path) -> None:
+    from mlsemreg_ros.codec.pointcloud2 import pointcloud2_to_arrays
+    from mlsemreg_ros.core.maps.map_io import load_map
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from scipy.spatial import cKDTree
+    from sensor_msgs.msg import PointCloud2
+
+    received: list[Any] = []
+    latched = QoSProfile(
+        depth=1,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL,
+        reliability=ReliabilityPolicy.RELIABLE,
+    )
+    # subscribed long after the node published it at startup (the fixture's first test ran)
+    subscription = probe.node.create_subscription(
+        PointCloud2, 'mlsemreg/map', received.append, latched
+    )
+    try:
+        assert probe.wait_until(lambda: received, 20.0), 'no mlsemreg/map at a late subscriber'
+    finally:
+        probe.node.destroy_subscription(subscription)
+    msg = received[0]
+    assert msg.header.frame_id == 'map'
+    cloud = pointcloud2_to_arrays(msg, 'label')
+    full = np.concatenate(
+        [
+            k.points @ k.T_map_keyframe[:3, :3].T + k.T_map_keyframe[:3, 3]
+            for k in load_map(map_folder).keyframes
+        ]
+    )
+    assert 1000 < cloud.xyz.shape[0] < full.shape[0]  # downsampled
+    distances, _ = cKDTree(full).query(cloud.xyz)
+    assert np.median(distances) < 0.5  # in the map frame, on the keyframes' points
+    assert np.max(cloud.xyz[:, 0]) - np.min(cloud.xyz[:, 0]) > 60.0  # all five keyframes
