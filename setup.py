@@ -61,6 +61,7 @@ setup(
     entry_points={
         'console_scripts': [
             'mlsemreg_node = mlsemreg_ros.ros.node:main',
+            'mlsemreg_lifecycle_node = mlsemreg_ros.ros.lifecycle_node:main',
             'mlsemreg = mlsemreg_ros.tools.cli:main',
             'mlsemreg-eval-pairs = mlsemreg_ros.tools.eval_pairs:main',
             'mlsemreg-bench = mlsemreg_ros.tools.bench:main',

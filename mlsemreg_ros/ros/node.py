@@ -174,6 +174,11 @@ class LatestSlot:
 class MlSemRegNode(GuardedCallbacks, Node):
     """ML-SemReg odometry: registers every labeled scan onto a keyframe (no callback raises)."""
 
+    #: Whether scans are taken (a managed node's inactive states set it False).
+    _active = True
+    #: Create the interface at construction (a managed node does it on configure).
+    _configure_at_start = True
+
     def __init__(self, **kwargs: Any) -> None:
         """Declare parameters, create the interface and start the worker thread."""
         started = time.perf_counter()
@@ -183,6 +188,14 @@ class MlSemRegNode(GuardedCallbacks, Node):
         self.callback_fallbacks = {'points': self._points_failed}
         self._label_map = LabelMap.load()
         self._params = LiveParameters(self, self._label_map)
+        self._configured = False
+        self._created: list[tuple[Any, Any]] = []  # (destroy, entity) made by _setup
+        if self._configure_at_start:
+            self._setup(started)
+
+    def _setup(self, started: float) -> None:
+        """Create the odometry, the topics, services and timers, and start the worker."""
+        before = self._entities()
         config = self._params.snapshot()
         self._odometry = ScanOdometry(Registration(config.core, self._label_map))
         self._core_version = config.core_version
@@ -237,6 +250,8 @@ class MlSemRegNode(GuardedCallbacks, Node):
         self._slot = LatestSlot()
         self._worker = threading.Thread(target=self._work, name='mlsemreg_worker', daemon=True)
         self._worker.start()
+        self._configured = True
+        self._created = [e for e in self._entities() if id(e[1]) not in {id(b) for _, b in before}]
         self.get_logger().info(
             f'registering scans on {self.resolve_topic_name("points")} '
             f'({config.node.qos.reliability}, label field {config.node.label_field!r}); ready in '
@@ -249,6 +264,9 @@ class MlSemRegNode(GuardedCallbacks, Node):
         """Convert the message and hand it to the worker; malformed input is skipped."""
         received = time.perf_counter()
         self._heartbeat.note_input()
+        if not self._active:  # a managed node, inactive: the scan is not taken
+            self._count('frames_inactive')
+            return
         self._count('frames_received')
         self._observe_stamp(msg.header.stamp)
         try:
@@ -670,10 +688,34 @@ class MlSemRegNode(GuardedCallbacks, Node):
         with self._lock:
             self._counts[key] += 1
 
-    def destroy_node(self) -> None:
-        """Stop the worker (it finishes its frame), then destroy the node."""
+    def _entities(self) -> list[tuple[Any, Any]]:
+        """(destroy, entity) of every publisher, subscription, service, client and timer."""
+        kinds = (
+            (self.destroy_publisher, self.publishers),
+            (self.destroy_subscription, self.subscriptions),
+            (self.destroy_service, self.services),
+            (self.destroy_client, self.clients),
+            (self.destroy_timer, self.timers),
+        )
+        return [(destroy, entity) for destroy, entities in kinds for entity in entities]
+
+    def _teardown(self) -> None:
+        """Stop the worker (it finishes its frame) and destroy what :meth:`_setup` made."""
+        if not self._configured:
+            return
+        self._configured = False
         self._slot.close()
         self._worker.join(timeout=5.0)
+        for destroy, entity in reversed(self._created):
+            destroy(entity)
+        self._created = []
+
+    def destroy_node(self) -> None:
+        """Stop the worker (it finishes its frame), then destroy the node."""
+        if self._configured:
+            self._slot.close()
+            self._worker.join(timeout=5.0)
+            self._configured = False
         super().destroy_node()
 
 
