@@ -63,6 +63,7 @@ from mlsemreg_ros.core.odometry.steps import (
     accepted_step,
     Decision,
     OdometryStep,
+    prediction_covariance,
     REINITIALIZATION_VARIANCE,
     rejected_step,
 )
@@ -105,6 +106,7 @@ class Odometry:
         self._last_stamp = 0  # stamp of the last scan (0: none or unstamped)
         self._start_scan: tuple[PreprocessedScan, np.ndarray, int] | None = None  # to deskew
         self._sweep_twist: tuple[SweepMotion, int] | None = None  # (twist, stamp) of a sweep
+        self._last_frame_covariance: np.ndarray | None = None  # of the last accepted frame
 
     @property
     def config(self) -> RegistrationConfig:
@@ -164,6 +166,14 @@ class Odometry:
         self._last_stamp = 0
         self._start_scan = None
         self._sweep_twist = None
+        self._last_frame_covariance = None
+
+    def restart_at(self, pose: np.ndarray, covariance: np.ndarray | None = None) -> None:
+        """Reset, then start the next scan at ``T_odom_current = pose`` (a set pose)."""
+        self.reset()
+        self.pose = np.asarray(pose, dtype=np.float64).copy()
+        if covariance is not None:
+            self.covariance = np.asarray(covariance, dtype=np.float64).reshape(6, 6).copy()
 
     def keyframe_refusal(self, scan: PreparedScan) -> str:
         """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
@@ -228,6 +238,8 @@ class Odometry:
         )
         step = self._apply(index, stamp_ns, raw, chosen)
         step.prior_refusal = prior_refusal
+        if not step.accepted:
+            self._predict_rejected(step, prediction)
         self._count_failure(step, raw)
         registered = chosen.result.timings_ms if chosen.result is not None else {}
         step.timings_ms = {
@@ -237,6 +249,21 @@ class Odometry:
             **step.timings_ms,
         }
         return self._finish(step, start, raw)
+
+    def _predict_rejected(self, step: OdometryStep, prediction: Prediction | None) -> None:
+        """Put the motion model's pose at a rejected scan's stamp, with its covariance, on it."""
+        if prediction is None and self.keyframe is not None:  # constant_velocity off
+            prediction = self.motion_model.predict(step.stamp_ns)
+        if prediction is None or self._last_accepted is None:
+            return
+        step.predicted_pose = prediction.T_odom_current.copy()
+        step.predicted_covariance = prediction_covariance(
+            self.covariance,
+            self._last_accepted[0],
+            prediction.T_odom_current,
+            self._last_frame_covariance,
+            prediction.stamp_gap,
+        )
 
     def _prediction(self, stamp_ns: int) -> Prediction | None:
         """Return the motion model's prediction at ``stamp_ns`` if the odometry uses one."""
@@ -335,6 +362,7 @@ class Odometry:
             index, stamp_ns, pose, relative, chosen, raw, keyframe, last, self.covariance, voxels
         )
         self.covariance = step.covariance.copy()
+        self._last_frame_covariance = chosen.frame_covariance
         step.new_keyframe = self.keyframe is not keyframe
         return step
 
