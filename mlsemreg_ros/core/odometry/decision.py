@@ -104,7 +104,9 @@ def decide(
         reason='; '.join(notes),
         result=result,
         pose=alignment.T_target_source,
-        frame_covariance=alignment.covariance(odometry.covariance_scale, axes='source'),
+        frame_covariance=alignment.covariance(
+            odometry.covariance_scale, axes='source', calibration=cfg.covariance
+        ),
         inlier_fraction=alignment.inlier_fraction,
         candidates=candidates,
         timings_ms=timings,

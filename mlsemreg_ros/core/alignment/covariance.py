@@ -1,0 +1,117 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The calibrated pose covariance of a fine alignment (docs/covariance.md).
+
+The fine alignment's Hessian gives ``C_H = inv(H) * 2E / (n - 6)``. Its residuals are not
+independent (neighbouring points share a surface, the deskew and the map carry errors
+of their own), so ``C_H`` claims too little. The calibrated covariance is
+
+``C = s * C_H + D + diag(sigma_t^2 I3, sigma_r^2 I3)``
+
+- ``s``: ``odometry.covariance_scale``;
+- ``D``: the inflation along the degenerate directions of the Hessian: in the translation
+  and the rotation block of ``s * C_H`` apart, every eigen-direction whose variance exceeds
+  ``covariance.degenerate_ratio`` times the block's smallest gets
+  ``covariance.degenerate_translation`` (m) or ``covariance.degenerate_rotation`` (deg)
+  squared added along it (a corridor, a tunnel, a flat field: the Hessian sees one
+  direction weakly, and the error there is larger than even the weak curvature says);
+- ``sigma_t``, ``sigma_r``: ``covariance.floor_translation`` (m) and
+  ``covariance.floor_rotation`` (deg), the errors no Hessian sees (deskew, labels,
+  the map's own pose).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mlsemreg_ros.core.settings import param
+import numpy as np
+
+
+@dataclass
+class CovarianceConfig:
+    """Calibration of the fine alignment's pose covariance (docs/covariance.md)."""
+
+    floor_translation: float = param(
+        0.0,
+        'Standard deviation added to every axis of the pose covariance (errors the '
+        'Hessian does not see: deskew, labels, the keyframe).',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
+    floor_rotation: float = param(
+        0.0,
+        'Standard deviation added to every rotation axis of the pose covariance.',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
+    degenerate_ratio: float = param(
+        0.0,
+        'An eigen-direction of the translation or rotation block of the Hessian covariance '
+        'is degenerate when its variance exceeds this many times the smallest of its '
+        'block (0: no inflation).',
+        low=0.0,
+        high=1e12,
+    )
+    degenerate_translation: float = param(
+        0.0,
+        'Standard deviation added along a degenerate translation direction.',
+        unit='m',
+        low=0.0,
+        high=1000.0,
+    )
+    degenerate_rotation: float = param(
+        0.0,
+        'Standard deviation added along a degenerate rotation direction.',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
+
+
+def degenerate_inflation(covariance: np.ndarray, cfg: CovarianceConfig) -> np.ndarray:
+    """Return the inflation ``D`` (6, 6) of ``covariance`` (ROS order) along weak directions."""
+    inflation = np.zeros((6, 6))
+    if cfg.degenerate_ratio <= 0:
+        return inflation
+    sigmas = (cfg.degenerate_translation, np.radians(cfg.degenerate_rotation))
+    for block, sigma in zip((slice(0, 3), slice(3, 6)), sigmas, strict=True):
+        if sigma <= 0:
+            continue
+        values, vectors = np.linalg.eigh(covariance[block, block])
+        weak = values > cfg.degenerate_ratio * max(values[0], 1e-300)
+        if np.any(weak):
+            directions = vectors[:, weak]
+            inflation[block, block] = sigma**2 * directions @ directions.T
+    return inflation
+
+
+def calibrated_covariance(
+    hessian_covariance: np.ndarray, scale: float, cfg: CovarianceConfig
+) -> np.ndarray:
+    """
+    ``s * C_H + D + floor`` (module docstring) of a Hessian covariance (6, 6), ROS order.
+
+    ``hessian_covariance``: ``inv(H) * 2E / (n - 6)`` (``scale`` 1) in either axes: the
+    floor is isotropic and the inflation follows the eigen-directions, so the result
+    rotates with the input.
+    """
+    scaled = np.asarray(hessian_covariance, dtype=np.float64) * scale
+    floor = np.diag([cfg.floor_translation**2] * 3 + [np.radians(cfg.floor_rotation) ** 2] * 3)
+    covariance = scaled + degenerate_inflation(scaled, cfg) + floor
+    return 0.5 * (covariance + covariance.T)

@@ -1,0 +1,181 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+NEES of the pose covariance on real pairs and drives, and its calibration (docs/covariance.md).
+
+A sample is one accepted estimate: its error ``e = log(T_truth^-1 T_estimate)``
+(``[t, rotvec]``, the estimate's axes) and its Hessian covariance ``C_H`` (scale 1, no
+calibration). The NEES of a calibration is ``e^T inv(C) e`` with ``C`` from
+:func:`~mlsemreg_ros.core.alignment.covariance.calibrated_covariance`; a consistent
+covariance gives chi-square values with 6 degrees of freedom: mean 6, 95 % below 12.59.
+The samples are kept, so a calibration is scored without registering again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+import itertools
+from typing import Any
+
+from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, CovarianceConfig
+import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+#: The 95 % bound of a chi-square with 6 degrees of freedom.
+NEES_BOUND_95 = float(chi2.ppf(0.95, 6))
+
+
+@dataclass
+class CovarianceSample:
+    """One accepted estimate: its error (6,) and its Hessian covariance (6, 6), ROS order."""
+
+    error: np.ndarray
+    hessian_covariance: np.ndarray
+
+
+def pose_error(T_estimate: np.ndarray, T_truth: np.ndarray) -> np.ndarray:
+    """``[t, rotvec]`` of ``T_truth^-1 T_estimate`` (as core.metrics' NEES)."""
+    error = np.linalg.solve(np.asarray(T_truth, np.float64), np.asarray(T_estimate, np.float64))
+    return np.concatenate([error[:3, 3], Rotation.from_matrix(error[:3, :3]).as_rotvec()])
+
+
+def uncalibrated(config: Any) -> Any:
+    """``config`` with covariance scale 1 and no calibration (the samples' covariance)."""
+    return replace(config, covariance=CovarianceConfig()).replace(
+        {'odometry.covariance_scale': 1.0}
+    )
+
+
+def pair_samples(pair_files: list[Any], config: Any) -> list[CovarianceSample]:
+    """Global registrations of pair files (accepted ones with a fine alignment)."""
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.datasets.pairs import load_pair
+
+    registration = Registration(uncalibrated(config))
+    samples = []
+    for file in pair_files:
+        pair = load_pair(file)
+        source, target = registration.prepare_scans(
+            {'points': pair.pts_src, 'labels': pair.label_src, 'voxelize': False},
+            {'points': pair.pts_dst, 'labels': pair.label_dst, 'voxelize': False},
+        )
+        result = registration.register(source, target)
+        if not result.success or result.alignment is None:
+            continue
+        covariance = result.alignment.covariance(1.0, axes='source')
+        samples.append(CovarianceSample(pose_error(result.transform, pair.trans_gt), covariance))
+    return samples
+
+
+def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
+    """
+    Run the odometry over ``scans``; return the samples as ``mlsemreg eval-bag`` scores them.
+
+    ``scans``: objects with ``xyz``, ``labels``, ``stamp_ns``, ``point_times``, ``pose``
+    and ``index``. A sample is the estimate relative to its keyframe against the ground
+    truth, with its frame covariance.
+    """
+    from mlsemreg_ros.core.odometry import Odometry
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.core.rigid import relative_transform
+    from mlsemreg_ros.evaluation.estimators import OdometryEstimator
+
+    estimator = OdometryEstimator(Odometry(Registration(uncalibrated(config))))
+    truth: dict[int, np.ndarray] = {}
+    samples = []
+    for scan in scans:
+        if scan.pose is not None:
+            truth[scan.index] = np.asarray(scan.pose)
+        estimate = estimator.step(scan)
+        keyframe = estimate.keyframe_index
+        if (
+            not estimate.accepted
+            or estimate.relative is None
+            or estimate.frame_covariance is None
+            or keyframe not in truth
+            or scan.index not in truth
+        ):
+            continue
+        T_truth = relative_transform(truth[keyframe], truth[scan.index])
+        samples.append(
+            CovarianceSample(pose_error(estimate.relative, T_truth), estimate.frame_covariance)
+        )
+    return samples
+
+
+def nees_values(
+    samples: list[CovarianceSample], scale: float, cfg: CovarianceConfig
+) -> np.ndarray:
+    """Return the NEES of every sample under a calibration (NaN: a singular covariance)."""
+    values = []
+    for sample in samples:
+        covariance = calibrated_covariance(sample.hessian_covariance, scale, cfg)
+        try:
+            values.append(float(sample.error @ np.linalg.solve(covariance, sample.error)))
+        except np.linalg.LinAlgError:
+            values.append(np.nan)
+    return np.asarray(values)
+
+
+def nees_summary(values: np.ndarray) -> dict[str, float]:
+    """Mean, median and the share inside the 95 % bound (percent) of NEES values."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return {'samples': 0, 'nees_mean': np.nan, 'nees_median': np.nan, 'inside_95_pct': np.nan}
+    return {
+        'samples': int(finite.size),
+        'nees_mean': float(finite.mean()),
+        'nees_median': float(np.median(finite)),
+        'inside_95_pct': float(100.0 * np.mean(finite <= NEES_BOUND_95)),
+    }
+
+
+def calibration_cost(summaries: list[dict[str, float]]) -> float:
+    """
+    How far a calibration is from consistent on every data set (0 is ideal).
+
+    The worst data set counts: ``|log(mean / 6)|`` plus a penalty per percent below 85 %
+    inside the 95 % bound, plus one for a mean outside 3-12.
+    """
+    worst = 0.0
+    for s in summaries:
+        mean, inside = s['nees_mean'], s['inside_95_pct']
+        if not np.isfinite(mean):
+            return np.inf
+        cost = abs(np.log(mean / 6.0)) + 0.05 * max(0.0, 85.0 - inside)
+        cost += 1.0 if not 3.0 <= mean <= 12.0 else 0.0
+        worst = max(worst, cost)
+    return worst
+
+
+def fit_calibration(
+    datasets: dict[str, list[CovarianceSample]],
+    scales: tuple[float, ...] = (1.0, 2.0, 4.0, 7.0, 10.0, 15.0, 25.0, 40.0),
+    floors_translation: tuple[float, ...] = (0.0, 0.01, 0.02, 0.03, 0.05, 0.08, 0.12),
+    floors_rotation: tuple[float, ...] = (0.0, 0.02, 0.05, 0.1, 0.2, 0.3),
+    degenerate: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),),
+) -> tuple[float, CovarianceConfig, float]:
+    """Grid search: ``(scale, CovarianceConfig, cost)`` of the best calibration."""
+    best = (1.0, CovarianceConfig(), np.inf)
+    for scale, floor_t, floor_r, (ratio, deg_t, deg_r) in itertools.product(
+        scales, floors_translation, floors_rotation, degenerate
+    ):
+        cfg = CovarianceConfig(floor_t, floor_r, ratio, deg_t, deg_r)
+        summaries = [nees_summary(nees_values(s, scale, cfg)) for s in datasets.values()]
+        cost = calibration_cost(summaries)
+        if cost < best[2]:
+            best = (scale, cfg, cost)
+    return best
