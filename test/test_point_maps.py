@@ -200,3 +200,50 @@ def test_an_imported_labeled_survey_relocalizes_a_scan_between_keyframes(tmp_pat
     assert found.found, found.trials
     error = np.linalg.solve(truth, found.T_map_sensor)
     assert np.linalg.norm(error[:3, 3]) < 0.3
+
+
+@pytest.mark.slow
+def test_an_imported_unlabeled_pcd_map_localizes_a_simulated_drive(tmp_path: Path) -> None:
+    """
+    Simulate, map, export, drop the labels, import, relocalize a second drive (docs/maps.md).
+
+    The map is the clean drive of ``mlsemreg simulate --seed 0`` (80 scans) exported as a
+    PCD without its label field; ``map import`` cuts it along the exported trajectory and
+    labels it with the geometric labeler; the queries (every 5th scan of the drive back in
+    the other lane) are labeled the same way (``--labels geometric``).
+    """
+    import json
+
+    def cli(*args: str) -> None:
+        run = CliRunner().invoke(app, [str(a) for a in args])
+        assert run.exit_code == 0, f'{args}: {run.output}{run.exception}'
+
+    cli('simulate', tmp_path / 'drive', '--frames', 80, '--seed', 0, '--quiet')
+    built = tmp_path / 'built'
+    cli('map', 'build', tmp_path / 'drive', built, '--poses', 'ground-truth', '--quiet')
+    cli('map', 'export', tmp_path / 'built', tmp_path / 'built.pcd')
+    exported = read_cloud(tmp_path / 'built.pcd')
+    write_cloud(tmp_path / 'unlabeled.pcd', exported.points)  # no label field
+    cli(
+        'map',
+        'import',
+        tmp_path / 'unlabeled.pcd',
+        tmp_path / 'imported',
+        '--trajectory',
+        tmp_path / 'built.tum',
+    )
+    assert load_map(tmp_path / 'imported').config.label_source == 'geometric'
+    cli('map', 'sim-queries', tmp_path / 'queries', '--seed', 0, '--frames', 80, '--every', 5)
+    cli(
+        'relocalize',
+        tmp_path / 'imported',
+        tmp_path / 'queries',
+        '--labels',
+        'geometric',
+        '--json',
+        tmp_path / 'relocalized.json',
+    )
+    summary = json.loads((tmp_path / 'relocalized.json').read_text())['summary']
+    assert summary['queries'] >= 10
+    assert summary['recall_pct'] >= 90.0, summary
+    assert summary['wrong_accepted'] == 0, summary

@@ -44,6 +44,7 @@ class CovarianceSample:
 
     error: np.ndarray
     hessian_covariance: np.ndarray
+    distance: float = 0.0  # m, the motion the covariance describes (keyframe to scan)
 
 
 def pose_error(T_estimate: np.ndarray, T_truth: np.ndarray) -> np.ndarray:
@@ -76,7 +77,9 @@ def pair_samples(pair_files: list[Any], config: Any) -> list[CovarianceSample]:
         if not result.success or result.alignment is None:
             continue
         covariance = result.alignment.covariance(1.0, axes='source')
-        samples.append(CovarianceSample(pose_error(result.transform, pair.trans_gt), covariance))
+        distance = float(np.linalg.norm(result.transform[:3, 3]))
+        error = pose_error(result.transform, pair.trans_gt)
+        samples.append(CovarianceSample(error, covariance, distance))
     return samples
 
 
@@ -110,9 +113,9 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
         ):
             continue
         T_truth = relative_transform(truth[keyframe], truth[scan.index])
-        samples.append(
-            CovarianceSample(pose_error(estimate.relative, T_truth), estimate.frame_covariance)
-        )
+        distance = float(np.linalg.norm(estimate.relative[:3, 3]))
+        error = pose_error(estimate.relative, T_truth)
+        samples.append(CovarianceSample(error, estimate.frame_covariance, distance))
     return samples
 
 
@@ -120,14 +123,31 @@ def nees_values(
     samples: list[CovarianceSample], scale: float, cfg: CovarianceConfig
 ) -> np.ndarray:
     """Return the NEES of every sample under a calibration (NaN: a singular covariance)."""
-    values = []
-    for sample in samples:
-        covariance = calibrated_covariance(sample.hessian_covariance, scale, cfg)
+    values = np.full(len(samples), np.nan)
+    for index, sample in enumerate(samples):
+        covariance = calibrated_covariance(sample.hessian_covariance, scale, cfg, sample.distance)
         try:
-            values.append(float(sample.error @ np.linalg.solve(covariance, sample.error)))
+            values[index] = float(sample.error @ np.linalg.solve(covariance, sample.error))
         except np.linalg.LinAlgError:
-            values.append(np.nan)
-    return np.asarray(values)
+            continue
+    return values
+
+
+def _batch_nees(
+    errors: np.ndarray,
+    covariances: np.ndarray,
+    distances: np.ndarray,
+    scale: float,
+    cfg: CovarianceConfig,
+) -> np.ndarray:
+    """:func:`nees_values` for stacked samples without degenerate inflation (the fit)."""
+    sigma_t = cfg.floor_translation + cfg.per_metre_translation * distances
+    sigma_r = np.radians(cfg.floor_rotation + cfg.per_metre_rotation * distances)
+    floor = np.zeros_like(covariances)
+    floor[:, [0, 1, 2], [0, 1, 2]] = (sigma_t**2)[:, None]
+    floor[:, [3, 4, 5], [3, 4, 5]] = (sigma_r**2)[:, None]
+    solved = np.linalg.solve(scale * covariances + floor, errors[:, :, None])[:, :, 0]
+    return np.einsum('ki,ki->k', errors, solved)
 
 
 def nees_summary(values: np.ndarray) -> dict[str, float]:
@@ -163,19 +183,73 @@ def calibration_cost(summaries: list[dict[str, float]]) -> float:
 
 def fit_calibration(
     datasets: dict[str, list[CovarianceSample]],
-    scales: tuple[float, ...] = (1.0, 2.0, 4.0, 7.0, 10.0, 15.0, 25.0, 40.0),
-    floors_translation: tuple[float, ...] = (0.0, 0.01, 0.02, 0.03, 0.05, 0.08, 0.12),
-    floors_rotation: tuple[float, ...] = (0.0, 0.02, 0.05, 0.1, 0.2, 0.3),
-    degenerate: tuple[tuple[float, float, float], ...] = ((0.0, 0.0, 0.0),),
+    scales: tuple[float, ...] = (1.0, 3.0, 7.0, 15.0, 30.0, 60.0),
+    floors_translation: tuple[float, ...] = (0.0, 0.005, 0.01, 0.02, 0.03),
+    floors_rotation: tuple[float, ...] = (0.0, 0.02, 0.05, 0.1),
+    per_metre_translation: tuple[float, ...] = (0.0, 0.001, 0.002, 0.003, 0.004, 0.006),
+    per_metre_rotation: tuple[float, ...] = (0.0, 0.005, 0.01, 0.02, 0.03),
 ) -> tuple[float, CovarianceConfig, float]:
     """Grid search: ``(scale, CovarianceConfig, cost)`` of the best calibration."""
+    stacks = [
+        (
+            np.array([s.error for s in samples]).reshape(-1, 6),
+            np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
+            np.array([s.distance for s in samples], dtype=np.float64),
+        )
+        for samples in datasets.values()
+        if samples
+    ]
     best = (1.0, CovarianceConfig(), np.inf)
-    for scale, floor_t, floor_r, (ratio, deg_t, deg_r) in itertools.product(
-        scales, floors_translation, floors_rotation, degenerate
+    for scale, floor_t, floor_r, metre_t, metre_r in itertools.product(
+        scales, floors_translation, floors_rotation, per_metre_translation, per_metre_rotation
     ):
-        cfg = CovarianceConfig(floor_t, floor_r, ratio, deg_t, deg_r)
-        summaries = [nees_summary(nees_values(s, scale, cfg)) for s in datasets.values()]
+        cfg = CovarianceConfig(
+            floor_translation=floor_t,
+            floor_rotation=floor_r,
+            per_metre_translation=metre_t,
+            per_metre_rotation=metre_r,
+        )
+        try:
+            summaries = [nees_summary(_batch_nees(*stack, scale, cfg)) for stack in stacks]
+        except np.linalg.LinAlgError:
+            continue
         cost = calibration_cost(summaries)
         if cost < best[2]:
             best = (scale, cfg, cost)
     return best
+
+
+def chain_scans(pair_files: list[Any], period_s: float = 2.0) -> list[Any]:
+    """The frames of a pair chain as scans ``period_s`` apart, with their chained poses."""
+    from types import SimpleNamespace
+
+    from mlsemreg_ros.datasets.pair_chain import chain_frames
+
+    return [
+        SimpleNamespace(
+            xyz=frame.points,
+            labels=frame.labels,
+            stamp_ns=round(index * period_s * 1e9),
+            point_times=None,
+            pose=frame.T_0_frame,
+            index=index,
+        )
+        for index, frame in enumerate(chain_frames(pair_files))
+    ]
+
+
+def save_samples(path: Any, samples: list[CovarianceSample]) -> None:
+    """Write samples as ``errors`` (K, 6) and ``covariances`` (K, 6, 6) in an npz file."""
+    np.savez(
+        path,
+        errors=np.array([s.error for s in samples]).reshape(-1, 6),
+        covariances=np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
+        distances=np.array([s.distance for s in samples], dtype=np.float64),
+    )
+
+
+def load_samples(path: Any) -> list[CovarianceSample]:
+    """Read samples written by :func:`save_samples`."""
+    with np.load(path) as data:
+        rows = zip(data['errors'], data['covariances'], data['distances'], strict=True)
+        return [CovarianceSample(e, c, float(d)) for e, c, d in rows]

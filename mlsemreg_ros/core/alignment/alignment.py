@@ -37,7 +37,6 @@ test on a corridor). ``inv(H)`` is scaled by the residual variance ``2 E / (n - 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 from mlsemreg_ros.core import threads  # before small_gicp: sets OMP_WAIT_POLICY
 from mlsemreg_ros.core.alignment.config import FineAlignmentConfig
@@ -113,9 +112,7 @@ class Alignment:
         """``inv(T_initial) @ T_target_source``: how far the alignment moved its guess."""
         return np.linalg.solve(self.T_initial, self.T_target_source)
 
-    def covariance(
-        self, scale: float = 1.0, axes: str = 'target', calibration: Any = None
-    ) -> np.ndarray:
+    def covariance(self, scale: float = 1.0, axes: str = 'target') -> np.ndarray:
         """
         Covariance (6, 6) of the refined pose, ROS order ``[x, y, z, roll, pitch, yaw]``.
 
@@ -123,9 +120,7 @@ class Alignment:
         perturbation into the target frame's axes (``delta_target = R delta_source`` for
         both parts; the pose covariance of nav_msgs/Odometry); ``'source'`` keeps the
         source (body) axes (the twist's). A singular Hessian (too few inliers) gives a
-        large isotropic covariance. ``calibration``: a
-        :class:`~mlsemreg_ros.core.alignment.covariance.CovarianceConfig` (the ``covariance``
-        section): its floor and degenerate-direction inflation are added (docs/covariance.md).
+        large isotropic covariance.
         """
         dof = self.num_inliers - 6
         if dof <= 0 or not np.all(np.isfinite(self.hessian)):
@@ -137,10 +132,6 @@ class Alignment:
             return np.eye(6) * UNKNOWN_VARIANCE
         order = [3, 4, 5, 0, 1, 2]  # [omega, v] -> [v, omega]
         body = body[np.ix_(order, order)]
-        if calibration is not None:
-            from mlsemreg_ros.core.alignment.covariance import calibrated_covariance
-
-            body = calibrated_covariance(body, 1.0, calibration)
         if axes == 'source':
             return 0.5 * (body + body.T)
         rotation = np.zeros((6, 6))

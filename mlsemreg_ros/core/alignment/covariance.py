@@ -19,7 +19,7 @@ The fine alignment's Hessian gives ``C_H = inv(H) * 2E / (n - 6)``. Its residual
 independent (neighbouring points share a surface, the deskew and the map carry errors
 of their own), so ``C_H`` claims too little. The calibrated covariance is
 
-``C = s * C_H + D + diag(sigma_t^2 I3, sigma_r^2 I3)``
+``C = s * C_H + D + diag(sigma_t(d)^2 I3, sigma_r(d)^2 I3)``
 
 - ``s``: ``odometry.covariance_scale``;
 - ``D``: the inflation along the degenerate directions of the Hessian: in the translation
@@ -28,9 +28,15 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   ``covariance.degenerate_translation`` (m) or ``covariance.degenerate_rotation`` (deg)
   squared added along it (a corridor, a tunnel, a flat field: the Hessian sees one
   direction weakly, and the error there is larger than even the weak curvature says);
-- ``sigma_t``, ``sigma_r``: ``covariance.floor_translation`` (m) and
-  ``covariance.floor_rotation`` (deg), the errors no Hessian sees (deskew, labels,
-  the map's own pose).
+- ``sigma_t(d) = covariance.floor_translation + covariance.per_metre_translation * d``
+  and ``sigma_r(d)`` likewise (rotation in deg), with ``d`` the distance of the motion the
+  covariance describes (the odometry: from the keyframe to the scan; a pair: between the
+  scans): the errors no Hessian sees (deskew, labels, the keyframe's and the local map's
+  own drift), which grow with the distance.
+
+The odometry applies it to every accepted scan's frame covariance
+(``core/odometry/odometry.py``), so the pose covariance, the twist covariance and the
+NEES of ``mlsemreg eval-bag`` use it. ``mlsemreg covariance-nees`` measures it.
 """
 
 from __future__ import annotations
@@ -59,6 +65,21 @@ class CovarianceConfig:
         unit='deg',
         low=0.0,
         high=180.0,
+    )
+    per_metre_translation: float = param(
+        0.0,
+        'Standard deviation added to every translation axis per metre of the motion the '
+        'covariance describes (from the keyframe to the scan).',
+        unit='m/m',
+        low=0.0,
+        high=10.0,
+    )
+    per_metre_rotation: float = param(
+        0.0,
+        'Standard deviation added to every rotation axis per metre of that motion.',
+        unit='deg/m',
+        low=0.0,
+        high=100.0,
     )
     degenerate_ratio: float = param(
         0.0,
@@ -102,16 +123,18 @@ def degenerate_inflation(covariance: np.ndarray, cfg: CovarianceConfig) -> np.nd
 
 
 def calibrated_covariance(
-    hessian_covariance: np.ndarray, scale: float, cfg: CovarianceConfig
+    hessian_covariance: np.ndarray, scale: float, cfg: CovarianceConfig, distance: float = 0.0
 ) -> np.ndarray:
     """
-    ``s * C_H + D + floor`` (module docstring) of a Hessian covariance (6, 6), ROS order.
+    Return ``s * C_H + D + floor(d)`` (module docstring) of a covariance (6, 6), ROS order.
 
     ``hessian_covariance``: ``inv(H) * 2E / (n - 6)`` (``scale`` 1) in either axes: the
     floor is isotropic and the inflation follows the eigen-directions, so the result
     rotates with the input.
     """
     scaled = np.asarray(hessian_covariance, dtype=np.float64) * scale
-    floor = np.diag([cfg.floor_translation**2] * 3 + [np.radians(cfg.floor_rotation) ** 2] * 3)
+    sigma_t = cfg.floor_translation + cfg.per_metre_translation * distance
+    sigma_r = np.radians(cfg.floor_rotation + cfg.per_metre_rotation * distance)
+    floor = np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
     covariance = scaled + degenerate_inflation(scaled, cfg) + floor
     return 0.5 * (covariance + covariance.T)

@@ -241,6 +241,11 @@ class MapConfig:
         low=1.0,
         high=500.0,
     )
+    import_visible_only: bool = param(
+        False,
+        '`mlsemreg map import`: keep only the map points visible from the keyframe pose '
+        '(Open3D hidden point removal), so a keyframe looks like a scan from there.',
+    )
     import_grid: float = param(
         10.0,
         '`mlsemreg map import` without a trajectory: keyframe poses on a horizontal grid of '

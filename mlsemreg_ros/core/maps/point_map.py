@@ -114,6 +114,23 @@ def grid_poses(points: np.ndarray, spacing: float, sensor_height: float) -> np.n
     return np.asarray(poses).reshape(-1, 4, 4)
 
 
+def visible_from(points: np.ndarray, viewpoint: np.ndarray) -> np.ndarray:
+    """
+    Return the indices of ``points`` (N, 3) visible from ``viewpoint`` (3,).
+
+    Open3D's hidden point removal (Katz et al., SIGGRAPH 2007: spherical flipping and a
+    convex hull), with the flipping radius 100 times the farthest point's distance.
+    """
+    import open3d as o3d
+
+    if len(points) < 4:
+        return np.arange(len(points))
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
+    reach = float(np.linalg.norm(points - viewpoint, axis=1).max())
+    _, visible = cloud.hidden_point_removal(np.asarray(viewpoint, np.float64), 100.0 * reach)
+    return np.sort(np.asarray(visible, dtype=np.int64))
+
+
 def cut_keyframes(
     points: np.ndarray,
     labels: np.ndarray | None,
@@ -137,6 +154,8 @@ def cut_keyframes(
         members = np.asarray(tree.query_ball_point(pose[:2, 3], config.map.import_radius))
         if members.size < 100:
             continue
+        if config.map.import_visible_only:
+            members = members[visible_from(points[members], pose[:3, 3])]
         T_keyframe_map = invert_transform(pose)
         local = points[members] @ T_keyframe_map[:3, :3].T + T_keyframe_map[:3, 3]
         field = None if labels is None else labels[members]

@@ -104,9 +104,7 @@ def decide(
         reason='; '.join(notes),
         result=result,
         pose=alignment.T_target_source,
-        frame_covariance=alignment.covariance(
-            odometry.covariance_scale, axes='source', calibration=cfg.covariance
-        ),
+        frame_covariance=alignment.covariance(odometry.covariance_scale, axes='source'),
         inlier_fraction=alignment.inlier_fraction,
         candidates=candidates,
         timings_ms=timings,

@@ -105,9 +105,7 @@ class Tracker:
             source='prediction',
             reason=f'tracked ({self.tracked_in_a_row} in a row)',
             pose=alignment.T_target_source,
-            frame_covariance=alignment.covariance(
-                cfg.odometry.covariance_scale, axes='source', calibration=cfg.covariance
-            ),
+            frame_covariance=alignment.covariance(cfg.odometry.covariance_scale, axes='source'),
             inlier_fraction=alignment.inlier_fraction,
             candidates=[predicted],
         )
