@@ -220,7 +220,7 @@ def fit_calibration(
 
 
 def chain_scans(pair_files: list[Any], period_s: float = 2.0) -> list[Any]:
-    """The frames of a pair chain as scans ``period_s`` apart, with their chained poses."""
+    """Return the frames of a pair chain as scans ``period_s`` apart, at their chained poses."""
     from types import SimpleNamespace
 
     from mlsemreg_ros.datasets.pair_chain import chain_frames
