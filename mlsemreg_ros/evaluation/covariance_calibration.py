@@ -29,7 +29,11 @@ from dataclasses import dataclass, replace
 import itertools
 from typing import Any
 
-from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, CovarianceConfig
+from mlsemreg_ros.core.alignment.covariance import (
+    calibrated_covariance,
+    CovarianceConfig,
+    motion_size,
+)
 import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.stats import chi2
@@ -45,6 +49,7 @@ class CovarianceSample:
     error: np.ndarray
     hessian_covariance: np.ndarray
     distance: float = 0.0  # m, the motion the covariance describes (keyframe to scan)
+    turn_deg: float = 0.0  # deg, the rotation angle of that motion
 
 
 def pose_error(T_estimate: np.ndarray, T_truth: np.ndarray) -> np.ndarray:
@@ -77,9 +82,8 @@ def pair_samples(pair_files: list[Any], config: Any) -> list[CovarianceSample]:
         if not result.success or result.alignment is None:
             continue
         covariance = result.alignment.covariance(1.0, axes='source')
-        distance = float(np.linalg.norm(result.transform[:3, 3]))
         error = pose_error(result.transform, pair.trans_gt)
-        samples.append(CovarianceSample(error, covariance, distance))
+        samples.append(CovarianceSample(error, covariance, *motion_size(result.transform)))
     return samples
 
 
@@ -113,9 +117,9 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
         ):
             continue
         T_truth = relative_transform(truth[keyframe], truth[scan.index])
-        distance = float(np.linalg.norm(estimate.relative[:3, 3]))
         error = pose_error(estimate.relative, T_truth)
-        samples.append(CovarianceSample(error, estimate.frame_covariance, distance))
+        size = motion_size(estimate.relative)
+        samples.append(CovarianceSample(error, estimate.frame_covariance, *size))
     return samples
 
 
@@ -125,7 +129,9 @@ def nees_values(
     """Return the NEES of every sample under a calibration (NaN: a singular covariance)."""
     values = np.full(len(samples), np.nan)
     for index, sample in enumerate(samples):
-        covariance = calibrated_covariance(sample.hessian_covariance, scale, cfg, sample.distance)
+        covariance = calibrated_covariance(
+            sample.hessian_covariance, scale, cfg, sample.distance, sample.turn_deg
+        )
         try:
             values[index] = float(sample.error @ np.linalg.solve(covariance, sample.error))
         except np.linalg.LinAlgError:
@@ -137,12 +143,19 @@ def _batch_nees(
     errors: np.ndarray,
     covariances: np.ndarray,
     distances: np.ndarray,
+    turns: np.ndarray,
     scale: float,
     cfg: CovarianceConfig,
 ) -> np.ndarray:
     """:func:`nees_values` for stacked samples without degenerate inflation (the fit)."""
-    sigma_t = cfg.floor_translation + cfg.per_metre_translation * distances
-    sigma_r = np.radians(cfg.floor_rotation + cfg.per_metre_rotation * distances)
+    sigma_t = (
+        cfg.floor_translation
+        + cfg.per_metre_translation * distances
+        + cfg.per_degree_translation * turns
+    )
+    sigma_r = np.radians(
+        cfg.floor_rotation + cfg.per_metre_rotation * distances + cfg.per_degree_rotation * turns
+    )
     floor = np.zeros_like(covariances)
     floor[:, [0, 1, 2], [0, 1, 2]] = (sigma_t**2)[:, None]
     floor[:, [3, 4, 5], [3, 4, 5]] = (sigma_r**2)[:, None]
@@ -183,32 +196,31 @@ def calibration_cost(summaries: list[dict[str, float]]) -> float:
 
 def fit_calibration(
     datasets: dict[str, list[CovarianceSample]],
-    scales: tuple[float, ...] = (1.0, 3.0, 7.0, 15.0, 30.0, 60.0),
-    floors_translation: tuple[float, ...] = (0.0, 0.005, 0.01, 0.02, 0.03),
-    floors_rotation: tuple[float, ...] = (0.0, 0.02, 0.05, 0.1),
-    per_metre_translation: tuple[float, ...] = (0.0, 0.001, 0.002, 0.003, 0.004, 0.006),
-    per_metre_rotation: tuple[float, ...] = (0.0, 0.005, 0.01, 0.02, 0.03),
+    grid: dict[str, tuple[float, ...]] | None = None,
 ) -> tuple[float, CovarianceConfig, float]:
-    """Grid search: ``(scale, CovarianceConfig, cost)`` of the best calibration."""
+    """
+    Grid search: ``(scale, CovarianceConfig, cost)`` of the best calibration.
+
+    ``grid``: the values tried per parameter (``scale`` and the ``covariance`` fields;
+    default :data:`FIT_GRID`); the degenerate-direction inflation is not fitted.
+    """
+    grid = {**FIT_GRID, **(grid or {})}
     stacks = [
         (
             np.array([s.error for s in samples]).reshape(-1, 6),
             np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
             np.array([s.distance for s in samples], dtype=np.float64),
+            np.array([s.turn_deg for s in samples], dtype=np.float64),
         )
         for samples in datasets.values()
         if samples
     ]
+    names = list(grid)
     best = (1.0, CovarianceConfig(), np.inf)
-    for scale, floor_t, floor_r, metre_t, metre_r in itertools.product(
-        scales, floors_translation, floors_rotation, per_metre_translation, per_metre_rotation
-    ):
-        cfg = CovarianceConfig(
-            floor_translation=floor_t,
-            floor_rotation=floor_r,
-            per_metre_translation=metre_t,
-            per_metre_rotation=metre_r,
-        )
+    for values in itertools.product(*(grid[name] for name in names)):
+        chosen = dict(zip(names, values, strict=True))
+        scale = chosen.pop('scale')
+        cfg = CovarianceConfig(**chosen)
         try:
             summaries = [nees_summary(_batch_nees(*stack, scale, cfg)) for stack in stacks]
         except np.linalg.LinAlgError:
@@ -217,6 +229,18 @@ def fit_calibration(
         if cost < best[2]:
             best = (scale, cfg, cost)
     return best
+
+
+#: The values :func:`fit_calibration` tries by default.
+FIT_GRID: dict[str, tuple[float, ...]] = {
+    'scale': (1.0, 3.0, 7.0, 15.0),
+    'floor_translation': (0.0, 0.005, 0.01, 0.02, 0.03),
+    'floor_rotation': (0.0, 0.02, 0.05, 0.1),
+    'per_metre_translation': (0.0, 0.002, 0.004, 0.006),
+    'per_metre_rotation': (0.0, 0.01, 0.02),
+    'per_degree_translation': (0.0, 0.02, 0.05, 0.1, 0.2),
+    'per_degree_rotation': (0.0, 0.05, 0.1, 0.2, 0.4),
+}
 
 
 def chain_scans(pair_files: list[Any], period_s: float = 2.0) -> list[Any]:
@@ -245,11 +269,13 @@ def save_samples(path: Any, samples: list[CovarianceSample]) -> None:
         errors=np.array([s.error for s in samples]).reshape(-1, 6),
         covariances=np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
         distances=np.array([s.distance for s in samples], dtype=np.float64),
+        turns_deg=np.array([s.turn_deg for s in samples], dtype=np.float64),
     )
 
 
 def load_samples(path: Any) -> list[CovarianceSample]:
     """Read samples written by :func:`save_samples`."""
     with np.load(path) as data:
-        rows = zip(data['errors'], data['covariances'], data['distances'], strict=True)
-        return [CovarianceSample(e, c, float(d)) for e, c, d in rows]
+        turns = data['turns_deg'] if 'turns_deg' in data.files else np.zeros(len(data['errors']))
+        rows = zip(data['errors'], data['covariances'], data['distances'], turns, strict=True)
+        return [CovarianceSample(e, c, float(d), float(a)) for e, c, d, a in rows]

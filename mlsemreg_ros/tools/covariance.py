@@ -134,7 +134,9 @@ def covariance_nees(
             f'covariance.floor_translation={best.floor_translation:g} '
             f'covariance.floor_rotation={best.floor_rotation:g} '
             f'covariance.per_metre_translation={best.per_metre_translation:g} '
-            f'covariance.per_metre_rotation={best.per_metre_rotation:g} (cost {cost:.3f})'
+            f'covariance.per_metre_rotation={best.per_metre_rotation:g} '
+            f'covariance.per_degree_translation={best.per_degree_translation:g} '
+            f'covariance.per_degree_rotation={best.per_degree_rotation:g} (cost {cost:.3f})'
         )
     if json_path is not None:
         json_path.write_text(json.dumps(report, indent=2, default=float) + '\n')

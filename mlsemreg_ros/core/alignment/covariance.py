@@ -19,7 +19,7 @@ The fine alignment's Hessian gives ``C_H = inv(H) * 2E / (n - 6)``. Its residual
 independent (neighbouring points share a surface, the deskew and the map carry errors
 of their own), so ``C_H`` claims too little. The calibrated covariance is
 
-``C = s * C_H + D + diag(sigma_t(d)^2 I3, sigma_r(d)^2 I3)``
+``C = s * C_H + D + diag(sigma_t(d, a)^2 I3, sigma_r(d, a)^2 I3)``
 
 - ``s``: ``odometry.covariance_scale``;
 - ``D``: the inflation along the degenerate directions of the Hessian: in the translation
@@ -28,11 +28,12 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   ``covariance.degenerate_translation`` (m) or ``covariance.degenerate_rotation`` (deg)
   squared added along it (a corridor, a tunnel, a flat field: the Hessian sees one
   direction weakly, and the error there is larger than even the weak curvature says);
-- ``sigma_t(d) = covariance.floor_translation + covariance.per_metre_translation * d``
-  and ``sigma_r(d)`` likewise (rotation in deg), with ``d`` the distance of the motion the
-  covariance describes (the odometry: from the keyframe to the scan; a pair: between the
-  scans): the errors no Hessian sees (deskew, labels, the keyframe's and the local map's
-  own drift), which grow with the distance.
+- ``sigma_t(d, a) = covariance.floor_translation + covariance.per_metre_translation * d
+  + covariance.per_degree_translation * a`` and ``sigma_r(d, a)`` likewise (in deg), with
+  ``d`` the distance and ``a`` the angle (deg) of the motion the covariance describes (the
+  odometry: from the keyframe to the scan; a pair: between the scans): the errors no
+  Hessian sees (deskew, timing, labels, the keyframe's and the local map's own drift),
+  which grow with the distance and in turns.
 
 The odometry applies it to every accepted scan's frame covariance
 (``core/odometry/odometry.py``), so the pose covariance, the twist covariance and the
@@ -81,6 +82,21 @@ class CovarianceConfig:
         low=0.0,
         high=100.0,
     )
+    per_degree_translation: float = param(
+        0.0,
+        'Standard deviation added to every translation axis per degree the motion turned '
+        '(deskew and timing errors grow in turns).',
+        unit='m/deg',
+        low=0.0,
+        high=10.0,
+    )
+    per_degree_rotation: float = param(
+        0.0,
+        'Standard deviation added to every rotation axis per degree the motion turned.',
+        unit='deg/deg',
+        low=0.0,
+        high=10.0,
+    )
     degenerate_ratio: float = param(
         0.0,
         'An eigen-direction of the translation or rotation block of the Hessian covariance '
@@ -123,7 +139,11 @@ def degenerate_inflation(covariance: np.ndarray, cfg: CovarianceConfig) -> np.nd
 
 
 def calibrated_covariance(
-    hessian_covariance: np.ndarray, scale: float, cfg: CovarianceConfig, distance: float = 0.0
+    hessian_covariance: np.ndarray,
+    scale: float,
+    cfg: CovarianceConfig,
+    distance: float = 0.0,
+    turn_deg: float = 0.0,
 ) -> np.ndarray:
     """
     Return ``s * C_H + D + floor(d)`` (module docstring) of a covariance (6, 6), ROS order.
@@ -133,8 +153,20 @@ def calibrated_covariance(
     rotates with the input.
     """
     scaled = np.asarray(hessian_covariance, dtype=np.float64) * scale
-    sigma_t = cfg.floor_translation + cfg.per_metre_translation * distance
-    sigma_r = np.radians(cfg.floor_rotation + cfg.per_metre_rotation * distance)
+    sigma_t = (
+        cfg.floor_translation
+        + cfg.per_metre_translation * distance
+        + cfg.per_degree_translation * turn_deg
+    )
+    sigma_r = np.radians(
+        cfg.floor_rotation + cfg.per_metre_rotation * distance + cfg.per_degree_rotation * turn_deg
+    )
     floor = np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
     covariance = scaled + degenerate_inflation(scaled, cfg) + floor
     return 0.5 * (covariance + covariance.T)
+
+
+def motion_size(motion: np.ndarray) -> tuple[float, float]:
+    """Return the distance (m) and the rotation angle (deg) of a motion (4, 4)."""
+    cosine = np.clip((np.trace(motion[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.linalg.norm(motion[:3, 3])), float(np.degrees(np.arccos(cosine)))

@@ -66,7 +66,7 @@ from __future__ import annotations
 from collections import deque
 import time
 
-from mlsemreg_ros.core.alignment.covariance import calibrated_covariance
+from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, motion_size
 from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud, Candidate
 from mlsemreg_ros.core.alignment.sweep_alignment import align_sweep, MapGaussians, sweep_subset
 from mlsemreg_ros.core.config import RegistrationConfig
@@ -534,9 +534,8 @@ class Odometry:
             chosen.reason = '; '.join(r for r in (chosen.reason, sweep_note) if r)
         keyframe, current = self.keyframe, raw.scan
         relative = invert_transform(keyframe.pose) @ pose
-        distance = float(np.linalg.norm(relative[:3, 3]))
         chosen.frame_covariance = calibrated_covariance(  # docs/covariance.md
-            chosen.frame_covariance, 1.0, self.config.covariance, distance
+            chosen.frame_covariance, 1.0, self.config.covariance, *motion_size(relative)
         )
         twist, twist_cov = twist_between(
             *self._last_accepted, pose, stamp_ns, chosen.frame_covariance
