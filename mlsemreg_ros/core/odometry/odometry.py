@@ -44,6 +44,7 @@ from collections import deque
 import time
 from typing import Any
 
+from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, motion_size
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, SweepMotion
 from mlsemreg_ros.core.labeling.source import LabelSource
@@ -348,6 +349,9 @@ class Odometry:
         if sweep_twist is not None:
             self._sweep_twist = (sweep_twist, stamp_ns)
         current, relative = raw.scan, invert_transform(keyframe.pose) @ pose
+        chosen.frame_covariance = calibrated_covariance(  # docs/covariance.md
+            chosen.frame_covariance, 1.0, self.config.covariance, *motion_size(relative)
+        )
         last, self._last_accepted = self._last_accepted, (pose.copy(), stamp_ns)
         self._accepted.append(self._last_accepted)
         self.pose = pose.copy()
