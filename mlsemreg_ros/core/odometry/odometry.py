@@ -182,7 +182,7 @@ class Odometry:
 
     @property
     def failures_in_a_row(self) -> int:
-        """Scans rejected in a row since the last accepted one."""
+        """Return the number of scans rejected in a row since the last accepted one."""
         return self._failures
 
     def sweep_state(self) -> tuple[deque[tuple[np.ndarray, int]], Any, Any]:
