@@ -348,7 +348,8 @@ def test_a_time_field_converts_to_one_sweep_near_the_stamp_or_says_why(spec: dic
     if dtype is not None and 0 <= offset and offset + dtype.itemsize <= step:
         with np.errstate(all='ignore'):
             raw = np.asarray(spec['values']).astype(dtype)
-        data[:, offset:offset + dtype.itemsize] = raw.view(np.uint8).reshape(n, -1)
+        end = offset + dtype.itemsize
+        data[:, offset:end] = raw.view(np.uint8).reshape(n, -1)
     fields = [Field(a, 4 * k, 7, 1) for k, a in enumerate('xyz')]
     fields.append(Field(spec['name'], offset, spec['datatype'], spec['count']))
     stamp = spec['stamp']
@@ -412,3 +413,12 @@ def test_the_prior_guard_flags_a_prior_far_from_the_registration() -> None:
     worse = SimpleNamespace(accepted=True, inlier_fraction=0.7)
     assert not better_without_prior(chosen, worse) and better_without_prior(worse, chosen)
     assert better_without_prior(rejected, worse) and not better_without_prior(chosen, rejected)
+
+
+def test_a_rejection_is_retried_without_the_prior_only_after_an_accepted_scan() -> None:
+    from mlsemreg_ros.core.odometry.prior_guard import prior_disagreement
+
+    rejected = SimpleNamespace(accepted=False, pose=None, inlier_fraction=None)
+    model = SimpleNamespace(last_source='wheel')
+    assert prior_disagreement(None, rejected, None, model, None, 10**9, 3.0, 0)
+    assert prior_disagreement(None, rejected, None, model, None, 10**9, 3.0, 1) == ''

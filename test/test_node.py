@@ -292,7 +292,13 @@ def test_malformed_input_is_skipped_and_the_node_keeps_working(
         ),
     }
     # 'unusable labels': raw ids are fine in auto mode, so force the learning scheme.
-    assert all(r.successful for r in probe.set_parameters({'semantic.label_scheme': 'learning'}))
+    # ('missing label field': only label_source field requires one; auto labels by geometry)
+    assert all(
+        r.successful
+        for r in probe.set_parameters(
+            {'semantic.label_scheme': 'learning', 'label_source': 'field'}
+        )
+    )
     try:
         for reason, msg in cases.items():
             msg.header.stamp = _next_stamp()
@@ -303,7 +309,12 @@ def test_malformed_input_is_skipped_and_the_node_keeps_working(
             expected = 'learning ids must lie' if reason == 'unusable labels' else reason
             assert expected in status['message'], status['message']
     finally:
-        assert all(r.successful for r in probe.set_parameters({'semantic.label_scheme': 'auto'}))
+        assert all(
+            r.successful
+            for r in probe.set_parameters(
+                {'semantic.label_scheme': 'auto', 'label_source': 'auto'}
+            )
+        )
     assert int(status['frames_malformed']) >= len(cases)
     # The node still answers the next good pair; scans with some NaN points are fine.
     with_nan = dataclasses.replace(
@@ -505,3 +516,78 @@ def test_the_local_map_is_published_only_while_subscribed(probe: NodeProbe, scen
         assert xyz.shape[0] > 1000 and np.isfinite(xyz).all()
     finally:
         probe.node.destroy_subscription(subscription)
+
+
+def velodyne_cloud(probe: NodeProbe, points: np.ndarray, stamp: Any) -> Any:
+    """
+    Build a PointCloud2 as a Velodyne driver publishes it: no label field.
+
+    x, y, z, intensity (float32), ring (uint16) and time (float32, s after the stamp),
+    22 bytes a point.
+    """
+    from std_msgs.msg import Header
+
+    cloud_cls, field_cls = probe._msg_classes
+    layout = np.dtype(
+        {
+            'names': ['x', 'y', 'z', 'intensity', 'ring', 'time'],
+            'formats': ['<f4', '<f4', '<f4', '<f4', '<u2', '<f4'],
+            'offsets': [0, 4, 8, 12, 16, 18],
+            'itemsize': 22,
+        }
+    )
+    data = np.zeros(len(points), dtype=layout)
+    for k, axis in enumerate('xyz'):
+        data[axis] = points[:, k]
+    data['intensity'] = 10.0
+    data['ring'] = np.arange(len(points)) % 64
+    data['time'] = (np.arctan2(points[:, 1], points[:, 0]) + np.pi) / (2 * np.pi) * 0.1
+    fields = [
+        field_cls(name=name, offset=offset, datatype=datatype, count=1)
+        for name, offset, datatype in (
+            ('x', 0, 7),
+            ('y', 4, 7),
+            ('z', 8, 7),
+            ('intensity', 12, 7),
+            ('ring', 16, 4),
+            ('time', 18, 7),
+        )
+    ]
+    return cloud_cls(
+        header=Header(stamp=stamp, frame_id='velodyne'),
+        height=1,
+        width=len(points),
+        fields=fields,
+        is_bigendian=False,
+        point_step=22,
+        row_step=22 * len(points),
+        data=data.tobytes(),
+        is_dense=True,
+    )
+
+
+def test_an_unlabeled_velodyne_cloud_is_registered_with_defaults(
+    defaults: NodeProbe, scene: Any
+) -> None:
+    """No label field (x, y, z, intensity, ring, time): label_source auto labels by geometry."""
+    probe = defaults
+    statuses = []
+    for points in (scene.pts_dst, scene.pts_src):
+        msg = velodyne_cloud(probe, points, _next_stamp())
+        probe.publish(msg)
+        status = probe.status_for(msg.header.stamp, TIMEOUT_S)
+        assert status is not None, 'no diagnostics for the scan'
+        assert status['level'] == 0, status['message']
+        assert status['label_source'] == 'geometric'
+        statuses.append((msg.header.stamp, status))
+    stamp, _ = statuses[-1]
+    assert_close_to(matrix(probe.wait_for('transform', stamp, 5.0).transform), scene.trans_gt)
+    # label_source field: the same cloud is skipped, and says why
+    assert all(r.successful for r in probe.set_parameters({'label_source': 'field'}))
+    try:
+        msg = velodyne_cloud(probe, scene.pts_src, _next_stamp())
+        probe.publish(msg)
+        status = probe.status_for(msg.header.stamp, TIMEOUT_S)
+        assert status['level'] == 1 and 'missing label field' in status['message']
+    finally:
+        assert all(r.successful for r in probe.set_parameters({'label_source': 'auto'}))

@@ -172,12 +172,18 @@ def _imu_stream(rate: np.ndarray, times: list[float]) -> list[tuple[float, Any]]
     return [(float(t), _imu(float(t), g)) for t, g in zip(stamps, gyro, strict=True)]
 
 
-def test_a_zero_quaternion_wheel_message_is_dropped_and_the_next_scans_are_right(ros: Any) -> None:
+def _start(ros: Any, seed: int) -> tuple[Any, Any, Any, Any, list[float], np.ndarray, Any]:
+    """Reset the node; return it, the probe, the publishers, a pair, its times and motion."""
     node, probe, publishers = ros
     assert probe.reset()
-    pair = synthetic_pair(seed=0)
+    pair = synthetic_pair(seed=seed)
     times = _scan_times()
-    _, pose = _true_motion(pair, times)
+    rate, pose = _true_motion(pair, times)
+    return node, probe, publishers, pair, times, rate, pose
+
+
+def test_a_zero_quaternion_wheel_message_is_dropped_and_the_next_scans_are_right(ros: Any) -> None:
+    node, probe, publishers, pair, times, _, pose = _start(ros, 0)
     stamps = np.arange(times[0] - 0.05, times[2] + 0.05 + 1e-9, 0.05)  # 20 Hz
     messages = [_wheel(float(t), pose(float(t))) for t in stamps]
     messages.insert(3, _wheel(float(stamps[2]) + 0.01, np.eye(4), (0.0, 0.0, 0.0, 0.0)))
@@ -190,11 +196,7 @@ def test_a_zero_quaternion_wheel_message_is_dropped_and_the_next_scans_are_right
 
 
 def test_a_nan_imu_message_is_dropped_and_the_next_scans_are_right(ros: Any) -> None:
-    node, probe, publishers = ros
-    assert probe.reset()
-    pair = synthetic_pair(seed=1)
-    times = _scan_times()
-    rate, _ = _true_motion(pair, times)
+    node, probe, publishers, pair, times, rate, _ = _start(ros, 1)
     stream = _imu_stream(rate, times)
     middle = times[1] + 0.5 * SCAN_S + 0.001  # within the moved scan's interval
     hostile = [
@@ -212,12 +214,8 @@ def test_a_nan_imu_message_is_dropped_and_the_next_scans_are_right(ros: Any) -> 
 
 
 def test_an_imu_burst_with_duplicated_stamps_does_not_bend_the_next_scans(ros: Any) -> None:
-    node, probe, publishers = ros
-    assert probe.reset()
+    node, probe, publishers, pair, times, rate, _ = _start(ros, 2)
     before = node.callback_drops.count('imu_dropped.duplicate_stamp')
-    pair = synthetic_pair(seed=2)
-    times = _scan_times()
-    rate, _ = _true_motion(pair, times)
     stream = _imu_stream(rate, times)
     burst_at = times[1] + 0.5 * SCAN_S + 0.0025  # between two samples of the stream
     rng = np.random.default_rng(34)  # within the gyro limit: only the stamps are wrong

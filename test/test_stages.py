@@ -87,6 +87,7 @@ def test_the_default_stages_run_in_order_and_each_is_timed_by_the_loop(prepared)
     registration, source, target, truth = prepared
     names = [stage.name for stage in registration.stages]
     assert names == [
+        'label_quality',
         'gm_mm',
         'estimator',
         'verification',
@@ -99,9 +100,14 @@ def test_the_default_stages_run_in_order_and_each_is_timed_by_the_loop(prepared)
     ]
     result = registration.register(source, target)
     assert result.success, result.message
-    assert {'gm_mm_ms', 'estimator_ms', 'verification_ms', 'confidence_ms', 'fine_ms'} <= set(
-        result.timings_ms
-    )
+    assert {
+        'label_quality_ms',
+        'gm_mm_ms',
+        'estimator_ms',
+        'verification_ms',
+        'confidence_ms',
+        'fine_ms',
+    } <= set(result.timings_ms)
     assert 'bev_search_ms' not in result.timings_ms  # an accepted, strong pose: not wanted
     assert np.linalg.norm(result.transform[:3, 3] - truth[:3, 3]) < 0.3
 

@@ -46,6 +46,7 @@ from mlsemreg_ros.core.features.config import FeatureConfig, KeypointConfig
 from mlsemreg_ros.core.features.deskew import PreprocessConfig
 from mlsemreg_ros.core.features.moving_objects import MovingObjectsConfig
 from mlsemreg_ros.core.labeling.geometric_config import GeometricLabelsConfig, LABEL_SOURCES
+from mlsemreg_ros.core.labeling.onnx_config import OnnxLabelsConfig
 from mlsemreg_ros.core.maps.config import MapConfig
 from mlsemreg_ros.core.matching.config import MatcherConfig, SemanticConfig
 from mlsemreg_ros.core.motion_prior import MotionPriorConfig
@@ -288,6 +289,7 @@ class RegistrationConfig(Settings):
         choices=LABEL_SOURCES,
     )
     geometric_labels: GeometricLabelsConfig = field(default_factory=GeometricLabelsConfig)
+    onnx_labels: OnnxLabelsConfig = field(default_factory=OnnxLabelsConfig)
     preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
     semantic: SemanticConfig = field(default_factory=SemanticConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
@@ -325,6 +327,7 @@ class RegistrationConfig(Settings):
 
             if reason := onnx_unavailable():
                 errors.append(f'label_source onnx: {reason}')
+            errors += self.onnx_labels.check()
         sem, est = self.semantic, self.estimator
         field_m = sem.ring_count * sem.ring_width
         if field_m > MAX_RECEPTIVE_FIELD_M:

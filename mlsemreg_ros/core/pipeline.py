@@ -49,6 +49,7 @@ from mlsemreg_ros.core.stages.confidence import ConfidenceStage, consider
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
 from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
+from mlsemreg_ros.core.stages.label_quality import LabelQualityStage
 from mlsemreg_ros.core.stages.matching import MatchingStage
 from mlsemreg_ros.core.stages.refused_path import FullGraphStage, GuidedStage, PolishStage
 from mlsemreg_ros.core.stages.scoring import Scoring
@@ -91,6 +92,7 @@ def default_stages() -> list[Stage]:
     source, like the BEV search: its candidates face the confidence rule.
     """
     return [
+        LabelQualityStage(),  # 0. the labels' weight: never worse than no labels
         MatchingStage(),  # 1. correspondences: ML-SemReg (GM o MM) or the plain matcher
         EstimationStage(),  # 2. the robust estimator (SC2-PCR): hypotheses, best first
         VerificationStage(),  # 3. the hypotheses scored on the dense labeled scans
@@ -129,6 +131,10 @@ class Registration:
         self._landmark_ids = resolved.landmark_ids
         self._ignored_ids = resolved.ignored_ids
         self._undefined_ids = resolved.undefined_ids
+        # every class but the ignored and undefined ones: what a keypoint of an unlabeled
+        # scan sees (core/labeling/quality.py)
+        self._unlabeled_local_ss = np.ones(self.label_map.num_classes, dtype=bool)
+        self._unlabeled_local_ss[np.r_[resolved.ignored_ids, resolved.undefined_ids]] = False
         self._label_compatibility = resolved.label_compatibility
         self._bev_channels = resolved.bev_channels
         self._distinctive = resolved.distinctive
@@ -337,7 +343,11 @@ class Registration:
     def scoring(self) -> Scoring:
         """Return the scores with the current config and label rule (core/stages/scoring.py)."""
         return Scoring(
-            self.config, self._label_compatibility, self._distinctive, self._bev_channels
+            self.config,
+            self._label_compatibility,
+            self._distinctive,
+            self._bev_channels,
+            self._unlabeled_local_ss,
         )
 
     def judge(

@@ -43,6 +43,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 STANDARD_GRAVITY = 9.80665
 #: The largest angular rate (rad/s) an IMU sample may hold.
@@ -115,13 +116,8 @@ def quaternion_problem(quaternion: np.ndarray) -> str:
 
 def pose_matrix(position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
     """Return the 4x4 pose of a position and a unit quaternion ``(x, y, z, w)`` (normalised)."""
-    x, y, z, w = np.asarray(quaternion, dtype=np.float64) / np.linalg.norm(quaternion)
     T = np.eye(4)
-    T[:3, :3] = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ]
+    T[:3, :3] = Rotation.from_quat(np.asarray(quaternion, dtype=np.float64)).as_matrix()
     T[:3, 3] = position
     return T
 

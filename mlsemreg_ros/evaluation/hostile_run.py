@@ -35,6 +35,7 @@ from dataclasses import dataclass
 import time
 from typing import Any
 
+from mlsemreg_ros.codec.poses import pose_message_to_matrix, transform_message_to_matrix
 from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
 from mlsemreg_ros.evaluation.hostile_cases import Case, case_streams, hostile_cloud, Timeline
 import numpy as np
@@ -119,15 +120,6 @@ class PriorPublisher:
         return msg
 
 
-def _matrix(transform: Any) -> np.ndarray:
-    t = getattr(transform, 'translation', None) or transform.position
-    q = getattr(transform, 'rotation', None) or transform.orientation
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    out[:3, 3] = [t.x, t.y, t.z]
-    return out
-
-
 def _right(estimate: np.ndarray, truth: np.ndarray) -> bool:
     re = rotation_error_deg(estimate[:3, :3], truth[:3, :3])
     te = translation_error_m(estimate[:3, 3], truth[:3, 3])
@@ -199,13 +191,14 @@ def run_case(
             notes.append(f'moved scan: {status["message"][:90]}')
         if status['message'].startswith('first scan'):
             odometry = probe.wait_for('odometry', stamp, 5.0)
-            good_right += odometry is not None and _right(_matrix(odometry.pose.pose), truth)
+            pose = pose_message_to_matrix(odometry.pose.pose) if odometry is not None else None
+            good_right += pose is not None and _right(pose, truth)
             continue
         transform = probe.wait_for('transform', stamp, 5.0) if status['level'] < 2 else None
         if transform is None:
             notes.append(f'{t:.2f} s: {status["message"][:90]}')
             continue
-        if _right(_matrix(transform.transform), truth):
+        if _right(transform_message_to_matrix(transform.transform), truth):
             good_right += not (moved and k == 2)
         else:
             wrong += 1

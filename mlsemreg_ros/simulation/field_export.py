@@ -58,11 +58,14 @@ class FieldReport:
     sensor: str = ''
     profile: str = ''
     route: str = ''
+    rate_hz: float | None = None  # None: the sensor's own
 
     def summary(self, out: Path) -> str:
         """Return the one line ``mlsemreg simulate --realism field`` prints."""
         return (
-            f'wrote {out}: {self.frames} {self.sensor} sweeps ({self.profile}, {self.route}), '
+            f'wrote {out}: {self.frames} {self.sensor} sweeps'
+            + (f' at {self.rate_hz:g} Hz' if self.rate_hz else '')
+            + f' ({self.profile}, {self.route}), '
             f'{self.points_per_scan:.0f} points/scan, {self.path_m:.1f} m driven; setup '
             f'{self.setup_s:.1f} s, total {self.total_s:.1f} s'
         )
@@ -181,6 +184,7 @@ def write_field_bag(
         config.sensor,
         config.profile,
         config.route,
+        config.rate,
     )
 
 
@@ -200,7 +204,13 @@ def _metadata(sim: FieldSimulation, layout: BagLayout) -> dict:
             'max_range_m': model.max_range,
             'min_range_m': model.min_range,
             'period_s': model.period,
-            'rotation': 'clockwise seen from above, sweep starts behind (azimuth 180 deg)',
+            'scan_interval_s': sim.interval,
+            'pattern': 'rosette (non-repetitive)' if model.rosette else 'spinning',
+            'rotation': (
+                'rosette of two counter-rotating prisms around x'
+                if model.rosette
+                else 'clockwise seen from above, sweep starts behind (azimuth 180 deg)'
+            ),
         },
         'stamps': 'header stamp = sweep start; time/t = offset of the column from it',
         'point_fields': [*fields, 'ring'],

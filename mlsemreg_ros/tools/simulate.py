@@ -84,7 +84,14 @@ FlipFractionOption = Annotated[
     ),
 ]
 StepOption = Annotated[float, typer.Option(min=0.0, help='metres driven per frame')]
-RateOption = Annotated[float, typer.Option(min=0.001, help='scan rate in Hz')]
+RateOption = Annotated[
+    float,
+    typer.Option(
+        min=0.001,
+        help='scan rate in Hz (field mode: up to 20; from 5 Hz the sensor turns at this '
+        'rate, below it one 10 Hz sweep every 1/rate s is kept)',
+    ),
+]
 BeamsOption = Annotated[int, typer.Option(min=1, help='vertical beams', rich_help_panel=SENSOR)]
 AzimuthStepsOption = Annotated[
     int, typer.Option(min=1, help='horizontal samples per revolution', rich_help_panel=SENSOR)
@@ -107,12 +114,18 @@ RealismOption = Annotated[
     ),
 ]
 SensorOption = Annotated[
-    str, typer.Option(help='hdl64, vlp16 or os128 (field mode)', rich_help_panel=FIELD)
+    str,
+    typer.Option(
+        help='hdl64, hdl32, vlp16, os128, or livox: a non-repetitive solid-state pattern '
+        'with a 70 deg field of view (field mode)',
+        rich_help_panel=FIELD,
+    ),
 ]
 ProfileOption = Annotated[
     str,
     typer.Option(
-        help='normal, or aggressive: stop-and-go, sharp turns at speed (field mode)',
+        help='normal; aggressive: stop-and-go, sharp turns at speed; handheld: walking '
+        'with the sensor in hand, yaw up to 90 deg/s, sway, steps (field mode)',
         rich_help_panel=FIELD,
     ),
 ]
@@ -130,7 +143,7 @@ SpeedOption = Annotated[
         min=0.5,
         max=40.0,
         help="cruise speed in m/s on straights (field mode; default: the profile's, "
-        '10 normal, 14 aggressive)',
+        '10 normal, 14 aggressive, 1.4 handheld)',
         rich_help_panel=FIELD,
     ),
 ]
@@ -196,19 +209,18 @@ def simulate(
         raise typer.BadParameter(f'use one of {list(REALISMS)}', param_hint='--realism')
     layout = BagLayout(storage, compress, points_topic, gt_topic, frame_id, world_frame)
     if realism == 'field':
-        write, config = (
-            write_field_bag,
-            FieldConfig(
-                seed=seed,
-                frames=frames,
-                sensor=sensor,
-                profile=profile,
-                route=route,
-                speed=speed,
-                moving_objects=moving_objects,
-                network_labels=network_labels,
-                network=network,
-            ),
+        write = write_field_bag
+        config = FieldConfig(
+            seed=seed,
+            frames=frames,
+            sensor=sensor,
+            profile=profile,
+            route=route,
+            speed=speed,
+            moving_objects=moving_objects,
+            network_labels=network_labels,
+            network=network,
+            rate=rate,
         )
         try:
             config.validate()
@@ -219,13 +231,16 @@ def simulate(
             '0 frames only with --realism field --route loop', param_hint='--frames'
         )
     else:
-        lidar = LidarConfig(beams, azimuth_steps=azimuth_steps, max_range=max_range)
-        lidar.range_noise, lidar.dropout = range_noise, dropout
-        write, config = (
-            write_simulation_bag,
-            SimulationConfig(
-                seed, frames, rate, step, blur_radius, blur_probability, flip_fraction, lidar=lidar
-            ),
+        write = write_simulation_bag
+        lidar = LidarConfig(
+            beams=beams,
+            azimuth_steps=azimuth_steps,
+            max_range=max_range,
+            range_noise=range_noise,
+            dropout=dropout,
+        )
+        config = SimulationConfig(
+            seed, frames, rate, step, blur_radius, blur_probability, flip_fraction, lidar=lidar
         )
     replace_output(out, force)
     print_text(write(out, config, layout, progress=not quiet).summary(out))

@@ -91,6 +91,14 @@ class GeometricLabelsConfig:
         low=0.0,
         high=1.0,
     )
+    trust: float = param(
+        0.5,
+        'Weight of geometric labels as evidence, against clean network labels (1): their '
+        'label checks give way to the geometric evidence by this much '
+        '(core/labeling/quality.py, docs/labels.md).',
+        low=0.0,
+        high=1.0,
+    )
     vehicle_max_length: float = param(
         6.5,
         'Longest footprint side of a compact cluster above the ground that is a vehicle.',

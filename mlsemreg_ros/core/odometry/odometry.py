@@ -169,6 +169,11 @@ class Odometry:
         """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
         return keyframe_refusal(self.config, scan)
 
+    @property
+    def failures_in_a_row(self) -> int:
+        """Return the scans rejected in a row since the last accepted one."""
+        return self._failures
+
     def sweep_state(self) -> tuple[deque[tuple[np.ndarray, int]], Any, Any]:
         """Return what the motion within a sweep needs: accepted poses, sweep twist, model."""
         return self._accepted, self._sweep_twist, self.motion_model
@@ -201,6 +206,7 @@ class Odometry:
         start = time.perf_counter()
         labelled = self.label_source(points, labels, self.config)  # labels None: no field
         labels = labelled.labels
+        self.preprocessor.labelled = labelled  # noted at every preprocessing of this scan
         skipped, notes = self._stream_rules(stamp_ns)
         if skipped:
             return self._finish(self._rejected(self._count, stamp_ns, None, skipped), start)
@@ -209,7 +215,6 @@ class Odometry:
         prediction = self._prediction(stamp_ns)
         state = self.sweep_state()
         raw = self.preprocessor.sweep(points, labels, point_times, prediction, stamp_ns, *state)
-        labelled.note(raw.scan)  # the source in input_stats, its time in timings_ms
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
             return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
         timings: dict[str, float] = {}

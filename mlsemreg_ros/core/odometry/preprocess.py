@@ -43,6 +43,7 @@ import numpy as np
 
 if TYPE_CHECKING:
     from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.labeling.source import LabeledScan
 
 
 @dataclass
@@ -68,6 +69,7 @@ class Preprocessor:
         self.registration = registration
         label_map = getattr(registration, 'label_map', None)  # stand-ins lack it
         self.moving_objects = MovingObjectFilter(label_map) if label_map is not None else None
+        self.labelled: LabeledScan | None = None  # the labels of the scan in process
         self.check(registration.config)
 
     @property
@@ -113,6 +115,8 @@ class Preprocessor:
         given = points
         points = self.deskew(points, point_times, None if why else motion)
         scan = self.registration.prepare(points, labels, lazy=True)
+        if self.labelled is not None:  # the label source in input_stats, its time in timings
+            self.labelled.note(scan)
         on = self.registration.config.preprocess.deskew == 'on'
         return PreprocessedScan(
             np.asarray(points),

@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.estimation.candidates import CandidatePool
     from mlsemreg_ros.core.estimation.confidence import Evidence
+    from mlsemreg_ros.core.labeling.quality import LabelQuality
     from mlsemreg_ros.core.stages.scoring import Scoring
 
 
@@ -73,6 +74,8 @@ class RegistrationContext:
     scoring: Scoring  # the verification's scores with this config (core/stages/scoring.py)
     timings_ms: dict[str, float] = field(default_factory=dict)
     diagnostics: dict[str, Any] = field(default_factory=dict)
+    # label quality
+    label_quality: LabelQuality | None = None  # the pair's labels judged (None: not judged)
     # matching
     correspondences: Correspondences | None = None
     source_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3)

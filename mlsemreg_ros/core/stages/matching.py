@@ -22,6 +22,7 @@ smallest descriptor distances first.
 
 from __future__ import annotations
 
+from mlsemreg_ros.core.labeling import quality
 from mlsemreg_ros.core.matching import matching
 from mlsemreg_ros.core.results import Correspondences
 from mlsemreg_ros.core.stages.context import RegistrationContext
@@ -50,6 +51,11 @@ class MatchingStage:
                 outcome.message,
             )
             context.diagnostics.update(outcome.diagnostics)
+            if context.label_quality is not None and context.label_quality.widen:
+                plain = matching.match_descriptors(  # poorer labels: Group Matching widens
+                    source.descriptors, target.descriptors, cfg.matcher.kind
+                )
+                corr = quality.widened(corr, plain)
         else:
             corr = matching.match_descriptors(
                 source.descriptors, target.descriptors, cfg.matcher.kind

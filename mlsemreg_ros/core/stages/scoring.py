@@ -52,6 +52,7 @@ class Scoring:
     compatibility: LabelCompatibility  # the verification's label rule
     distinctive: np.ndarray  # (num_classes,) bool: confidence.distinctive_classes
     bev_channels: np.ndarray  # bev_search.channel_lookup of the config
+    unlabeled_local_ss: np.ndarray  # (num_classes,) bool: the Local-SS of a scan of zeros
 
     def refused_path(self) -> RefusedPath:
         """Return the refused-path steps with this config (core/estimation/refused_path.py)."""

@@ -1,0 +1,99 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""Never worse than no labels: the pair's labels judged and weighed (core/labeling/quality.py)."""
+
+from __future__ import annotations
+
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.labeling import quality
+from mlsemreg_ros.core.labeling.source import LabelSource
+from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.core.results import Correspondences
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
+import numpy as np
+import pytest
+
+CONFIG = {'keypoints.count': 1000}
+
+
+@pytest.fixture(scope='module')
+def scene():
+    """Return the synthetic street pair."""
+    return synthetic_pair(seed=0)
+
+
+def flipped(labels: np.ndarray, share: float, seed: int) -> np.ndarray:
+    """Return ``labels`` with ``share`` of them replaced by random learning ids."""
+    rng = np.random.default_rng(seed)
+    out = np.array(labels, copy=True)
+    chosen = rng.random(len(out)) < share
+    out[chosen] = rng.integers(1, 20, int(chosen.sum()))
+    return out
+
+
+def register(scene, label_src, label_dst, **changes):
+    registration = Registration(RegistrationConfig().replace({**CONFIG, **changes}))
+    source, target = registration.prepare_scans(
+        {'points': scene.pts_src, 'labels': label_src},
+        {'points': scene.pts_dst, 'labels': label_dst},
+    )
+    return registration.register(source, target)
+
+
+def test_labels_no_better_than_chance_are_judged_as_unlabeled(scene) -> None:
+    """60 % flips: the pair registers exactly as with --labels none (the same pose, verdict)."""
+    noisy = register(scene, flipped(scene.label_src, 0.6, 1), flipped(scene.label_dst, 0.6, 2))
+    zeros = register(scene, np.zeros_like(scene.label_src), np.zeros_like(scene.label_dst))
+    assert noisy.diagnostics['labels_judged_unlabeled']
+    assert noisy.diagnostics['label_weight'] == 0.0
+    assert noisy.success == zeros.success
+    np.testing.assert_allclose(noisy.transform, zeros.transform, atol=1e-9)
+    assert noisy.num_inliers == zeros.num_inliers
+
+
+def test_clean_labels_keep_their_full_weight(scene) -> None:
+    result = register(scene, scene.label_src, scene.label_dst)
+    assert result.diagnostics['label_weight'] == pytest.approx(1.0)
+    assert not result.diagnostics['labels_judged_unlabeled']
+    assert result.success
+
+
+def test_geometric_labels_are_weighed_by_their_trust(scene) -> None:
+    source = LabelSource()
+    config = RegistrationConfig().replace({**CONFIG, 'label_source': 'geometric'})
+    src = source(scene.pts_src, None, config).labels
+    dst = source(scene.pts_dst, None, config).labels
+    result = register(scene, src, dst, label_source='geometric')
+    weight = result.diagnostics['label_weight']
+    assert 0.0 < weight <= config.geometric_labels.trust
+    assert result.diagnostics['label_pair_source'] == 'geometric'
+
+
+def test_poorer_labels_relax_the_label_checks() -> None:
+    config = RegistrationConfig()
+    judged = quality.LabelQuality(0.5, 0.9, 'geometric', False)
+    relaxed = judged.config(config).confidence
+    assert relaxed.min_relative_agreement < config.confidence.min_relative_agreement
+    assert relaxed.contradicting_objects == 0
+    assert judged.widen
+    full = quality.LabelQuality(1.0, 0.95, 'field', False)
+    assert full.config(config) is config and not full.widen
+
+
+def test_widened_correspondences_are_the_union_without_duplicates() -> None:
+    semantic = Correspondences(np.array([0, 1, 2]), np.array([5, 6, 7]), np.ones(3, np.float32))
+    plain = Correspondences(np.array([1, 3]), np.array([6, 8]), np.zeros(2, np.float32))
+    union = quality.widened(semantic, plain)
+    pairs = set(zip(union.source.tolist(), union.target.tolist(), strict=True))
+    assert pairs == {(0, 5), (1, 6), (2, 7), (3, 8)}
