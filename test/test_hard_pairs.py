@@ -126,6 +126,17 @@ def test_cut_pairs_reports_a_bag_without_scans(tmp_path, capsys):
     assert 'cannot read' in capsys.readouterr().err
 
 
+def test_cut_hard_pairs_is_called_from_python_and_refuses_a_single_scan(tmp_path) -> None:
+    from mlsemreg_ros.datasets.hard_pairs import cut_hard_pairs, CutOptions, TooFewFrames
+
+    bag = tmp_path / 'one'
+    args = [str(bag), '--frames', '1', '--beams', '16', '--azimuth-steps', '360', '--quiet']
+    assert simulate.main(args) == 0
+    with pytest.raises(TooFewFrames, match='1 labeled scans'):
+        cut_hard_pairs(bag, tmp_path / 'out', CutOptions(), progress=False)
+    assert not (tmp_path / 'out').exists()
+
+
 @needs_kiss_matcher
 def test_kiss_matcher_registers_a_generated_pair():
     from mlsemreg_ros.evaluation.baselines import kiss_matcher_register

@@ -241,3 +241,47 @@ def write_pair_files(
                     f'{choice.overlap:.3f}',
                 ]
             )
+
+
+class TooFewFrames(ValueError):
+    """A bag holds fewer than two labeled scans with ground truth."""
+
+
+@dataclass
+class CutReport:
+    """What :func:`cut_hard_pairs` wrote."""
+
+    frames: int  # labeled scans with ground truth read from the bag
+    choices: list[PairChoice]
+
+    def counts(self) -> dict[str, int]:
+        """Return the pairs written per kind ('stride', 'turn')."""
+        return {kind: sum(c.kind == kind for c in self.choices) for kind in ('stride', 'turn')}
+
+
+def cut_hard_pairs(
+    bag: Path,
+    out: Path,
+    options: CutOptions,
+    voxel_size: float = 0.3,
+    max_range: float = 60.0,
+    keypoints: int = 5000,
+    prefix: str | None = None,
+    progress: bool = True,
+) -> CutReport:
+    """
+    Cut hard pairs out of ``bag`` into pair files in ``out`` (``mlsemreg cut-pairs``).
+
+    Reads the labeled scans with ground truth (:func:`read_frames`), draws the pairs
+    (:func:`choose_pairs`) and writes them (:func:`write_pair_files`), named
+    ``<prefix>_<source>_<target>`` (prefix: the bag's name). Raises :class:`TooFewFrames`
+    below two scans, and the reader's errors (``SourceError``, ``OSError``, ``ValueError``).
+    """
+    frames = read_frames(bag, voxel_size, max_range, progress=progress)
+    if len(frames) < 2:
+        raise TooFewFrames(
+            f'{bag} has {len(frames)} labeled scans with ground truth; at least 2 are needed'
+        )
+    choices = choose_pairs(frames, options)
+    write_pair_files(frames, choices, out, prefix or bag.name, keypoints, options.seed)
+    return CutReport(len(frames), choices)

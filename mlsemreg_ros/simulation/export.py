@@ -47,6 +47,14 @@ class SimulationReport:
     world_s: float  # building the world
     total_s: float
 
+    def summary(self, out: Path) -> str:
+        """Return the one line ``mlsemreg simulate`` prints."""
+        return (
+            f'wrote {out}: {self.frames} scans, {self.points_per_scan:.0f} points/scan, '
+            f'{self.path_m:.1f} m driven; world {self.world_s:.1f} s, total '
+            f'{self.total_s:.1f} s'
+        )
+
 
 def _scans(sim: Simulation, progress: bool) -> Iterator[Scan]:
     from tqdm import tqdm

@@ -55,6 +55,20 @@ class FieldReport:
     path_m: float
     setup_s: float  # world, route, actors, IMU
     total_s: float
+    sensor: str = ''
+    profile: str = ''
+    route: str = ''
+    rate_hz: float | None = None  # None: the sensor's own
+
+    def summary(self, out: Path) -> str:
+        """Return the one line ``mlsemreg simulate --realism field`` prints."""
+        return (
+            f'wrote {out}: {self.frames} {self.sensor} sweeps'
+            + (f' at {self.rate_hz:g} Hz' if self.rate_hz else '')
+            + f' ({self.profile}, {self.route}), '
+            f'{self.points_per_scan:.0f} points/scan, {self.path_m:.1f} m driven; setup '
+            f'{self.setup_s:.1f} s, total {self.total_s:.1f} s'
+        )
 
 
 def _cloud_fields(sim: FieldSimulation, frame) -> dict[str, np.ndarray]:
@@ -167,6 +181,10 @@ def write_field_bag(
         path_m,
         built - start,
         time.perf_counter() - start,
+        config.sensor,
+        config.profile,
+        config.route,
+        config.rate,
     )
 
 

@@ -15,8 +15,8 @@
 """
 ``mlsemreg cut-pairs BAG OUT``: cut hard registration pairs out of a labeled bag with truth.
 
-The selection (stride pairs far apart, low-overlap turn pairs) is
-:mod:`mlsemreg_ros.datasets.hard_pairs`; this module is its command line.
+The selection (stride pairs far apart, low-overlap turn pairs) and the writing are
+:func:`mlsemreg_ros.datasets.hard_pairs.cut_hard_pairs`; this module is its command line.
 """
 
 from __future__ import annotations
@@ -34,89 +34,89 @@ HELP = (
 SELECTION = 'Pair selection'
 
 
+BagArgument = Annotated[
+    Path, typer.Argument(help='rosbag2 folder with labeled clouds and ground truth')
+]
+OutArgument = Annotated[Path, typer.Argument(help='output folder for the pair files')]
+StridePairs = Annotated[
+    int, typer.Option(min=0, help='number of stride pairs', rich_help_panel=SELECTION)
+]
+TurnPairs = Annotated[
+    int, typer.Option(min=0, help='number of turn pairs', rich_help_panel=SELECTION)
+]
+MinDistance = Annotated[
+    float,
+    typer.Option(
+        min=0.0, help='stride pairs: least sensor distance, m', rich_help_panel=SELECTION
+    ),
+]
+MaxDistance = Annotated[
+    float,
+    typer.Option(
+        min=0.0, help='largest sensor distance of any pair, m', rich_help_panel=SELECTION
+    ),
+]
+TurnAngle = Annotated[
+    float,
+    typer.Option(
+        min=0.0,
+        max=180.0,
+        help='relative rotation that makes a turn pair, deg',
+        rich_help_panel=SELECTION,
+    ),
+]
+TurnMinDistance = Annotated[
+    float,
+    typer.Option(min=0.0, help='turn pairs: least sensor distance, m', rich_help_panel=SELECTION),
+]
+TurnMaxOverlap = Annotated[
+    float,
+    typer.Option(
+        min=0.0,
+        max=1.0,
+        help='turn pairs: largest ground-truth overlap',
+        rich_help_panel=SELECTION,
+    ),
+]
+MinOverlap = Annotated[
+    float,
+    typer.Option(
+        min=0.0,
+        max=1.0,
+        help='least ground-truth overlap (share of source points within 0.6 m)',
+        rich_help_panel=SELECTION,
+    ),
+]
+VoxelSize = Annotated[float, typer.Option(min=0.0, help='voxel edge, m')]
+MaxRange = Annotated[float, typer.Option(min=0.0, help='crop radius, m')]
+Keypoints = Annotated[int, typer.Option(min=0, help='random keypoints per scan')]
+Seed = Annotated[int, typer.Option(min=0, help='seed of the pair draw and keypoints')]
+Prefix = Annotated[str | None, typer.Option(help='pair name prefix (default: bag name)')]
+
+
 def cut_pairs(
-    bag: Annotated[
-        Path, typer.Argument(help='rosbag2 folder with labeled clouds and ground truth')
-    ],
-    out: Annotated[Path, typer.Argument(help='output folder for the pair files')],
-    stride_pairs: Annotated[
-        int, typer.Option(min=0, help='number of stride pairs', rich_help_panel=SELECTION)
-    ] = 40,
-    turn_pairs: Annotated[
-        int, typer.Option(min=0, help='number of turn pairs', rich_help_panel=SELECTION)
-    ] = 20,
-    min_distance: Annotated[
-        float,
-        typer.Option(
-            min=0.0, help='stride pairs: least sensor distance, m', rich_help_panel=SELECTION
-        ),
-    ] = 20.0,
-    max_distance: Annotated[
-        float,
-        typer.Option(
-            min=0.0, help='largest sensor distance of any pair, m', rich_help_panel=SELECTION
-        ),
-    ] = 40.0,
-    turn_angle: Annotated[
-        float,
-        typer.Option(
-            min=0.0,
-            max=180.0,
-            help='relative rotation that makes a turn pair, deg',
-            rich_help_panel=SELECTION,
-        ),
-    ] = 45.0,
-    turn_min_distance: Annotated[
-        float,
-        typer.Option(
-            min=0.0, help='turn pairs: least sensor distance, m', rich_help_panel=SELECTION
-        ),
-    ] = 10.0,
-    turn_max_overlap: Annotated[
-        float,
-        typer.Option(
-            min=0.0,
-            max=1.0,
-            help='turn pairs: largest ground-truth overlap',
-            rich_help_panel=SELECTION,
-        ),
-    ] = 0.4,
-    min_overlap: Annotated[
-        float,
-        typer.Option(
-            min=0.0,
-            max=1.0,
-            help='least ground-truth overlap (share of source points within 0.6 m)',
-            rich_help_panel=SELECTION,
-        ),
-    ] = 0.1,
-    voxel_size: Annotated[float, typer.Option(min=0.0, help='voxel edge, m')] = 0.3,
-    max_range: Annotated[float, typer.Option(min=0.0, help='crop radius, m')] = 60.0,
-    keypoints: Annotated[int, typer.Option(min=0, help='random keypoints per scan')] = 5000,
-    seed: Annotated[int, typer.Option(min=0, help='seed of the pair draw and keypoints')] = 0,
-    prefix: Annotated[
-        str | None, typer.Option(help='pair name prefix (default: bag name)')
-    ] = None,
+    bag: BagArgument,
+    out: OutArgument,
+    stride_pairs: StridePairs = 40,
+    turn_pairs: TurnPairs = 20,
+    min_distance: MinDistance = 20.0,
+    max_distance: MaxDistance = 40.0,
+    turn_angle: TurnAngle = 45.0,
+    turn_min_distance: TurnMinDistance = 10.0,
+    turn_max_overlap: TurnMaxOverlap = 0.4,
+    min_overlap: MinOverlap = 0.1,
+    voxel_size: VoxelSize = 0.3,
+    max_range: MaxRange = 60.0,
+    keypoints: Keypoints = 5000,
+    seed: Seed = 0,
+    prefix: Prefix = None,
     quiet: QuietOption = False,
 ) -> int:
     """Cut hard registration pairs out of a labeled bag (alias mlsemreg-cut-pairs)."""
-    from mlsemreg_ros.datasets.hard_pairs import (
-        choose_pairs,
-        CutOptions,
-        read_frames,
-        write_pair_files,
-    )
+    from mlsemreg_ros.datasets.hard_pairs import cut_hard_pairs, CutOptions, TooFewFrames
     from mlsemreg_ros.datasets.source import SourceError
     from mlsemreg_ros.evaluation.tables import print_text
 
-    try:
-        frames = read_frames(bag, voxel_size, max_range, progress=not quiet)
-    except (SourceError, OSError, ValueError) as error:
-        raise CommandError(f'cannot read {bag}: {error}') from None
-    if len(frames) < 2:
-        raise CommandError(
-            f'{bag} has {len(frames)} labeled scans with ground truth; at least 2 are needed'
-        )
     options = CutOptions(
         stride_pairs,
         turn_pairs,
@@ -128,12 +128,18 @@ def cut_pairs(
         min_overlap,
         seed,
     )
-    choices = choose_pairs(frames, options)
-    write_pair_files(frames, choices, out, prefix or bag.name, keypoints, seed)
-    counts = {kind: sum(c.kind == kind for c in choices) for kind in ('stride', 'turn')}
+    try:
+        report = cut_hard_pairs(
+            bag, out, options, voxel_size, max_range, keypoints, prefix, progress=not quiet
+        )
+    except TooFewFrames as error:
+        raise CommandError(str(error)) from None
+    except (SourceError, OSError, ValueError) as error:
+        raise CommandError(f'cannot read {bag}: {error}') from None
+    counts = report.counts()
     print_text(
-        f'wrote {len(choices)} pairs to {out} ({counts["stride"]} stride, '
-        f'{counts["turn"]} turn) from {len(frames)} scans of {bag}'
+        f'wrote {len(report.choices)} pairs to {out} ({counts["stride"]} stride, '
+        f'{counts["turn"]} turn) from {report.frames} scans of {bag}'
     )
     return 0
 

@@ -93,67 +93,78 @@ MatcherKind = config_choices('matcher.kind')
 EstimatorKind = config_choices('estimator.kind')
 
 
+DirectoryArgument = Annotated[
+    Path,
+    typer.Argument(metavar='DIR', help='folder of pair files', exists=True, file_okay=False),
+]
+DescriptorOption = Annotated[
+    Literal['gedi', 'fpfh'],
+    typer.Option(
+        help='gedi: descriptors stored in the pair files; fpfh: computed at the stored keypoints'
+    ),
+]
+MatcherOption = Annotated[
+    MatcherKind | None, typer.Option(help='matcher.kind', rich_help_panel=PARAMETERS)
+]
+NoSemanticOption = Annotated[
+    bool,
+    typer.Option(
+        '--no-semantic',
+        help='plain matcher (the paper baseline): semantic.enabled=false',
+        rich_help_panel=PARAMETERS,
+    ),
+]
+EstimatorOption = Annotated[
+    EstimatorKind | None,
+    typer.Option(help='estimator.kind', rich_help_panel=PARAMETERS),
+]
+NoRefineOption = Annotated[
+    bool,
+    typer.Option(
+        '--no-refine',
+        help='the estimator alone, no fine alignment: fine.pair_method=off',
+        rich_help_panel=PARAMETERS,
+    ),
+]
+NoVerificationOption = Annotated[
+    bool,
+    typer.Option(
+        '--no-verification',
+        help="keep the estimator's choice: verification.enabled=false",
+        rich_help_panel=PARAMETERS,
+    ),
+]
+BaselineOption = Annotated[
+    list[Baseline] | None,
+    typer.Option(
+        help='also run a baseline on the same pairs and compare (repeatable): kiss-matcher '
+        '(raw points, voxel 0.3 m, no labels; needs the kiss-matcher package) or fpfh-ransac '
+        '(Open3D FPFH + NN + Open3D RANSAC)'
+    ),
+]
+LabelNoiseOption = Annotated[
+    str | None,
+    typer.Option(
+        help='degrade the labels of both scans first: flip:F (a share F of the points get '
+        'a uniformly random learning id), confuse:C (a share C of building/vegetation, '
+        'road/sidewalk, terrain/vegetation points take the partner class), or both '
+        '(flip:0.1,confuse:0.3); seeded by --noise-seed (docs/label_noise.md)'
+    ),
+]
+NoiseSeedOption = Annotated[int, typer.Option(min=0, help='seed of --label-noise')]
+
+
 def eval_pairs(
-    directory: Annotated[
-        Path,
-        typer.Argument(metavar='DIR', help='folder of pair files', exists=True, file_okay=False),
-    ],
-    descriptor: Annotated[
-        Literal['gedi', 'fpfh'],
-        typer.Option(
-            help='gedi: descriptors stored in the pair files; fpfh: computed at the stored '
-            'keypoints'
-        ),
-    ] = 'gedi',
-    matcher: Annotated[
-        MatcherKind | None, typer.Option(help='matcher.kind', rich_help_panel=PARAMETERS)
-    ] = None,
-    no_semantic: Annotated[
-        bool,
-        typer.Option(
-            '--no-semantic',
-            help='plain matcher (the paper baseline): semantic.enabled=false',
-            rich_help_panel=PARAMETERS,
-        ),
-    ] = False,
-    estimator: Annotated[
-        EstimatorKind | None,
-        typer.Option(help='estimator.kind', rich_help_panel=PARAMETERS),
-    ] = None,
-    no_refine: Annotated[
-        bool,
-        typer.Option(
-            '--no-refine',
-            help='the estimator alone, no fine alignment: fine.pair_method=off',
-            rich_help_panel=PARAMETERS,
-        ),
-    ] = False,
-    no_verification: Annotated[
-        bool,
-        typer.Option(
-            '--no-verification',
-            help="keep the estimator's choice: verification.enabled=false",
-            rich_help_panel=PARAMETERS,
-        ),
-    ] = False,
-    baseline: Annotated[
-        list[Baseline] | None,
-        typer.Option(
-            help='also run a baseline on the same pairs and compare (repeatable): kiss-matcher '
-            '(raw points, voxel 0.3 m, no labels; needs the kiss-matcher package) or fpfh-ransac '
-            '(Open3D FPFH + NN + Open3D RANSAC)'
-        ),
-    ] = None,
-    label_noise: Annotated[
-        str | None,
-        typer.Option(
-            help='degrade the labels of both scans first: flip:F (a share F of the points get '
-            'a uniformly random learning id), confuse:C (a share C of building/vegetation, '
-            'road/sidewalk, terrain/vegetation points take the partner class), or both '
-            '(flip:0.1,confuse:0.3); seeded by --noise-seed (docs/label_noise.md)'
-        ),
-    ] = None,
-    noise_seed: Annotated[int, typer.Option(min=0, help='seed of --label-noise')] = 0,
+    directory: DirectoryArgument,
+    descriptor: DescriptorOption = 'gedi',
+    matcher: MatcherOption = None,
+    no_semantic: NoSemanticOption = False,
+    estimator: EstimatorOption = None,
+    no_refine: NoRefineOption = False,
+    no_verification: NoVerificationOption = False,
+    baseline: BaselineOption = None,
+    label_noise: LabelNoiseOption = None,
+    noise_seed: NoiseSeedOption = 0,
     config: ConfigOption = None,
     labels: LabelsOption = None,
     overrides: SetOption = None,
@@ -166,20 +177,11 @@ def eval_pairs(
     from mlsemreg_ros.evaluation import tables
     from mlsemreg_ros.evaluation.baselines import BaselineUnavailable, run_baselines
     from mlsemreg_ros.evaluation.label_noise import LabelNoise, LabelNoiseError
-    from mlsemreg_ros.evaluation.pairs import EvalError, evaluate_directory, method_label
+    from mlsemreg_ros.evaluation.pair_report import print_comparison, print_pair_report
+    from mlsemreg_ros.evaluation.pairs import EvalError, evaluate_directory
     from mlsemreg_ros.evaluation.reports import write_json
 
-    flags: dict[str, Any] = {}
-    if matcher:
-        flags['matcher.kind'] = matcher
-    if no_semantic:
-        flags['semantic.enabled'] = False
-    if estimator:
-        flags['estimator.kind'] = estimator
-    if no_refine:
-        flags['fine.pair_method'] = 'off'
-    if no_verification:
-        flags['verification.enabled'] = False
+    flags = _flags(matcher, no_semantic, estimator, no_refine, no_verification)
     try:
         core, evaluation = build_settings(config, flags, with_labels(overrides, labels))
     except (ConfigError, OSError) as error:
@@ -201,12 +203,7 @@ def eval_pairs(
         )
     except EvalError as error:
         raise CommandError(str(error)) from None
-    label = method_label(descriptor, core)
-    noisy = f', label noise {noise}' if noise.active else ''
-    tables.print_text(f'{label}, {len(report["pairs"])} pairs from {directory}{noisy}')
-    tables.print_table(tables.pair_results_table(report['pairs'], report['summary']))
-    stages = ', '.join(f'{k} {v:.0f}' for k, v in report['summary']['time_ms'].items())
-    tables.print_text(f'mean time per pair (ms, both clouds): {stages}')
+    label = print_pair_report(report, directory, descriptor, core, noise)
     if baseline:
         try:
             report['baselines'] = run_baselines(
@@ -214,16 +211,33 @@ def eval_pairs(
             )
         except (BaselineUnavailable, EvalError) as error:
             raise CommandError(str(error)) from None
-        reports = {label: report, **report['baselines']}
-        tables.print_text('\ncomparison on the same pairs (RE/TE: means over successful pairs):')
-        tables.print_table(tables.comparison_table(reports))
-        per_pair, legend = tables.per_pair_table(reports)
-        tables.print_table(per_pair)
-        tables.print_text(legend)
+        print_comparison(label, report)
     if json_path is not None:
         write_json(json_path, report)
         tables.print_text(f'wrote {json_path}')
     return 0
+
+
+def _flags(
+    matcher: str | None,
+    no_semantic: bool,
+    estimator: str | None,
+    no_refine: bool,
+    no_verification: bool,
+) -> dict[str, Any]:
+    """Return the flat parameters the shorthand flags set."""
+    flags: dict[str, Any] = {}
+    if matcher:
+        flags['matcher.kind'] = matcher
+    if no_semantic:
+        flags['semantic.enabled'] = False
+    if estimator:
+        flags['estimator.kind'] = estimator
+    if no_refine:
+        flags['fine.pair_method'] = 'off'
+    if no_verification:
+        flags['verification.enabled'] = False
+    return flags
 
 
 main = alias(eval_pairs, HELP, 'mlsemreg-eval-pairs')

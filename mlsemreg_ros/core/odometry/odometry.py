@@ -66,7 +66,7 @@ from mlsemreg_ros.core.odometry.steps import (
     OdometryStep,
     prediction_covariance,
     REINITIALIZATION_VARIANCE,
-    rejected_step,
+    step_at_pose,
 )
 from mlsemreg_ros.core.odometry.tracking import Tracker
 from mlsemreg_ros.core.pipeline import Registration
@@ -300,23 +300,11 @@ class Odometry:
                 index, stamp_ns, current, reason, timings=_prepare_timings(current)
             )
         self._start(index, stamp_ns, raw, self.pose)
-        return OdometryStep(
-            index=index,
-            stamp_ns=stamp_ns,
-            pose=self.pose.copy(),
-            relative=None,
-            result=None,
-            accepted=True,
-            keyframe_index=index,
-            keyframe_stamp_ns=stamp_ns,
-            new_keyframe=True,
-            prepared=current,
-            timings_ms=_prepare_timings(current),
-            source='first',
-            reason='; '.join(notes),
-            covariance=self.covariance.copy(),
-            map_voxels=len(self.map),
+        step = self._rejected(
+            index, stamp_ns, current, '; '.join(notes), timings=_prepare_timings(current)
         )
+        step.accepted, step.new_keyframe, step.source = True, True, 'first'
+        return step
 
     def _apply(
         self, index: int, stamp_ns: int, raw: PreprocessedScan, chosen: Decision
@@ -380,8 +368,8 @@ class Odometry:
         relative: np.ndarray | None = None,
         timings: dict[str, float] | None = None,
     ) -> OdometryStep:
-        """Return the step of a rejected scan: pose, keyframe, map and covariance stay."""
-        return rejected_step(
+        """Return the step of a scan that leaves pose, keyframe, map and covariance as they are."""
+        return step_at_pose(
             index, stamp_ns, self, current, reason, result, relative, timings, len(self.map)
         )
 

@@ -140,7 +140,8 @@ def guard_prior(
     and ``chosen``: its preprocessed scan and decision with the prior. Returns the scan and
     decision to apply and the step's ``prior_refusal`` ('' when the prior agrees).
     """
-    accepted, _, motion_model = odometry.sweep_state()
+    state = odometry.sweep_state()  # accepted poses, sweep twist, motion model
+    accepted, motion_model = state[0], state[2]
     refusal = prior_disagreement(
         prediction,
         chosen,
@@ -153,25 +154,10 @@ def guard_prior(
     )
     if not refusal:
         return raw, chosen, ''
-    return _without_prior(odometry, scan, raw, chosen, refusal, timings)
-
-
-def _without_prior(
-    odometry: Any,
-    scan: tuple[np.ndarray, np.ndarray, np.ndarray | None, int],
-    raw: Any,
-    chosen: Any,
-    refusal: str,
-    timings: dict[str, float],
-) -> tuple[Any, Any, str]:
-    """Register the scan again without the prior; keep the better."""
+    # registered again without the prior: the better-aligned of the two is kept
     points, labels, point_times, stamp_ns = scan
-    preprocessor, trust, state = (
-        odometry.preprocessor,
-        odometry.tracker.trust,
-        odometry.sweep_state(),
-    )
-    constant = getattr(odometry.motion_model, 'constant_velocity', None)
+    preprocessor, trust = odometry.preprocessor, odometry.tracker.trust
+    constant = getattr(motion_model, 'constant_velocity', None)
     prediction = constant(stamp_ns) if constant is not None else None
     motion = preprocessor.sweep_motion(prediction, stamp_ns, None, *state)  # no gyro
     tracked = trust.tracked_in_a_row

@@ -215,7 +215,7 @@ def accepted_step(
     )
 
 
-def rejected_step(
+def step_at_pose(
     index: int,
     stamp_ns: int,
     odometry: Any,
@@ -226,7 +226,12 @@ def rejected_step(
     timings: dict[str, float] | None,
     map_voxels: int,
 ) -> OdometryStep:
-    """Return the step of a rejected scan: the ``odometry``'s pose, keyframe and covariance."""
+    """
+    Return the step of a scan that leaves the ``odometry``'s pose where it is.
+
+    A rejected scan (pose, keyframe and covariance stay), or the first (the odometry
+    starts on it at its pose, and the caller marks it accepted).
+    """
     keyframe = odometry.keyframe
     return OdometryStep(
         index=index,
