@@ -254,14 +254,11 @@ def test_a_restarted_wheel_stream_makes_the_model_forget_the_old_one() -> None:
 
 
 def test_wheel_jump_allows_plausible_motion() -> None:
-    a, b = np.eye(4), np.eye(4)
-    b[:3, 3] = [5.0, 0.0, 0.0]
-    assert wheel_jump(a, b, 0.1) == ''
-    b[:3, 3] = [8.0, 0.0, 0.0]
-    assert wheel_jump(a, b, 0.1) == 'pose_jump'
-    b[:3, 3] = 0.0
-    b[:3, :3] = Rotation.from_euler('z', 3.0).as_matrix()
-    assert wheel_jump(a, b, 0.01) == 'pose_jump' and wheel_jump(a, b, 0.1) == ''
+    still = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    assert wheel_jump(still, ((5.0, 0.0, 0.0), still[1]), 0.1) == ''
+    assert wheel_jump(still, ((8.0, 0.0, 0.0), still[1]), 0.1) == 'pose_jump'
+    turned = (still[0], tuple(Rotation.from_euler('z', 3.0).as_quat()))  # 3 rad
+    assert wheel_jump(still, turned, 0.01) == 'pose_jump' and wheel_jump(still, turned, 0.1) == ''
 
 
 def test_a_model_that_refuses_samples_costs_only_those_samples() -> None:

@@ -40,6 +40,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+import math
 from typing import Any
 
 import numpy as np
@@ -81,62 +82,69 @@ def stamp_problem(sec: Any, nanosec: Any) -> tuple[int, str]:
     return stamp, ''
 
 
-def safe_norm(vector: np.ndarray) -> float:
-    """Return the Euclidean norm of a finite vector without overflow (1e300 stays 1e300)."""
-    v = np.asarray(vector, dtype=np.float64)
-    largest = float(np.max(np.abs(v))) if v.size else 0.0
-    if largest == 0.0:
-        return 0.0
-    return largest * float(np.sqrt(np.sum((v / largest) ** 2)))
+Vector = tuple[float, ...]
 
 
-def imu_problem(gyro: np.ndarray, accel: np.ndarray) -> str:
-    """Why an IMU sample (rad/s, m/s^2; 3 each) cannot be right ('' if it can)."""
-    if not np.all(np.isfinite(gyro)):
+def imu_problem(gyro: Vector, accel: Vector) -> str:
+    """
+    Why an IMU sample (rad/s, m/s^2; 3 floats each) cannot be right ('' if it can).
+
+    Plain floats and :mod:`math` (``hypot`` does not overflow): the check runs in the
+    subscription callback, once per message, where NumPy's per-call cost would dominate.
+    """
+    if not all(math.isfinite(v) for v in gyro):
         return 'nonfinite_gyro'
-    if not np.all(np.isfinite(accel)):
+    if not all(math.isfinite(v) for v in accel):
         return 'nonfinite_accel'
-    if safe_norm(gyro) > MAX_GYRO_RAD_S:
+    if math.hypot(*gyro) > MAX_GYRO_RAD_S:
         return 'gyro_limit'
-    if safe_norm(accel) > MAX_ACCEL_M_S2:
+    if math.hypot(*accel) > MAX_ACCEL_M_S2:
         return 'accel_limit'
     return ''
 
 
-def quaternion_problem(quaternion: np.ndarray) -> str:
+def quaternion_problem(quaternion: Vector) -> str:
     """Why ``(x, y, z, w)`` is not an orientation ('' if it is, to within the tolerance)."""
-    q = np.asarray(quaternion, dtype=np.float64)
-    if not np.all(np.isfinite(q)):
+    if not all(math.isfinite(v) for v in quaternion):
         return 'nonfinite_orientation'
-    norm = safe_norm(q)
+    norm = math.hypot(*quaternion)
     if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE:
         return 'zero_quaternion' if norm < QUATERNION_NORM_TOLERANCE else 'nonunit_quaternion'
     return ''
 
 
-def pose_matrix(position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
-    """Return the 4x4 pose of a position and a unit quaternion ``(x, y, z, w)`` (normalised)."""
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat(np.asarray(quaternion, dtype=np.float64)).as_matrix()
-    T[:3, 3] = position
-    return T
-
-
-def wheel_problem(position: np.ndarray, quaternion: np.ndarray) -> str:
+def wheel_problem(position: Vector, quaternion: Vector) -> str:
     """Why a wheel pose cannot be right ('' if it can): non-finite or not an orientation."""
-    if not np.all(np.isfinite(np.asarray(position, dtype=np.float64))):
+    if not all(math.isfinite(v) for v in position):
         return 'nonfinite_position'
     return quaternion_problem(quaternion)
 
 
-def wheel_jump(previous: np.ndarray, pose: np.ndarray, span_s: float) -> str:
-    """Why ``pose`` cannot follow ``previous`` after ``span_s`` seconds ('' if it can)."""
-    distance = float(np.linalg.norm(pose[:3, 3] - previous[:3, 3]))
-    if distance > MAX_WHEEL_SPEED_M_S * span_s + WHEEL_JUMP_SLACK_M:
+def unit_quaternion(quaternion: Vector) -> Vector:
+    """Return ``quaternion`` scaled to norm 1 (it passed :func:`quaternion_problem`)."""
+    norm = math.hypot(*quaternion)
+    return tuple(v / norm for v in quaternion)
+
+
+def pose_matrix(position: Vector, quaternion: Vector) -> np.ndarray:
+    """Return the 4x4 pose of a position and a unit quaternion ``(x, y, z, w)``."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(quaternion).as_matrix()
+    T[:3, 3] = position
+    return T
+
+
+def wheel_jump(previous: tuple[Vector, Vector], pose: tuple[Vector, Vector], span_s: float) -> str:
+    """
+    Why ``pose`` cannot follow ``previous`` after ``span_s`` seconds ('' if it can).
+
+    Poses are ``(position, unit quaternion)``; the turn between two unit quaternions is
+    ``2 acos |<q0, q1>|``.
+    """
+    if math.dist(pose[0], previous[0]) > MAX_WHEEL_SPEED_M_S * span_s + WHEEL_JUMP_SLACK_M:
         return 'pose_jump'
-    cosine = 0.5 * (float(np.trace(previous[:3, :3].T @ pose[:3, :3])) - 1.0)
-    turn = float(np.arccos(np.clip(cosine, -1.0, 1.0)))
-    if turn > MAX_GYRO_RAD_S * span_s + WHEEL_TURN_SLACK_RAD:
+    dot = abs(sum(a * b for a, b in zip(previous[1], pose[1], strict=True)))
+    if 2.0 * math.acos(min(dot, 1.0)) > MAX_GYRO_RAD_S * span_s + WHEEL_TURN_SLACK_RAD:
         return 'pose_jump'
     return ''
 

@@ -40,6 +40,7 @@ from mlsemreg_ros.core.prior_checks import (
     pose_matrix,
     stamp_problem,
     StreamGate,
+    unit_quaternion,
     wheel_jump,
     wheel_problem,
 )
@@ -55,8 +56,8 @@ class ImuSample:
     """One IMU message as numbers: stamp (ns), angular rate (rad/s), specific force (m/s^2)."""
 
     stamp_ns: int
-    gyro: np.ndarray  # (3,)
-    accel: np.ndarray  # (3,)
+    gyro: tuple[float, float, float]
+    accel: tuple[float, float, float]
     frame_id: str
 
 
@@ -67,10 +68,17 @@ class WheelSample:
     stamp_ns: int
     pose: np.ndarray  # (4, 4)
     child_frame_id: str
+    position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    quaternion: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)  # unit, (x, y, z, w)
+
+    @property
+    def gate_value(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
+        """Return what the stream gate compares: position and unit quaternion."""
+        return self.position, self.quaternion
 
 
-def _vector(v: Any) -> np.ndarray:
-    return np.array([float(v.x), float(v.y), float(v.z)], dtype=np.float64)
+def _vector(v: Any) -> tuple[float, float, float]:
+    return float(v.x), float(v.y), float(v.z)
 
 
 def imu_sample(msg: Any) -> tuple[ImuSample | None, str]:
@@ -100,7 +108,7 @@ def wheel_sample(msg: Any) -> tuple[WheelSample | None, str]:
         stamp_ns, why = stamp_problem(stamp.sec, stamp.nanosec)
         pose = msg.pose.pose
         q = pose.orientation
-        quaternion = np.array([float(q.x), float(q.y), float(q.z), float(q.w)])
+        quaternion = (float(q.x), float(q.y), float(q.z), float(q.w))
         position = _vector(pose.position)
         child = str(msg.child_frame_id)
     except Exception:  # any attribute or conversion error
@@ -108,7 +116,8 @@ def wheel_sample(msg: Any) -> tuple[WheelSample | None, str]:
     why = why or wheel_problem(position, quaternion)
     if why:
         return None, why
-    return WheelSample(stamp_ns, pose_matrix(position, quaternion), child), ''
+    unit = unit_quaternion(quaternion)
+    return WheelSample(stamp_ns, pose_matrix(position, unit), child, position, unit), ''
 
 
 class PriorInbox:
@@ -137,7 +146,7 @@ class PriorInbox:
     def on_wheel(self, msg: Any) -> None:
         """Take a nav_msgs/Odometry of the wheels (executor thread); drop it if unusable."""
         sample, why = wheel_sample(msg)
-        self._admit('wheel', sample, why, self._wheel, 'pose')
+        self._admit('wheel', sample, why, self._wheel, 'gate_value')
 
     def _admit(
         self, stream: str, sample: Any, why: str, queue: list[Any], value: str | None

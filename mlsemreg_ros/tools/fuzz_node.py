@@ -107,6 +107,7 @@ def fuzz_node(
                             lambda process=node: process.poll() is None,
                             before,
                             rng,
+                            keyframe_twice=pairs is None,
                         )
                         results.append(result)
                         t0 += 4 * interval + 1.0
@@ -153,7 +154,11 @@ def fuzz_node(
 
 
 def _pairs(folder: Path | None) -> tuple[list, float]:
-    """Return the pairs and the interval (s) between the scans of the moved step."""
+    """
+    Return the pairs and the interval (s) between the scans of the moved step.
+
+    Pair files are sent as keyframe and moved scan only (``run_case``'s ``keyframe_twice``).
+    """
     if folder is None:
         from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 
