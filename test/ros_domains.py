@@ -35,6 +35,7 @@ MODULES = (
     'node_stack',
     'node_pose',
     'lifecycle',
+    'point_map_node',
 )
 #: Test runs whose base ids fit below Fast DDS's largest domain id, 232.
 _RUNS = (232 - 100) // len(MODULES)

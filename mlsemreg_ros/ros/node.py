@@ -117,6 +117,7 @@ class Scan:
     dropped_nonfinite: int
     point_times: np.ndarray | None = None  # (N,) float64 s after the stamp (deskew)
     time_warning: str = ''  # a time field that is there but not used for deskew: why
+    intensity: np.ndarray | None = None  # (N,) float32, for label_source onnx
 
 
 class StampGaps:
@@ -292,6 +293,7 @@ class MlSemRegNode(GuardedCallbacks, Node):
                 cloud.dropped_nonfinite,
                 cloud.point_times,
                 cloud.time_warning,
+                cloud.intensity,
             )
         )
 
@@ -357,7 +359,11 @@ class MlSemRegNode(GuardedCallbacks, Node):
         self._apply_pose_request(config.node)
         try:
             step = self._odometry.process(
-                scan.xyz, scan.labels, stamp_to_ns(scan.stamp), point_times=scan.point_times
+                scan.xyz,
+                scan.labels,
+                stamp_to_ns(scan.stamp),
+                point_times=scan.point_times,
+                intensity=scan.intensity,
             )
         except LabelError as error:
             self._skip(scan.stamp, f'skipped scan with unusable labels: {error}')

@@ -44,6 +44,7 @@ from collections import deque
 import time
 from typing import Any
 
+from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, motion_size
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, SweepMotion
 from mlsemreg_ros.core.labeling.source import LabelSource
@@ -201,6 +202,7 @@ class Odometry:
         stamp_ns: int = 0,
         *,
         point_times: np.ndarray | None = None,
+        intensity: np.ndarray | None = None,
     ) -> OdometryStep:
         """
         Register one scan (points (N, 3) metres, labels (N,)) and update the odometry.
@@ -208,13 +210,14 @@ class Odometry:
         ``labels`` is the cloud's label field, or None without one; ``label_source``
         decides which labels the scan gets (core/labeling/source.py).
 
+        ``intensity`` (N,) feeds ``label_source: onnx`` (the network's remission channel).
         ``point_times`` (N,), seconds, go to the preprocessor's deskew step. Stream rules
         (stamps of 0 mean unstamped and are exempt): a stamp equal to the last one is
         skipped; a stamp before it resets the odometry first (a bag that loops, a replay
         restarted).
         """
         start = time.perf_counter()
-        labelled = self.label_source(points, labels, self.config)  # labels None: no field
+        labelled = self.label_source(points, labels, self.config, intensity)  # None: no field
         labels = labelled.labels
         self.preprocessor.labelled = labelled  # noted at every preprocessing of this scan
         skipped, notes = self._stream_rules(stamp_ns)
@@ -346,6 +349,9 @@ class Odometry:
         if sweep_twist is not None:
             self._sweep_twist = (sweep_twist, stamp_ns)
         current, relative = raw.scan, invert_transform(keyframe.pose) @ pose
+        chosen.frame_covariance = calibrated_covariance(  # docs/covariance.md
+            chosen.frame_covariance, 1.0, self.config.covariance, *motion_size(relative)
+        )
         last, self._last_accepted = self._last_accepted, (pose.copy(), stamp_ns)
         self._accepted.append(self._last_accepted)
         self.pose = pose.copy()
