@@ -60,11 +60,14 @@ class MlSemRegLifecycleNode(MlSemRegNode, LifecycleNode):
 
     def on_configure(self, state: State) -> TransitionCallbackReturn:
         """Create the odometry, the interface and the worker."""
+        before = {id(entity) for _, entity in self._entities()}
         try:
             self._setup(time.perf_counter())
         except (ConfigError, ParameterException, ValueError) as error:
             self.get_logger().error(f'configure failed: {error}')
-            self._teardown()
+            for destroy, entity in self._entities():  # what the failed setup made
+                if id(entity) not in before:
+                    destroy(entity)
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS
 
