@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 
 def pose_message(frame: str, T: np.ndarray, sigma_m: float = 0.5, sigma_yaw: float = 0.26) -> Any:
-    """A PoseWithCovarianceStamped of ``T`` (4, 4), as RViz's 2D Pose Estimate sends it."""
+    """Build a PoseWithCovarianceStamped of ``T`` (4, 4), as RViz's 2D Pose Estimate sends it."""
     from geometry_msgs.msg import PoseWithCovarianceStamped
 
     msg = PoseWithCovarianceStamped()

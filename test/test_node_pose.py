@@ -64,10 +64,11 @@ def map_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.fixture(scope='module')
-def probe(map_folder: Path) -> Any:
+def probe(map_folder: Path, tmp_path_factory: pytest.TempPathFactory) -> Any:
     from geometry_msgs.msg import TransformStamped
 
-    args = ['--ros-args', '-p', f'map.load_path:={map_folder}']
+    saved = tmp_path_factory.mktemp('saved') / 'copy'
+    args = ['--ros-args', '-p', f'map.load_path:={map_folder}', '-p', f'map.save_path:={saved}']
     with node_and_probe(domain_id('node_pose'), args) as (_, probe):
         probe.received['map_pose'] = []
         probe.node.create_subscription(
@@ -162,3 +163,26 @@ def test_the_map_arrives_at_a_late_subscriber(probe: NodeProbe, map_folder: Path
     distances, _ = cKDTree(full).query(cloud.xyz)
     assert np.median(distances) < 0.5  # in the map frame, on the keyframes' points
     assert np.max(cloud.xyz[:, 0]) - np.min(cloud.xyz[:, 0]) > 60.0  # all five keyframes
+
+
+def test_save_map_publishes_the_map_again(probe: NodeProbe) -> None:
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+    from std_srvs.srv import Trigger
+
+    received: list[Any] = []
+    volatile = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)  # no latched copy
+    subscription = probe.node.create_subscription(
+        PointCloud2, 'mlsemreg/map', received.append, volatile
+    )
+    client = probe.node.create_client(Trigger, 'mlsemreg/save_map')
+    try:
+        assert client.wait_for_service(timeout_sec=10.0)
+        assert probe.wait_until(lambda: probe.node.count_subscribers('mlsemreg/map') >= 1, 10.0)
+        future = client.call_async(Trigger.Request())
+        assert probe.wait_until(lambda: future.done(), 60.0)
+        assert future.result().success, future.result().message
+        assert probe.wait_until(lambda: received, 10.0), 'no mlsemreg/map after save_map'
+    finally:
+        probe.node.destroy_subscription(subscription)
+        probe.node.destroy_client(client)

@@ -35,20 +35,14 @@ lifecycle state machine.
 from __future__ import annotations
 
 from collections.abc import Callable
-import signal
-import threading
 import time
 from typing import Any
 
-from mlsemreg_ros.core.config import ConfigError, NODE_NAME
-from mlsemreg_ros.ros.callback_guard import spin_guarded
-from mlsemreg_ros.ros.node import MlSemRegNode, SPIN_PERIOD_S
-import rclpy
+from mlsemreg_ros.core.config import ConfigError
+from mlsemreg_ros.ros.node import MlSemRegNode, run
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, State, TransitionCallbackReturn
-from rclpy.signals import SignalHandlerOptions
 
 
 class MlSemRegLifecycleNode(MlSemRegNode, LifecycleNode):
@@ -66,11 +60,14 @@ class MlSemRegLifecycleNode(MlSemRegNode, LifecycleNode):
 
     def on_configure(self, state: State) -> TransitionCallbackReturn:
         """Create the odometry, the interface and the worker."""
+        before = {id(entity) for _, entity in self._entities()}
         try:
             self._setup(time.perf_counter())
         except (ConfigError, ParameterException, ValueError) as error:
             self.get_logger().error(f'configure failed: {error}')
-            self._teardown()
+            for destroy, entity in self._entities():  # what the failed setup made
+                if id(entity) not in before:
+                    destroy(entity)
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS
 
@@ -120,35 +117,8 @@ def refuse_invalid_transitions(callback: Callable[..., Any], logger: Any) -> Cal
 
 
 def main(args: list[str] | None = None) -> int:
-    """Console script ``mlsemreg_lifecycle_node`` (signals as in ``mlsemreg_node``)."""
-    stop = threading.Event()
-    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    for sig in handlers:
-        signal.signal(sig, lambda *_: stop.set())
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
-    node = None
-    try:
-        node = MlSemRegLifecycleNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        spin_guarded(
-            executor,
-            lambda: not stop.is_set() and rclpy.ok(),
-            node.callback_drops,
-            SPIN_PERIOD_S,
-        )
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except (ConfigError, ParameterException) as error:
-        rclpy.logging.get_logger(NODE_NAME).fatal(f'invalid parameters: {error}')
-        return 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        for sig, handler in handlers.items():
-            signal.signal(sig, handler)
-    return 0
+    """Console script ``mlsemreg_lifecycle_node`` (signals and exit codes as ``mlsemreg_node``)."""
+    return run(MlSemRegLifecycleNode, args)
 
 
 if __name__ == '__main__':

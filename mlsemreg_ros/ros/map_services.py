@@ -25,8 +25,9 @@ layer converts and publishes:
 - broadcasts TF ``map.frame_id -> odom_frame`` with the same transform (tf2_ros);
 - publishes ``mlsemreg/map`` (sensor_msgs/PointCloud2 in the map frame, latched: transient
   local, so a late subscriber gets the last one): every keyframe moved by its pose,
-  voxelised to ``map_cloud_voxel_size``, with a ``label`` field; on map load, on
-  ``save_map`` and on every loop closure (``core/maps/map_cloud.py``);
+  voxelised to ``map_cloud_voxel_size``, with ``intensity`` and ``label`` fields (the
+  points of ``mlsemreg map export``: ``core/maps/point_map.py``); on map load, on
+  ``save_map`` and on every loop closure;
 - serves ``mlsemreg/relocalize`` (std_srvs/Trigger: relocalize the next scan against the
   keyframes without an initial guess) and ``mlsemreg/save_map`` (std_srvs/Trigger: write
   the map folder to ``map.save_path``).
@@ -42,8 +43,8 @@ from typing import Any
 from geometry_msgs.msg import TransformStamped
 from mlsemreg_ros.codec.pointcloud2 import arrays_to_pointcloud2
 from mlsemreg_ros.core.maps.localization import LocalizationUpdate, MapLocalization
-from mlsemreg_ros.core.maps.map_cloud import map_cloud
 from mlsemreg_ros.core.maps.map_io import load_store, MapError
+from mlsemreg_ros.core.maps.point_map import export_points
 from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.ros import messages
 from nav_msgs.msg import Path
@@ -128,12 +129,16 @@ class MapServices:
         if self._map_voxel_size <= 0:
             return 0
         with self.localization.lock:
-            xyz, labels = map_cloud(self.localization.store, self._map_voxel_size)
-        if xyz.shape[0] == 0:
+            cloud = export_points(list(self.localization.store), self._map_voxel_size)
+        if cloud.points.shape[0] == 0:
             return 0
         header = Header(stamp=stamp, frame_id=self.localization.frame_id)
-        self._pub_map.publish(arrays_to_pointcloud2(PointCloud2, PointField, header, xyz, labels))
-        return int(xyz.shape[0])
+        self._pub_map.publish(
+            arrays_to_pointcloud2(
+                PointCloud2, PointField, header, cloud.points, cloud.labels, cloud.intensity
+            )
+        )
+        return int(cloud.points.shape[0])
 
     def _publish_path(self, stamp: Any) -> None:
         if self._pub_path.get_subscription_count() == 0:

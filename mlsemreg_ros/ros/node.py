@@ -726,8 +726,13 @@ class MlSemRegNode(GuardedCallbacks, Node):
 
 
 def main(args: list[str] | None = None) -> int:
+    """Console script ``mlsemreg_node``; returns the process exit code (:func:`run`)."""
+    return run(MlSemRegNode, args)
+
+
+def run(node_class: type[MlSemRegNode], args: list[str] | None = None) -> int:
     """
-    Console script ``mlsemreg_node``; returns the process exit code.
+    Spin a ``node_class`` node until SIGINT / SIGTERM; return the process exit code.
 
     SIGINT and SIGTERM are handled here, not by rclpy: a Python handler sets a flag and the
     spin loop, which wakes every ``SPIN_PERIOD_S``, stops on it. (With rclpy's own handlers
@@ -741,7 +746,7 @@ def main(args: list[str] | None = None) -> int:
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
-        node = MlSemRegNode()
+        node = node_class()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         spin_guarded(  # the last line: a raising callback is logged and counted

@@ -36,6 +36,7 @@ from typing import Any
 
 from mlsemreg_ros.codec.pointcloud2 import arrays_to_pointcloud2
 from mlsemreg_ros.ros import messages
+from mlsemreg_ros.ros.player import HEARTBEAT_SUFFIX
 import numpy as np
 from rclpy.clock import Clock, ClockType
 from sensor_msgs.msg import PointCloud2, PointField
@@ -97,7 +98,7 @@ class Heartbeat:
         self._publisher.publish(
             messages.diagnostics_msg(
                 node.get_clock().now().to_msg(),
-                f'{node.get_name()}: heartbeat',
+                f'{node.get_name()}{HEARTBEAT_SUFFIX}',
                 node.get_fully_qualified_name(),
                 level,
                 message,

@@ -36,6 +36,9 @@ from typing import Any
 
 from mlsemreg_ros.codec.stamps import stamp_to_ns
 
+#: Name ending of the node's heartbeat status (``ros/outputs.py``), not an answer to a scan.
+HEARTBEAT_SUFFIX = ': heartbeat'
+
 
 def message_class(msgtype: str) -> type:
     """Import the rclpy message class of ``pkg/msg/Type`` (ImportError if not installed)."""
@@ -149,7 +152,10 @@ class Player:
             self._pace_executor.shutdown()
         self.reader.close()
 
-    def _on_pace(self, _msg: Any) -> None:
+    def _on_pace(self, msg: Any) -> None:
+        statuses = getattr(msg, 'status', None)
+        if statuses and all(s.name.endswith(HEARTBEAT_SUFFIX) for s in statuses):
+            return  # the node's 1 Hz heartbeat answers no scan (ros/outputs.py)
         self._pace_count += 1
 
     def _wait_answer(self, connection: Any, raw: Any, before: int) -> float:

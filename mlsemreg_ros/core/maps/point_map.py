@@ -26,6 +26,7 @@ Point maps that other tools read and write (docs/maps.md, "Point maps").
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -45,7 +46,7 @@ class ExportedPoints:
     intensity: np.ndarray  # (V,) float32 (0 where the map holds none)
 
 
-def export_points(keyframes: list[MapKeyframe], voxel_size: float) -> ExportedPoints:
+def export_points(keyframes: Sequence[Any], voxel_size: float) -> ExportedPoints:
     """Every keyframe's points in the map frame, one point per voxel (``voxel_size`` 0: all)."""
     if not keyframes:
         empty = np.zeros((0, 3))
@@ -59,7 +60,9 @@ def export_points(keyframes: list[MapKeyframe], voxel_size: float) -> ExportedPo
     labels = np.concatenate([k.labels for k in keyframes]).astype(np.uint32)
     intensity = np.concatenate(
         [
-            np.zeros(len(k.points), np.float32) if k.intensity is None else k.intensity
+            np.zeros(len(k.points), np.float32)
+            if getattr(k, 'intensity', None) is None  # a store's keyframes have none
+            else k.intensity
             for k in keyframes
         ]
     ).astype(np.float32)
