@@ -59,6 +59,7 @@ from mlsemreg_ros.core.odometry.motion_model import make_motion_model, Predictio
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
 from mlsemreg_ros.core.odometry.prior_guard import guard_prior
 from mlsemreg_ros.core.odometry.prior_model import motion_model_name
+from mlsemreg_ros.core.odometry.recovery import PastKeyframes
 from mlsemreg_ros.core.odometry.steps import (
     accepted_step,
     Decision,
@@ -96,6 +97,7 @@ class Odometry:
         self.global_registration = GlobalRegistration(self.registration)
         # the state
         self.keyframe: Keyframe | None = None
+        self.past_keyframes = PastKeyframes(cfg.keyframe.relocalization_keyframes)  # recovery.py
         self.pose = np.eye(4)
         self.covariance = np.zeros((6, 6))
         self._count = 0
@@ -139,6 +141,7 @@ class Odometry:
                 )
             elif old.fine != config.fine:
                 self.keyframe.prepared.alignment_clouds.clear()  # rebuilt when needed
+        self.past_keyframes.resize(config.keyframe.relocalization_keyframes)
         if self.map.reconfigure(config.fine, config.local_map) and self.keyframe:
             self.map.insert_scan(self.keyframe.prepared, self.keyframe.pose)  # from the keyframe
         if old.motion_prior != config.motion_prior:  # core/odometry/prior_model.py
@@ -152,6 +155,7 @@ class Odometry:
     def reset(self) -> None:
         """Drop the keyframe and the map; the next scan restarts the odometry at identity."""
         self.keyframe = None
+        self.past_keyframes.clear()
         self.pose = np.eye(4)
         self.covariance = np.zeros((6, 6))
         self.map.clear()
@@ -171,7 +175,7 @@ class Odometry:
 
     @property
     def failures_in_a_row(self) -> int:
-        """Scans rejected in a row since the last accepted one."""
+        """Return the scans rejected in a row since the last accepted one."""
         return self._failures
 
     def sweep_state(self) -> tuple[deque[tuple[np.ndarray, int]], Any, Any]:
@@ -224,6 +228,7 @@ class Odometry:
         raw, chosen, prior_refusal = guard_prior(  # core/odometry/prior_guard.py
             self, (points, labels, point_times, stamp_ns), prediction, raw, chosen, timings
         )
+        chosen = self._relocalize(raw, chosen, timings)  # core/odometry/recovery.py
         step = self._apply(index, stamp_ns, raw, chosen)
         step.prior_refusal = prior_refusal
         self._count_failure(step, raw)
@@ -334,6 +339,8 @@ class Odometry:
         )
         self.covariance = step.covariance.copy()
         step.new_keyframe = self.keyframe is not keyframe
+        if step.new_keyframe:
+            self.past_keyframes.remember(keyframe)
         return step
 
     def _rejected(
@@ -354,6 +361,7 @@ class Odometry:
     def _start(self, index: int, stamp_ns: int, raw: PreprocessedScan, pose: np.ndarray) -> None:
         """Make ``raw`` the keyframe at ``pose`` and the first scan of a new map."""
         self.keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, raw.scan, pose.copy())
+        self.past_keyframes.clear()  # their map is gone
         self.map.clear()
         self.map.insert_scan(raw.scan, pose)
         self.motion_model.reset()
@@ -366,6 +374,31 @@ class Odometry:
         self._start_scan = (raw, pose.copy(), stamp_ns)
         self._sweep_twist = None
 
+    def _relocalize(
+        self, raw: PreprocessedScan, chosen: Decision, timings: dict[str, float]
+    ) -> Decision:
+        """
+        Relocalize onto the past keyframes at the ``keyframe.max_failures``-th rejection in a row.
+
+        The scan is registered onto the keyframes the odometry left behind and refined
+        against the local map (``core/odometry/recovery.py``); the decision stays rejected
+        (and :meth:`_count_failure` re-initialises) when none gives a trusted pose.
+        """
+        limit = self.config.keyframe.max_failures
+        if chosen.pose is not None or not limit or self._failures + 1 < limit:
+            return chosen
+        if self.config.fine.method == 'off':
+            return chosen
+        found, said = self.past_keyframes.relocalize(
+            raw.scan, self.tracker, self.global_registration, self.config, timings
+        )
+        if found is None:
+            chosen.reason = f'{chosen.reason}; relocalization failed ({said})'
+            return chosen
+        found.reason = f'{limit} frames rejected in a row ({chosen.reason}): {found.reason}'
+        found.timings_ms = {**chosen.timings_ms, **found.timings_ms}
+        return found
+
     def _count_failure(self, step: OdometryStep, raw: PreprocessedScan) -> None:
         """After ``keyframe.max_failures`` rejections in a row, re-initialise on this scan."""
         if step.accepted:
@@ -377,6 +410,7 @@ class Odometry:
             return
         self._start(step.index, step.stamp_ns, raw, self.pose)
         self.covariance = self.covariance + np.eye(6) * REINITIALIZATION_VARIANCE
+        step.covariance = self.covariance.copy()  # the jump is flagged
         step.new_keyframe, step.source = True, 'reinitialized'
         step.keyframe_index, step.map_voxels = step.index, len(self.map)
         step.reason += (
