@@ -33,9 +33,10 @@ to each once, in order::
 
 A scan is tracked by the refined prediction alone when the trust rules allow it
 (``odometry.global_registration: on_demand``), else registered globally. Never a silent
-jump: a rejected frame moves nothing, and ``reason`` says why; after
-``keyframe.max_failures`` rejections in a row the odometry re-initialises on the scan at the
-last accepted pose. The core owns the odometry state (docs/architecture.md).
+jump: a rejected frame moves nothing, and ``reason`` says why; at the
+``keyframe.max_failures``-th rejection in a row the scan is relocalized onto the past
+keyframes (recovery.py), and only if that fails does the odometry re-initialise on the scan
+at the last accepted pose. The core owns the odometry state (docs/architecture.md).
 """
 
 from __future__ import annotations
