@@ -347,3 +347,30 @@ def test_the_odometry_labels_an_unlabeled_scan_with_the_network(tmp_path: Path) 
     step = Odometry(config=config).process(points, None, 1)
     assert step.prepared.input_stats['label_source'] == 'onnx'
     assert step.prepared.timings_ms['labeling_ms'] > 0
+
+
+def test_the_odometry_hands_the_intensity_to_the_label_source(tmp_path: Path) -> None:
+    from mlsemreg_ros.core.odometry import Odometry
+
+    # Scores (0, m_n, -m_n): class 1 (raw 10) for remission above its mean, 2 below.
+    weights = ([[0, 0, 0, 0, 0], [0, 0, 0, 0, 1], [0, 0, 0, 0, -1]], [0.0, 0.0, 0.0])
+    model = linear_model(tmp_path / 'model.onnx', weights, HEIGHT, WIDTH)
+    config = RegistrationConfig(
+        label_source='onnx', onnx_labels=dataclasses.replace(SMALL, model=str(model), knn=0)
+    )
+    odometry = Odometry(config=config)
+    seen = []
+    source = odometry.label_source
+
+    def recording(points, labels, cfg, intensity=None):
+        labelled = source(points, labels, cfg, intensity)
+        seen.append(labelled.labels)
+        return labelled
+
+    odometry.label_source = recording
+    rng = np.random.default_rng(0)
+    points = np.column_stack([rng.uniform(-20, 20, (3000, 2)), rng.uniform(-2, 3, 3000)])
+    odometry.process(points, None, 1, intensity=np.full(3000, 0.9))
+    assert (seen[-1] == 1).all(), 'bright points: class 1 (learning id 1, car)'
+    odometry.process(points, None, 2, intensity=np.full(3000, 0.01))
+    assert (seen[-1] == 2).all()

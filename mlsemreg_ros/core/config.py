@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from mlsemreg_ros.core.alignment.config import FineAlignmentConfig, SweepAlignmentConfig
+from mlsemreg_ros.core.alignment.covariance import CovarianceConfig
 from mlsemreg_ros.core.estimation.config import (
     BevSearchConfig,
     ConfidenceConfig,
@@ -324,6 +325,7 @@ class RegistrationConfig(Settings):
     keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     motion_prior: MotionPriorConfig = field(default_factory=MotionPriorConfig)
+    covariance: CovarianceConfig = field(default_factory=CovarianceConfig)
     moving_objects: MovingObjectsConfig = field(default_factory=MovingObjectsConfig)
     map: MapConfig = field(default_factory=MapConfig)  # noqa: A003, RUF100 (the section name)
 

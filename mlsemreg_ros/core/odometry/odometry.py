@@ -45,6 +45,7 @@ from collections import deque
 import time
 from typing import Any
 
+from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, motion_size
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, SweepMotion
 from mlsemreg_ros.core.labeling.source import LabelSource
@@ -65,6 +66,7 @@ from mlsemreg_ros.core.odometry.steps import (
     accepted_step,
     Decision,
     OdometryStep,
+    prediction_covariance,
     REINITIALIZATION_VARIANCE,
     rejected_step,
 )
@@ -108,6 +110,7 @@ class Odometry:
         self._last_stamp = 0  # stamp of the last scan (0: none or unstamped)
         self._start_scan: tuple[PreprocessedScan, np.ndarray, int] | None = None  # to deskew
         self._sweep_twist: tuple[SweepMotion, int] | None = None  # (twist, stamp) of a sweep
+        self._last_frame_covariance: np.ndarray | None = None  # of the last accepted frame
 
     @property
     def config(self) -> RegistrationConfig:
@@ -169,6 +172,14 @@ class Odometry:
         self._last_stamp = 0
         self._start_scan = None
         self._sweep_twist = None
+        self._last_frame_covariance = None
+
+    def restart_at(self, pose: np.ndarray, covariance: np.ndarray | None = None) -> None:
+        """Reset, then start the next scan at ``T_odom_current = pose`` (a set pose)."""
+        self.reset()
+        self.pose = np.asarray(pose, dtype=np.float64).copy()
+        if covariance is not None:
+            self.covariance = np.asarray(covariance, dtype=np.float64).reshape(6, 6).copy()
 
     def keyframe_refusal(self, scan: PreparedScan) -> str:
         """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
@@ -176,7 +187,7 @@ class Odometry:
 
     @property
     def failures_in_a_row(self) -> int:
-        """Return the scans rejected in a row since the last accepted one."""
+        """Return the number of scans rejected in a row since the last accepted one."""
         return self._failures
 
     def sweep_state(self) -> tuple[deque[tuple[np.ndarray, int]], Any, Any]:
@@ -196,6 +207,7 @@ class Odometry:
         stamp_ns: int = 0,
         *,
         point_times: np.ndarray | None = None,
+        intensity: np.ndarray | None = None,
     ) -> OdometryStep:
         """
         Register one scan (points (N, 3) metres, labels (N,)) and update the odometry.
@@ -203,13 +215,14 @@ class Odometry:
         ``labels`` is the cloud's label field, or None without one; ``label_source``
         decides which labels the scan gets (core/labeling/source.py).
 
+        ``intensity`` (N,) feeds ``label_source: onnx`` (the network's remission channel).
         ``point_times`` (N,), seconds, go to the preprocessor's deskew step. Stream rules
         (stamps of 0 mean unstamped and are exempt): a stamp equal to the last one is
         skipped; a stamp before it resets the odometry first (a bag that loops, a replay
         restarted).
         """
         start = time.perf_counter()
-        labelled = self.label_source(points, labels, self.config)  # labels None: no field
+        labelled = self.label_source(points, labels, self.config, intensity)  # None: no field
         labels = labelled.labels
         self.preprocessor.labelled = labelled  # noted at every preprocessing of this scan
         skipped, notes = self._stream_rules(stamp_ns)
@@ -232,6 +245,8 @@ class Odometry:
         chosen = self._relocalize(raw, chosen, timings)  # core/odometry/recovery.py
         step = self._apply(index, stamp_ns, raw, chosen)
         step.prior_refusal = prior_refusal
+        if not step.accepted:
+            self._predict_rejected(step, prediction)
         self._count_failure(step, raw)
         registered = chosen.result.timings_ms if chosen.result is not None else {}
         step.timings_ms = {
@@ -241,6 +256,21 @@ class Odometry:
             **step.timings_ms,
         }
         return self._finish(step, start, raw)
+
+    def _predict_rejected(self, step: OdometryStep, prediction: Prediction | None) -> None:
+        """Put the motion model's pose at a rejected scan's stamp, with its covariance, on it."""
+        if prediction is None and self.keyframe is not None:  # constant_velocity off
+            prediction = self.motion_model.predict(step.stamp_ns)
+        if prediction is None or self._last_accepted is None:
+            return
+        step.predicted_pose = prediction.T_odom_current.copy()
+        step.predicted_covariance = prediction_covariance(
+            self.covariance,
+            self._last_accepted[0],
+            prediction.T_odom_current,
+            self._last_frame_covariance,
+            prediction.stamp_gap,
+        )
 
     def _prediction(self, stamp_ns: int) -> Prediction | None:
         """Return the motion model's prediction at ``stamp_ns`` if the odometry uses one."""
@@ -325,6 +355,9 @@ class Odometry:
         if sweep_twist is not None:
             self._sweep_twist = (sweep_twist, stamp_ns)
         current, relative = raw.scan, invert_transform(keyframe.pose) @ pose
+        chosen.frame_covariance = calibrated_covariance(  # docs/covariance.md
+            chosen.frame_covariance, 1.0, self.config.covariance, *motion_size(relative)
+        )
         last, self._last_accepted = self._last_accepted, (pose.copy(), stamp_ns)
         self._accepted.append(self._last_accepted)
         self.pose = pose.copy()
@@ -339,6 +372,7 @@ class Odometry:
             index, stamp_ns, pose, relative, chosen, raw, keyframe, last, self.covariance, voxels
         )
         self.covariance = step.covariance.copy()
+        self._last_frame_covariance = chosen.frame_covariance
         step.new_keyframe = self.keyframe is not keyframe
         if step.new_keyframe:
             self.past_keyframes.remember(keyframe)

@@ -38,6 +38,10 @@ from scipy.spatial.transform import Rotation
 REINITIALIZATION_VARIANCE = 1e2
 #: Minimum lever arm of the sparse-inlier covariance model (fine alignment off).
 MIN_LEVER_ARM_M = 1.0
+#: Share of a predicted motion taken as the motion model's error (an unmodelled acceleration).
+PREDICTION_MODEL_ERROR = 0.2
+#: Least standard deviation of a prediction per frame interval: (m, rad).
+MIN_PREDICTION_SIGMA = (0.05, 0.005)
 
 
 @dataclass
@@ -73,6 +77,10 @@ class OdometryStep:
     #                             dropped (moving_objects.matching): the input of ``prepared``
     labels: np.ndarray | None = None  # (N,) their raw labels
     prior_refusal: str = ''  # the prior disagreed with the scan: what was done, and why
+    predicted_pose: np.ndarray | None = None  # (4, 4) rejected scans: the motion model's
+    #                             (or IMU's) T_odom_current at the stamp; None without one
+    predicted_covariance: np.ndarray | None = None  # (6, 6) odom axes: the pose's covariance
+    #                             inflated by the prediction's (:func:`prediction_covariance`)
 
 
 @dataclass
@@ -100,6 +108,36 @@ def odom_covariance(pose: np.ndarray, frame_covariance: np.ndarray) -> np.ndarra
     axes = np.zeros((6, 6))
     axes[:3, :3] = axes[3:, 3:] = pose[:3, :3]
     return axes @ frame_covariance @ axes.T
+
+
+def prediction_covariance(
+    pose_covariance: np.ndarray,
+    last_pose: np.ndarray,
+    predicted: np.ndarray,
+    frame_covariance: np.ndarray | None,
+    stamp_gap: float,
+) -> np.ndarray:
+    """
+    Covariance (6, 6, odom axes) of a predicted pose ``predicted`` (4, 4).
+
+    The prediction extrapolates the last accepted motion over ``stamp_gap`` frame
+    intervals, so it inherits the last pose's covariance ``pose_covariance`` plus, in
+    the predicted frame's axes, the last frame's alignment error carried ``stamp_gap``
+    times (``frame_covariance * gap^2``: a velocity error integrated over the gap) and
+    the model's own error: :data:`PREDICTION_MODEL_ERROR` of the predicted motion from
+    ``last_pose`` (an unmodelled acceleration), at least :data:`MIN_PREDICTION_SIGMA`
+    per interval. The result is never smaller than ``pose_covariance``.
+    """
+    gap = max(float(stamp_gap), 1.0)
+    motion = invert_transform(last_pose) @ predicted
+    translation = float(np.linalg.norm(motion[:3, 3]))
+    rotation = float(np.linalg.norm(Rotation.from_matrix(motion[:3, :3]).as_rotvec()))
+    sigma_t = max(PREDICTION_MODEL_ERROR * translation, MIN_PREDICTION_SIGMA[0] * gap)
+    sigma_r = max(PREDICTION_MODEL_ERROR * rotation, MIN_PREDICTION_SIGMA[1] * gap)
+    body = np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
+    if frame_covariance is not None:
+        body = body + frame_covariance * gap**2
+    return pose_covariance + odom_covariance(predicted, body)
 
 
 def twist_between(
