@@ -432,6 +432,24 @@ def test_a_degenerate_first_scan_does_not_become_the_keyframe(
     assert_close_to(matrix(probe.wait_for('transform', src_stamp, 5.0).transform), scene.trans_gt)
 
 
+def test_a_flat_first_scan_waits_and_a_degenerate_scan_in_the_middle_is_bridged(
+    probe: NodeProbe, scene: Any
+) -> None:
+    """Issue 29: no keyframe without structure; the scan after a degenerate one registers."""
+    rng = np.random.default_rng(0)
+    ground = np.c_[rng.uniform(-30, 30, (20000, 2)), rng.normal(0.0, 0.02, 20000)]
+    _, status = send(probe, ground, np.full(len(ground), 9))
+    assert status['level'] == 1 and 'no keyframe yet' in status['message']
+    assert 'too little structure' in status['message']
+    _, status = send(probe, scene.pts_dst, scene.label_dst)
+    assert status['level'] == 0 and 'first scan' in status['message'], status['message']
+    _, status = send(probe, scene.pts_dst[:3], scene.label_dst[:3])  # a degenerate scan
+    assert status['level'] == 1, status['message']
+    src_stamp, status = send(probe, scene.pts_src, scene.label_src)
+    assert status['level'] == 0, status['message']
+    assert_close_to(matrix(probe.wait_for('transform', src_stamp, 5.0).transform), scene.trans_gt)
+
+
 def test_duplicate_stamps_are_skipped_and_backward_stamps_restart(
     probe: NodeProbe, scene: Any
 ) -> None:

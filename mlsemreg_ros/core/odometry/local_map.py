@@ -231,7 +231,13 @@ def insert_accepted(
 
 
 def keyframe_refusal(config: RegistrationConfig, scan: PreparedScan) -> str:
-    """Why ``scan`` cannot be a keyframe ('' if it can): too few points or keypoints."""
+    """
+    Why ``scan`` cannot be a keyframe ('' if it can).
+
+    Too few points (``keyframe.min_points``), too few keypoints (``keyframe.min_keypoints``),
+    or too little structure for the fine alignment (``keyframe.min_structure``,
+    :func:`structure_ratio`): every later scan would fail against it.
+    """
     policy = config.keyframe
     needed = min(policy.min_keypoints, config.keypoints.count)
     points, keypoints = len(scan.points), len(scan.keypoints)
@@ -240,4 +246,38 @@ def keyframe_refusal(config: RegistrationConfig, scan: PreparedScan) -> str:
             f'{points} points / {keypoints} keypoints < keyframe.min_points='
             f'{policy.min_points} / keyframe.min_keypoints={needed}'
         )
+    if policy.min_structure > 0 and config.fine.method != 'off':
+        ratio, weak = structure_ratio(alignment_cloud(scan, config.fine))
+        if ratio < policy.min_structure:
+            x, y, z = weak
+            return (
+                f'too little structure: translation along ({x:+.2f}, {y:+.2f}, {z:+.2f}) '
+                f'constrained {ratio:.2g} as well as the best direction < '
+                f'keyframe.min_structure={policy.min_structure:g}'
+            )
     return ''
+
+
+#: The plane-regularised covariance small_gicp gives each point: eigenvalues (eps, 1, 1).
+_PLANE_EPSILON = 1e-3
+
+
+def structure_ratio(cloud: AlignmentCloud) -> tuple[float, np.ndarray]:
+    """
+    How well the fine alignment can pin a scan: weakest over strongest translation direction.
+
+    The translation block of the GICP Hessian of the scan aligned onto itself at the
+    identity (each point its own correspondence, combined covariance ``2 C``), with
+    small_gicp's plane-regularised covariances ``C = eps n n^T + (I - n n^T)``:
+    ``H_t = sum inv(2 C) = 0.5 ((1/eps - 1) sum n n^T + N I)``. Returns the ratio of its
+    smallest to its largest eigenvalue (0: unconstrained along some direction, 1: all
+    alike) and the weakest direction (scan frame). Fewer than 6 points: (0, x axis).
+    """
+    if len(cloud) < 6:
+        return 0.0, np.array([1.0, 0.0, 0.0])
+    normals = np.asarray(cloud.cloud.normals(), dtype=np.float64)[:, :3]
+    normals = normals[np.all(np.isfinite(normals), axis=1)]
+    H = (1.0 / _PLANE_EPSILON - 1.0) * (normals.T @ normals) + len(normals) * np.eye(3)
+    values, vectors = np.linalg.eigh(0.5 * H)
+    weak = vectors[:, 0] * (1.0 if vectors[np.argmax(np.abs(vectors[:, 0])), 0] >= 0 else -1.0)
+    return (float(values[0] / values[-1]) if values[-1] > 0 else 0.0), weak

@@ -33,9 +33,10 @@ to each once, in order::
 
 A scan is tracked by the refined prediction alone when the trust rules allow it
 (``odometry.global_registration: on_demand``), else registered globally. Never a silent
-jump: a rejected frame moves nothing, and ``reason`` says why; after
-``keyframe.max_failures`` rejections in a row the odometry re-initialises on the scan at the
-last accepted pose. The core owns the odometry state (docs/architecture.md).
+jump: a rejected frame moves nothing, and ``reason`` says why; at the
+``keyframe.max_failures``-th rejection in a row the scan is relocalized onto the past
+keyframes (recovery.py), and only if that fails does the odometry re-initialise on the scan
+at the last accepted pose. The core owns the odometry state (docs/architecture.md).
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ from mlsemreg_ros.core.odometry.motion_model import make_motion_model, Predictio
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
 from mlsemreg_ros.core.odometry.prior_guard import guard_prior
 from mlsemreg_ros.core.odometry.prior_model import motion_model_name
+from mlsemreg_ros.core.odometry.recovery import PastKeyframes
 from mlsemreg_ros.core.odometry.steps import (
     accepted_step,
     Decision,
@@ -98,6 +100,7 @@ class Odometry:
         self.global_registration = GlobalRegistration(self.registration)
         # the state
         self.keyframe: Keyframe | None = None
+        self.past_keyframes = PastKeyframes(cfg.keyframe.relocalization_keyframes)  # recovery.py
         self.pose = np.eye(4)
         self.covariance = np.zeros((6, 6))
         self._count = 0
@@ -142,6 +145,7 @@ class Odometry:
                 )
             elif old.fine != config.fine:
                 self.keyframe.prepared.alignment_clouds.clear()  # rebuilt when needed
+        self.past_keyframes.resize(config.keyframe.relocalization_keyframes)
         if self.map.reconfigure(config.fine, config.local_map) and self.keyframe:
             self.map.insert_scan(self.keyframe.prepared, self.keyframe.pose)  # from the keyframe
         if old.motion_prior != config.motion_prior:  # core/odometry/prior_model.py
@@ -155,6 +159,7 @@ class Odometry:
     def reset(self) -> None:
         """Drop the keyframe and the map; the next scan restarts the odometry at identity."""
         self.keyframe = None
+        self.past_keyframes.clear()
         self.pose = np.eye(4)
         self.covariance = np.zeros((6, 6))
         self.map.clear()
@@ -237,6 +242,7 @@ class Odometry:
         raw, chosen, prior_refusal = guard_prior(  # core/odometry/prior_guard.py
             self, (points, labels, point_times, stamp_ns), prediction, raw, chosen, timings
         )
+        chosen = self._relocalize(raw, chosen, timings)  # core/odometry/recovery.py
         step = self._apply(index, stamp_ns, raw, chosen)
         step.prior_refusal = prior_refusal
         if not step.accepted:
@@ -356,6 +362,8 @@ class Odometry:
         self.covariance = step.covariance.copy()
         self._last_frame_covariance = chosen.frame_covariance
         step.new_keyframe = self.keyframe is not keyframe
+        if step.new_keyframe:
+            self.past_keyframes.remember(keyframe)
         return step
 
     def _rejected(
@@ -376,6 +384,7 @@ class Odometry:
     def _start(self, index: int, stamp_ns: int, raw: PreprocessedScan, pose: np.ndarray) -> None:
         """Make ``raw`` the keyframe at ``pose`` and the first scan of a new map."""
         self.keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, raw.scan, pose.copy())
+        self.past_keyframes.clear()  # their map is gone
         self.map.clear()
         self.map.insert_scan(raw.scan, pose)
         self.motion_model.reset()
@@ -388,6 +397,31 @@ class Odometry:
         self._start_scan = (raw, pose.copy(), stamp_ns)
         self._sweep_twist = None
 
+    def _relocalize(
+        self, raw: PreprocessedScan, chosen: Decision, timings: dict[str, float]
+    ) -> Decision:
+        """
+        Relocalize onto the past keyframes at the ``keyframe.max_failures``-th rejection in a row.
+
+        The scan is registered onto the keyframes the odometry left behind and refined
+        against the local map (``core/odometry/recovery.py``); the decision stays rejected
+        (and :meth:`_count_failure` re-initialises) when none gives a trusted pose.
+        """
+        limit = self.config.keyframe.max_failures
+        if chosen.pose is not None or not limit or self._failures + 1 < limit:
+            return chosen
+        if self.config.fine.method == 'off':
+            return chosen
+        found, said = self.past_keyframes.relocalize(
+            raw.scan, self.tracker, self.global_registration, self.config, timings
+        )
+        if found is None:
+            chosen.reason = f'{chosen.reason}; relocalization failed ({said})'
+            return chosen
+        found.reason = f'{limit} frames rejected in a row ({chosen.reason}): {found.reason}'
+        found.timings_ms = {**chosen.timings_ms, **found.timings_ms}
+        return found
+
     def _count_failure(self, step: OdometryStep, raw: PreprocessedScan) -> None:
         """After ``keyframe.max_failures`` rejections in a row, re-initialise on this scan."""
         if step.accepted:
@@ -399,6 +433,7 @@ class Odometry:
             return
         self._start(step.index, step.stamp_ns, raw, self.pose)
         self.covariance = self.covariance + np.eye(6) * REINITIALIZATION_VARIANCE
+        step.covariance = self.covariance.copy()  # the jump is flagged
         step.new_keyframe, step.source = True, 'reinitialized'
         step.keyframe_index, step.map_voxels = step.index, len(self.map)
         step.reason += (
