@@ -69,7 +69,7 @@ def _as_server_user(args: list[str]) -> list[str]:
 
 @pytest.fixture(scope='module')
 def postgres_url() -> Iterator[str]:
-    """A fresh PostgreSQL server on 127.0.0.1; its URL for the ``postgres`` database."""
+    """Start a fresh PostgreSQL server on 127.0.0.1; yield the ``postgres`` database URL."""
     bin_dir = _server_bin()
     folder = Path(tempfile.mkdtemp(prefix='mlsemreg-pg-'))
     data = folder / 'data'
