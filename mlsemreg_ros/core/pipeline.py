@@ -317,22 +317,45 @@ class Registration:
         ``refine=False`` stops after the estimator (the odometry refines against its local
         map instead of the target scan). The fine alignment refines a refused pose too (it
         is the best one found; ``success`` stays false).
+
+        Never worse than no labels (core/labeling/quality.py): a pair whose labels are no
+        better than chance is registered as unlabeled; a pair with poorer labels that is
+        refused is registered again as unlabeled, and that result is taken if accepted.
         """
         self.complete(source)
         self.complete(target)
-        cfg, timings = self.config, {}
+        judged = label_quality.judge(source, target, self.config, self._label_compatibility)
+        if judged.unlabeled:  # no better than chance: matched and judged as unlabeled
+            return self._register(*self._unlabeled(source, target), refine, judged)
+        result = self._register(source, target, refine, judged)
+        if result.success or not judged.widen:
+            return result
+        plain = self._register(*self._unlabeled(source, target), refine, judged.as_unlabeled())
+        return plain if plain.success else result
+
+    def _unlabeled(
+        self, source: PreparedScan, target: PreparedScan
+    ) -> tuple[PreparedScan, PreparedScan]:
+        """Both scans without labels (core/labeling/quality.py)."""
+        return (
+            label_quality.unlabeled_view(source, self._wildcard),
+            label_quality.unlabeled_view(target, self._wildcard),
+        )
+
+    def _register(
+        self,
+        source: PreparedScan,
+        target: PreparedScan,
+        refine: bool,
+        judged: label_quality.LabelQuality,
+    ) -> RegistrationResult:
+        """:meth:`register` of completed scans with their labels judged (``judged``)."""
+        cfg, timings = judged.config(self.config), {}
         diagnostics: dict = {
             'source_keypoints': len(source.keypoints),
             'target_keypoints': len(target.keypoints),
+            **judged.diagnostics,
         }
-        # 0. never worse than no labels: weigh the labels (core/labeling/quality.py)
-        judged = label_quality.judge(source, target, cfg, self._label_compatibility)
-        if judged.unlabeled:  # no better than chance: matched and judged as unlabeled
-            source, target = (
-                label_quality.unlabeled_view(scan, self._wildcard) for scan in (source, target)
-            )
-        cfg = judged.config(cfg)
-        diagnostics.update(judged.diagnostics)
         # 1. correspondences: ML-SemReg (GM o MM) or the plain matcher
         with _timed(timings, 'gm_mm_ms'):
             if cfg.semantic.enabled:
