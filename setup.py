@@ -31,7 +31,10 @@ setup(
     data_files=[
         ('share/ament_index/resource_index/packages', [f'resource/{PACKAGE}']),
         (f'share/{PACKAGE}', ['package.xml']),
-        (f'share/{PACKAGE}/config', glob('config/*.yaml') + glob('config/*.xml')),
+        (
+            f'share/{PACKAGE}/config',
+            glob('config/*.yaml') + glob('config/*.xml') + glob('config/*.rviz'),
+        ),
         (f'share/{PACKAGE}/config/labels', glob('config/labels/*.yaml')),
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
     ],
@@ -61,6 +64,7 @@ setup(
     entry_points={
         'console_scripts': [
             'mlsemreg_node = mlsemreg_ros.ros.node:main',
+            'mlsemreg_lifecycle_node = mlsemreg_ros.ros.lifecycle_node:main',
             'mlsemreg = mlsemreg_ros.tools.cli:main',
             'mlsemreg-eval-pairs = mlsemreg_ros.tools.eval_pairs:main',
             'mlsemreg-bench = mlsemreg_ros.tools.bench:main',
@@ -72,6 +76,7 @@ setup(
             'mlsemreg-bench-node = mlsemreg_ros.tools.bench_node:main',
             'mlsemreg-confidence = mlsemreg_ros.tools.confidence:main',
             'mlsemreg-soak = mlsemreg_ros.tools.soak:main',
+            'mlsemreg-fuzz-node = mlsemreg_ros.tools.fuzz_node:main',
             'mlsemreg-cut-pairs = mlsemreg_ros.tools.cut_pairs:main',
             'mlsemreg-chain-pairs = mlsemreg_ros.tools.chain_pairs:main',
             'mlsemreg-bench-labels = mlsemreg_ros.tools.bench_labels:main',

@@ -18,15 +18,26 @@ Launch mlsemreg_node on a labeled PointCloud2 topic.
 ``ros2 launch mlsemreg_ros mlsemreg.launch.py points_topic:=/velodyne_points_labeled
 params_file:=/path/params.yaml use_sim_time:=true``
 
+``rviz:=true`` opens RViz with ``config/mlsemreg.rviz``; ``bag:=PATH`` plays a rosbag2
+with the package's player (``mlsemreg-play --clock``, waiting for the node) and runs
+everything on sim time; ``map:=PATH`` loads a saved map (``map.load_path``: localization
+mode).
+
 The node runs with the package's Fast DDS profile (``config/fastdds.xml``: a shared-memory
 segment that holds a 128-beam scan), unless ``FASTRTPS_DEFAULT_PROFILES_FILE`` names
 another or ``fastdds_profile:=`` does. The publisher of the clouds needs the same profile
 (``docs/field_moving.md``).
 """
 
-from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
+from launch.actions import DeclareLaunchArgument, ExecuteProcess, SetEnvironmentVariable
+from launch.conditions import IfCondition
 from launch.launch_description import LaunchDescription
-from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PathJoinSubstitution
+from launch.substitutions import (
+    EnvironmentVariable,
+    LaunchConfiguration,
+    PathJoinSubstitution,
+    PythonExpression,
+)
 from launch_ros.actions import Node
 from launch_ros.parameter_descriptions import ParameterValue
 from launch_ros.substitutions import FindPackageShare
@@ -41,6 +52,18 @@ def generate_launch_description() -> LaunchDescription:
         [FindPackageShare('mlsemreg_ros'), 'config', 'fastdds.xml']
     )
     profile = LaunchConfiguration('fastdds_profile')
+    bag = LaunchConfiguration('bag')
+    playing = PythonExpression(["'", bag, "' != ''"])
+    # a bag runs on its own clock: sim time whatever use_sim_time says
+    sim_time = ParameterValue(
+        PythonExpression(
+            ["'", bag, "' != '' or '", LaunchConfiguration('use_sim_time'), "'.lower() == 'true'"]
+        ),
+        value_type=bool,
+    )
+    rviz_config = PathJoinSubstitution(
+        [FindPackageShare('mlsemreg_ros'), 'config', 'mlsemreg.rviz']
+    )
     return LaunchDescription(
         [
             DeclareLaunchArgument(
@@ -65,7 +88,20 @@ def generate_launch_description() -> LaunchDescription:
             DeclareLaunchArgument(
                 'use_sim_time',
                 default_value='false',
-                description='Use /clock (bag playback with --clock).',
+                description='Use /clock (bag playback with --clock; true whenever bag is set).',
+            ),
+            DeclareLaunchArgument(
+                'rviz', default_value='false', description='Open RViz with config/mlsemreg.rviz.'
+            ),
+            DeclareLaunchArgument(
+                'bag',
+                default_value='',
+                description='rosbag2 to play with mlsemreg-play --clock (sim time); empty: none.',
+            ),
+            DeclareLaunchArgument(
+                'map',
+                default_value='',
+                description='Saved map to localize in (map.load_path); empty: map as it goes.',
             ),
             Node(
                 package='mlsemreg_ros',
@@ -74,13 +110,22 @@ def generate_launch_description() -> LaunchDescription:
                 output='screen',
                 parameters=[
                     LaunchConfiguration('params_file'),
-                    {
-                        'use_sim_time': ParameterValue(
-                            LaunchConfiguration('use_sim_time'), value_type=bool
-                        )
-                    },
+                    {'use_sim_time': sim_time, 'map.load_path': LaunchConfiguration('map')},
                 ],
                 remappings=[('points', LaunchConfiguration('points_topic'))],
+            ),
+            ExecuteProcess(
+                cmd=['mlsemreg-play', bag, '--clock', '--wait-for-subscribers', '1'],
+                output='screen',
+                condition=IfCondition(playing),
+            ),
+            Node(
+                package='rviz2',
+                executable='rviz2',
+                name='rviz2',
+                arguments=['-d', rviz_config],
+                parameters=[{'use_sim_time': sim_time}],
+                condition=IfCondition(LaunchConfiguration('rviz')),
             ),
         ]
     )

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 import dataclasses
+from pathlib import Path
 import textwrap
 from typing import Any
 
@@ -137,3 +138,15 @@ def parameters_page() -> str:
             evaluation_table_markdown(),
         ]
     )
+
+
+def write_params_file(
+    path: Path,
+    core_values: Mapping[str, Any],
+    node_values: Mapping[str, Any] | None = None,
+    header: Sequence[str] = (),
+) -> None:
+    """Write a full node parameter file (config/params.yaml layout) with these values."""
+    values = {**(node_values or {}), **core_values}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(params_yaml_text(values, header=list(header)))

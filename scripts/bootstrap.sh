@@ -25,13 +25,28 @@ if [ ${#need[@]} -gt 0 ]; then
   DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}" >/dev/null
 fi
 
+# PostgreSQL server for the multi-worker tuning test (test/test_tune_postgres.py): optional,
+# that test is skipped with a message where it is missing.
+if ! ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1; then
+  if [ "$(id -u)" -eq 0 ]; then
+    echo "Installing Debian package: postgresql (for the tuning test on a real database server)"
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq postgresql >/dev/null \
+      || echo "postgresql could not be installed: test/test_tune_postgres.py will be skipped" >&2
+  else
+    echo "Note: the Debian package postgresql is missing and this is not root:" >&2
+    echo "  test/test_tune_postgres.py will be skipped (sudo apt-get install -y postgresql)" >&2
+  fi
+fi
+
 [ -x "$VENV/bin/python" ] || "$PY" -m venv "$VENV"
 stamp="$VENV/.mlsemreg-installed"
-want=$(cat requirements.txt setup.py | sha256sum | cut -d' ' -f1)
+want=$(cat requirements.txt requirements-nodeps.txt setup.py | sha256sum | cut -d' ' -f1)
 if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ]; then
   echo "Installing Python packages into $VENV (first time: a few minutes)"
   quiet_pip install -q --upgrade pip
   quiet_pip install -q -r requirements.txt
+  quiet_pip install -q --no-deps -r requirements-nodeps.txt   # peers with stale pins
   quiet_pip install -q --no-deps -e .
   echo "$want" > "$stamp"
 fi

@@ -31,6 +31,11 @@ MODULES = (
     'map_node',
     'node_extrinsic',
     'transport',
+    'node_hostile',
+    'node_stack',
+    'node_pose',
+    'lifecycle',
+    'point_map_node',
 )
 #: Test runs whose base ids fit below Fast DDS's largest domain id, 232.
 _RUNS = (232 - 100) // len(MODULES)

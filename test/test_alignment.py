@@ -186,23 +186,23 @@ def test_a_pair_whose_refinement_pulls_the_pose_beyond_the_bounds_is_refused(
     (40 m dev pairs with noisy labels: BEV-search poses 1.5-1.9 m off were accepted.)
     A refinement refused only for its small overlap does not refuse the pair.
     """
-    from mlsemreg_ros.core import pipeline
+    from mlsemreg_ros.core.stages import fine_alignment
 
     pair = synthetic_pair(seed=0)
     config = RegistrationConfig().replace({'keypoints.count': 1500})
-    real_align = pipeline.align_pair
+    real_align = fine_alignment.align_pair
 
     def runaway(*args, **kwargs):
         found = real_align(*args, **kwargs)
         return replace(found, T_target_source=motion(0.0, (2.0, 0.0, 0.0)) @ found.T_initial)
 
-    monkeypatch.setattr(pipeline, 'align_pair', runaway)
+    monkeypatch.setattr(fine_alignment, 'align_pair', runaway)
     result = Registration(config).register_scans(
         pair.pts_src, pair.label_src, pair.pts_dst, pair.label_dst
     )
     assert not result.success and 'moved its guess by 2.00 m' in result.message
     np.testing.assert_array_equal(result.transform, result.estimate)  # unrefined, refused
-    monkeypatch.setattr(pipeline, 'align_pair', real_align)
+    monkeypatch.setattr(fine_alignment, 'align_pair', real_align)
     strict = config.replace({'odometry.min_inlier_fraction': 0.999})
     overlap_only = Registration(strict).register_scans(
         pair.pts_src, pair.label_src, pair.pts_dst, pair.label_dst

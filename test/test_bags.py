@@ -18,17 +18,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mlsemreg_ros.core.matching.labels import LabelMap
-from mlsemreg_ros.core.rigid import relative_transform
-from mlsemreg_ros.datasets.bag import BagScanReader, BagWriter, read_poses
-from mlsemreg_ros.datasets.factory import open_scan_source
-from mlsemreg_ros.datasets.kitti import KittiSequence
-from mlsemreg_ros.datasets.pose_files import (
+from mlsemreg_ros.codec.pose_files import (
     read_kitti_poses,
     read_tum_poses,
     write_kitti_poses,
     write_tum_poses,
 )
+from mlsemreg_ros.core.matching.labels import LabelMap
+from mlsemreg_ros.core.rigid import relative_transform
+from mlsemreg_ros.datasets.bag import BagScanReader, BagWriter, read_poses
+from mlsemreg_ros.datasets.factory import open_scan_source
+from mlsemreg_ros.datasets.kitti import KittiSequence
 from mlsemreg_ros.datasets.source import ScanSource, SourceError
 from mlsemreg_ros.simulation.trajectory import euler_to_matrix
 from mlsemreg_ros.tools import kitti_to_bag, simulate

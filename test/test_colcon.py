@@ -96,6 +96,7 @@ def test_executable_is_found_like_ros2_run(install: Path, monkeypatch: pytest.Mo
         'config/fastdds.xml',
         'config/labels/semantic_kitti.yaml',
         'launch/mlsemreg.launch.py',
+        'config/mlsemreg.rviz',
     ):
         assert (share / data).is_file(), data
 
@@ -201,7 +202,15 @@ def test_launch_file_compiles_and_declares_its_arguments(tmp_path: Path) -> None
         for node in ast.walk(tree)
         if isinstance(node, ast.Call) and getattr(node.func, 'id', '') == 'DeclareLaunchArgument'
     }
-    assert declared == {'points_topic', 'params_file', 'use_sim_time', 'fastdds_profile'}
+    assert declared == {
+        'points_topic',
+        'params_file',
+        'use_sim_time',
+        'fastdds_profile',
+        'rviz',
+        'bag',
+        'map',
+    }
     assert 'generate_launch_description' in {
         n.name for n in tree.body if isinstance(n, ast.FunctionDef)
     }

@@ -20,8 +20,8 @@ import csv
 import json
 from pathlib import Path
 
+from mlsemreg_ros.codec.pose_files import read_kitti_poses
 from mlsemreg_ros.codec.stamps import parse_seconds
-from mlsemreg_ros.datasets.pose_files import read_kitti_poses
 from mlsemreg_ros.evaluation.scoring import SUMMARY_KEYS
 from mlsemreg_ros.tools import demo, eval_bag
 import numpy as np

@@ -28,8 +28,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from mlsemreg_ros.codec.pose_files import read_kitti_poses, read_tum_poses
 from mlsemreg_ros.core.config import load_config, RegistrationConfig
-from mlsemreg_ros.datasets.pose_files import read_kitti_poses, read_tum_poses
 from mlsemreg_ros.evaluation.scoring import SUMMARY_KEYS
 from mlsemreg_ros.tools import eval_bag, simulate
 import numpy as np

@@ -215,7 +215,7 @@ def test_wheel_speed_has_the_configured_scale_error(field_sim: FieldSimulation) 
 @pytest.mark.parametrize('name', sorted(SENSORS))
 def test_sensor_models_have_their_beams_and_range(name: str) -> None:
     model = SENSORS[name]
-    assert model.beams == {'hdl64': 64, 'vlp16': 16, 'os128': 128}[name]
+    assert model.beams == {'hdl64': 64, 'hdl32': 32, 'vlp16': 16, 'os128': 128, 'livox': 1}[name]
     # A box room around the sensor (30 m walls, 40 m high, with a floor): every beam hits.
     vertices = np.array(
         [[x, y, z] for z in (0.0, 40.0) for x, y in ((-30, -30), (30, -30), (30, 30), (-30, 30))],
@@ -232,8 +232,9 @@ def test_sensor_models_have_their_beams_and_range(name: str) -> None:
     assert len(scan) == pytest.approx(model.beams * model.columns * (1 - model.dropout), rel=0.02)
     assert np.linalg.norm(scan.points, axis=1).max() <= model.max_range
     elevation = np.degrees(np.arctan2(scan.points[:, 2], np.hypot(*scan.points[:, :2].T)))
-    assert elevation.max() <= max(model.elevations_deg) + 0.5
-    assert elevation.min() >= min(model.elevations_deg) - 0.5
+    low, high = model.elevation_range_deg()
+    assert elevation.max() <= high + 0.5
+    assert elevation.min() >= low - 0.5
     assert np.unique(scan.column).size <= model.columns
 
 

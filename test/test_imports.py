@@ -12,18 +12,26 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 
-"""The package's modules import each other without cycles, counting imports inside functions."""
+"""
+The package's modules import each other without cycles, and only down the layers.
+
+Imports inside functions count, imports for type checkers only do not. The layer order is
+the one written in docs/architecture.md (the block after ``<!-- layers``).
+"""
 
 from __future__ import annotations
 
 import ast
+from fnmatch import fnmatch
 from pathlib import Path
+import re
 
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 PACKAGE = Path(__file__).resolve().parents[1] / 'mlsemreg_ros'
+ARCHITECTURE = PACKAGE.parent / 'docs' / 'architecture.md'
 
 
 def _module_name(path: Path, package: Path) -> str:
@@ -89,3 +97,85 @@ def test_a_cycle_through_a_function_level_import_is_found(tmp_path: Path) -> Non
     )
     found = cycles(import_graph(package))
     assert found == [['mlsemreg_ros.core.a', 'mlsemreg_ros.core.b']]
+
+
+def layers_of(text: str) -> list[tuple[str, list[str]]]:
+    """Read ``[(layer, paths)]``, lowest first, from the fenced block after ``<!-- layers``."""
+    block = text.split('<!-- layers', 1)[1].split('```', 2)[1]
+    found: list[tuple[str, list[str]]] = []
+    for line in block.splitlines():
+        numbered = re.match(r'\s*\d+\s+(\S+)\s*(.*)', line)
+        if numbered:
+            found.append((numbered.group(1), numbered.group(2).split()))
+        elif line.strip():
+            found[-1][1].extend(line.split())  # a continued list of paths
+    return found
+
+
+def _specificity(path: str, pattern: str) -> float:
+    """Rate how specifically ``pattern`` names ``path`` (0: not; a file > a glob > a folder)."""
+    if pattern.endswith('/'):
+        return 1.0 + len(pattern) / 1e3 if path.startswith(pattern) else 0.0
+    if '*' in pattern:
+        return 2.0 if fnmatch(path, pattern) else 0.0
+    return 3.0 if path == pattern else 0.0
+
+
+def layer_index(module: str, layers: list[tuple[str, list[str]]], package: Path) -> int:
+    """Return the index of ``module``'s layer in ``layers`` (ValueError if no layer names it)."""
+    parts = module.split('.')[1:]
+    path = '/'.join(parts) + '.py'
+    if (package / '/'.join(parts) / '__init__.py').is_file():
+        path = '/'.join([*parts, '__init__.py'])
+    best, index = 0.0, -1
+    for i, (_, patterns) in enumerate(layers):
+        for pattern in patterns:
+            score = _specificity(path, pattern)
+            if score > best:
+                best, index = score, i
+    if index < 0:
+        raise ValueError(f'{path}: in no layer of docs/architecture.md')
+    return index
+
+
+def upward_imports(
+    graph: dict[str, set[str]], layers: list[tuple[str, list[str]]], package: Path = PACKAGE
+) -> list[str]:
+    """List every import from a module to a higher layer, as ``'a (layer) -> b (layer)'``."""
+    level = {m: layer_index(m, layers, package) for m in graph}
+    return sorted(
+        f'{a} ({layers[level[a]][0]}) -> {b} ({layers[level[b]][0]})'
+        for a, targets in graph.items()
+        for b in targets
+        if level[b] > level[a]
+    )
+
+
+def test_imports_only_point_down_the_layers_of_the_architecture() -> None:
+    layers = layers_of(ARCHITECTURE.read_text())
+    assert [name for name, _ in layers][:4] == ['package', 'codec', 'base', 'sections']
+    found = upward_imports(import_graph(), layers)
+    assert not found, 'imports up the layers (docs/architecture.md):\n' + '\n'.join(found)
+
+
+def test_an_upward_import_is_found(tmp_path: Path) -> None:
+    package = tmp_path / 'mlsemreg_ros'
+    (package / 'core' / 'low').mkdir(parents=True)
+    (package / '__init__.py').write_text('')
+    (package / 'core' / '__init__.py').write_text('')
+    (package / 'core' / 'low' / '__init__.py').write_text('')
+    (package / 'core' / 'low' / 'config.py').write_text('')
+    (package / 'core' / 'low' / 'algo.py').write_text(
+        'from mlsemreg_ros.core.low import config\n'
+        'def f():\n'
+        '    from mlsemreg_ros.core import high\n'
+    )
+    (package / 'core' / 'high.py').write_text('from mlsemreg_ros.core.low import algo\n')
+    text = (
+        '<!-- layers -->\n```\n 1 package __init__.py core/__init__.py\n'
+        ' 2 sections core/*/config.py\n 3 low core/low/\n 4 high\n   core/high.py\n```\n'
+    )
+    layers = layers_of(text)
+    assert layers[3] == ('high', ['core/high.py'])
+    found = upward_imports(import_graph(package), layers, package)
+    assert found == ['mlsemreg_ros.core.low.algo (low) -> mlsemreg_ros.core.high (high)']

@@ -211,8 +211,9 @@ def test_prior_messages_in_the_base_frame_are_moved_to_the_sensor() -> None:
     inbox.flush(object(), 'velodyne', 'base_link', X)  # a model that takes none: dropped
     inbox.flush(model, 'velodyne', 'base_link', X)
     assert len(model.imu) == 1
-    imu.header.frame_id = 'imu_link'  # neither frame: used as it is, with one warning
+    imu.header = _header(2, 'imu_link')  # neither frame: used as it is, with one warning
     inbox.on_imu(imu)
+    imu.header = _header(3, 'imu_link')  # (a repeated stamp would be dropped)
     inbox.on_imu(imu)
     inbox.flush(model, 'velodyne', 'base_link', X)
     assert len(inbox.warnings) == 1 and 'imu_link' in inbox.warnings[0]

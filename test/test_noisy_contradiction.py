@@ -114,7 +114,7 @@ def test_labels_too_noisy_vouch_for_no_pose(ceiling, refused) -> None:
 
 def _pool_of_000008() -> tuple[Any, RegistrationConfig]:
     """Return the two candidates of FPFH dev pair 000008 with 10 % of the labels flipped."""
-    from mlsemreg_ros.core.pipeline import _Pool
+    from mlsemreg_ros.core.estimation.candidates import CandidatePool
     from mlsemreg_ros.core.results import HypothesisScore, VerificationResult
 
     right = HypothesisScore(np.eye(4), 0, 60, 0.415, 0.664, 0.275, 'guided')
@@ -126,7 +126,7 @@ def _pool_of_000008() -> tuple[Any, RegistrationConfig]:
         np.array([1, 2]),
         np.array([6, 4]),
     )
-    pool = _Pool.of(
+    pool = CandidatePool.of(
         VerificationResult([right, wrong], 0), lambda _poses: (shares, objects, in_view)
     )
     return pool, RegistrationConfig()

@@ -18,7 +18,7 @@ The start of the odometry on a field drive: two skewed sweeps 10 m apart, in a t
 Scan 1 has no prediction. At stride 10 on the seed-0 drive its sweep turns 4.3 deg (the
 turn starts within it); registered on the two skewed sweeps it was 74 cm / 2.4 deg off and
 published as a wrong pose. With the gyro's rotation on arrival, then both scans deskewed
-with the motion between them and scan 1 aligned again (``Odometry._deskew_start``), it is
+with the motion between them and scan 1 aligned again (``Tracker.deskew_start``), it is
 within 0.3 m / 0.3 deg (``docs/field.md``).
 """
 

@@ -122,8 +122,46 @@ def test_first_convention_wins_and_the_field_and_unit_are_configurable() -> None
     np.testing.assert_allclose(auto, TRUE_TIMES, atol=1e-7)
     chosen, _ = decode_point_times(msg, time_field='t')
     np.testing.assert_allclose(chosen, 2 * TRUE_TIMES, atol=1e-7)
-    as_us, _ = decode_point_times(msg, time_field='t', time_unit='us')
-    np.testing.assert_allclose(as_us, 2e3 * TRUE_TIMES, rtol=1e-9)
+    as_ms, _ = decode_point_times(msg, time_field='time', time_unit='ms')
+    np.testing.assert_allclose(as_ms, 1e-3 * TRUE_TIMES, rtol=1e-6)
+    as_us, note = decode_point_times(msg, time_field='t', time_unit='us')  # 198 s: not a sweep
+    assert as_us is None and 'span 198 s' in note and 'not used for deskew' in note
+
+
+@pytest.mark.parametrize(
+    ('extra', 'stamp', 'why'),
+    [
+        # float64 absolute seconds 1.7e9 s away from the header stamp (a stamp of 100 s)
+        ({'timestamp': (FLOAT64, STAMP_S + TRUE_TIMES)}, (100, 0), 's from the header stamp'),
+        # relative seconds 5 s after the stamp
+        ({'time': (FLOAT32, 5.0 + TRUE_TIMES)}, None, 's from the header stamp'),
+        # a span of 50 s whatever the unit (float seconds, explicit)
+        ({'time': (FLOAT32, 500 * TRUE_TIMES)}, None, 'span'),
+        # float64 values beyond float range once scaled
+        ({'time': (FLOAT64, np.full(TRUE_TIMES.size, 1e308) * TRUE_TIMES)}, None, 'span'),
+    ],
+)
+def test_times_that_are_not_one_sweep_near_the_stamp_are_not_used_and_warned(
+    extra: dict, stamp: tuple[int, int] | None, why: str
+) -> None:
+    msg = _cloud(extra, stamp=stamp)
+    unit = 's' if 'time' in extra else 'auto'
+    times, note = decode_point_times(msg, time_unit=unit)
+    assert times is None and why in note
+    cloud = pointcloud2_to_arrays(msg, require_labels=False, time_unit=unit)
+    assert cloud.point_times is None and cloud.time_warning == cloud.time_note != ''
+    plain = pointcloud2_to_arrays(_cloud({}), require_labels=False)
+    assert plain.point_times is None and plain.time_warning == ''  # no field: no warning
+
+
+def test_a_time_field_past_the_point_step_is_malformed() -> None:
+    from mlsemreg_ros.codec.pointcloud2 import PointCloudError
+
+    msg = _cloud({'time': (FLOAT32, TRUE_TIMES)})
+    msg.fields[-1] = Field('time', msg.fields[-1].offset, FLOAT64, 1)  # 8 bytes from 12 of 16
+    with pytest.raises(PointCloudError, match=r"field 'time' .* does not fit"):
+        pointcloud2_to_arrays(msg, require_labels=False)
+    pointcloud2_to_arrays(msg, require_labels=False, time_field=None)  # times not read: fine
 
 
 def test_the_arrays_carry_the_times_of_the_finite_points() -> None:

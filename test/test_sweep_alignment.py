@@ -196,7 +196,7 @@ def test_turns_starting_and_ending_within_a_sweep_without_imu(tmp_path: Path) ->
 
 
 def test_the_sweep_rate_is_fed_forward_only_to_the_next_sweep() -> None:
-    from mlsemreg_ros.core.odometry.odometry import _next_sweep
+    from mlsemreg_ros.core.odometry.preprocess import _next_sweep
 
     times = np.linspace(0.0, 0.1, 50)
     assert _next_sweep(1_000_000_000, 1_100_000_000, times)  # the next sweep
@@ -239,8 +239,10 @@ def test_the_last_sweep_rate_deskews_the_next_sweep_only() -> None:
     ahead = np.eye(4)
     ahead[0, 3] = 1.0  # 1 m straight ahead in 0.1 s: the poses say no turn
     times = np.linspace(0.0, 0.1, 100)
-    motion = odometry._sweep_motion(Prediction(ahead, 1.0), last_stamp + 100_000_000, times)
+    state = (odometry._accepted, odometry._sweep_twist, odometry.motion_model)
+    sweep_motion = odometry.preprocessor.sweep_motion
+    motion = sweep_motion(Prediction(ahead, 1.0), last_stamp + 100_000_000, times, *state)
     np.testing.assert_allclose(motion.omega, estimated.omega)  # the sweep's rate
     np.testing.assert_allclose(motion.velocity, [10.0, 0.0, 0.0])  # the poses' velocity
-    later = odometry._sweep_motion(Prediction(ahead, 2.0), last_stamp + 200_000_000, times)
+    later = sweep_motion(Prediction(ahead, 2.0), last_stamp + 200_000_000, times, *state)
     np.testing.assert_allclose(later.omega, 0.0, atol=1e-12)  # a sweep skipped: the poses'

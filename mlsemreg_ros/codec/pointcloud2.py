@@ -90,6 +90,7 @@ class CloudArrays:
     ignored_fields: tuple[str, ...] = ()  # count-0 fields and unreadable optional fields
     point_times: np.ndarray | None = None  # (N,) float64 s after the header stamp
     time_note: str = ''  # how the times were decoded, or why there are none
+    time_warning: str = ''  # a time field is there but not used (why), '' otherwise
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
@@ -180,14 +181,14 @@ def pointcloud2_to_arrays(
     names, formats, offsets = [], [], []
     for name in wanted:
         dtype, offset = _field_dtype(fields[name]), int(fields[name].offset)
-        if offset < 0 or offset + dtype.itemsize > point_step:
-            raise PointCloudError(
-                f'field {name!r} (offset {offset}, {dtype.itemsize} bytes) does not fit in '
-                f'point_step {point_step}'
-            )
+        _check_fits(name, offset, dtype.itemsize, point_step)
         names.append(name)
         formats.append(dtype)
         offsets.append(offset)
+    time_name = _time_field_name(fields, time_field) if time_field is not None else ''
+    if time_name and _readable(fields[time_name]):  # a time field past the point: malformed
+        size = DATATYPES[int(fields[time_name].datatype)].itemsize
+        _check_fits(time_name, int(fields[time_name].offset), size, point_step)
     if row_step < width * point_step:
         raise PointCloudError(f'row_step {row_step} < width {width} x point_step {point_step}')
     buffer = _buffer(msg.data)
@@ -231,7 +232,24 @@ def pointcloud2_to_arrays(
         tuple(ignored),
         times,
         note,
+        note if times is None and not note.startswith(NO_TIME_FIELD) else '',
     )
+
+
+def _check_fits(name: str, offset: int, size: int, point_step: int) -> None:
+    """Raise PointCloudError if a field of ``size`` bytes at ``offset`` overruns the point."""
+    if offset < 0 or offset + size > point_step:
+        raise PointCloudError(
+            f'field {name!r} (offset {offset}, {size} bytes) does not fit in '
+            f'point_step {point_step}'
+        )
+
+
+def _time_field_name(fields: dict[str, Any], time_field: str) -> str:
+    """Return the time field :func:`decode_point_times` reads ('' if none)."""
+    if time_field:
+        return time_field if time_field in fields else ''
+    return next((n for n in TIME_FIELDS if n in fields), '')
 
 
 def _readable(field: Any) -> bool:
@@ -346,6 +364,11 @@ ABSOLUTE_TOLERANCE_S = 10.0
 PLAUSIBLE_SPAN_S = (1e-3, 1.0)
 #: Auto-detected units aim at a sweep of about this span (s).
 TYPICAL_SPAN_S = 0.1
+#: Times further than this (s) from the header stamp, after the unit detection, are not a
+#: sweep stamped at its start or end: the cloud is registered without deskew.
+MAX_STAMP_OFFSET_S = 1.0
+#: The note of a cloud without any time field (no warning).
+NO_TIME_FIELD = 'no per-point time field'
 
 
 def decode_point_times(
@@ -370,9 +393,9 @@ def decode_point_times(
             return None, f'time field {time_field!r} not in the cloud (fields: {list(fields)})'
         name = time_field
     else:
-        name = next((n for n in TIME_FIELDS if n in fields), '')
+        name = _time_field_name(fields, '')
         if not name:
-            return None, 'no per-point time field (' + ', '.join(TIME_FIELDS) + ')'
+            return None, NO_TIME_FIELD + ' (' + ', '.join(TIME_FIELDS) + ')'
     field_ = fields[name]
     if not _readable(field_):
         return None, (
@@ -407,9 +430,35 @@ def decode_point_times(
         else:
             times = values - stamp_ns * 1e-9 / scale
             times *= scale
-        return times, f'{name!r}: absolute {absolute}, stamp subtracted'
+        return _plausible(times, f'{name!r}: absolute {absolute}, stamp subtracted')
     unit = time_unit if time_unit != 'auto' else _time_unit(values, view.dtype.kind)
-    return values * TIME_UNITS[unit], f'{name!r}: {unit} after the stamp'
+    return _plausible(values * TIME_UNITS[unit], f'{name!r}: {unit} after the stamp')
+
+
+def _plausible(times: np.ndarray, note: str) -> tuple[np.ndarray | None, str]:
+    """
+    Return the decoded times and their note, or None and why they are not one sweep.
+
+    After the unit detection, a span above the plausible maximum (:data:`PLAUSIBLE_SPAN_S`)
+    or times further than :data:`MAX_STAMP_OFFSET_S` from the header stamp (an absolute
+    field far from the stamp, a wrong unit) are not used: the cloud is registered without
+    deskew, and the node warns in ``/diagnostics``.
+    """
+    if not np.all(np.isfinite(times)):  # finite values may overflow in the unit's scaling
+        return None, f'{note}: times not finite, not used for deskew'
+    if times.size == 0:
+        return times, note
+    span = float(times.max() - times.min())
+    if span > PLAUSIBLE_SPAN_S[1]:
+        high = PLAUSIBLE_SPAN_S[1]
+        return None, f'{note}: span {span:.3g} s (> {high:g} s), not used for deskew'
+    offset = float(np.max(np.abs(times)))
+    if offset > MAX_STAMP_OFFSET_S:
+        return None, (
+            f'{note}: up to {offset:.3g} s from the header stamp (> {MAX_STAMP_OFFSET_S:g} s), '
+            'not used for deskew'
+        )
+    return times, note
 
 
 def _absolute_unit(values: np.ndarray, stamp_ns: int, units: dict[str, float]) -> str:

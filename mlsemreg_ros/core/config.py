@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from mlsemreg_ros.core.alignment.config import FineAlignmentConfig, SweepAlignmentConfig
+from mlsemreg_ros.core.alignment.covariance import CovarianceConfig
 from mlsemreg_ros.core.estimation.config import (
     BevSearchConfig,
     ConfidenceConfig,
@@ -46,6 +47,7 @@ from mlsemreg_ros.core.features.config import FeatureConfig, KeypointConfig
 from mlsemreg_ros.core.features.deskew import PreprocessConfig
 from mlsemreg_ros.core.features.moving_objects import MovingObjectsConfig
 from mlsemreg_ros.core.labeling.geometric_config import GeometricLabelsConfig, LABEL_SOURCES
+from mlsemreg_ros.core.labeling.onnx_config import OnnxLabelsConfig
 from mlsemreg_ros.core.maps.config import MapConfig
 from mlsemreg_ros.core.matching.config import MatcherConfig, SemanticConfig
 from mlsemreg_ros.core.motion_prior import MotionPriorConfig
@@ -288,6 +290,7 @@ class RegistrationConfig(Settings):
         choices=LABEL_SOURCES,
     )
     geometric_labels: GeometricLabelsConfig = field(default_factory=GeometricLabelsConfig)
+    onnx_labels: OnnxLabelsConfig = field(default_factory=OnnxLabelsConfig)
     preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)
     semantic: SemanticConfig = field(default_factory=SemanticConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
@@ -303,6 +306,7 @@ class RegistrationConfig(Settings):
     keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     motion_prior: MotionPriorConfig = field(default_factory=MotionPriorConfig)
+    covariance: CovarianceConfig = field(default_factory=CovarianceConfig)
     moving_objects: MovingObjectsConfig = field(default_factory=MovingObjectsConfig)
     map: MapConfig = field(default_factory=MapConfig)  # noqa: A003, RUF100 (the section name)
 
@@ -325,6 +329,7 @@ class RegistrationConfig(Settings):
 
             if reason := onnx_unavailable():
                 errors.append(f'label_source onnx: {reason}')
+            errors += self.onnx_labels.check()
         sem, est = self.semantic, self.estimator
         field_m = sem.ring_count * sem.ring_width
         if field_m > MAX_RECEPTIVE_FIELD_M:

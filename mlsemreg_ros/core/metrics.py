@@ -22,8 +22,7 @@ share of successful pairs, RE and TE are averaged over successful pairs only.
 
 Sequences: the KITTI odometry devkit's relative errors (translation in %,
 rotation in deg/100 m over segments of 100..800 m, first frames every 10
-frames) and the absolute trajectory error (RMSE after an SE(3) alignment,
-Umeyama 1991 without scale).
+frames) and NEES. ATE and RPE come from evo (:mod:`mlsemreg_ros.evaluation.trajectory`).
 """
 
 from __future__ import annotations
@@ -224,45 +223,3 @@ def kitti_odometry_errors(
     cos = (np.trace(error[:, :3, :3], axis1=1, axis2=2) - 1.0) / 2.0
     r_err = np.arccos(np.clip(cos, -1.0, 1.0)) / length
     return float(100.0 * t_err.mean()), float(np.degrees(r_err.mean()) * 100.0)
-
-
-def umeyama_alignment(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """
-    Rigid (4, 4) ``T`` minimizing ``sum ||T a_i - b_i||^2`` (Umeyama 1991, no scale).
-
-    - ``source``: (F, 3) points a_i.
-    - ``target``: (F, 3) points b_i.
-    """
-    a = np.asarray(source, dtype=np.float64).reshape(-1, 3)
-    b = np.asarray(target, dtype=np.float64).reshape(-1, 3)
-    mu_a, mu_b = a.mean(axis=0), b.mean(axis=0)
-    cov = (b - mu_b).T @ (a - mu_a) / a.shape[0]
-    U, _, Vt = np.linalg.svd(cov)
-    S = np.eye(3)
-    S[2, 2] = np.sign(np.linalg.det(U) * np.linalg.det(Vt)) or 1.0
-    T = np.eye(4)
-    T[:3, :3] = U @ S @ Vt
-    T[:3, 3] = mu_b - T[:3, :3] @ mu_a
-    return T
-
-
-def ate_rmse(positions_est: np.ndarray, positions_gt: np.ndarray, align: bool = True) -> float:
-    """
-    Absolute trajectory error: RMSE of position differences, metres.
-
-    - ``positions_est``: (F, 3) estimated positions (or (F, 4, 4) poses).
-    - ``positions_gt``: (F, 3) ground-truth positions (or (F, 4, 4) poses).
-    - ``align``: first align the estimate to the ground truth with the best rigid
-      transform (Umeyama/Horn, SE(3), no scale).
-    """
-    est = np.asarray(positions_est, dtype=np.float64)
-    gt = np.asarray(positions_gt, dtype=np.float64)
-    est = est[:, :3, 3] if est.ndim == 3 else est.reshape(-1, 3)
-    gt = gt[:, :3, 3] if gt.ndim == 3 else gt.reshape(-1, 3)
-    if est.shape != gt.shape:
-        raise ValueError(f'trajectories differ in shape: {est.shape} vs {gt.shape}')
-    if est.shape[0] == 0:
-        raise ValueError('empty trajectory')
-    if align and est.shape[0] >= 2:
-        est = _apply(umeyama_alignment(est, gt), est)
-    return float(np.sqrt(np.mean(np.sum((est - gt) ** 2, axis=1))))

@@ -170,6 +170,16 @@ class MotionPriorConfig:
         low=0.0,
         high=180.0,
     )
+    max_disagreement: float = param(
+        3.0,
+        'A scan registered with the prior is registered again without it when it was '
+        'rejected, or when the prior rotation over the interval (or, by twice this, the gyro '
+        'rotation within the sweep) is further than this from the registration; the registration '
+        'aligned with more inliers is kept (core/odometry/prior_guard.py).',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
     buffer: float = param(
         30.0,
         'Prior messages older than this before the last accepted scan are dropped.',

@@ -26,50 +26,35 @@ prepared scan and pay only for the new scan on every frame.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
-import dataclasses
 from dataclasses import dataclass
 import functools
-import time
 from typing import Any
 
 from mlsemreg_ros.core import threads
-from mlsemreg_ros.core.alignment.alignment import align_pair, Alignment
-from mlsemreg_ros.core.alignment.fine_alignment import (
-    alignment_cloud,
-    correction_refusal,
-    refinement_refusal,
-    RefinementBounds,
-)
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import bev_search, confidence, label_model
-from mlsemreg_ros.core.estimation.estimation import estimate
-from mlsemreg_ros.core.estimation.refused_path import RefusedPath
+from mlsemreg_ros.core.estimation.candidates import CandidatePool
 from mlsemreg_ros.core.estimation.verification import (
-    combined_score,
-    dense_scores,
-    distinctive_scores,
     label_compatibility,
     LabelCompatibility,
     score_hypotheses,
-    verify_hypotheses,
 )
 from mlsemreg_ros.core.features import features, fpfh
 from mlsemreg_ros.core.features.scan_input import sanitize_scan_for
-from mlsemreg_ros.core.labeling import quality as label_quality
-from mlsemreg_ros.core.matching import landmarks, matching, signatures
+from mlsemreg_ros.core.labeling import quality
+from mlsemreg_ros.core.matching import landmarks, signatures
 from mlsemreg_ros.core.matching.labels import LabelMap
-from mlsemreg_ros.core.poses import same_pose
-from mlsemreg_ros.core.results import (
-    Correspondences,
-    EstimateResult,
-    HypothesisScore,
-    Landmarks,
-    PreparedScan,
-    RegistrationResult,
-    VerificationResult,
-)
+from mlsemreg_ros.core.results import Landmarks, PreparedScan, RegistrationResult
+from mlsemreg_ros.core.stages.bev_search import BevSearchStage
+from mlsemreg_ros.core.stages.confidence import ConfidenceStage, consider
+from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
+from mlsemreg_ros.core.stages.estimation import EstimationStage
+from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
+from mlsemreg_ros.core.stages.label_quality import LabelQualityStage
+from mlsemreg_ros.core.stages.matching import MatchingStage
+from mlsemreg_ros.core.stages.refused_path import FullGraphStage, GuidedStage, PolishStage
+from mlsemreg_ros.core.stages.scoring import Scoring
+from mlsemreg_ros.core.stages.verification import VerificationStage
 from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
 
@@ -98,11 +83,27 @@ class _ResolvedClasses:
         )
 
 
-@contextmanager
-def _timed(timings: dict[str, float], stage: str) -> Iterator[None]:
-    start = time.perf_counter()
-    yield
-    timings[stage] = timings.get(stage, 0.0) + 1e3 * (time.perf_counter() - start)
+def default_stages() -> list[Stage]:
+    """
+    Return the stages of a registration, in order (core/stages/, docs/architecture.md).
+
+    The label source is not a stage here: it runs per scan, before :meth:`Registration.prepare`
+    (labels in, learning ids out). A stage that needs both prepared scans goes into this
+    list at its place (docs/extending.md); one that returns candidates is a candidate
+    source, like the BEV search: its candidates face the confidence rule.
+    """
+    return [
+        LabelQualityStage(),  # 0. the labels' weight: never worse than no labels
+        MatchingStage(),  # 1. correspondences: ML-SemReg (GM o MM) or the plain matcher
+        EstimationStage(),  # 2. the robust estimator (SC2-PCR): hypotheses, best first
+        VerificationStage(),  # 3. the hypotheses scored on the dense labeled scans
+        ConfidenceStage(),  # 4. the choice and the confidence rule's verdict
+        BevSearchStage(),  # 5. refused or weak: the semantic bird's-eye-view search
+        GuidedStage(),  # 6. still refused: guided re-matching around the searched peaks,
+        FullGraphStage(),  # 6. SC2-PCR on the full correspondence graph,
+        PolishStage(),  # 6. the pool's best candidates polished on the dense scans
+        FineAlignmentStage(),  # 7. GICP of the pair from the chosen pose (refine=True)
+    ]
 
 
 class Registration:
@@ -117,6 +118,7 @@ class Registration:
     ) -> None:
         self.label_map = label_map if label_map is not None else LabelMap.load()
         self.config = config if config is not None else RegistrationConfig()
+        self.stages: list[Stage] = default_stages()
 
     @property
     def config(self) -> RegistrationConfig:
@@ -130,8 +132,10 @@ class Registration:
         self._landmark_ids = resolved.landmark_ids
         self._ignored_ids = resolved.ignored_ids
         self._undefined_ids = resolved.undefined_ids
-        self._wildcard = np.ones(self.label_map.num_classes, dtype=bool)  # Local-SS of no labels
-        self._wildcard[np.r_[resolved.ignored_ids, resolved.undefined_ids]] = False
+        # every class but the ignored and undefined ones: what a keypoint of an unlabeled
+        # scan sees (core/labeling/quality.py)
+        self._unlabeled_local_ss = np.ones(self.label_map.num_classes, dtype=bool)
+        self._unlabeled_local_ss[np.r_[resolved.ignored_ids, resolved.undefined_ids]] = False
         self._label_compatibility = resolved.label_compatibility
         self._bev_channels = resolved.bev_channels
         self._distinctive = resolved.distinctive
@@ -201,7 +205,7 @@ class Registration:
         odometry tracks most scans without one). :meth:`register` completes its scans.
         """
         cfg, timings = self.config, {}
-        with _timed(timings, 'labels_ms'):
+        with timed(timings, 'labels_ms'):
             # non-finite and out-of-range points out first (they would wreck the voxel grid)
             scan = sanitize_scan_for(points, labels, cfg.features)
             conversion = self.label_map.convert(scan.labels, cfg.semantic.label_scheme)
@@ -214,10 +218,10 @@ class Registration:
             'labels_out_of_scheme': conversion.out_of_scheme,
         }
         if voxelize and cfg.features.voxel_size > 0:
-            with _timed(timings, 'voxelize_ms'):
+            with timed(timings, 'voxelize_ms'):
                 points, labels = features.voxel_downsample(points, labels, cfg.features.voxel_size)
         tree = None
-        with _timed(timings, 'keypoints_ms'):
+        with timed(timings, 'keypoints_ms'):
             if keypoints is None:
                 kp = cfg.keypoints
                 indices = features.sample_keypoints(
@@ -263,7 +267,7 @@ class Registration:
         stage = 'fpfh_ms' if descriptors is None else 'descriptors_ms'
 
         def describe() -> np.ndarray:
-            with _timed(timings, stage):
+            with timed(timings, stage):
                 found = (
                     _fpfh(points, scan.keypoint_indices, cfg)
                     if descriptors is None
@@ -272,7 +276,7 @@ class Registration:
                 return np.asarray(found, dtype=np.float32)
 
         def semantics_and_tree() -> tuple[np.ndarray, Landmarks, Any]:
-            with _timed(timings, 'local_ss_ms'):
+            with timed(timings, 'local_ss_ms'):
                 local_ss = signatures.local_semantic_signature(
                     points,
                     labels,
@@ -283,7 +287,7 @@ class Registration:
                     undefined=self._undefined_ids,
                     points_tree=keypoint_tree,
                 )
-            with _timed(timings, 'landmarks_ms'):
+            with timed(timings, 'landmarks_ms'):
                 marks = landmarks.extract_landmarks(
                     points,
                     labels,
@@ -293,7 +297,7 @@ class Registration:
                     cfg.semantic.landmark_min_share,
                     cfg.semantic.landmark_support_radius,
                 )
-            with _timed(timings, 'points_tree_ms'):  # for the dense scores, as a target
+            with timed(timings, 'points_tree_ms'):  # for the dense scores, as a target
                 tree = scan.kdtree or PreparedScan.build_points_tree(points)
             return local_ss, marks, tree
 
@@ -312,304 +316,61 @@ class Registration:
         self, source: PreparedScan, target: PreparedScan, *, refine: bool = True
     ) -> RegistrationResult:
         """
-        Register ``source`` onto ``target`` (both from :meth:`prepare`).
+        Register ``source`` onto ``target`` (both from :meth:`prepare`): run :attr:`stages`.
 
-        ``refine=False`` stops after the estimator (the odometry refines against its local
-        map instead of the target scan). The fine alignment refines a refused pose too (it
-        is the best one found; ``success`` stays false).
+        Each stage that is :meth:`~mlsemreg_ros.core.stages.context.Stage.wanted` runs in
+        order and is timed as ``<name>_ms``; the candidates a stage returns join the pool and
+        face the confidence rule again (``core/stages/confidence.py``). ``refine=False``
+        stops before the pair's fine alignment (the odometry refines against its local map
+        instead). The fine alignment refines a refused pose too (it is the best one found;
+        ``success`` stays false).
 
-        Never worse than no labels (core/labeling/quality.py): a pair whose labels are no
-        better than chance is registered as unlabeled; a pair with poorer labels that is
-        refused is registered again as unlabeled, and that result is taken if accepted.
+        Never worse than no labels (core/labeling/quality.py): a refused pair whose labels
+        were judged poorer is registered again as unlabeled, and that result is taken when
+        it is accepted (``labels_fallback_unlabeled`` in its diagnostics).
         """
         self.complete(source)
         self.complete(target)
-        judged = label_quality.judge(source, target, self.config, self._label_compatibility)
-        if judged.unlabeled:  # no better than chance: matched and judged as unlabeled
-            return self._register(*self._unlabeled(source, target), refine, judged)
-        result = self._register(source, target, refine, judged)
-        if result.success or not judged.widen:
+        result, judged = self._run_stages(source, target, refine)
+        if result.success or judged is None or not judged.widen:
             return result
-        plain = self._register(*self._unlabeled(source, target), refine, judged.as_unlabeled())
-        return plain if plain.success else result
-
-    def _unlabeled(
-        self, source: PreparedScan, target: PreparedScan
-    ) -> tuple[PreparedScan, PreparedScan]:
-        """Both scans without labels (core/labeling/quality.py)."""
-        return (
-            label_quality.unlabeled_view(source, self._wildcard),
-            label_quality.unlabeled_view(target, self._wildcard),
+        wildcard = self._unlabeled_local_ss
+        plain, _ = self._run_stages(
+            quality.unlabeled_view(source, wildcard),
+            quality.unlabeled_view(target, wildcard),
+            refine,
         )
+        if not plain.success:
+            return result
+        plain.diagnostics['labels_fallback_unlabeled'] = True
+        return plain
 
-    def _register(
-        self,
-        source: PreparedScan,
-        target: PreparedScan,
-        refine: bool,
-        judged: label_quality.LabelQuality,
-    ) -> RegistrationResult:
-        """:meth:`register` of completed scans with their labels judged (``judged``)."""
-        cfg, timings = judged.config(self.config), {}
-        diagnostics: dict = {
-            'source_keypoints': len(source.keypoints),
-            'target_keypoints': len(target.keypoints),
-            **judged.diagnostics,
-        }
-        # 1. correspondences: ML-SemReg (GM o MM) or the plain matcher
-        with _timed(timings, 'gm_mm_ms'):
-            if cfg.semantic.enabled:
-                outcome = matching.ml_semreg(
-                    source, target, cfg.semantic, cfg.matcher.kind, timings=timings
-                )
-                corr, mode, message = outcome.correspondences, outcome.mode, outcome.message
-                diagnostics.update(outcome.diagnostics)
-                if judged.widen:  # poorer labels: Group Matching widens (core/labeling/quality.py)
-                    plain = matching.match_descriptors(
-                        source.descriptors, target.descriptors, cfg.matcher.kind
-                    )
-                    corr = label_quality.widened(corr, plain)
-            else:
-                corr = matching.match_descriptors(
-                    source.descriptors, target.descriptors, cfg.matcher.kind
-                )
-                mode, message = 'plain', ''
-        corr = _best_ranked(corr, cfg.estimator.max_correspondences)
-        src_pts, dst_pts = source.keypoints[corr.source], target.keypoints[corr.target]
-        diagnostics['correspondences'] = len(corr)
-        # 2. robust estimation (SC2-PCR by default)
-        with _timed(timings, 'estimator_ms'):
-            estimate_result = estimate(src_pts, dst_pts, cfg.estimator)
-        transform = estimate_result.transform
-        diagnostics.update(estimate_result.diagnostics)
-        # 2b. hypothesis verification on the dense labeled scans (core/estimation/verification.py)
-        verified = None
-        if cfg.verification.enabled:
-            with _timed(timings, 'verification_ms'):
-                verified = self._verify(estimate_result, src_pts, dst_pts, source, target)
-            transform = verified.T_target_source
-            diagnostics.update(verified.diagnostics)
-        # 2c. confidence: sparse and dense evidence must agree, no rival may come close
-        # (core/estimation/confidence.py, docs/hard_pairs.md)
-        with _timed(timings, 'confidence_ms'):
-            measure = functools.partial(self._distinctive_of, source=source, target=target)
-            ceilings = self._ceilings(source, target)
-            trusted = confidence.objects_trusted(ceilings[1], cfg.confidence)
-            pool = _Pool.of(verified, measure)
-            chosen = pool.decide(pool.incumbent, cfg, trusted) if pool else None
-            if chosen is not None:
-                transform = pool.hypotheses[chosen].T_target_source
-            inliers, evidence = self._evidence(
-                transform, src_pts, dst_pts, pool, chosen, source, target, ceilings
-            )
-        refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
-        # 2d. refused or weak: search the scans themselves (core/estimation/bev_search.py); 2e.
-        # still
-        # refused: match again around the best peaks (core/estimation/guided.py). Every new
-        # candidate
-        # joins the pool, the choice and the rivals.
-        weak = evidence.num_inliers < cfg.bev_search.weak_inliers
-        if (refused or weak) and verified is not None and cfg.bev_search.enabled:
-            first = f'refused: {refused}' if refused else f'{evidence.num_inliers} inliers'
-            with _timed(timings, 'bev_search_ms'):
-                searched = bev_search.search_scans(
-                    source,
-                    target,
-                    src_pts,
-                    dst_pts,
-                    cfg,
-                    self._label_compatibility,
-                    self._bev_channels,
-                )
-            diagnostics['bev_search_used'] = False
-            stages = []
-            if searched is not None:
-                diagnostics.update(searched.diagnostics)
-                stages.append(searched)
-            # still refused: the next stage, cheapest first (docs/hard_pairs.md)
-            refused_path = self._refused_path()
-            pending = refused_path.stages(estimate_result, len(src_pts))
-            for found in stages:
-                with _timed(timings, 'confidence_ms'):
-                    pool = pool.extended(found, measure)
-                    chosen = pool.decide(chosen, cfg, trusted)
-                    transform = pool.hypotheses[chosen].T_target_source
-                    inliers, evidence = self._evidence(
-                        transform, src_pts, dst_pts, pool, chosen, source, target, ceilings
-                    )
-                refused = confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
-                while refused and pending and found is stages[-1]:
-                    stage = pending.pop(0)
-                    with _timed(timings, f'{stage}_ms'):
-                        extra = refused_path.run(
-                            stage,
-                            (source, target),
-                            (src_pts, dst_pts),
-                            pool,
-                            searched,
-                            refine,
-                            diagnostics,
-                        )
-                    if extra is not None and extra.hypotheses:
-                        stages.append(extra)
-            origin = pool.origin(chosen)
-            diagnostics['bev_search_used'] = origin == 'bev_search'
-            diagnostics['chosen_origin'] = origin
-            if origin != 'estimator':
-                message = f"{origin} pose (the estimator's was {first})"
-        diagnostics.update(evidence.as_diagnostics())
-        success = not refused
-        if refused:
-            message = refused + (f'; {message}' if message else '')
-        # 3. fine alignment of the scans (GICP/VGICP), from the (verified) estimate
-        estimated, alignment = transform, None
-        if refine and np.all(np.isfinite(transform)) and cfg.fine.pair_method != 'off':
-            with _timed(timings, 'fine_ms'):
-                alignment = align_pair(
-                    alignment_cloud(source, cfg.fine, pair=True),
-                    alignment_cloud(target, cfg.fine, pair=True),
-                    transform,
-                    cfg.fine,
-                    cfg.fine.pair_method,
-                )
-            bounds = RefinementBounds.of(cfg.odometry)
-            refused = refinement_refusal(alignment, bounds)
-            diagnostics.update(
-                fine_inlier_fraction=alignment.inlier_fraction,
-                fine_iterations=alignment.iterations,
-                fine_refused=refused or '',
-            )
-            doubtful = correction_refusal(alignment, bounds)
-            if doubtful and success:  # the coarse pose was not right to the bounds
-                success, message = False, doubtful + (f'; {message}' if message else '')
-            if refused and self._refused_path().refinement_holds(
-                alignment.T_target_source, transform, source, target
-            ):
-                # the refinement is the best pose found when it holds the dense score: at
-                # 40-60 m the true overlap stays under odometry.min_inlier_fraction. (An
-                # accepted pose it moved beyond the correction bounds is refused above.)
-                # docs/hard_pairs.md
-                diagnostics['fine_refused_kept'] = True
-                refused = ''
-            if not refused:
-                transform = alignment.T_target_source
-                alignment, degenerate = self._degeneracy(alignment, diagnostics)
-                if degenerate and success:
-                    success, message = False, degenerate + (f'; {message}' if message else '')
-        return RegistrationResult(
-            transform,
-            corr,
-            src_pts,
-            dst_pts,
-            inliers,
-            success,
-            mode,
-            message,
-            timings,
-            diagnostics,
-            estimated,
-            alignment,
+    def _run_stages(
+        self, source: PreparedScan, target: PreparedScan, refine: bool
+    ) -> tuple[RegistrationResult, Any]:
+        """Run :attr:`stages` on completed scans: the result and the labels' judgement."""
+        context = RegistrationContext(source, target, refine, self.config, self.scoring())
+        context.diagnostics.update(
+            source_keypoints=len(source.keypoints), target_keypoints=len(target.keypoints)
         )
+        for stage in self.stages:
+            if not stage.wanted(context):
+                continue
+            with context.timed(stage.name):
+                found = stage.run(context)
+            if found is not None and found.hypotheses:
+                with context.timed(ConfidenceStage.name):
+                    consider(context, found)
+        return context.result(), context.label_quality
 
-    def _evidence(
-        self,
-        transform: np.ndarray,
-        src_pts: np.ndarray,
-        dst_pts: np.ndarray,
-        pool: _Pool,
-        chosen: int | None,
-        source: PreparedScan,
-        target: PreparedScan,
-        ceilings: tuple[float, float] | None = None,
-    ) -> tuple[np.ndarray, confidence.Evidence]:
-        """
-        Inlier mask and the evidence of ``transform`` (``pool.hypotheses[chosen]`` or new).
-
-        Besides the sparse and dense scores: the distinctive structure it lines up and its
-        best rival (other candidates of ``pool``, the zero motion, its slides;
-        :mod:`mlsemreg_ros.core.estimation.confidence`).
-        """
-        cfg = self.config
-        residual = np.linalg.norm(
-            src_pts @ transform[:3, :3].T + transform[:3, 3] - dst_pts, axis=1
-        )
-        inliers = residual < cfg.estimator.inlier_threshold
-        if not np.all(np.isfinite(transform)):
-            return inliers, confidence.Evidence(
-                int(inliers.sum()), len(src_pts), 0.0, 0.0, confidence.tilt_deg(transform)
-            )
-        # rivals: the pool's distinct candidates, then the zero motion and the slides
-        conf = cfg.confidence
-        extra = [np.eye(4)[None], confidence.slid_poses(transform, conf.slide_distance)]
-        extra_names = ['zero motion'] + [f'slide {conf.slide_distance:g} m'] * 8
-        if conf.slide_distance <= 0:
-            extra, extra_names = extra[:1], extra_names[:1]
-        fresh = (
-            np.concatenate([transform[None], *extra]) if chosen is None else np.concatenate(extra)
-        )
-        overlap, agreement = self._dense(fresh, source, target)
-        scores = combined_score(overlap, agreement, cfg.verification)
-        shares, points, views = self._distinctive_of(fresh, source, target)
-        if chosen is None:
-            own = (
-                float(overlap[0]),
-                float(agreement[0]),
-                float(scores[0]),
-                float(shares[0]),
-                int(points[0]),
-                int(views[0]),
-            )
-            overlap, agreement, scores, shares, points = (
-                a[1:] for a in (overlap, agreement, scores, shares, points)
-            )
-        else:
-            h = pool.hypotheses[chosen]
-            own = (
-                h.overlap,
-                h.label_agreement,
-                h.score,
-                float(pool.shares[chosen]),
-                int(pool.points[chosen]),
-                int(pool.views[chosen]),
-            )
-        rival_T = np.concatenate([pool.transforms(), np.concatenate(extra)])
-        rival_scores = np.concatenate([pool.scores(), scores])
-        rival_shares = np.concatenate([pool.shares, shares])
-        rival_points = np.concatenate([pool.points, points])
-        names = [pool.origin(i) for i in range(len(pool.hypotheses))] + extra_names
-        distinct = ~same_pose(transform, rival_T, conf.rival_rotation, conf.rival_translation)
-        rival_score, rival_share, rival, rival_objects = 0.0, 0.0, '', 0
-        if distinct.any():
-            best = int(np.argmax(np.where(distinct, rival_scores, -np.inf)))
-            rival_score, rival = float(rival_scores[best]), names[best]
-            close = distinct & (rival_scores >= (1.0 - conf.ambiguity_margin) * own[2])
-            rival_share = float(rival_shares[close].max()) if close.any() else 0.0
-            rival_objects = int(rival_points[close].max()) if close.any() else 0
-        return inliers, confidence.Evidence(
-            int(inliers.sum()),
-            len(src_pts),
-            float(own[0]),
-            float(own[1]),
-            confidence.tilt_deg(transform),
-            float(own[2]),
-            own[4],
-            own[5],
-            own[3],
-            rival_score,
-            rival_share,
-            rival,
-            rival_objects,
-            *(self._ceilings(source, target) if ceilings is None else ceilings),
-        )
-
-    def _ceilings(self, source: PreparedScan, target: PreparedScan) -> tuple[float, float]:
-        """Return the labels' ceiling and the distinctive classes' (estimation/label_model.py)."""
-        cfg = self.config.verification
-        return (
-            label_model.label_ceiling(source, target, self._label_compatibility, cfg),
-            label_model.distinctive_ceiling(
-                source, target, self._distinctive, cfg.overlap_distance
-            ),
+    def scoring(self) -> Scoring:
+        """Return the scores with the current config and label rule (core/stages/scoring.py)."""
+        return Scoring(
+            self.config,
+            self._label_compatibility,
+            self._distinctive,
+            self._bev_channels,
+            self._unlabeled_local_ss,
         )
 
     def judge(
@@ -633,8 +394,9 @@ class Registration:
         cfg, none = self.config, np.zeros((0, 3))
         src = none if source_points is None else np.asarray(source_points, dtype=np.float64)
         dst = none if target_points is None else np.asarray(target_points, dtype=np.float64)
-        measure = functools.partial(self._distinctive_of, source=source, target=target)
-        pool = _Pool.of(None, measure)
+        scoring = self.scoring()
+        measure = functools.partial(scoring.distinctive_of, source=source, target=target)
+        pool = CandidatePool.of(None, measure)
         if rivals is not None and len(rivals):
             rivals = np.asarray(rivals, dtype=np.float64).reshape(-1, 4, 4)
             scored = score_hypotheses(
@@ -650,84 +412,10 @@ class Registration:
                 origin='rival',
             )
             pool = pool.extended(scored, measure)
-        _, evidence = self._evidence(
+        _, evidence = scoring.evidence(
             np.asarray(transform, dtype=np.float64), src, dst, pool, None, source, target
         )
         return evidence, confidence.refusal(evidence, cfg.confidence, cfg.estimator.min_inliers)
-
-    def _refused_path(self) -> RefusedPath:
-        """Return the refused-path stages with this config (core/estimation/refused_path.py)."""
-        return RefusedPath(self.config, self._label_compatibility, self._verify, self._dense)
-
-    def _verify(
-        self,
-        estimated: EstimateResult,
-        src_pts: np.ndarray,
-        dst_pts: np.ndarray,
-        source: PreparedScan,
-        target: PreparedScan,
-    ) -> VerificationResult:
-        """:func:`verify_hypotheses` of ``estimated`` on these scans with this config."""
-        cfg = self.config
-        return verify_hypotheses(
-            estimated,
-            src_pts,
-            dst_pts,
-            source,
-            target,
-            cfg.verification,
-            cfg.estimator,
-            self._label_compatibility,
-        )
-
-    def _dense(
-        self, transforms: np.ndarray, source: PreparedScan, target: PreparedScan
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`dense_scores` of ``(N, 4, 4)`` poses: ``(overlap, label agreement)``."""
-        return dense_scores(
-            transforms,
-            source,
-            target.points_tree(),
-            target.labels,
-            self._label_compatibility,
-            self.config.verification,
-        )
-
-    def _distinctive_of(
-        self, transforms: np.ndarray, source: PreparedScan, target: PreparedScan
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:func:`distinctive_scores` (``core/estimation/verification.py``) of ``transforms``."""
-        return distinctive_scores(
-            transforms,
-            source,
-            target,
-            self._distinctive,
-            self.config.verification.overlap_distance,
-        )
-
-    def _degeneracy(
-        self, alignment: Alignment, diagnostics: dict[str, Any]
-    ) -> tuple[Alignment, str]:
-        """
-        Localizability of the fine alignment (``degeneracy_*`` diagnostics) and its verdict.
-
-        ``confidence.degeneracy``: ``report`` leaves the alignment as it is, ``inflate``
-        returns it with the Hessian's weak translation eigenvalue divided by
-        ``confidence.degeneracy_inflation`` (so every covariance derived from it grows along
-        the weak direction), ``refuse`` returns the reason to refuse.
-        """
-        conf = self.config.confidence
-        found = confidence.localizability(alignment.hessian, alignment.T_target_source[:3, :3])
-        if found is None:
-            return alignment, ''
-        weak = found.ratio < conf.min_localizability
-        diagnostics.update(found.as_diagnostics())
-        diagnostics['degeneracy_weak'] = weak
-        diagnostics['degeneracy_action'] = conf.degeneracy if weak else ''
-        if weak and conf.degeneracy == 'inflate':
-            hessian = confidence.inflated_hessian(alignment.hessian, conf.degeneracy_inflation)
-            return dataclasses.replace(alignment, hessian=hessian), ''
-        return alignment, confidence.degeneracy_refusal(found, conf)
 
     def prepare_scans(self, *scans: dict[str, Any]) -> list[PreparedScan]:
         """
@@ -778,113 +466,3 @@ def _fpfh(points: np.ndarray, indices: np.ndarray, cfg: RegistrationConfig) -> n
         f.support_voxel_size,
         snap=f.snap_keypoints,
     )
-
-
-def _best_ranked(corr: Correspondences, cap: int) -> Correspondences:
-    """Keep the ``cap`` correspondences with the smallest descriptor distance."""
-    if len(corr) <= cap:
-        return corr
-    keep = np.sort(np.argpartition(corr.distance, cap - 1)[:cap])
-    return Correspondences(corr.source[keep], corr.target[keep], corr.distance[keep])
-
-
-@dataclasses.dataclass
-class _Pool:
-    """
-    Every verified candidate pose of one registration, with its distinctive structure.
-
-    The estimator's hypotheses (verification) and, once it ran, the BEV search's peaks.
-    """
-
-    hypotheses: list[HypothesisScore]
-    shares: np.ndarray  # (N,) distinctive share (core/verification.distinctive_scores)
-    points: np.ndarray  # (N,) distinctive objects lined up
-    views: np.ndarray  # (N,) distinctive objects in the target's view
-    incumbent: int = 0  # the verification's choice
-
-    @classmethod
-    def of(cls, verified: VerificationResult | None, measure: Any) -> _Pool:
-        """Pool the verification's candidates (an empty pool without verification)."""
-        if verified is None:
-            return cls([], np.zeros(0), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
-        pool = cls(
-            [],
-            np.zeros(0),
-            np.zeros(0, dtype=np.int64),
-            np.zeros(0, dtype=np.int64),
-            verified.chosen,
-        )
-        return pool.extended(verified, measure)
-
-    def __bool__(self) -> bool:
-        """Tell whether the pool holds a candidate."""
-        return bool(self.hypotheses)
-
-    def extended(self, result: VerificationResult, measure: Any) -> _Pool:
-        """
-        Return this pool with ``result``'s hypotheses added.
-
-        ``measure(transforms)`` gives their distinctive ``(shares, objects, in_view)``.
-        """
-        added = np.stack([h.T_target_source for h in result.hypotheses])
-        shares, points, views = measure(added)
-        return _Pool(
-            self.hypotheses + list(result.hypotheses),
-            np.concatenate([self.shares, shares]),
-            np.concatenate([self.points, points]),
-            np.concatenate([self.views, views]),
-            self.incumbent,
-        )
-
-    def transforms(self) -> np.ndarray:
-        """``(N, 4, 4)`` candidate poses."""
-        if not self.hypotheses:
-            return np.zeros((0, 4, 4))
-        return np.stack([h.T_target_source for h in self.hypotheses])
-
-    def scores(self) -> np.ndarray:
-        """``(N,)`` verification scores."""
-        return np.array([h.score for h in self.hypotheses], dtype=np.float64)
-
-    def origin(self, index: int) -> str:
-        """Where candidate ``index`` came from ('estimator' or 'bev_search')."""
-        return self.hypotheses[index].origin
-
-    def decide(self, incumbent: int, config: RegistrationConfig, trusted: bool = True) -> int:
-        """
-        Return the candidate to keep: the best score, then the distinctive structure decides.
-
-        ``incumbent`` is kept unless another scores more than ``verification.min_gain``
-        higher. Then, among the candidates scoring at least ``1 - confidence.decide_margin``
-        of the winner, those that are *decided* (at least ``confidence.min_distinctive_objects``
-        distinctive objects lined up, and ``confidence.min_distinctive_fraction`` of those in
-        the target view) replace an undecided winner, and one that lines up more objects
-        replaces a decided winner (most objects first, then the best score): at 40 m the
-        zero-motion slide overlaps more than the truth, but lines up none of its poles
-        (docs/hard_pairs.md). Only while the objects are ``trusted``
-        (:func:`~mlsemreg_ros.core.estimation.confidence.objects_trusted`): with flipped
-        labels they line up by chance, and the best score decides.
-        """
-        conf, scores = config.confidence, self.scores()
-        best = int(np.argmax(scores))
-        winner = (
-            best
-            if scores[best] > scores[incumbent] * (1.0 + config.verification.min_gain)
-            else incumbent
-        )
-        decided = (
-            (self.points >= conf.min_distinctive_objects)
-            & (self.points >= conf.min_distinctive_fraction * self.views)
-            & trusted
-        )
-        eligible = decided & (scores >= (1.0 - conf.decide_margin) * scores[winner])
-        if eligible.any() and not decided[winner]:
-            # the most distinctive objects lined up, then the best score
-            key = np.where(eligible, self.points + scores / (scores.max() + 1.0), -np.inf)
-            winner = int(np.argmax(key))
-        elif eligible.any():
-            better = eligible & (self.points > self.points[winner])
-            if better.any():
-                key = np.where(better, self.points + scores / (scores.max() + 1.0), -np.inf)
-                winner = int(np.argmax(key))
-        return winner

@@ -550,7 +550,7 @@ def write_sequence_bag(
     the scans' poses) and ``times.txt`` (seconds since the first scan). The folder must
     not exist yet.
     """
-    from mlsemreg_ros.datasets.pose_files import write_kitti_poses
+    from mlsemreg_ros.codec.pose_files import write_kitti_poses
 
     out = Path(out)
     stamps: list[int] = []

@@ -32,7 +32,7 @@ from collections.abc import Iterator
 from pathlib import Path
 import warnings
 
-from mlsemreg_ros.datasets.pose_files import (
+from mlsemreg_ros.codec.pose_files import (
     camera_to_lidar_poses,
     read_kitti_calib,
     read_kitti_poses,

@@ -15,6 +15,8 @@
 """
 Estimator adapters of the replay: our odometry, KISS-ICP, and a recorded run of the node.
 
+GenZ-ICP and KISS-SLAM: :mod:`mlsemreg_ros.evaluation.peer_estimators`.
+
 Each turns its estimator's per-scan output into a
 :class:`~mlsemreg_ros.evaluation.records.FrameEstimate`; a new estimator is one more class
 with ``method``, ``progress_label`` and ``step(scan)``
@@ -57,7 +59,11 @@ class OdometryEstimator:
         """Process one scan with the odometry."""
         keyframe = self.odometry.keyframe  # a scan without labels: label_source decides
         step = self.odometry.process(
-            scan.xyz, scan.labels, scan.stamp_ns, point_times=scan.point_times
+            scan.xyz,
+            scan.labels,
+            scan.stamp_ns,
+            point_times=scan.point_times,
+            intensity=scan.intensity,
         )
         self.deskewed_scans += int(step.deskewed)
         self._bag_index.append(scan.index)
@@ -134,15 +140,8 @@ class KissIcpEstimator:
 
     def __init__(self, max_range: float = 100.0) -> None:
         """Create KISS-ICP for scans of up to ``max_range`` metres."""
-        from kiss_icp.config import load_config
-        from kiss_icp.kiss_icp import KissICP
-
-        config = load_config(None)
-        config.data.deskew = True  # used only on scans with per-point times
-        config.data.max_range = max_range
-        config.mapping.voxel_size = max_range / 100.0
         self.max_range = max_range
-        self.odometry = KissICP(config)
+        self.odometry = self._create(max_range)
         self._previous: tuple[int, np.ndarray] | None = None  # (index, pose)
         self._previous_stamp = 0
         self.deskewed_scans = 0  # scans given to KISS-ICP with their per-point times
@@ -151,14 +150,14 @@ class KissIcpEstimator:
         """Register one scan with KISS-ICP."""
         points, times = self._inputs(scan)
         tic = time.perf_counter()
-        self.odometry.register_frame(points, times)
+        pose = self._register(points, times)
         latency = 1e3 * (time.perf_counter() - tic)
         self.deskewed_scans += int(times.size > 0)
-        pose = self.odometry.last_pose.copy()
         previous, self._previous = self._previous, (scan.index, pose)
+        mode = self.progress_label.strip(' ()')
         if previous is None:
             return FrameEstimate(
-                pose, None, accepted=True, latency_ms=latency, mode='kiss-icp', new_keyframe=True
+                pose, None, accepted=True, latency_ms=latency, mode=mode, new_keyframe=True
             )
         return FrameEstimate(
             pose,
@@ -166,9 +165,26 @@ class KissIcpEstimator:
             relative_transform(previous[1], pose),
             accepted=True,
             latency_ms=latency,
-            mode='kiss-icp',
+            mode=mode,
             new_keyframe=True,
         )
+
+    @staticmethod
+    def _create(max_range: float) -> Any:
+        """Return KISS-ICP in its default configuration for ``max_range``, deskew on."""
+        from kiss_icp.config import load_config
+        from kiss_icp.kiss_icp import KissICP
+
+        config = load_config(None)
+        config.data.deskew = True  # used only on scans with per-point times
+        config.data.max_range = max_range
+        config.mapping.voxel_size = max_range / 100.0
+        return KissICP(config)
+
+    def _register(self, points: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """Register one scan; return its pose (4, 4)."""
+        self.odometry.register_frame(points, times)
+        return self.odometry.last_pose.copy()
 
     def _inputs(self, scan: Scan) -> tuple[np.ndarray, np.ndarray]:
         """Return the points and the times KISS-ICP deskews by (empty: no deskew)."""

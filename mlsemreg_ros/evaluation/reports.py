@@ -19,11 +19,13 @@ A sequence evaluation's folder (``results/<kind>/<time>_<name>``, with a ``lates
 
     summary.json          n_frames, registration_recall_pct, rotation_error_deg,
                           translation_error_cm, kitti_t_err_pct, kitti_r_err_deg_per_100m,
-                          ate_rmse_m, latency_ms_p50, latency_ms_p95, nees_mean
+                          ate_rmse_m (SE(3)-aligned), ate_unaligned_m, rpe_step_m,
+                          rpe_100m_m (evo), latency_ms_p50, latency_ms_p95, nees_mean
     details.json          run information (bag, stride, counts, mean IR/IN, stage timings)
     frames.csv            one row per scan
     trajectory_kitti.txt  estimated poses (KITTI); ground_truth_kitti.txt likewise
     trajectory_tum.txt    estimated poses (TUM); ground_truth_tum.txt likewise
+                          (evo_ape tum ground_truth_tum.txt trajectory_tum.txt -a)
     config.yaml           effective parameters (node layout; feed back with --config)
     trajectory.png, errors.png, correspondences.png
 """
@@ -79,7 +81,7 @@ def write_results(
     extra: dict[str, np.ndarray] | None = None,
 ) -> None:
     """Write the results folder (see the module docstring); ``extra``: more trajectories."""
-    from mlsemreg_ros.datasets.pose_files import write_kitti_poses, write_tum_poses
+    from mlsemreg_ros.codec.pose_files import write_kitti_poses, write_tum_poses
 
     out.mkdir(parents=True, exist_ok=True)
     (out / 'summary.json').write_text(json.dumps(summary, indent=2) + '\n')

@@ -15,7 +15,8 @@
 """
 Scoring in one place: a scan's row, a sequence's summary and details, a pair's metrics.
 
-Built on :mod:`mlsemreg_ros.core.metrics` (RE, TE, inliers, KITTI errors, ATE, NEES) with
+Built on :mod:`mlsemreg_ros.core.metrics` (RE, TE, inliers, KITTI errors, NEES) and
+:mod:`mlsemreg_ros.evaluation.trajectory` (ATE and RPE from evo), with
 the success bounds of :class:`~mlsemreg_ros.evaluation.settings.EvaluationConfig`:
 success iff the estimator accepted the scan and RE <= 5 deg and TE <= 0.6 m (defaults);
 RR = share of successful pairs among the registered scans with ground truth; RE / TE are
@@ -28,7 +29,6 @@ import math
 from typing import Any
 
 from mlsemreg_ros.core.metrics import (
-    ate_rmse,
     evaluate_pair,
     inlier_mask,
     kitti_odometry_errors,
@@ -41,6 +41,7 @@ from mlsemreg_ros.core.rigid import relative_transform
 from mlsemreg_ros.datasets.source import Scan
 from mlsemreg_ros.evaluation.records import EvalRun, FrameEstimate, FrameRecord
 from mlsemreg_ros.evaluation.settings import EvaluationConfig
+from mlsemreg_ros.evaluation.trajectory import trajectory_errors
 import numpy as np
 
 #: summary.json keys, in order (the contract of every sequence evaluation).
@@ -52,6 +53,9 @@ SUMMARY_KEYS = (
     'kitti_t_err_pct',
     'kitti_r_err_deg_per_100m',
     'ate_rmse_m',
+    'ate_unaligned_m',
+    'rpe_step_m',
+    'rpe_100m_m',
     'latency_ms_p50',
     'latency_ms_p95',
     'nees_mean',
@@ -65,6 +69,9 @@ SUMMARY_UNITS = {
     'kitti_t_err_pct': '%',
     'kitti_r_err_deg_per_100m': 'deg/100m',
     'ate_rmse_m': 'm',
+    'ate_unaligned_m': 'm',
+    'rpe_step_m': 'm',
+    'rpe_100m_m': 'm',
     'latency_ms_p50': 'ms',
     'latency_ms_p95': 'ms',
     'nees_mean': '(6 ideal)',
@@ -175,10 +182,10 @@ def summarize_run(run: EvalRun) -> dict[str, Any]:
         r.latency_ms for r in run.records
     ]
     kitti = None
-    ate = None
+    trajectory: dict[str, float | None] = {}
     if run.gt_poses is not None and len(run.records) >= 2:
         kitti = kitti_odometry_errors(run.poses, run.gt_poses)
-        ate = ate_rmse(run.poses, run.gt_poses)
+        trajectory = trajectory_errors(run.poses, run.gt_poses)
     summary = {
         'n_frames': len(run.records),
         'registration_recall_pct': 100.0 * len(ok) / len(pairs) if pairs else None,
@@ -186,7 +193,10 @@ def summarize_run(run: EvalRun) -> dict[str, Any]:
         'translation_error_cm': float(np.mean([r.te_cm for r in ok])) if ok else None,
         'kitti_t_err_pct': kitti[0] if kitti else None,
         'kitti_r_err_deg_per_100m': kitti[1] if kitti else None,
-        'ate_rmse_m': ate,
+        'ate_rmse_m': trajectory.get('ate_rmse_m'),
+        'ate_unaligned_m': trajectory.get('ate_unaligned_m'),
+        'rpe_step_m': trajectory.get('rpe_step_m'),
+        'rpe_100m_m': trajectory.get('rpe_100m_m'),
         'latency_ms_p50': float(np.percentile(latencies, 50)) if latencies else None,
         'latency_ms_p95': float(np.percentile(latencies, 95)) if latencies else None,
         'nees_mean': float(np.mean(nees)) if nees else None,

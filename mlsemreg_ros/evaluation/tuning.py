@@ -33,7 +33,7 @@ Usage and the measured runs: docs/tuning.md.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 import dataclasses
 from dataclasses import dataclass, field
 import math
@@ -666,20 +666,6 @@ def tuned_values(task: TuneTask, trial: Any) -> dict[str, Any]:
     """Flat core values of a trial: the starting point with the trial's parameters."""
     config = RegistrationConfig().replace(task.base).replace(dict(trial.params))
     return config.to_flat_dict()
-
-
-def write_params_file(
-    path: Path,
-    core_values: Mapping[str, Any],
-    node_values: Mapping[str, Any] | None = None,
-    header: Sequence[str] = (),
-) -> None:
-    """Write a full node parameter file (config/params.yaml layout) with these values."""
-    from mlsemreg_ros.parameter_docs import params_yaml_text
-
-    values = {**(node_values or {}), **core_values}
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(params_yaml_text(values, header=list(header)))
 
 
 def save_plots(study: Any, out: Path) -> dict[str, str]:

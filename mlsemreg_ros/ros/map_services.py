@@ -23,6 +23,10 @@ layer converts and publishes:
   while localized) and ``mlsemreg/map_path`` (nav_msgs/Path of the keyframes in the map
   frame, after every new keyframe or loop closure while mapping);
 - broadcasts TF ``map.frame_id -> odom_frame`` with the same transform (tf2_ros);
+- publishes ``mlsemreg/map`` (sensor_msgs/PointCloud2 in the map frame, latched: transient
+  local, so a late subscriber gets the last one): every keyframe moved by its pose,
+  voxelised to ``map_cloud_voxel_size``, with a ``label`` field; on map load, on
+  ``save_map`` and on every loop closure (``core/maps/map_cloud.py``);
 - serves ``mlsemreg/relocalize`` (std_srvs/Trigger: relocalize the next scan against the
   keyframes without an initial guess) and ``mlsemreg/save_map`` (std_srvs/Trigger: write
   the map folder to ``map.save_path``).
@@ -36,12 +40,16 @@ from __future__ import annotations
 from typing import Any
 
 from geometry_msgs.msg import TransformStamped
+from mlsemreg_ros.codec.pointcloud2 import arrays_to_pointcloud2
 from mlsemreg_ros.core.maps.localization import LocalizationUpdate, MapLocalization
+from mlsemreg_ros.core.maps.map_cloud import map_cloud
 from mlsemreg_ros.core.maps.map_io import load_store, MapError
 from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.ros import messages
 from nav_msgs.msg import Path
 import numpy as np
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import PointCloud2, PointField
 from std_msgs.msg import Header
 from std_srvs.srv import Trigger
 
@@ -73,6 +81,15 @@ class MapServices:
         self._pub_path = node.create_publisher(Path, 'mlsemreg/map_path', 1)
         node.create_service(Trigger, 'mlsemreg/relocalize', self._on_relocalize)
         node.create_service(Trigger, 'mlsemreg/save_map', self._on_save)
+        latched = QoSProfile(
+            depth=1,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            reliability=ReliabilityPolicy.RELIABLE,
+        )
+        self._pub_map = node.create_publisher(PointCloud2, 'mlsemreg/map', latched)
+        self._map_voxel_size = config.node.map_cloud_voxel_size
+        if store is not None:
+            self.publish_map(node.get_clock().now().to_msg())
 
     def after_step(self, scan: Any, step: Any, config: Any) -> LocalizationUpdate:
         """Update ``map -> odom`` with one odometry step and publish it (worker thread)."""
@@ -94,6 +111,9 @@ class MapServices:
             self._publish(scan.stamp, update.T_map_odom, config.node.odom_frame, config)
         if localization.mode == 'mapping' and (update.event == 'loop' or step.new_keyframe):
             self._publish_path(scan.stamp)
+        self._map_voxel_size = config.node.map_cloud_voxel_size
+        if update.event == 'loop':
+            self.publish_map(scan.stamp)
         return update
 
     def _publish(self, stamp: Any, T_map_odom: Any, odom_frame: str, config: Any) -> None:
@@ -102,6 +122,18 @@ class MapServices:
         self._pub_pose.publish(msg)
         if self.tf is not None and config.node.publish_tf:
             self.tf.sendTransform(msg)
+
+    def publish_map(self, stamp: Any) -> int:
+        """Publish the latched ``mlsemreg/map`` cloud; return its points (0: off or empty)."""
+        if self._map_voxel_size <= 0:
+            return 0
+        with self.localization.lock:
+            xyz, labels = map_cloud(self.localization.store, self._map_voxel_size)
+        if xyz.shape[0] == 0:
+            return 0
+        header = Header(stamp=stamp, frame_id=self.localization.frame_id)
+        self._pub_map.publish(arrays_to_pointcloud2(PointCloud2, PointField, header, xyz, labels))
+        return int(xyz.shape[0])
 
     def _publish_path(self, stamp: Any) -> None:
         if self._pub_path.get_subscription_count() == 0:
@@ -139,5 +171,6 @@ class MapServices:
             return response
         response.success = True
         response.message = f'saved {len(self.localization.store)} keyframes to {written}'
+        self.publish_map(self.node.get_clock().now().to_msg())
         self.node.get_logger().info(response.message)
         return response

@@ -44,7 +44,7 @@ and publishes.
 from __future__ import annotations
 
 import collections
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import signal
 import threading
 import time
@@ -71,12 +71,15 @@ from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.ros import messages
+from mlsemreg_ros.ros.callback_guard import DropCounter, GuardedCallbacks, spin_guarded
 from mlsemreg_ros.ros.extrinsic import ExtrinsicSource, to_base
 from mlsemreg_ros.ros.map_services import MapServices
 from mlsemreg_ros.ros.markers import correspondence_markers
 from mlsemreg_ros.ros.node_config import NodeConfig
+from mlsemreg_ros.ros.outputs import Heartbeat, RegisteredCloud
 from mlsemreg_ros.ros.parameters import ConfigSnapshot, LiveParameters
-from mlsemreg_ros.ros.prior_inputs import PriorInbox, subscribe_prior_topics
+from mlsemreg_ros.ros.pose_input import PoseInput
+from mlsemreg_ros.ros.prior_inputs import PriorInbox, STREAMS, subscribe_prior_topics
 from nav_msgs.msg import Odometry, Path
 import numpy as np
 import rclpy
@@ -113,6 +116,8 @@ class Scan:
     received: float  # time.perf_counter() when the message reached the callback
     dropped_nonfinite: int
     point_times: np.ndarray | None = None  # (N,) float64 s after the stamp (deskew)
+    time_warning: str = ''  # a time field that is there but not used for deskew: why
+    intensity: np.ndarray | None = None  # (N,) float32, for label_source onnx
 
 
 class StampGaps:
@@ -167,15 +172,31 @@ class LatestSlot:
             self._cond.notify_all()
 
 
-class MlSemRegNode(Node):
-    """ML-SemReg odometry: registers every labeled scan onto a keyframe."""
+class MlSemRegNode(GuardedCallbacks, Node):
+    """ML-SemReg odometry: registers every labeled scan onto a keyframe (no callback raises)."""
+
+    #: Whether scans are taken (a managed node's inactive states set it False).
+    _active = True
+    #: Create the interface at construction (a managed node does it on configure).
+    _configure_at_start = True
 
     def __init__(self, **kwargs: Any) -> None:
         """Declare parameters, create the interface and start the worker thread."""
         started = time.perf_counter()
         super().__init__(NODE_NAME, **kwargs)
+        # drops and callback errors (ros/callback_guard.py), before any callback exists
+        self.callback_drops = DropCounter(lambda text: self.get_logger().warning(text))
+        self.callback_fallbacks = {'points': self._points_failed}
         self._label_map = LabelMap.load()
         self._params = LiveParameters(self, self._label_map)
+        self._configured = False
+        self._created: list[tuple[Any, Any]] = []  # (destroy, entity) made by _setup
+        if self._configure_at_start:
+            self._setup(started)
+
+    def _setup(self, started: float) -> None:
+        """Create the odometry, the topics, services and timers, and start the worker."""
+        before = self._entities()
         config = self._params.snapshot()
         self._odometry = ScanOdometry(Registration(config.core, self._label_map))
         self._core_version = config.core_version
@@ -201,16 +222,20 @@ class MlSemRegNode(Node):
         self._pub_markers = self.create_publisher(MarkerArray, 'mlsemreg/correspondences', 1)
         self._pub_local_map = self.create_publisher(PointCloud2, 'mlsemreg/local_map', 1)
         self._pub_diagnostics = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
+        self._cloud_registered = RegisteredCloud(self)  # ros/outputs.py
+        self._heartbeat = Heartbeat(self, self._pub_diagnostics)
         self.create_subscription(PointCloud2, 'points', self._on_points, qos)
         self.create_service(Trigger, 'mlsemreg/reset', self._on_reset)
         # the motion prior's topics and the extrinsic (docs/field_prior.md)
-        self._prior = PriorInbox()
+        self._prior = PriorInbox(self.callback_drops)
         for note in subscribe_prior_topics(self, self._prior, config, self._odometry.motion_model):
             self.get_logger().info(note)
         self._extrinsic = ExtrinsicSource(self, config.node)
         self._T_base_sensor = np.eye(4)  # of the clouds' frame, set per scan
         self._tf = TransformBroadcaster(self) if TransformBroadcaster is not None else None
         self._map = MapServices(self, self._odometry, config, self._tf)  # ros/map_services.py
+        self._pose_input = PoseInput(self)  # /initialpose, mlsemreg/set_pose (ros/pose_input.py)
+        self._map_update = None  # the map's answer to the last scan (diagnostics)
         if self._tf is None:
             self.get_logger().info(
                 'tf2_ros is not importable: no TF output (mlsemreg/odometry carries the same pose)'
@@ -226,6 +251,8 @@ class MlSemRegNode(Node):
         self._slot = LatestSlot()
         self._worker = threading.Thread(target=self._work, name='mlsemreg_worker', daemon=True)
         self._worker.start()
+        self._configured = True
+        self._created = [e for e in self._entities() if id(e[1]) not in {id(b) for _, b in before}]
         self.get_logger().info(
             f'registering scans on {self.resolve_topic_name("points")} '
             f'({config.node.qos.reliability}, label field {config.node.label_field!r}); ready in '
@@ -237,6 +264,10 @@ class MlSemRegNode(Node):
     def _on_points(self, msg: PointCloud2) -> None:
         """Convert the message and hand it to the worker; malformed input is skipped."""
         received = time.perf_counter()
+        self._heartbeat.note_input()
+        if not self._active:  # a managed node, inactive: the scan is not taken
+            self._count('frames_inactive')
+            return
         self._count('frames_received')
         self._observe_stamp(msg.header.stamp)
         try:
@@ -261,8 +292,14 @@ class MlSemRegNode(Node):
                 received,
                 cloud.dropped_nonfinite,
                 cloud.point_times,
+                cloud.time_warning,
+                cloud.intensity,
             )
         )
+
+    def _points_failed(self, error: Exception, msg: PointCloud2) -> None:
+        """Answer a cloud whose callback raised (the guard counted and logged it)."""
+        self._skip(msg.header.stamp, f'skipped PointCloud2: {type(error).__name__}: {error}')
 
     def _observe_stamp(self, stamp: Time) -> None:
         """Count clouds missing between the stamps (before the worker's slot); warn."""
@@ -288,11 +325,13 @@ class MlSemRegNode(Node):
             )
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
-        """Drop the keyframe and restart the odometry at identity (from the next scan)."""
+        """Drop the keyframe; the odometry restarts from the next scan (``reset_keeps_pose``)."""
+        where = 'its current pose' if self._params.snapshot().node.reset_keeps_pose else 'identity'
         with self._lock:
             self._reset_pending, self._path = True, Path()
-        self.get_logger().info('reset: keyframe dropped, odometry restarts at identity')
-        response.success, response.message = True, 'keyframe dropped; odometry restarts'
+        self.get_logger().info(f'reset: keyframe dropped, odometry restarts at {where}')
+        response.success = True
+        response.message = f'keyframe dropped; odometry restarts at {where}'
         return response
 
     # -- worker thread ----------------------------------------------------------------------
@@ -306,7 +345,10 @@ class MlSemRegNode(Node):
                 self._count('errors')
                 self.get_logger().error(f'frame failed: {type(error).__name__}: {error}')
                 self.get_logger().debug(traceback.format_exc())
-                self._publish_diagnostics(scan.stamp, 'error', f'frame failed: {error}', {})
+                try:
+                    self._publish_diagnostics(scan.stamp, 'error', f'frame failed: {error}', {})
+                except Exception as again:  # the worker goes on to the next scan
+                    self.callback_drops.error('worker', again)
 
     def _process(self, scan: Scan) -> None:
         """Register the scan onto the keyframe (core odometry) and publish the outcome."""
@@ -314,9 +356,14 @@ class MlSemRegNode(Node):
         if not self._check_frame(scan, config.node):
             return
         self._before_scan(scan, config.node)
+        self._apply_pose_request(config.node)
         try:
             step = self._odometry.process(
-                scan.xyz, scan.labels, stamp_to_ns(scan.stamp), point_times=scan.point_times
+                scan.xyz,
+                scan.labels,
+                stamp_to_ns(scan.stamp),
+                point_times=scan.point_times,
+                intensity=scan.intensity,
             )
         except LabelError as error:
             self._skip(scan.stamp, f'skipped scan with unusable labels: {error}')
@@ -326,8 +373,10 @@ class MlSemRegNode(Node):
             latency_ms = (
                 self._publish_step(scan, step, config) if step.accepted and not reset else None
             )
+            refused = not (step.accepted or reset)
+            predicted = refused and self._publish_predicted(scan, step, config)
         if not reset:  # map -> odom, relocalization, mapping (ros/map_services.py)
-            self._map.after_step(scan, step, config)
+            self._map_update = self._map.after_step(scan, step, config)
         if reset:
             self._count('frames_dropped_by_reset')
             self._publish_diagnostics(
@@ -357,7 +406,12 @@ class MlSemRegNode(Node):
             self.get_logger().warning(
                 f'frame rejected, keyframe kept: {reason}', throttle_duration_sec=LOG_THROTTLE_S
             )
-            self._diagnose(scan, 'warn', f'frame rejected: {reason}', step)
+            published = (
+                '; odometry and TF from the prediction (covariance inflated)' if predicted else ''
+            )
+            self._diagnose(
+                scan, 'warn', f'frame rejected: {reason}{published}', step, predicted=predicted
+            )
 
     def _before_scan(self, scan: Scan, node: NodeConfig) -> None:
         """Resolve the extrinsic and hand the waiting prior messages to the motion model."""
@@ -369,6 +423,20 @@ class MlSemRegNode(Node):
             self.get_logger().warning(warning, throttle_duration_sec=LOG_THROTTLE_S)
         self._extrinsic.warnings.clear()
         self._prior.warnings.clear()
+
+    def _apply_pose_request(self, node: NodeConfig) -> None:
+        """Apply the latest /initialpose or mlsemreg/set_pose before this scan (logged)."""
+        request = self._pose_input.take()
+        if request is None:
+            return
+        applied, message = self._pose_input.apply(
+            request, self._odometry, self._map.localization, node.odom_frame, self._T_base_sensor
+        )
+        self._count('poses_applied' if applied else 'poses_refused')
+        if applied:
+            self.get_logger().info(f'{request.kind}: {message}')
+        else:
+            self.get_logger().warning(f'{request.kind} refused: {message}')
 
     def _check_frame(self, scan: Scan, node: NodeConfig) -> bool:
         """Handle a change of the clouds' frame_id per ``frame_change`` (False: skip it)."""
@@ -397,7 +465,10 @@ class MlSemRegNode(Node):
         """Apply a pending reset and parameter changes (they hold from this frame on)."""
         with self._lock:
             if self._reset_pending:
+                pose, covariance = self._odometry.pose, self._odometry.covariance
                 self._odometry.reset()
+                if config.node.reset_keeps_pose:  # restart where the odometry was
+                    self._odometry.restart_at(pose, covariance)
                 self._reset_pending = False
         if config.core_version != self._core_version:
             self._core_version = config.core_version
@@ -419,14 +490,34 @@ class MlSemRegNode(Node):
             )
             self._counts['registrations'] += 1
         self._publish_pose(scan, step, config.node)
+        self._cloud_registered.publish(
+            scan.stamp, config.node.odom_frame, step, self._T_base_sensor
+        )
         # receipt -> transform, odometry, path and TF published: their cost is counted
         latency_ms = 1e3 * (time.perf_counter() - scan.received)
         self._latencies.append(latency_ms)
         return latency_ms
 
+    def _publish_predicted(self, scan: Scan, step: OdometryStep, config: ConfigSnapshot) -> bool:
+        """Odometry and TF of a refused scan from the core's prediction (lock held)."""
+        if not config.node.publish_predicted_on_refusal or step.predicted_pose is None:
+            return False
+        predicted = replace(
+            step,
+            pose=step.predicted_pose,
+            covariance=step.predicted_covariance,
+            twist=None,
+            twist_covariance=None,
+        )
+        self._publish_pose(scan, predicted, config.node, path=False)
+        self._counts['predicted_published'] += 1
+        return True
+
     # -- publishing --------------------------------------------------------------------------
-    def _publish_pose(self, scan: Scan, step: OdometryStep, node: NodeConfig) -> None:
-        """Odometry, path and TF of the step's pose (called with the lock held)."""
+    def _publish_pose(
+        self, scan: Scan, step: OdometryStep, node: NodeConfig, path: bool = True
+    ) -> None:
+        """Odometry, path (unless ``path`` is False) and TF of the step's pose (lock held)."""
         child = node.base_frame or scan.frame_id
         twist = step.twist if step.twist is not None else np.zeros(6)
         twist_cov = (
@@ -448,6 +539,17 @@ class MlSemRegNode(Node):
                 base.twist_covariance,
             )
         )
+        if path:
+            self._append_path(scan, pose, node)
+        if node.publish_tf and self._tf is not None:
+            self._tf.sendTransform(
+                messages.transform_msg(scan.stamp, child, node.odom_frame, invert_transform(pose))
+                if node.invert_tf
+                else messages.transform_msg(scan.stamp, node.odom_frame, child, pose)
+            )
+
+    def _append_path(self, scan: Scan, pose: np.ndarray, node: NodeConfig) -> None:
+        """Append the pose to ``mlsemreg/path``; publish it if watched, throttled."""
         self._path.header = Header(stamp=scan.stamp, frame_id=node.odom_frame)
         self._path.poses.append(messages.pose_stamped(scan.stamp, node.odom_frame, pose))
         if node.path.max_length and len(self._path.poses) > node.path.max_length:
@@ -459,12 +561,6 @@ class MlSemRegNode(Node):
         ):
             self._path_published = now
             self._pub_path.publish(self._path)
-        if node.publish_tf and self._tf is not None:
-            self._tf.sendTransform(
-                messages.transform_msg(scan.stamp, child, node.odom_frame, invert_transform(pose))
-                if node.invert_tf
-                else messages.transform_msg(scan.stamp, node.odom_frame, child, pose)
-            )
 
     def _publish_local_map(self, scan: Scan, node: NodeConfig) -> None:
         """Publish the local map, at most every ``local_map_period`` s and only if watched."""
@@ -513,6 +609,7 @@ class MlSemRegNode(Node):
         message: str,
         step: OdometryStep,
         latency_ms: float | None = None,
+        predicted: bool = False,
     ) -> None:
         """Report one processed frame: counts, latency, stage timings, result summary."""
         values: dict[str, Any] = {'startup.' + k: v for k, v in self._startup_ms.items()}
@@ -529,6 +626,17 @@ class MlSemRegNode(Node):
             values['latency_p50_ms'] = float(np.median(self._latencies))
         values.update({f'stage.{k}': float(v) for k, v in step.timings_ms.items()})
         values.update({'pose_source': step.source, 'local_map_voxels': step.map_voxels})
+        update = self._map_update
+        if update is not None and (update.event or update.message):  # ros/map_services.py
+            values.update({'map.event': update.event, 'map.message': update.message})
+        if not step.accepted:  # a refused scan: what went out instead (ros/outputs.py)
+            values['published'] = 'prediction' if predicted else 'nothing'
+        if step.prior_refusal:  # the prior disagreed with the scan (core/odometry/prior_guard.py)
+            self._count('prior_refused')
+            values['prior_refusal'] = step.prior_refusal
+        if scan.time_warning:  # registered without deskew: a warning (docs/ros_interface.md)
+            values['point_times_warning'] = scan.time_warning
+            level, message = ('warn' if level == 'ok' else level), f'{message}; not deskewed'
         if step.prepared is not None:  # dropped points, label scheme, out-of-scheme labels
             values.update({f'input.{k}': v for k, v in step.prepared.input_stats.items()})
             values['label_source'] = step.prepared.input_stats.get('label_source', '')
@@ -568,6 +676,7 @@ class MlSemRegNode(Node):
             'frames_dropped': self._slot.dropped,
             'frames_lost_estimate': self._stream.lost,
             **counts,
+            **self.callback_drops.snapshot(STREAMS),
             **values,
         }
         self._pub_diagnostics.publish(
@@ -585,10 +694,34 @@ class MlSemRegNode(Node):
         with self._lock:
             self._counts[key] += 1
 
-    def destroy_node(self) -> None:
-        """Stop the worker (it finishes its frame), then destroy the node."""
+    def _entities(self) -> list[tuple[Any, Any]]:
+        """(destroy, entity) of every publisher, subscription, service, client and timer."""
+        kinds = (
+            (self.destroy_publisher, self.publishers),
+            (self.destroy_subscription, self.subscriptions),
+            (self.destroy_service, self.services),
+            (self.destroy_client, self.clients),
+            (self.destroy_timer, self.timers),
+        )
+        return [(destroy, entity) for destroy, entities in kinds for entity in entities]
+
+    def _teardown(self) -> None:
+        """Stop the worker (it finishes its frame) and destroy what :meth:`_setup` made."""
+        if not self._configured:
+            return
+        self._configured = False
         self._slot.close()
         self._worker.join(timeout=5.0)
+        for destroy, entity in reversed(self._created):
+            destroy(entity)
+        self._created = []
+
+    def destroy_node(self) -> None:
+        """Stop the worker (it finishes its frame), then destroy the node."""
+        if self._configured:
+            self._slot.close()
+            self._worker.join(timeout=5.0)
+            self._configured = False
         super().destroy_node()
 
 
@@ -611,8 +744,12 @@ def main(args: list[str] | None = None) -> int:
         node = MlSemRegNode()
         executor = SingleThreadedExecutor()
         executor.add_node(node)
-        while not stop.is_set() and rclpy.ok():
-            executor.spin_once(timeout_sec=SPIN_PERIOD_S)
+        spin_guarded(  # the last line: a raising callback is logged and counted
+            executor,
+            lambda: not stop.is_set() and rclpy.ok(),
+            node.callback_drops,
+            SPIN_PERIOD_S,
+        )
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ConfigError, ParameterException) as error:

@@ -146,6 +146,26 @@ class NodeConfig(Settings):
         low=0.0,
         high=3600.0,
     )
+    publish_predicted_on_refusal: bool = param(
+        True,
+        'A refused scan still publishes mlsemreg/odometry and TF, from the prediction of '
+        'the motion model (or the IMU) with its covariance inflated by the uncertainty of '
+        'the prediction; /diagnostics says published: prediction. Never on mlsemreg/transform, '
+        'never on the path.',
+    )
+    reset_keeps_pose: bool = param(
+        False,
+        'mlsemreg/reset restarts the odometry at its current pose (and covariance) instead '
+        'of at identity; the keyframe and the local map are dropped either way.',
+    )
+    map_cloud_voxel_size: float = param(
+        0.5,
+        'Voxel size of the latched mlsemreg/map cloud (the map keyframes in the map frame, '
+        'published on map load, save_map and loop closure; 0: not published).',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
     qos: QosConfig = field(default_factory=QosConfig)
     path: PathConfig = field(default_factory=PathConfig)
     T_base_sensor: ExtrinsicConfig = field(default_factory=ExtrinsicConfig)  # noqa: N815, RUF100

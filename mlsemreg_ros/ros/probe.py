@@ -243,19 +243,27 @@ def node_and_probe(
 
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=domain_id, args=args)
+    from mlsemreg_ros.ros.callback_guard import spin_guarded
+
     executor = MultiThreadedExecutor(num_threads=2, context=context)
     node = probe = None
+    stop = threading.Event()
     try:
         node = MlSemRegNode(context=context)
         probe = NodeProbe(context)
         executor.add_node(node)
         executor.add_node(probe.node)
-        spinner = threading.Thread(target=executor.spin, daemon=True)
+        spinner = threading.Thread(  # guarded as in the node's main()
+            target=spin_guarded,
+            args=(executor, lambda: not stop.is_set() and context.ok(), node.callback_drops),
+            daemon=True,
+        )
         spinner.start()
         if not probe.wait_connected():
             raise RuntimeError('probe and node did not discover each other within 20 s')
         yield node, probe
     finally:
+        stop.set()
         executor.shutdown(timeout_sec=5.0)
         if probe is not None:
             probe.node.destroy_node()

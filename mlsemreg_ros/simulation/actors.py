@@ -36,15 +36,12 @@ id (car, bicyclist, person) and are flagged moving (raw ids 252, 253, 254).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 from mlsemreg_ros.simulation import primitives as prim
 from mlsemreg_ros.simulation.field_lidar import LabeledMesh
 from mlsemreg_ros.simulation.world import _car, _MeshBuilder
 import numpy as np
-
-if TYPE_CHECKING:
-    from mlsemreg_ros.simulation.field import FieldSimulation
 
 #: First instance id of actors (world instances are numbered from 1 upwards).
 ACTOR_INSTANCE_BASE = 40000
@@ -55,6 +52,19 @@ SPEED = {'car': (6.0, 12.0), 'bicyclist': (3.5, 6.0), 'person': (1.0, 1.6)}
 CLEARANCE = {'car': 3.0, 'bicyclist': 2.2, 'person': 2.0}
 DEPARTING_SHARE = 0.25
 LINE_MARGIN = 150.0  # an actor's stretch extends this far beyond the route on its line
+
+
+class DriveScene(Protocol):
+    """What the actors read of a field simulation (``FieldSimulation``, simulation/field.py)."""
+
+    label_map: Any  # LabelMap
+    world: Any  # the built world (build_world)
+    grid: Any  # StreetGrid
+    path: Any  # the route's grid path
+    drive: Any  # ContinuousDrive: poses(t), config.lane_offset
+    model: Any  # the sensor model: period
+    frames: int
+    sweep_starts: np.ndarray  # (F,) drive time of each sweep's start, seconds
 
 
 def _mesh(builder: _MeshBuilder) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -127,7 +137,7 @@ class Actors:
 
     # -- construction ---------------------------------------------------------------------
     @classmethod
-    def generate(cls, sim: FieldSimulation, rng: np.random.Generator) -> Actors:
+    def generate(cls, sim: DriveScene, rng: np.random.Generator) -> Actors:
         """Draw actors along the route's street lines and the parked cars that leave."""
         label_map = sim.label_map
         shapes: dict[str, list[_Kind]] = {'car': [], 'bicyclist': [], 'person': []}
@@ -198,7 +208,7 @@ class Actors:
             self._parked_leave = leave[np.searchsorted(parked_ids, self._parked.instances)]
         return _subset(world, ~leaving)
 
-    def dynamic_mesh(self, t0: float, sim: FieldSimulation) -> LabeledMesh:
+    def dynamic_mesh(self, t0: float, sim: DriveScene) -> LabeledMesh:
         """Actors placed for the sweep starting at drive time ``t0``, and still-parked cars."""
         model = sim.model
         mid = t0 + 0.5 * model.period
@@ -267,7 +277,7 @@ def _concatenate(parts: list) -> LabeledMesh:
     )
 
 
-def _route_lines(sim: FieldSimulation) -> list[tuple[int, int, float, float]]:
+def _route_lines(sim: DriveScene) -> list[tuple[int, int, float, float]]:
     """
     Street lines the route drives along: ``(axis, index, lo, hi)``.
 
@@ -292,7 +302,7 @@ def _route_lines(sim: FieldSimulation) -> list[tuple[int, int, float, float]]:
     return [(a, i, min(v), max(v)) for (a, i), v in sorted(found.items())]
 
 
-def _departing_cars(sim: FieldSimulation, rng: np.random.Generator) -> dict[int, float]:
+def _departing_cars(sim: DriveScene, rng: np.random.Generator) -> dict[int, float]:
     """World car instances near the route that leave, with the drive time they go."""
     world = sim.world
     car = sim.label_map.id_of('car')

@@ -19,12 +19,13 @@ Field mode of the simulator: skewed sweeps, moving actors, a network's labels, I
 The world, street grid and seed streams are the clean simulator's
 (:mod:`mlsemreg_ros.simulation.sequence`); on top of them:
 
-- the drive is continuous in time (:mod:`.motion`, profile ``normal`` or
-  ``aggressive``) on a random-walk route (``street``) or on the ``loop`` route
-  (:mod:`.routes`), and starts ``lead_in`` seconds before the first sweep so the
-  car is already moving;
-- sweep ``k`` starts at drive time ``lead_in + k * period`` and is acquired column by
-  column while the car moves (:mod:`.field_lidar`, sensor from :mod:`.sensors`);
+- the drive is continuous in time (:mod:`.motion`, profile ``normal``,
+  ``aggressive`` or ``handheld``) on a random-walk route (``street``) or on the
+  ``loop`` route (:mod:`.routes`), and starts ``lead_in`` seconds before the first
+  sweep so the car is already moving;
+- sweep ``k`` starts at drive time ``lead_in + k / rate`` (default: back to back at the
+  sensor's 10 Hz; ``SensorModel.at_rate``) and is acquired column by column while the
+  car moves (:mod:`.field_lidar`, sensor from :mod:`.sensors`);
 - ground truth is the sensor pose at each sweep's start (the header stamp),
   relative to the pose at the first sweep's start;
 - IMU and wheel odometry come from the same drive (:mod:`.inertial`);
@@ -42,6 +43,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 
 from mlsemreg_ros.core.matching.labels import LabelMap
+from mlsemreg_ros.simulation.actors import Actors
 from mlsemreg_ros.simulation.field_lidar import FieldLidar, FieldScan, LabeledMesh
 from mlsemreg_ros.simulation.inertial import (
     ImuConfig,
@@ -75,6 +77,7 @@ class FieldConfig:
     profile: str = 'normal'
     route: str = 'street'
     speed: float | None = None  # cruise speed m/s on straights (None: the profile's)
+    rate: float | None = None  # scans per second (None: the sensor's 10 Hz)
     moving_objects: bool = True
     network_labels: bool = True
     network: str = 'rangenet++'  # whose per-class IoU the label model follows
@@ -88,7 +91,7 @@ class FieldConfig:
 
     def validate(self) -> None:
         """Raise ValueError naming the bad setting."""
-        sensor_model(self.sensor)
+        sensor_model(self.sensor).at_rate(self.rate)
         motion_profile(self.profile)
         if self.route not in ROUTES:
             raise ValueError(f'unknown route {self.route!r}; use one of {list(ROUTES)}')
@@ -121,14 +124,15 @@ class FieldSimulation:
         cfg.validate()
         self.config = cfg
         self.label_map = label_map if label_map is not None else LabelMap.load()
-        self.model = sensor_model(cfg.sensor)
+        self.model = sensor_model(cfg.sensor).at_rate(cfg.rate)
         self.profile = motion_profile(cfg.profile)
         world_cfg = replace(cfg.world, seed=cfg.seed)
         self.world_config = world_cfg
         self.grid = StreetGrid.generate(world_cfg)
         traj = self.profile.trajectory_config(cfg.trajectory)
         speed = cfg.speed if cfg.speed is not None else self.profile.cruise_speed
-        period = self.model.period
+        period = 1.0 / cfg.rate if cfg.rate is not None else self.model.period
+        self.interval = period  # between sweep starts
         route_rng = np.random.default_rng([cfg.seed, 3])
         self.loop_length: float | None = None
         if cfg.route == 'loop':
@@ -138,8 +142,9 @@ class FieldSimulation:
             self.path = plan_route(self.grid, length, route_rng, traj)
         stops, dwell = self._stops(np.random.default_rng([cfg.seed, 21]))
         phases = np.random.default_rng([cfg.seed, 4]).uniform(0.0, 2.0 * np.pi, size=4)
+        mount = self.profile.mount_height or self.model.mount_height
         self.drive = ContinuousDrive(
-            self.path, speed, traj, self.model.mount_height, phases, stops, dwell
+            self.path, speed, traj, mount, phases, stops, dwell, self.profile.sway
         )
         self.frames = cfg.frames if cfg.frames > 0 else self._loop_frames()
         self.sweep_starts = cfg.lead_in + period * np.arange(self.frames)
@@ -156,8 +161,6 @@ class FieldSimulation:
             np.zeros(self.world.num_triangles, dtype=bool),
         )
         if cfg.moving_objects:
-            from mlsemreg_ros.simulation.actors import Actors
-
             self.actors = Actors.generate(self, np.random.default_rng([cfg.seed, 40]))
             static = self.actors.static_mesh(static)
         self.lidar = FieldLidar(static, self.model)
@@ -190,7 +193,7 @@ class FieldSimulation:
         assert self.loop_length is not None
         first = float(self.drive.arc_length(np.array([self.config.lead_in]))[0])
         t_back = float(self.drive.time_at_arc_length(np.array([first + self.loop_length]))[0])
-        return int(np.ceil((t_back - self.config.lead_in) / self.model.period)) + 5
+        return int(np.ceil((t_back - self.config.lead_in) / self.interval)) + 5
 
     def __len__(self) -> int:
         return self.frames

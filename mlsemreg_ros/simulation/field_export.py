@@ -72,7 +72,7 @@ def write_field_bag(
     out: Path, config: FieldConfig, layout: BagLayout | None = None, progress: bool = True
 ) -> FieldReport:
     """Simulate ``config`` in field mode and write the bag folder ``out`` (must not exist)."""
-    from mlsemreg_ros.datasets.pose_files import write_kitti_poses
+    from mlsemreg_ros.codec.pose_files import write_kitti_poses
     from tqdm import tqdm
 
     layout = layout or BagLayout()
@@ -186,7 +186,13 @@ def _metadata(sim: FieldSimulation, layout: BagLayout) -> dict:
             'max_range_m': model.max_range,
             'min_range_m': model.min_range,
             'period_s': model.period,
-            'rotation': 'clockwise seen from above, sweep starts behind (azimuth 180 deg)',
+            'scan_interval_s': sim.interval,
+            'pattern': 'rosette (non-repetitive)' if model.rosette else 'spinning',
+            'rotation': (
+                'rosette of two counter-rotating prisms around x'
+                if model.rosette
+                else 'clockwise seen from above, sweep starts behind (azimuth 180 deg)'
+            ),
         },
         'stamps': 'header stamp = sweep start; time/t = offset of the column from it',
         'point_fields': [*fields, 'ring'],

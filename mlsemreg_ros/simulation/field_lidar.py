@@ -89,14 +89,6 @@ class FieldLidar:
         self.model = model
         self.static = static
         self._scene = _scene(static.vertices, static.triangles)
-        el = np.radians(np.asarray(model.elevations_deg))
-        self._cos_el, self._sin_el = np.cos(el), np.sin(el)
-
-    def local_directions(self, azimuths: np.ndarray) -> np.ndarray:
-        """Return unit directions (C, B, 3) in the sensor frame of each column's instant."""
-        ca, sa = np.cos(azimuths)[:, None], np.sin(azimuths)[:, None]
-        ce, se = self._cos_el[None, :], self._sin_el[None, :]
-        return np.stack([ce * ca, ce * sa, np.broadcast_to(se, (azimuths.size, se.size))], axis=-1)
 
     def sweep(
         self,
@@ -110,7 +102,7 @@ class FieldLidar:
         offset = rng.uniform(0.0, 1.0)
         column_time = model.column_times(offset)
         poses = drive.poses(t0 + column_time)  # (C, 4, 4)
-        local = self.local_directions(model.column_azimuths(offset))  # (C, B, 3)
+        local = model.directions(t0, offset)  # (C, B, 3)
         world_dir = np.matmul(local, np.transpose(poses[:, :3, :3], (0, 2, 1)))
         beams = model.beams
         rays = np.empty((model.columns * beams, 6), dtype=np.float32)

@@ -18,7 +18,7 @@ Relocalization queries as the node relocalizes them: every sweep through the odo
 The node hands its relocalization the scan the odometry prepared
 (``MapLocalization.update``: ``step.prepared``), i.e. the sweep deskewed by the odometry:
 without an IMU, the constant twist from the poses and then, when it bends the scan, the
-sweep's own twist estimated against the local map (``Odometry._align_sweep``,
+sweep's own twist estimated against the local map (``Tracker.align_sweep``,
 ``core/alignment/sweep_alignment.py``), with the moving objects dropped
 (``moving_objects.matching: drop``). :func:`odometry_queries` runs the core
 :class:`~mlsemreg_ros.core.odometry.Odometry` over every sweep of a drive in order, as the

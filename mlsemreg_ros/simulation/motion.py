@@ -20,13 +20,17 @@ The clean simulator samples the pose once per frame. Field mode needs the pose a
 every column of a sweep and at the IMU rate, so the drive is a function of time:
 
 - the speed profile is the clean one (turn speed ``sqrt(a_lat R)``, bounded
-  acceleration and braking, on a 0.1 m grid), plus, in the ``aggressive``
-  profile, full stops with a dwell time (stop-and-go);
+  acceleration and braking, on a 0.1 m grid), plus, in the ``aggressive`` and
+  ``handheld`` profiles, full stops with a dwell time (stop-and-go, a walker's pauses);
 - the arc length ``s(t)`` interpolates the (time, arc length) knots of that
   profile monotonically (PCHIP), so speed is continuous and never negative;
 - the pose at ``s`` is the clean one (lane wobble, pitch, roll, bounce with the
   same seeded phases), except that the lane wobble fades out near turns so that
   speed and acceleration stay continuous where the curvature steps.
+
+The ``handheld`` profile walks (1.4 m/s, tight corners) and adds the hand's own motion,
+a function of time (:class:`HandSway`): yaw sweeps as the walker looks around, pitch and
+roll sway, and each footstep's bob and rock; it goes on while the walker stands.
 
 IMU and wheel odometry are derived from this function (:mod:`.inertial`), so they
 agree with the ground truth by construction.
@@ -42,6 +46,41 @@ from scipy.interpolate import PchipInterpolator
 
 
 @dataclass(frozen=True)
+class HandSway:
+    """
+    A hand-held sensor's motion on top of the walk: sines of time (degrees, metres, Hz).
+
+    Peak rates: yaw ``2 pi yaw_deg yaw_hz`` (53 deg/s; with a 2.5 m corner walked at
+    1.4 m/s, 32 deg/s, at most 86 deg/s), pitch 16 deg/s and roll 10 deg/s at most; the
+    footsteps' bob is 2.5 cm at 1.8 Hz (3.2 m/s^2 vertical).
+    """
+
+    yaw_deg: float = 17.0  # looking around
+    yaw_hz: float = 0.5
+    pitch_deg: float = 4.0
+    pitch_hz: float = 0.3
+    roll_deg: float = 3.0
+    roll_hz: float = 0.23
+    step_hz: float = 1.8  # footsteps per second
+    step_bob: float = 0.025  # metres up and down, once per step
+    step_pitch_deg: float = 0.6  # nod, once per step
+    step_roll_deg: float = 1.0  # rock from foot to foot, once per two steps
+
+    def offsets(
+        self, t: np.ndarray, phases: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(yaw, pitch, roll, z)`` (n,) radians and metres at times ``t`` (n,) seconds."""
+        tau, p = 2.0 * np.pi, phases
+        step = tau * self.step_hz * t + p[3]
+        yaw = np.radians(self.yaw_deg) * np.sin(tau * self.yaw_hz * t + p[0])
+        pitch = np.radians(self.pitch_deg) * np.sin(tau * self.pitch_hz * t + p[1])
+        pitch += np.radians(self.step_pitch_deg) * np.sin(step)
+        roll = np.radians(self.roll_deg) * np.sin(tau * self.roll_hz * t + p[2])
+        roll += np.radians(self.step_roll_deg) * np.sin(0.5 * step)
+        return yaw, pitch, roll, self.step_bob * np.cos(step)
+
+
+@dataclass(frozen=True)
 class MotionProfile:
     """How the car is driven (speeds m/s, accelerations m/s^2, lengths m, times s)."""
 
@@ -54,6 +93,8 @@ class MotionProfile:
     turn_probability: float
     stop_spacing: tuple[float, float] | None = None  # distance between full stops
     stop_dwell: tuple[float, float] = (0.0, 0.0)  # standing time at a stop
+    sway: HandSway | None = None  # a hand-held sensor's own motion
+    mount_height: float | None = None  # metres above the ground (None: the sensor's)
 
     def trajectory_config(self, base: TrajectoryConfig | None = None) -> TrajectoryConfig:
         """Return the clean route and motion parameters with this profile's values."""
@@ -74,7 +115,22 @@ NORMAL = MotionProfile('normal', 10.0, 4.0, 2.5, 3.5, 7.0, 0.5)
 AGGRESSIVE = MotionProfile(
     'aggressive', 14.0, 8.0, 4.5, 7.5, 6.5, 0.7, stop_spacing=(35.0, 80.0), stop_dwell=(0.3, 1.5)
 )
-PROFILES: dict[str, MotionProfile] = {p.name: p for p in (NORMAL, AGGRESSIVE)}
+#: Walking with the sensor in hand, 1.4 m above the street: 1.4 m/s, 2.5 m corners, a pause
+#: of 0.5-2 s every 25-60 m, and :class:`HandSway` (yaw up to 86 deg/s, sway, footsteps).
+HANDHELD = MotionProfile(
+    'handheld',
+    1.4,
+    1.0,
+    0.8,
+    1.0,
+    2.5,
+    0.5,
+    stop_spacing=(25.0, 60.0),
+    stop_dwell=(0.5, 2.0),
+    sway=HandSway(),
+    mount_height=1.4,
+)
+PROFILES: dict[str, MotionProfile] = {p.name: p for p in (NORMAL, AGGRESSIVE, HANDHELD)}
 
 
 def motion_profile(name: str) -> MotionProfile:
@@ -134,8 +190,8 @@ class ContinuousDrive:
     The sensor pose ``T_world_sensor`` at any time of a drive along a planned path.
 
     ``phases`` (4,) are the wobble, pitch, roll and bounce phases (the clean
-    simulator draws them from ``rng([seed, 4])``). Times beyond the drive clamp to
-    its ends.
+    simulator draws them from ``rng([seed, 4])``); a hand's ``sway`` uses them too.
+    Times beyond the drive clamp to its ends (the sway goes on).
     """
 
     def __init__(
@@ -147,8 +203,10 @@ class ContinuousDrive:
         phases: np.ndarray,
         stops: np.ndarray | None = None,
         dwell: np.ndarray | None = None,
+        sway: HandSway | None = None,
     ) -> None:
         self.path = path
+        self.sway = sway
         self.config = config
         self.mount_height = mount_height
         self.phases = np.asarray(phases, dtype=np.float64)
@@ -211,6 +269,9 @@ class ContinuousDrive:
         pitch = np.radians(cfg.pitch_deg) * np.sin(2.0 * np.pi * s / 23.0 + phase[1])
         roll = np.radians(cfg.roll_deg) * np.sin(2.0 * np.pi * s / 17.0 + phase[2])
         z = self.mount_height + cfg.bounce * np.sin(2.0 * np.pi * s / 5.3 + phase[3])
+        if self.sway is not None:
+            sway = self.sway.offsets(np.atleast_1d(np.asarray(t, dtype=np.float64)), phase)
+            yaw, pitch, roll, z = yaw + sway[0], pitch + sway[1], roll + sway[2], z + sway[3]
         poses = np.tile(np.eye(4), (s.size, 1, 1))
         poses[:, :3, :3] = euler_to_matrix(roll, pitch, yaw)
         poses[:, :2, 3] = xy

@@ -25,8 +25,9 @@ every_frame). The results folder is described in :mod:`mlsemreg_ros.evaluation.r
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any
 
+from mlsemreg_ros.evaluation.peer_runs import OdometryPeer
 from mlsemreg_ros.ros.node_config import NodeConfig
 from mlsemreg_ros.tools.common import (
     alias,
@@ -154,11 +155,12 @@ def eval_bag(
         ),
     ] = '',
     baseline: Annotated[
-        Literal['none', 'kiss-icp'],
+        list[OdometryPeer] | None,
         typer.Option(
-            help='also run KISS-ICP on the same scans and compare (results in OUTPUT/kiss-icp/)'
+            help='also run this peer on the same scans and compare (results in OUTPUT/<peer>/); '
+            'repeatable',
         ),
-    ] = 'none',
+    ] = None,
 ) -> int:
     """Replay a bag offline through the node's odometry and score it (alias mlsemreg-eval-bag)."""
     from mlsemreg_ros.core.config import RegistrationConfig
@@ -171,12 +173,17 @@ def eval_bag(
         read_kitti_poses,
     )
     from mlsemreg_ros.datasets.source import SourceError
-    from mlsemreg_ros.evaluation import reports, tables
-    from mlsemreg_ros.evaluation.estimators import KissIcpEstimator, OdometryEstimator
+    from mlsemreg_ros.evaluation import peer_runs, reports, tables
+    from mlsemreg_ros.evaluation.estimators import OdometryEstimator
     from mlsemreg_ros.evaluation.replay import replay, ReplayOptions
     from mlsemreg_ros.evaluation.scoring import run_details, summarize_run
     from mlsemreg_ros.evaluation.settings import EvaluationSettings
 
+    peer_names = [peer.value for peer in baseline or []]
+    try:
+        peer_runs.require_peers(peer_names)
+    except peer_runs.PeerUnavailable as error:
+        raise CommandError(str(error), 2) from None
     core, evaluation = settings(
         (RegistrationConfig, EvaluationSettings), config, with_labels(overrides, labels)
     )
@@ -227,34 +234,17 @@ def eval_bag(
     if hasattr(estimator, 'prediction_sources'):
         details['prediction_sources'] = estimator.prediction_sources()
     out = output or reports.default_output(results_root, 'eval_bag', run_.name)
-    others: dict[str, dict] = {}
-    extra = {}
-    if baseline == 'kiss-icp':
-        source = open_source()
-        kiss_estimator = KissIcpEstimator()
-        try:
-            kiss = replay(
-                source,
-                kiss_estimator,
-                bounds,
-                ReplayOptions(stride, max_frames, truth, progress=not quiet),
-            )
-        finally:
-            source.close()
-        others[kiss.method] = summarize_run(kiss)
-        deskewed[kiss.method] = kiss_estimator.deskewed_scans
-        extra[kiss.method] = kiss.poses
-        reports.write_results(
-            out / 'kiss-icp',
-            kiss,
-            others[kiss.method],
-            run_details(
-                kiss, bag=str(bag), stride=stride, deskewed_scans=kiss_estimator.deskewed_scans
-            ),
-            None,
-            bounds,
-            plots=False,
-        )
+    peers = peer_runs.run_odometry_peers(
+        open_source,
+        peer_names,
+        bounds,
+        ReplayOptions(stride, max_frames, truth, progress=not quiet),
+        out,
+        bag=str(bag),
+        stride=stride,
+    )
+    others, extra = peers.summaries, peers.poses
+    deskewed.update(peers.deskewed_scans)
     reports.write_results(
         out,
         run_,
@@ -271,6 +261,11 @@ def eval_bag(
     tables.print_text(
         'deskewed scans (per-point times): '
         + ', '.join(f'{name} {n}/{len(run_.records)}' for name, n in deskewed.items())
+    )
+    wrong = {run_.method: details, **peers.details}
+    tables.print_text(
+        'wrong poses published (accepted, outside the success bounds): '
+        + ', '.join(f'{name} {d["n_accepted"] - d["n_success"]}' for name, d in wrong.items())
     )
     tables.print_text(f'results: {out}')
     rr = summary['registration_recall_pct']

@@ -46,6 +46,12 @@ from mlsemreg_ros.tools.common import (
     settings,
     with_labels,
 )
+from mlsemreg_ros.tools.map_points import (
+    export_command,
+    EXPORT_HELP,
+    import_command,
+    IMPORT_HELP,
+)
 import typer
 
 HELP = 'Keyframe maps: build one from a bag, write relocalization queries.'
@@ -144,9 +150,9 @@ def build_map(
     from mlsemreg_ros.core.labeling.source import LabelSource
     from mlsemreg_ros.core.maps.localization import awaits_deskew
     from mlsemreg_ros.core.maps.mapping import Mapper
-    from mlsemreg_ros.core.metrics import ate_rmse
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.evaluation.trajectory import ate_rmse
     import numpy as np
     from tqdm import tqdm
 
@@ -578,3 +584,8 @@ def write_pair_chain(
             _write_query(
                 out_queries / f'{number:06d}.npz', frame.points, frame.labels, frame.T_0_frame, 0
             )
+
+
+# Point maps in PCD / PLY (tools/map_points.py): the commands only parse and call the core.
+app.command('export', help=EXPORT_HELP)(export_command)
+app.command('import', help=IMPORT_HELP)(import_command)

@@ -87,7 +87,14 @@ def simulate(
         ),
     ] = 0.0,
     step: Annotated[float, typer.Option(min=0.0, help='metres driven per frame')] = 1.0,
-    rate: Annotated[float, typer.Option(min=0.001, help='scan rate in Hz')] = 10.0,
+    rate: Annotated[
+        float,
+        typer.Option(
+            min=0.001,
+            help='scan rate in Hz (field mode: up to 20; from 5 Hz the sensor turns at this '
+            'rate, below it one 10 Hz sweep every 1/rate s is kept)',
+        ),
+    ] = 10.0,
     beams: Annotated[int, typer.Option(min=1, help='vertical beams', rich_help_panel=SENSOR)] = 64,
     azimuth_steps: Annotated[
         int, typer.Option(min=1, help='horizontal samples per revolution', rich_help_panel=SENSOR)
@@ -112,12 +119,18 @@ def simulate(
         ),
     ] = 'clean',
     sensor: Annotated[
-        str, typer.Option(help='hdl64, vlp16 or os128 (field mode)', rich_help_panel=FIELD)
+        str,
+        typer.Option(
+            help='hdl64, hdl32, vlp16, os128, or livox: a non-repetitive solid-state pattern '
+            'with a 70 deg field of view (field mode)',
+            rich_help_panel=FIELD,
+        ),
     ] = 'hdl64',
     profile: Annotated[
         str,
         typer.Option(
-            help='normal, or aggressive: stop-and-go, sharp turns at speed (field mode)',
+            help='normal; aggressive: stop-and-go, sharp turns at speed; handheld: walking '
+            'with the sensor in hand, yaw up to 90 deg/s, sway, steps (field mode)',
             rich_help_panel=FIELD,
         ),
     ] = 'normal',
@@ -135,7 +148,7 @@ def simulate(
             min=0.5,
             max=40.0,
             help="cruise speed in m/s on straights (field mode; default: the profile's, "
-            '10 normal, 14 aggressive)',
+            '10 normal, 14 aggressive, 1.4 handheld)',
             rich_help_panel=FIELD,
         ),
     ] = None,
@@ -189,6 +202,7 @@ def simulate(
             layout,
             force,
             quiet,
+            rate,
         )
     if frames == 0:
         raise typer.BadParameter(
@@ -235,6 +249,7 @@ def _simulate_field(
     layout: BagLayout,
     force: bool,
     quiet: bool,
+    rate: float = 10.0,
 ) -> int:
     """Field mode: see :mod:`mlsemreg_ros.simulation.field_export`."""
     from mlsemreg_ros.evaluation.tables import print_text
@@ -251,6 +266,7 @@ def _simulate_field(
         moving_objects=moving_objects,
         network_labels=network_labels,
         network=network,
+        rate=rate,
     )
     try:
         config.validate()
@@ -259,7 +275,7 @@ def _simulate_field(
     replace_output(out, force)
     report = write_field_bag(out, config, layout, progress=not quiet)
     print_text(
-        f'wrote {out}: {report.frames} {sensor} sweeps ({profile}, {route}), '
+        f'wrote {out}: {report.frames} {sensor} sweeps at {rate:g} Hz ({profile}, {route}), '
         f'{report.points_per_scan:.0f} points/scan, {report.path_m:.1f} m driven; setup '
         f'{report.setup_s:.1f} s, total {report.total_s:.1f} s'
     )

@@ -273,6 +273,7 @@ def _report(study: Any, task: Any, out: Path, node_values: dict[str, Any]) -> in
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.evaluation import tables, tuning
     from mlsemreg_ros.evaluation.reports import write_json
+    from mlsemreg_ros.parameter_docs import write_params_file
 
     trials = study.get_trials(deepcopy=False)
     states: dict[str, int] = {}
@@ -307,7 +308,7 @@ def _report(study: Any, task: Any, out: Path, node_values: dict[str, Any]) -> in
         f'Load it with: ros2 run mlsemreg_ros mlsemreg_node --ros-args --params-file {out.name}',
         '[unit, range, choices] as enforced by the parameter descriptors.',
     ]
-    tuning.write_params_file(out, values, node_values, header)
+    write_params_file(out, values, node_values, header)
     start = RegistrationConfig().replace(task.base).to_flat_dict()
     rows = [[k, str(start[k]), str(values[k])] for k in chosen.params]
     tables.print_table(

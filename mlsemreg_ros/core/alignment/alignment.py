@@ -39,7 +39,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from mlsemreg_ros.core import threads  # before small_gicp: sets OMP_WAIT_POLICY
-from mlsemreg_ros.core.config import FineAlignmentConfig
+from mlsemreg_ros.core.alignment.config import FineAlignmentConfig
 import numpy as np
 import small_gicp
 

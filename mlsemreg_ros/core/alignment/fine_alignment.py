@@ -13,35 +13,30 @@
 # limitations under the License.
 
 """
-Every rule about a fine alignment (GICP/VGICP, ``core/alignment/alignment.py``) in one place.
+The bounds of a fine alignment (GICP/VGICP, ``core/alignment/alignment.py``), and its cloud.
 
-Used by the pair registration (``Registration.register``, scan to scan) and by the
-odometry (``core/odometry/tracking.py``, scan to local map). It sits below both, so
-neither imports the other:
+Used by the pair registration (``core/stages/fine_alignment.py``, scan to scan) and by
+the odometry's trust rules (``core/odometry/trust.py``, scan to local map). It sits below
+both, so neither imports the other:
 
     alignment_cloud(scan, fine, pair)           the scan's small_gicp cloud, cached on it
     refinement_refusal(alignment, bounds)       absolute bounds: inliers kept, guess moved
-    relative_inlier_refusal(alignment, ...)     against the usual inlier fraction
-    tracking_refusal(prediction, ...)           may the refined prediction be accepted alone
-    InlierHistory                               inlier fractions of the last accepted frames
+    correction_refusal(alignment, bounds)       the guess moved beyond the correction bounds
 """
 
 from __future__ import annotations
 
-import collections
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.alignment import Alignment, AlignmentCloud
-from mlsemreg_ros.core.config import FineAlignmentConfig, OdometryConfig
-from mlsemreg_ros.core.poses import within_bounds
+from mlsemreg_ros.core.alignment.config import FineAlignmentConfig
 from mlsemreg_ros.core.results import PreparedScan
 from mlsemreg_ros.core.rigid import rotation_angle_deg
 import numpy as np
 
-#: Accepted frames whose median inlier fraction is the typical one.
-FRACTION_HISTORY = 10
-#: A longer gap in the stamps (in nominal frame intervals) needs the global registration.
-MAX_TRACKING_GAP = 1.5
+if TYPE_CHECKING:
+    from mlsemreg_ros.core.config import OdometryConfig
 
 
 def alignment_cloud(
@@ -122,113 +117,5 @@ def correction_refusal(alignment: Alignment, bounds: RefinementBounds) -> str:
             f'than odometry.max_correction_translation/rotation='
             f'{bounds.max_correction_translation:g} m / '
             f'{bounds.max_correction_rotation:g} deg'
-        )
-    return ''
-
-
-class InlierHistory:
-    """Inlier fractions of the last :data:`FRACTION_HISTORY` accepted fine alignments."""
-
-    def __init__(self) -> None:
-        self._fractions: collections.deque[float] = collections.deque(maxlen=FRACTION_HISTORY)
-
-    def __bool__(self) -> bool:
-        return bool(self._fractions)
-
-    def append(self, fraction: float) -> None:
-        """Record the inlier fraction of an accepted frame."""
-        self._fractions.append(fraction)
-
-    def clear(self) -> None:
-        """Forget the history (a new map)."""
-        self._fractions.clear()
-
-    def typical(self) -> float:
-        """Return the median of the history (0 when empty)."""
-        return float(np.median(self._fractions)) if self._fractions else 0.0
-
-
-def relative_inlier_refusal(alignment: Alignment, share: float, history: InlierHistory) -> str:
-    """
-    Why an alignment keeps too little of the scan compared with the usual ('' if not).
-
-    Refused below ``share`` (``odometry.min_relative_inlier_fraction``) times the median
-    fraction of the last accepted frames; no rule before the first or with ``share`` 0.
-    """
-    if share > 0 and history:
-        typical = history.typical()
-        if alignment.inlier_fraction < share * typical:
-            return (
-                f'fine alignment kept {alignment.inlier_fraction:.2f} of the scan '
-                f'as inliers < odometry.min_relative_inlier_fraction={share:g} x '
-                f'{typical:.2f} (median of the last accepted frames)'
-            )
-    return ''
-
-
-@dataclass
-class Candidate:
-    """One initial guess of the current pose and its refinement against the local map."""
-
-    name: str  # 'global' (ML-SemReg estimate) or 'prediction' (the motion model)
-    T_initial: np.ndarray  # (4, 4) T_odom_current guess
-    alignment: Alignment
-    refusal: str  # why it is not acceptable ('' if it is)
-
-    @property
-    def acceptable(self) -> bool:
-        """Whether the refined pose may be published."""
-        return not self.refusal
-
-
-def tracking_refusal(
-    predicted: Candidate | None,
-    cfg: OdometryConfig,
-    tracked_in_a_row: int,
-    stamp_gap: float,
-    history: InlierHistory,
-) -> str:
-    """
-    Why the refined prediction may not be accepted alone ('' if it may).
-
-    ``odometry.global_registration: on_demand`` only. The refinement is acceptable, fewer
-    than ``odometry.global_interval`` scans were tracked in a row, the stamps show no gap
-    (``stamp_gap``, in frame intervals, at most :data:`MAX_TRACKING_GAP`), the refinement
-    moved the prediction by at most ``odometry.tracking_translation/rotation`` and kept at
-    least ``odometry.tracking_min_inlier_fraction`` of the scan and
-    ``odometry.tracking_inlier_share`` of the usual fraction.
-    """
-    if cfg.global_registration != 'on_demand':
-        return 'global registration: always'
-    if predicted is None:
-        return 'no prediction yet'
-    if not predicted.acceptable:
-        return f'prediction refused ({predicted.refusal})'
-    if tracked_in_a_row + 1 >= cfg.global_interval:
-        return f'{tracked_in_a_row} scans tracked in a row (odometry.global_interval)'
-    if stamp_gap > MAX_TRACKING_GAP:
-        return f'a gap of {stamp_gap:.1f} frame intervals in the stamps'
-    alignment = predicted.alignment
-    if not within_bounds(
-        alignment.T_initial,
-        alignment.T_target_source,
-        cfg.tracking_translation,
-        cfg.tracking_rotation,
-    ):
-        moved = alignment.correction
-        return (
-            f'prediction corrected by {np.linalg.norm(moved[:3, 3]):.2f} m / '
-            f'{rotation_angle_deg(moved):.2f} deg (odometry.tracking_*)'
-        )
-    if alignment.inlier_fraction < cfg.tracking_min_inlier_fraction:
-        return (
-            f'prediction kept {alignment.inlier_fraction:.2f} of the scan < '
-            f'odometry.tracking_min_inlier_fraction={cfg.tracking_min_inlier_fraction:g}'
-        )
-    typical = history.typical()
-    if alignment.inlier_fraction < cfg.tracking_inlier_share * typical:
-        return (
-            f'prediction kept {alignment.inlier_fraction:.2f} of the scan, usual '
-            f'{typical:.2f} (odometry.tracking_inlier_share)'
         )
     return ''

@@ -47,8 +47,9 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 import time
+from typing import TYPE_CHECKING
 
-from mlsemreg_ros.core.config import BevSearchConfig, RegistrationConfig
+from mlsemreg_ros.core.estimation.config import BevSearchConfig
 from mlsemreg_ros.core.estimation.verification import (
     LabelCompatibility,
     refine_starts,
@@ -60,6 +61,9 @@ from mlsemreg_ros.core.results import PreparedScan, VerificationResult
 import numpy as np
 from scipy import fft, ndimage
 from scipy.spatial.transform import Rotation
+
+if TYPE_CHECKING:
+    from mlsemreg_ros.core.config import RegistrationConfig
 
 #: Yaws rasterised and transformed together (bounds the memory of one chunk).
 _YAW_CHUNK = 12

@@ -68,7 +68,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from mlsemreg_ros.core.config import ConfidenceConfig
+from mlsemreg_ros.core.estimation.config import ConfidenceConfig
 from mlsemreg_ros.core.estimation.label_model import label_refusal
 import numpy as np
 

@@ -21,7 +21,7 @@ The pipeline imports ``estimate`` from here.
 
 from __future__ import annotations
 
-from mlsemreg_ros.core.config import EstimatorConfig
+from mlsemreg_ros.core.estimation.config import EstimatorConfig
 from mlsemreg_ros.core.results import EstimateResult
 import numpy as np
 

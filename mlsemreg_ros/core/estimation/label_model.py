@@ -53,7 +53,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from mlsemreg_ros.core.config import ConfidenceConfig, VerificationConfig
+from mlsemreg_ros.core.estimation.config import ConfidenceConfig, VerificationConfig
 from mlsemreg_ros.core.results import PreparedScan
 import numpy as np
 

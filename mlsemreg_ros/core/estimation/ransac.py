@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import time
 
-from mlsemreg_ros.core.config import EstimatorConfig
+from mlsemreg_ros.core.estimation.config import EstimatorConfig
 from mlsemreg_ros.core.results import EstimateResult
 from mlsemreg_ros.core.rigid import apply_transform
 import numpy as np

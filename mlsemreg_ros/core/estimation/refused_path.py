@@ -14,9 +14,9 @@
 """
 The refused path: the stages after a refused BEV search, and the check of a refused refinement.
 
-``Registration.register`` (``core/pipeline.py``) runs them when the confidence rule still
-refuses the pose after the BEV search (core/estimation/bev_search.py), cheapest first
-(docs/hard_pairs.md): guided re-matching around the best searched peaks
+The registration's refused-path stages (``core/stages/refused_path.py``) run them when the
+confidence rule still refuses the pose after the BEV search (core/estimation/bev_search.py),
+cheapest first (docs/hard_pairs.md): guided re-matching around the best searched peaks
 (core/estimation/guided.py), SC2-PCR again on the full correspondence graph, and the
 polishing of the pool's best candidates on the dense scans (core/estimation/polish.py).
 Every stage returns verified candidates that join the registration's pool.
@@ -30,11 +30,10 @@ from __future__ import annotations
 from collections.abc import Callable
 import dataclasses
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any, Protocol, TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.alignment import align_pair
 from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud
-from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation.estimation import estimate
 from mlsemreg_ros.core.estimation.guided import guided_correspondences
 from mlsemreg_ros.core.estimation.polish import polish_poses, radius_schedule
@@ -51,6 +50,9 @@ from mlsemreg_ros.core.results import (
     VerificationResult,
 )
 import numpy as np
+
+if TYPE_CHECKING:
+    from mlsemreg_ros.core.config import RegistrationConfig
 
 #: ``verify(estimated, src_pts, dst_pts, source, target)``: the registration's verification.
 Verify = Callable[
@@ -86,48 +88,6 @@ class RefusedPath:
     compatibility: LabelCompatibility
     verify: Verify
     dense: Dense
-
-    def stages(self, estimated: EstimateResult, correspondences: int) -> list[str]:
-        """Return the stages that may follow a refused BEV search, in order (the enabled ones)."""
-        cfg = self.config
-        sampled = estimated.diagnostics.get('graph_correspondences', correspondences)
-        stages = []
-        if cfg.bev_search.guided_peaks > 0:
-            stages.append('guided')
-        if (
-            cfg.bev_search.full_graph
-            and cfg.estimator.kind == 'sc2pcr'
-            and sampled < correspondences
-            and not estimated.diagnostics.get('graph_retried', False)
-        ):
-            stages.append('full_graph')
-        if cfg.bev_search.polish_candidates > 0:
-            stages.append('polish')
-        return stages
-
-    def run(
-        self,
-        stage: str,
-        scans: tuple[PreparedScan, PreparedScan],
-        correspondences: tuple[np.ndarray, np.ndarray],
-        pool: Candidates,
-        searched: VerificationResult,
-        refine: bool,
-        diagnostics: dict[str, Any],
-    ) -> VerificationResult | None:
-        """
-        Run one stage of :meth:`stages`; its verified candidates (or None).
-
-        ``refine``: the pair's fine alignment follows (``Registration.register``).
-        """
-        (source, target), (src_pts, dst_pts) = scans, correspondences
-        if stage == 'guided':
-            return self.guided(source, target, searched, diagnostics)
-        if stage == 'full_graph':
-            return self.full_graph(source, target, src_pts, dst_pts, diagnostics)
-        polished = self.polished(source, target, src_pts, dst_pts, pool, refine)
-        diagnostics['polished_candidates'] = len(polished.hypotheses)
-        return polished
 
     def full_graph(
         self,

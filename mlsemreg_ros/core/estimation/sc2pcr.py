@@ -66,7 +66,7 @@ from collections.abc import Callable
 import dataclasses
 import time
 
-from mlsemreg_ros.core.config import EstimatorConfig
+from mlsemreg_ros.core.estimation.config import EstimatorConfig
 from mlsemreg_ros.core.estimation.second_order import (
     budget_seeds,
     seed_consensus_sets,

@@ -25,7 +25,7 @@ only the best-scored seeds that fit the budget ``estimator.second_order_budget``
 
 from __future__ import annotations
 
-from mlsemreg_ros.core.config import EstimatorConfig
+from mlsemreg_ros.core.estimation.config import EstimatorConfig
 import numpy as np
 from scipy import sparse
 

@@ -53,7 +53,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 import time
 
-from mlsemreg_ros.core.config import EstimatorConfig, VerificationConfig
+from mlsemreg_ros.core.estimation.config import EstimatorConfig, VerificationConfig
 from mlsemreg_ros.core.estimation.sc2pcr import count_inliers, post_refinement
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.poses import distinct_hypotheses, residuals, same_pose

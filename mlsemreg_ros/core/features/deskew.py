@@ -343,6 +343,12 @@ def time_span_refusal(times: np.ndarray | None, count: int) -> str:
         return 'all points have the same time'
     if span > MAX_SWEEP_SPAN_S:
         return f'per-point times span {span:.3g} s (> {MAX_SWEEP_SPAN_S:g} s: not one sweep)'
+    offset = float(np.abs(times).max())
+    if offset > MAX_SWEEP_SPAN_S:
+        return (
+            f'per-point times up to {offset:.3g} s from the stamp (> {MAX_SWEEP_SPAN_S:g} s: '
+            'not a sweep at the stamp)'
+        )
     return ''
 
 

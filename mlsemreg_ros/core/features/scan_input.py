@@ -27,7 +27,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from mlsemreg_ros.core.config import ConfigError, FeatureConfig
+from mlsemreg_ros.core.features.config import FeatureConfig
+from mlsemreg_ros.core.settings import ConfigError
 import numpy as np
 
 #: Largest accepted ``max_range``, metres (the ``high`` of ``features.max_range``): keeps

@@ -226,3 +226,39 @@ class MapConfig:
         low=1e-6,
         high=100.0,
     )
+    export_voxel: float = param(
+        0.2,
+        '`mlsemreg map export`: voxel edge of the exported point map (0: every keyframe point).',
+        unit='m',
+        low=0.0,
+        high=10.0,
+    )
+    import_radius: float = param(
+        40.0,
+        '`mlsemreg map import`: each keyframe is the point map within this horizontal '
+        'distance of its pose.',
+        unit='m',
+        low=1.0,
+        high=500.0,
+    )
+    import_visible_only: bool = param(
+        False,
+        '`mlsemreg map import`: keep only the map points visible from the keyframe pose '
+        '(Open3D hidden point removal), so a keyframe looks like a scan from there.',
+    )
+    import_grid: float = param(
+        10.0,
+        '`mlsemreg map import` without a trajectory: keyframe poses on a horizontal grid of '
+        'this spacing (cells with map points around them).',
+        unit='m',
+        low=0.5,
+        high=500.0,
+    )
+    import_sensor_height: float = param(
+        1.73,
+        '`mlsemreg map import` without a trajectory: height of a grid keyframe above the '
+        'lowest map points around it (the sensor height of the drive).',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )

@@ -45,6 +45,7 @@ from mlsemreg_ros.core.features.deskew import time_span_refusal
 from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
 from mlsemreg_ros.core.maps.mapping import Mapper
 from mlsemreg_ros.core.maps.relocalization import Relocalization, Relocalizer
+from mlsemreg_ros.core.maps.seed import PoseSeed
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
@@ -103,6 +104,7 @@ class MapLocalization:
         self._travel_since_track = 0.0
         self._last_position: np.ndarray | None = None
         self._relocalize_requested = False
+        self._seed: PoseSeed | None = None  # relocalize the next scan around it
 
     @property
     def T_map_odom(self) -> np.ndarray | None:
@@ -116,6 +118,19 @@ class MapLocalization:
     def request_relocalization(self) -> None:
         """Relocalize the next scan whatever the state (the relocalize service)."""
         self._relocalize_requested = True
+
+    def seed(self, seed: PoseSeed) -> str:
+        """Relocalize the next scan around ``seed`` (core/maps/seed.py); '' or why not."""
+        if self.mode != 'localization':
+            return 'no map loaded: a seed needs a map'
+        self._seed, self._relocalize_requested = seed, True
+        return ''
+
+    def force(self, T_map_sensor: np.ndarray, T_odom_sensor: np.ndarray) -> None:
+        """Take the sensor at ``T_map_sensor`` now (odometry at ``T_odom_sensor``), unchecked."""
+        with self.lock:
+            self._set_T_map_odom(T_map_sensor @ invert_transform(T_odom_sensor))
+            self._last_position = T_odom_sensor[:3, 3].copy()
 
     def reset(self) -> None:
         """
@@ -191,15 +206,28 @@ class MapLocalization:
         return self._track(step, points, labels)
 
     def _relocalize(self, step: Any, points: np.ndarray, labels: np.ndarray) -> LocalizationUpdate:
-        """Find ``T_map_odom`` by relocalizing the scan against the keyframes."""
-        found = self.relocalizer.relocalize(points, labels, prepared=step.prepared)
+        """Find ``T_map_odom`` by relocalizing the scan against the keyframes (or a seed's)."""
+        seed, self._seed = self._seed, None
+        allowed = seed.candidates(self.store) if seed is not None else None
+        if allowed is not None and not allowed:
+            return self._state('refused', 'seed refused: no map keyframe near the seed')
+        found = self.relocalizer.relocalize(
+            points, labels, prepared=step.prepared, allowed=allowed
+        )
         if not found.found:
-            return self._state('refused', _refusal(found), relocalization=found)
+            why = _refusal(found)
+            return self._state(
+                'refused', f'seed refused: {why}' if seed else why, relocalization=found
+            )
+        outside = seed.refusal(found.T_map_sensor) if seed is not None else ''
+        if outside:
+            return self._state('refused', f'seed refused: {outside}', relocalization=found)
         self._set_T_map_odom(found.T_map_sensor @ invert_transform(step.pose))
         self._last_position = step.pose[:3, 3].copy()
+        around = ' around the seed' if seed is not None else ''
         return self._state(
             'relocalized',
-            f'relocalized onto keyframe {found.keyframe_id} after '
+            f'relocalized{around} onto keyframe {found.keyframe_id} after '
             f'{len(found.trials)} registrations',
             changed=True,
             relocalization=found,

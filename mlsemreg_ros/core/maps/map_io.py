@@ -23,6 +23,9 @@ Map folders: save and load a keyframe map (the format is documented in docs/maps
                             T_map_keyframe (4, 4) float64, stamp_ns int64
       poses.txt             TUM lines 'stamp tx ty tz qx qy qz qw' (for viewing)
 
+A keyframe file may also hold ``intensity`` (N,) float32 (imported point maps keep it for
+``mlsemreg map export``).
+
 ``keyframes`` is the number of keyframe files (``000000.npz`` ... in order) or a list of
 their names relative to ``keyframes/``. Labels are learning or raw SemanticKITTI ids, told
 apart per keyframe like the node's input (:meth:`LabelMap.convert` with ``auto``).
@@ -62,6 +65,7 @@ class MapKeyframe:
     labels: np.ndarray  # (N,) uint32
     T_map_keyframe: np.ndarray  # (4, 4) float64
     stamp_ns: int
+    intensity: np.ndarray | None = None  # (N,) float32, optional (imported point maps)
 
 
 @dataclass
@@ -93,7 +97,7 @@ class MapData:
 
 def save_map(
     path: str | Path,
-    store: KeyframeStore,
+    store: KeyframeStore | list[MapKeyframe],
     frame_id: str = 'map',
     config: RegistrationConfig | None = None,
     overwrite: bool = True,
@@ -101,7 +105,9 @@ def save_map(
     """
     Write ``store`` as a map folder at ``path`` (keyframes renumbered 0.. in store order).
 
-    ``config``: the registration config written into ``map.yaml`` (default: the store's).
+    ``store``: a keyframe store, or a list of :class:`MapKeyframe` (an imported map).
+    ``config``: the registration config written into ``map.yaml`` (default: the store's,
+    else the defaults).
     The folder is written next to ``path`` first and moved into place, so a failed save
     leaves an existing map as it was.
     """
@@ -116,18 +122,23 @@ def save_map(
         (staging / KEYFRAME_DIR).mkdir(parents=True)
         keyframes = list(store)
         for number, keyframe in enumerate(keyframes):
+            intensity = getattr(keyframe, 'intensity', None)
+            extra = {} if intensity is None else {'intensity': intensity.astype(np.float32)}
             np.savez(
                 staging / KEYFRAME_DIR / f'{number:06d}.npz',
                 points=keyframe.points.astype(np.float32),
                 labels=keyframe.labels.astype(np.uint32),
                 T_map_keyframe=keyframe.T_map_keyframe.astype(np.float64),
                 stamp_ns=np.int64(keyframe.stamp_ns),
+                **extra,
             )
         header: dict[str, Any] = {
             'format': MAP_FORMAT,
             'frame_id': frame_id,
             'keyframes': len(keyframes),
-            'registration': (config or store.config).to_dict(),
+            'registration': (
+                config or getattr(store, 'config', None) or RegistrationConfig()
+            ).to_dict(),
         }
         (staging / MAP_FILE).write_text(yaml.safe_dump(header, sort_keys=False))
         _write_tum(staging / POSES_FILE, keyframes)
@@ -141,7 +152,7 @@ def save_map(
 
 
 def _write_tum(path: Path, keyframes: list) -> None:
-    from mlsemreg_ros.datasets.pose_files import write_tum_poses
+    from mlsemreg_ros.codec.pose_files import write_tum_poses
 
     poses = np.array([k.T_map_keyframe for k in keyframes]).reshape(-1, 4, 4)
     stamps = np.array([k.stamp_ns for k in keyframes], dtype=np.int64)
@@ -202,6 +213,7 @@ def _read_keyframe(file: Path) -> MapKeyframe:
                 raise MapError(f'{file}: missing {missing}; has {sorted(data.files)}')
             points, labels = np.asarray(data['points']), np.asarray(data['labels'])
             pose, stamp = np.asarray(data['T_map_keyframe']), np.asarray(data['stamp_ns'])
+            intensity = np.asarray(data['intensity']) if 'intensity' in data.files else None
     except (OSError, ValueError) as error:
         if isinstance(error, MapError):
             raise
@@ -224,11 +236,14 @@ def _read_keyframe(file: Path) -> MapKeyframe:
         raise MapError(f'{file}: T_map_keyframe is not a rigid transform')
     if stamp.shape != () or not np.issubdtype(stamp.dtype, np.integer):
         raise MapError(f'{file}: stamp_ns must be one integer, got {stamp.shape} {stamp.dtype}')
+    if intensity is not None and intensity.shape != (points.shape[0],):
+        raise MapError(f'{file}: intensity must be ({points.shape[0]},), got {intensity.shape}')
     return MapKeyframe(
         points.astype(np.float32),
         labels.astype(np.uint32),
         pose.astype(np.float64),
         int(stamp),
+        None if intensity is None else intensity.astype(np.float32),
     )
 
 

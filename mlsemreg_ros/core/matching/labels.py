@@ -48,8 +48,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from mlsemreg_ros.core.config import ConfigError
 from mlsemreg_ros.core.resources import share_file
+from mlsemreg_ros.core.settings import ConfigError
 import numpy as np
 import yaml
 

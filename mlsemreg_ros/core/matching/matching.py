@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 import time
 from typing import Any
 
-from mlsemreg_ros.core.config import SemanticConfig
+from mlsemreg_ros.core.matching.config import SemanticConfig
 from mlsemreg_ros.core.matching.mask_search import (
     _add_time,
     _dense_bits,

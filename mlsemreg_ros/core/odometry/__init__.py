@@ -19,11 +19,6 @@ The LiDAR odometry, one module per job (``docs/extending.md``).
 names the node, the evaluation and the tests import from ``mlsemreg_ros.core.odometry``.
 """
 
-from mlsemreg_ros.core.alignment.fine_alignment import (
-    Candidate,
-    FRACTION_HISTORY,
-    MAX_TRACKING_GAP,
-)
 from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate, GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (
     is_new_keyframe,
@@ -56,6 +51,12 @@ from mlsemreg_ros.core.odometry.steps import (
     sparse_inlier_covariance,
 )
 from mlsemreg_ros.core.odometry.tracking import Tracker
+from mlsemreg_ros.core.odometry.trust import (
+    Candidate,
+    FRACTION_HISTORY,
+    MAX_TRACKING_GAP,
+    Trust,
+)
 
 __all__ = [
     'FRACTION_HISTORY',
@@ -80,6 +81,7 @@ __all__ = [
     'Preprocessor',
     'PriorMotionModel',
     'Tracker',
+    'Trust',
     'is_new_keyframe',
     'keyframe_refusal',
     'make_map',

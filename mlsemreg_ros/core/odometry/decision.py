@@ -28,10 +28,10 @@ from __future__ import annotations
 from collections.abc import Callable
 import time
 
-from mlsemreg_ros.core.alignment.fine_alignment import Candidate
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
 from mlsemreg_ros.core.odometry.steps import Decision, sparse_inlier_covariance
+from mlsemreg_ros.core.odometry.trust import Candidate
 from mlsemreg_ros.core.poses import within_bounds
 import numpy as np
 

@@ -18,8 +18,9 @@ The odometry's maps: the local map it tracks against, and the keyframe it regist
 The odometry holds one ``map`` object with this interface (a keyframe store or another
 backend plugs in here, see ``docs/extending.md``)::
 
-    map.insert(scan, T_map_scan)      an accepted, aligned scan joins the map
-    map.align(scan, T_initial)        Alignment: T_map_scan refined against the map
+    map.insert_scan(scan, T_map_scan) an accepted, aligned scan joins the map
+    map.align_scan(scan, T_initial)   Alignment: T_map_scan refined against the map
+    map.gaussians()                   the map's means and covariances (the sweep alignment)
     map.clear()                       forget every scan (reset, re-initialisation)
     map.reconfigure(fine, local_map)  new settings; True when the map was cleared
     len(map), map.points()            occupied voxels; coordinates for display
@@ -31,6 +32,7 @@ accepted scan becomes the :class:`Keyframe`.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.alignment.alignment import (
@@ -41,6 +43,7 @@ from mlsemreg_ros.core.alignment.alignment import (
     Alignment,
     AlignmentCloud,
 )
+from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud
 from mlsemreg_ros.core.config import (
     FineAlignmentConfig,
     KeyframeConfig,
@@ -131,6 +134,19 @@ class LocalMap:
             np.asarray(cloud.covs(), dtype=np.float64).reshape(-1, 4, 4)[:, :3, :3],
         )
 
+    def cloud(self, scan: PreparedScan) -> AlignmentCloud:
+        """Return the map's cloud of ``scan`` (``fine.downsampling_resolution``, cached on it)."""
+        return alignment_cloud(scan, self.fine)
+
+    def insert_scan(self, scan: PreparedScan, T_map_scan: np.ndarray) -> None:
+        """Add a prepared, aligned scan at ``T_map_scan`` (nothing with ``fine.method: off``)."""
+        if self.fine.method != 'off':
+            self.insert(self.cloud(scan), T_map_scan)
+
+    def align_scan(self, scan: PreparedScan, T_initial: np.ndarray) -> Alignment:
+        """Refine ``T_map_scan`` of a prepared scan from ``T_initial`` against the map."""
+        return self.align(self.cloud(scan), T_initial)
+
     def insert(self, scan: AlignmentCloud, T_map_scan: np.ndarray) -> None:
         """Add an aligned scan at its pose ``T_map_scan`` (also advances the LRU clock)."""
         if len(scan) == 0:
@@ -189,6 +205,29 @@ def is_new_keyframe(policy: KeyframeConfig, T_keyframe_current: np.ndarray) -> b
         float(np.linalg.norm(T[:3, 3])) >= policy.min_distance
         or rotation_angle_deg(T) >= policy.min_rotation
     )
+
+
+def insert_accepted(
+    local_map: LocalMap,
+    config: RegistrationConfig,
+    keyframe: Keyframe,
+    relative: np.ndarray,
+    index: int,
+    stamp_ns: int,
+    raw: Any,
+    pose: np.ndarray,
+) -> tuple[Keyframe, int]:
+    """
+    Insert an accepted, aligned scan into the map and apply the keyframe policy.
+
+    ``raw``: the :class:`~mlsemreg_ros.core.odometry.preprocess.PreprocessedScan` at
+    ``pose`` (``T_odom_current``), ``relative`` to ``keyframe``. Returns the keyframe after
+    it (this scan when the policy makes it one) and the map's occupied voxels.
+    """
+    local_map.insert_scan(raw.scan, pose)
+    if is_new_keyframe(config.keyframe, relative) and not keyframe_refusal(config, raw.scan):
+        keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, raw.scan, pose.copy())
+    return keyframe, len(local_map)
 
 
 def keyframe_refusal(config: RegistrationConfig, scan: PreparedScan) -> str:

@@ -104,6 +104,15 @@ class PriorMotionModel:
                 self.T_child_sensor = np.asarray(T_child_sensor, dtype=np.float64).copy()
             self._wheel.add(stamps_ns, np.reshape(poses, (-1, 4, 4)))
 
+    def constant_velocity(self, stamp_ns: int) -> Prediction | None:
+        """Return the constant-velocity prediction at ``stamp_ns`` (the prior left out)."""
+        return self._cv.predict(stamp_ns)
+
+    def forget(self, source: str) -> None:
+        """Drop every sample of ``source`` ('imu' or 'wheel'): its stream restarted."""
+        with self._lock:
+            (self._imu if source == 'imu' else self._wheel).clear()
+
     # -- the protocol ----------------------------------------------------------------
     def predict(self, stamp_ns: int) -> Prediction | None:
         """Return the prior's prediction at ``stamp_ns``, or the constant-velocity one."""

@@ -25,9 +25,10 @@ their stamp difference, in the current frame; its covariance is the frame's / dt
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 from mlsemreg_ros.core.alignment.alignment import UNKNOWN_VARIANCE
-from mlsemreg_ros.core.alignment.fine_alignment import Candidate
+from mlsemreg_ros.core.odometry.trust import Candidate
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
@@ -37,6 +38,10 @@ from scipy.spatial.transform import Rotation
 REINITIALIZATION_VARIANCE = 1e2
 #: Minimum lever arm of the sparse-inlier covariance model (fine alignment off).
 MIN_LEVER_ARM_M = 1.0
+#: Share of a predicted motion taken as the motion model's error (an unmodelled acceleration).
+PREDICTION_MODEL_ERROR = 0.2
+#: Least standard deviation of a prediction per frame interval: (m, rad).
+MIN_PREDICTION_SIGMA = (0.05, 0.005)
 
 
 @dataclass
@@ -71,6 +76,11 @@ class OdometryStep:
     #                             deskewed (by the sweep twist if it bent them), moving objects
     #                             dropped (moving_objects.matching): the input of ``prepared``
     labels: np.ndarray | None = None  # (N,) their raw labels
+    prior_refusal: str = ''  # the prior disagreed with the scan: what was done, and why
+    predicted_pose: np.ndarray | None = None  # (4, 4) rejected scans: the motion model's
+    #                             (or IMU's) T_odom_current at the stamp; None without one
+    predicted_covariance: np.ndarray | None = None  # (6, 6) odom axes: the pose's covariance
+    #                             inflated by the prediction's (:func:`prediction_covariance`)
 
 
 @dataclass
@@ -98,6 +108,36 @@ def odom_covariance(pose: np.ndarray, frame_covariance: np.ndarray) -> np.ndarra
     axes = np.zeros((6, 6))
     axes[:3, :3] = axes[3:, 3:] = pose[:3, :3]
     return axes @ frame_covariance @ axes.T
+
+
+def prediction_covariance(
+    pose_covariance: np.ndarray,
+    last_pose: np.ndarray,
+    predicted: np.ndarray,
+    frame_covariance: np.ndarray | None,
+    stamp_gap: float,
+) -> np.ndarray:
+    """
+    Covariance (6, 6, odom axes) of a predicted pose ``predicted`` (4, 4).
+
+    The prediction extrapolates the last accepted motion over ``stamp_gap`` frame
+    intervals, so it inherits the last pose's covariance ``pose_covariance`` plus, in
+    the predicted frame's axes, the last frame's alignment error carried ``stamp_gap``
+    times (``frame_covariance * gap^2``: a velocity error integrated over the gap) and
+    the model's own error: :data:`PREDICTION_MODEL_ERROR` of the predicted motion from
+    ``last_pose`` (an unmodelled acceleration), at least :data:`MIN_PREDICTION_SIGMA`
+    per interval. The result is never smaller than ``pose_covariance``.
+    """
+    gap = max(float(stamp_gap), 1.0)
+    motion = invert_transform(last_pose) @ predicted
+    translation = float(np.linalg.norm(motion[:3, 3]))
+    rotation = float(np.linalg.norm(Rotation.from_matrix(motion[:3, :3]).as_rotvec()))
+    sigma_t = max(PREDICTION_MODEL_ERROR * translation, MIN_PREDICTION_SIGMA[0] * gap)
+    sigma_r = max(PREDICTION_MODEL_ERROR * rotation, MIN_PREDICTION_SIGMA[1] * gap)
+    body = np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
+    if frame_covariance is not None:
+        body = body + frame_covariance * gap**2
+    return pose_covariance + odom_covariance(predicted, body)
 
 
 def twist_between(
@@ -132,6 +172,75 @@ def sparse_inlier_covariance(result: RegistrationResult, inlier_threshold: float
     return np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
 
 
-def prepare_timings(scan: PreparedScan) -> dict[str, float]:
-    """Return the scan's preparation stages (lazy ones once computed) as ``prepare.*``."""
-    return {f'prepare.{k}': v for k, v in scan.timings_ms.items()}
+def accepted_step(
+    index: int,
+    stamp_ns: int,
+    pose: np.ndarray,
+    relative: np.ndarray,
+    chosen: Decision,
+    raw: Any,
+    keyframe: Any,
+    last_accepted: tuple[np.ndarray, int],
+    covariance: np.ndarray,
+    map_voxels: int,
+) -> OdometryStep:
+    """
+    Return the step of an accepted scan at ``pose``: its twist and the grown covariance.
+
+    ``raw``: the scan as the odometry kept it (``PreprocessedScan``); ``keyframe``: the one
+    it was registered onto; ``last_accepted``: the previous accepted ``(pose, stamp_ns)``;
+    ``covariance``: the pose covariance before this frame (odom axes).
+    """
+    twist, twist_cov = twist_between(*last_accepted, pose, stamp_ns, chosen.frame_covariance)
+    return OdometryStep(
+        index=index,
+        stamp_ns=stamp_ns,
+        pose=pose.copy(),
+        relative=relative,
+        result=chosen.result,
+        accepted=True,
+        keyframe_index=keyframe.index,
+        keyframe_stamp_ns=keyframe.stamp_ns,
+        new_keyframe=False,
+        prepared=raw.scan,
+        source=chosen.source,
+        reason=chosen.reason,
+        covariance=covariance + odom_covariance(pose, chosen.frame_covariance),
+        frame_covariance=chosen.frame_covariance,
+        twist=twist,
+        twist_covariance=twist_cov,
+        map_voxels=map_voxels,
+        points=raw.points,
+        labels=raw.labels,
+    )
+
+
+def rejected_step(
+    index: int,
+    stamp_ns: int,
+    odometry: Any,
+    current: PreparedScan | None,
+    reason: str,
+    result: RegistrationResult | None,
+    relative: np.ndarray | None,
+    timings: dict[str, float] | None,
+    map_voxels: int,
+) -> OdometryStep:
+    """Return the step of a rejected scan: the ``odometry``'s pose, keyframe and covariance."""
+    keyframe = odometry.keyframe
+    return OdometryStep(
+        index=index,
+        stamp_ns=stamp_ns,
+        pose=odometry.pose.copy(),
+        relative=relative,
+        result=result,
+        accepted=False,
+        keyframe_index=keyframe.index if keyframe else -1,
+        keyframe_stamp_ns=keyframe.stamp_ns if keyframe else 0,
+        new_keyframe=False,
+        prepared=current,
+        timings_ms=timings or {},
+        reason=reason,
+        covariance=odometry.covariance.copy(),
+        map_voxels=map_voxels,
+    )

@@ -13,61 +13,111 @@
 # limitations under the License.
 
 """
-Tracking against the local map: candidates, the trust rule and its state.
+The odometry's alignment against its local map, in one room.
 
-A candidate is an initial guess of ``T_odom_current`` refined against the map and judged
-by the rules of ``core/alignment/fine_alignment.py`` (absolute bounds, then the inlier fraction
-relative to the last accepted frames). A scan is *tracked* (accepted by its refined
-prediction alone, no global registration) when :func:`tracking_refusal` finds nothing.
+Every alignment of a scan to the map goes through :class:`Tracker`, and every verdict on
+one comes from :class:`~mlsemreg_ros.core.odometry.trust.Trust`:
+
+    estimate        the motion model's prediction refined against the map; tracked when
+                    it is trusted, else the global registration and the decision
+                    between its refined estimate and the refined prediction
+    deskew_start    the first two scans deskewed once their motion is known, aligned again
+    align_sweep     no gyro: the sweep's own twist estimated against the map's Gaussians
+                    (core/alignment/sweep_alignment.py); a scan it bends is deskewed with it
+                    and aligned again
+
+The map (``core/odometry/local_map.py``) owns its clouds and Gaussians.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import time
+from typing import Any, TYPE_CHECKING
 
-from mlsemreg_ros.core.alignment.alignment import AlignmentCloud
-from mlsemreg_ros.core.alignment.fine_alignment import (
-    alignment_cloud,
-    Candidate,
-    InlierHistory,
-    refinement_refusal,
-    RefinementBounds,
-    relative_inlier_refusal,
-    tracking_refusal,
-)
-from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.odometry.local_map import LocalMap
+from mlsemreg_ros.core.alignment.sweep_alignment import align_sweep, MapGaussians, sweep_subset
+from mlsemreg_ros.core.features.deskew import sweep_motion, SweepMotion
+from mlsemreg_ros.core.odometry.decision import chain, decide
+from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
+from mlsemreg_ros.core.odometry.local_map import Keyframe, LocalMap
 from mlsemreg_ros.core.odometry.motion_model import Prediction
+from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
 from mlsemreg_ros.core.odometry.steps import Decision
+from mlsemreg_ros.core.odometry.trust import Candidate, InlierHistory, Trust
 from mlsemreg_ros.core.results import PreparedScan
 import numpy as np
 
+if TYPE_CHECKING:
+    from mlsemreg_ros.core.config import RegistrationConfig
+
+#: Rounds of deskew and alignment of the scan after a start (the motion follows the pose).
+START_DESKEW_ROUNDS = 3
+#: ... until the alignment moves the pose by less than this (m).
+START_DESKEW_TOLERANCE = 0.01
+#: The sweep alignment needs a local map of at least this many voxels.
+MIN_SWEEP_MAP_VOXELS = 100
+
 
 class Tracker:
-    """Refines guesses against ``map`` and decides whether the prediction is trusted."""
+    """Aligns scans to ``map``, judged by ``trust``: tracking, global candidates, the sweep."""
 
-    def __init__(self, local_map: LocalMap) -> None:
+    def __init__(self, local_map: LocalMap, trust: Trust | None = None) -> None:
         """Track against ``local_map`` (the odometry's ``map``)."""
         self.map = local_map
-        self.history = InlierHistory()  # inlier fractions of the last accepted frames
-        self.tracked_in_a_row = 0  # scans accepted by the refined prediction alone
+        self.trust = trust if trust is not None else Trust()
+
+    @property
+    def history(self) -> InlierHistory:
+        """Return the inlier fractions of the last accepted frames (``trust.history``)."""
+        return self.trust.history
+
+    @property
+    def tracked_in_a_row(self) -> int:
+        """Return the scans accepted by the refined prediction alone, in a row."""
+        return self.trust.tracked_in_a_row
 
     def restart(self) -> None:
         """Forget the history (a new map)."""
-        self.history.clear()
-        self.tracked_in_a_row = 0
+        self.trust.restart()
 
     def candidate(
-        self, name: str, T_initial: np.ndarray, cloud: AlignmentCloud, cfg: RegistrationConfig
+        self, name: str, T_initial: np.ndarray, scan: PreparedScan, cfg: RegistrationConfig
     ) -> Candidate:
-        """Refine ``T_initial`` against the map and judge the result."""
-        alignment = self.map.align(cloud, T_initial)
-        refusal = refinement_refusal(
-            alignment, RefinementBounds.of(cfg.odometry)
-        ) or relative_inlier_refusal(
-            alignment, cfg.odometry.min_relative_inlier_fraction, self.history
+        """Refine ``T_initial`` of ``scan`` against the map and judge the result."""
+        alignment = self.map.align_scan(scan, T_initial)
+        return self.trust.judge(name, T_initial, alignment, cfg.odometry)
+
+    def estimate(
+        self,
+        current: PreparedScan,
+        prediction: Prediction | None,
+        keyframe: Keyframe,
+        register: Callable[[PreparedScan, Keyframe], GlobalEstimate],
+        cfg: RegistrationConfig,
+        timings: dict[str, float],
+    ) -> Decision:
+        """
+        Track the prediction, or register globally and decide (``core/odometry/decision.py``).
+
+        ``register(current, keyframe)``: the global registration. With ``fine.method: off``
+        the pose is the chain of global registrations.
+        """
+        if cfg.fine.method == 'off':
+            return chain(register(current, keyframe), cfg)
+        predicted = self.refine_prediction(current, prediction, cfg, timings)
+        gap = prediction.stamp_gap if prediction is not None else 1.0
+        why_global = self.trust.tracking_refusal(predicted, gap, cfg.odometry)
+        if not why_global:  # tracking: no global registration needed
+            return self.track(predicted, cfg)
+        estimate = register(current, keyframe)
+        self.trust.tracked_in_a_row = 0
+        chosen = decide(
+            estimate, predicted, lambda T: self.candidate('global', T, current, cfg), cfg
         )
-        return Candidate(name, np.asarray(T_initial).copy(), alignment, refusal)
+        chosen.reason = '; '.join(
+            r for r in (f'registered globally: {why_global}', chosen.reason) if r
+        )
+        return chosen
 
     def refine_prediction(
         self,
@@ -80,32 +130,171 @@ class Tracker:
         if prediction is None:
             return None
         tic = time.perf_counter()
-        cloud = alignment_cloud(scan, cfg.fine)  # all cores: small_gicp has the GIL
+        self.map.cloud(scan)  # all cores: small_gicp has the GIL
         timings['fine_cloud_ms'] = 1e3 * (time.perf_counter() - tic)
         tic = time.perf_counter()
-        candidate = self.candidate('prediction', prediction.T_odom_current, cloud, cfg)
+        candidate = self.candidate('prediction', prediction.T_odom_current, scan, cfg)
         timings['fine_prediction_ms'] = 1e3 * (time.perf_counter() - tic)
         return candidate
 
-    def refusal(
-        self,
-        predicted: Candidate | None,
-        prediction: Prediction | None,
-        cfg: RegistrationConfig,
-    ) -> str:
-        """Why the refined prediction may not be accepted alone ('' if it may)."""
-        gap = prediction.stamp_gap if prediction is not None else 1.0
-        return tracking_refusal(predicted, cfg.odometry, self.tracked_in_a_row, gap, self.history)
-
     def track(self, predicted: Candidate, cfg: RegistrationConfig) -> Decision:
         """Accept the scan by its refined prediction (no global registration)."""
-        self.tracked_in_a_row += 1
+        self.trust.tracked_in_a_row += 1
         alignment = predicted.alignment
         return Decision(
             source='prediction',
-            reason=f'tracked ({self.tracked_in_a_row} in a row)',
+            reason=f'tracked ({self.trust.tracked_in_a_row} in a row)',
             pose=alignment.T_target_source,
             frame_covariance=alignment.covariance(cfg.odometry.covariance_scale, axes='source'),
             inlier_fraction=alignment.inlier_fraction,
             candidates=[predicted],
         )
+
+    def align_accepted(
+        self,
+        chosen: Decision,
+        raw: PreprocessedScan,
+        start: tuple[PreprocessedScan, np.ndarray, int] | None,
+        stamp_ns: int,
+        keyframe: Keyframe,
+        preprocessor: Preprocessor,
+        motion_model: Any,
+        cfg: RegistrationConfig,
+    ) -> tuple[PreprocessedScan, np.ndarray, SweepMotion | None]:
+        """
+        Record an accepted alignment, then the start's deskew and the sweep alignment.
+
+        Returns the scan and pose to accept, and the sweep twist estimated (or None);
+        ``chosen`` gets the sweep alignment's time and note.
+        """
+        self.trust.accepted(chosen.inlier_fraction)
+        raw, pose = self.deskew_start(
+            start, raw, chosen.pose, stamp_ns, keyframe, preprocessor, motion_model, cfg
+        )
+        tic = time.perf_counter()
+        raw, pose, note, sweep_twist = self.align_sweep(raw, pose, preprocessor, cfg)
+        chosen.timings_ms['sweep_alignment_ms'] = 1e3 * (time.perf_counter() - tic)
+        if note:
+            chosen.reason = '; '.join(r for r in (chosen.reason, note) if r)
+        return raw, pose, sweep_twist
+
+    def deskew_start(
+        self,
+        start: tuple[PreprocessedScan, np.ndarray, int] | None,
+        raw: PreprocessedScan,
+        pose: np.ndarray,
+        stamp_ns: int,
+        keyframe: Keyframe,
+        preprocessor: Preprocessor,
+        motion_model: Any,
+        cfg: RegistrationConfig,
+    ) -> tuple[PreprocessedScan, np.ndarray]:
+        """
+        Deskew the scan the odometry started on and the next one, once their motion is known.
+
+        ``start``: the scan the odometry started on, its pose and stamp (None: done).
+
+        Neither had a prediction, so neither was deskewed (or only by the gyro's rotation).
+        A map of skewed scans would bias every deskewed scan aligned to it (and, through the
+        velocity, the next deskew), and the next one's pose was registered on two skewed
+        sweeps. So both are deskewed with the motion estimated between them (the gyro's
+        rotation when there is an IMU), prepared again, and the next one is aligned again
+        to the first, :data:`START_DESKEW_ROUNDS` times at most (the motion follows the
+        pose). Returns the scan and pose to accept; the map holds the first scan
+        (``docs/field.md``).
+        """
+        if start is None or (raw.deskewed and not raw.rotation_only):
+            return raw, pose
+        first, first_pose, first_stamp = start
+        refusal = preprocessor.refusal
+        still = SweepMotion(np.zeros(3), np.zeros(3))
+        if refusal(first.points, first.point_times, still) or refusal(
+            raw.points, raw.point_times, still
+        ):
+            return raw, pose  # no times (the clean world), deskew off: nothing to redo
+        redone, current = (first, raw), pose
+        for _ in range(START_DESKEW_ROUNDS):
+            twist = sweep_motion(first_pose, first_stamp, current, stamp_ns)
+            if twist is None:
+                break
+            attempt = []
+            for scan, stamp in ((first, first_stamp), (raw, stamp_ns)):
+                motion = (
+                    preprocessor.gyro_motion(motion_model, stamp, scan.point_times, twist.velocity)
+                    or twist
+                )
+                points = scan.input_points if scan.input_points is not None else scan.points
+                attempt.append(preprocessor.scan(points, scan.labels, scan.point_times, motion))
+            if not all(r.deskewed for r in attempt):
+                break
+            redone = tuple(attempt)
+            self.map.clear()
+            self.map.insert_scan(redone[0].scan, first_pose)
+            again = self.candidate('start', current, redone[1].scan, cfg)
+            if not again.acceptable:
+                break
+            moved = again.alignment.correction
+            current = again.alignment.T_target_source
+            if np.linalg.norm(moved[:3, 3]) < START_DESKEW_TOLERANCE:
+                break
+        if redone[0] is first:
+            return raw, pose
+        if self.map.empty or redone[1] is raw:
+            self.map.clear()
+            self.map.insert_scan(redone[0].scan, first_pose)
+        if keyframe.stamp_ns == first_stamp:
+            r = redone[0]
+            keyframe.points, keyframe.labels, keyframe.prepared = r.points, r.labels, r.scan
+        return redone[1], current
+
+    def align_sweep(
+        self,
+        raw: PreprocessedScan,
+        pose: np.ndarray,
+        preprocessor: Preprocessor,
+        cfg: RegistrationConfig,
+    ) -> tuple[PreprocessedScan, np.ndarray, str, SweepMotion | None]:
+        """
+        Estimate the motion within the sweep from the sweep itself (no gyro), if it bends it.
+
+        A scan deskewed by a constant twist from the poses is aligned to the local map with
+        its sweep twist free (``core/alignment/sweep_alignment.py``). When the estimated
+        twist moves some point by more than ``sweep_alignment.min_change``, the scan is
+        deskewed with it, prepared again and aligned again from the joint estimate; the
+        result replaces the pose if the map accepts it. Returns the scan, the pose, a note and
+        the estimated sweep twist (None when there is none to keep).
+        """
+        motion = raw.motion
+        if (
+            cfg.sweep_alignment.mode == 'off'
+            or cfg.fine.method == 'off'
+            or not isinstance(motion, SweepMotion)  # deskewed by a twist: points and times
+            or self.map.empty
+        ):
+            return raw, pose, '', None
+        gaussians = self.map.gaussians()
+        if gaussians is None or len(gaussians[0]) < MIN_SWEEP_MAP_VOXELS:
+            return raw, pose, '', None
+        points, times = raw.input_points, np.asarray(raw.point_times, dtype=np.float64)
+        if cfg.moving_objects.matching != 'drop':  # 'drop' took them out before the deskew
+            moving = preprocessor.moving_mask(points, raw.labels)
+            if moving is not None and len(moving) == len(points):
+                points, times = points[~moving], times[~moving]
+        points, times = sweep_subset(points, times, cfg.sweep_alignment.points)
+        result = align_sweep(
+            points, times, MapGaussians(*gaussians), pose, motion, cfg.sweep_alignment
+        )
+        finite = np.all(np.isfinite(result.T_target_source)) and np.all(
+            np.isfinite(np.concatenate([result.motion.omega, result.motion.velocity]))
+        )
+        if not finite or not np.isfinite(result.change_m):
+            return raw, pose, 'sweep alignment diverged: the deskew twist is kept', None
+        if result.change_m <= cfg.sweep_alignment.min_change:
+            return raw, pose, '', result.motion
+        redone = preprocessor.scan(raw.input_points, raw.labels, raw.point_times, result.motion)
+        if not redone.deskewed:
+            return raw, pose, '', None
+        again = self.candidate('sweep', result.T_target_source, redone.scan, cfg)
+        if not again.acceptable:
+            return raw, pose, f'{result.summary(motion)}: not kept ({again.refusal})', None
+        return redone, again.alignment.T_target_source, result.summary(motion), result.motion

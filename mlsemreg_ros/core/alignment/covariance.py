@@ -1,0 +1,172 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The calibrated pose covariance of a fine alignment (docs/covariance.md).
+
+The fine alignment's Hessian gives ``C_H = inv(H) * 2E / (n - 6)``. Its residuals are not
+independent (neighbouring points share a surface, the deskew and the map carry errors
+of their own), so ``C_H`` claims too little. The calibrated covariance is
+
+``C = s * C_H + D + diag(sigma_t(d, a)^2 I3, sigma_r(d, a)^2 I3)``
+
+- ``s``: ``odometry.covariance_scale``;
+- ``D``: the inflation along the degenerate directions of the Hessian: in the translation
+  and the rotation block of ``s * C_H`` apart, every eigen-direction whose variance exceeds
+  ``covariance.degenerate_ratio`` times the block's smallest gets
+  ``covariance.degenerate_translation`` (m) or ``covariance.degenerate_rotation`` (deg)
+  squared added along it (a corridor, a tunnel, a flat field: the Hessian sees one
+  direction weakly, and the error there is larger than even the weak curvature says);
+- ``sigma_t(d, a) = covariance.floor_translation + covariance.per_metre_translation * d
+  + covariance.per_degree_translation * a`` and ``sigma_r(d, a)`` likewise (in deg), with
+  ``d`` the distance and ``a`` the angle (deg) of the motion the covariance describes (the
+  odometry: from the keyframe to the scan; a pair: between the scans): the errors no
+  Hessian sees (deskew, timing, labels, the keyframe's and the local map's own drift),
+  which grow with the distance and in turns.
+
+The odometry applies it to every accepted scan's frame covariance
+(``core/odometry/odometry.py``), so the pose covariance, the twist covariance and the
+NEES of ``mlsemreg eval-bag`` use it. ``mlsemreg covariance-nees`` measures it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mlsemreg_ros.core.settings import param
+import numpy as np
+
+
+@dataclass
+class CovarianceConfig:
+    """Calibration of the fine alignment's pose covariance (docs/covariance.md)."""
+
+    floor_translation: float = param(
+        0.0,
+        'Standard deviation added to every axis of the pose covariance (errors the '
+        'Hessian does not see: deskew, labels, the keyframe).',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
+    floor_rotation: float = param(
+        0.0,
+        'Standard deviation added to every rotation axis of the pose covariance.',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
+    per_metre_translation: float = param(
+        0.0,
+        'Standard deviation added to every translation axis per metre of the motion the '
+        'covariance describes (from the keyframe to the scan).',
+        unit='m/m',
+        low=0.0,
+        high=10.0,
+    )
+    per_metre_rotation: float = param(
+        0.0,
+        'Standard deviation added to every rotation axis per metre of that motion.',
+        unit='deg/m',
+        low=0.0,
+        high=100.0,
+    )
+    per_degree_translation: float = param(
+        0.0,
+        'Standard deviation added to every translation axis per degree the motion turned '
+        '(deskew and timing errors grow in turns).',
+        unit='m/deg',
+        low=0.0,
+        high=10.0,
+    )
+    per_degree_rotation: float = param(
+        0.0,
+        'Standard deviation added to every rotation axis per degree the motion turned.',
+        unit='deg/deg',
+        low=0.0,
+        high=10.0,
+    )
+    degenerate_ratio: float = param(
+        0.0,
+        'An eigen-direction of the translation or rotation block of the Hessian covariance '
+        'is degenerate when its variance exceeds this many times the smallest of its '
+        'block (0: no inflation).',
+        low=0.0,
+        high=1e12,
+    )
+    degenerate_translation: float = param(
+        0.0,
+        'Standard deviation added along a degenerate translation direction.',
+        unit='m',
+        low=0.0,
+        high=1000.0,
+    )
+    degenerate_rotation: float = param(
+        0.0,
+        'Standard deviation added along a degenerate rotation direction.',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
+
+
+def degenerate_inflation(covariance: np.ndarray, cfg: CovarianceConfig) -> np.ndarray:
+    """Return the inflation ``D`` (6, 6) of ``covariance`` (ROS order) along weak directions."""
+    inflation = np.zeros((6, 6))
+    if cfg.degenerate_ratio <= 0:
+        return inflation
+    sigmas = (cfg.degenerate_translation, np.radians(cfg.degenerate_rotation))
+    for block, sigma in zip((slice(0, 3), slice(3, 6)), sigmas, strict=True):
+        if sigma <= 0:
+            continue
+        values, vectors = np.linalg.eigh(covariance[block, block])
+        weak = values > cfg.degenerate_ratio * max(values[0], 1e-300)
+        if np.any(weak):
+            directions = vectors[:, weak]
+            inflation[block, block] = sigma**2 * directions @ directions.T
+    return inflation
+
+
+def calibrated_covariance(
+    hessian_covariance: np.ndarray,
+    scale: float,
+    cfg: CovarianceConfig,
+    distance: float = 0.0,
+    turn_deg: float = 0.0,
+) -> np.ndarray:
+    """
+    Return ``s * C_H + D + floor(d)`` (module docstring) of a covariance (6, 6), ROS order.
+
+    ``hessian_covariance``: ``inv(H) * 2E / (n - 6)`` (``scale`` 1) in either axes: the
+    floor is isotropic and the inflation follows the eigen-directions, so the result
+    rotates with the input.
+    """
+    scaled = np.asarray(hessian_covariance, dtype=np.float64) * scale
+    sigma_t = (
+        cfg.floor_translation
+        + cfg.per_metre_translation * distance
+        + cfg.per_degree_translation * turn_deg
+    )
+    sigma_r = np.radians(
+        cfg.floor_rotation + cfg.per_metre_rotation * distance + cfg.per_degree_rotation * turn_deg
+    )
+    floor = np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
+    covariance = scaled + degenerate_inflation(scaled, cfg) + floor
+    return 0.5 * (covariance + covariance.T)
+
+
+def motion_size(motion: np.ndarray) -> tuple[float, float]:
+    """Return the distance (m) and the rotation angle (deg) of a motion (4, 4)."""
+    cosine = np.clip((np.trace(motion[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.linalg.norm(motion[:3, 3])), float(np.degrees(np.arccos(cosine)))

@@ -1,0 +1,114 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Stage 7, the fine alignment of the pair: GICP of the source scan onto the target scan.
+
+From the chosen pose, with ``fine.pair_method`` (core/alignment/alignment.py). A refused
+pose is refined too (it is the best one found; the result stays refused). The alignment
+must stay within the correction bounds (core/alignment/fine_alignment.py), or the coarse
+pose was not right to those bounds and the pose is refused; a refinement refused only by
+its bounds is kept when it holds the dense score (at 40-60 m the true overlap stays under
+``odometry.min_inlier_fraction``; docs/hard_pairs.md). Last, the localizability of the
+alignment (``confidence.degeneracy``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any
+
+from mlsemreg_ros.core.alignment.alignment import align_pair, Alignment
+from mlsemreg_ros.core.alignment.fine_alignment import (
+    alignment_cloud,
+    correction_refusal,
+    refinement_refusal,
+    RefinementBounds,
+)
+from mlsemreg_ros.core.estimation import confidence
+from mlsemreg_ros.core.estimation.config import ConfidenceConfig
+from mlsemreg_ros.core.stages.context import RegistrationContext
+import numpy as np
+
+
+class FineAlignmentStage:
+    """Stage 7: GICP/VGICP of the pair from the chosen pose (``fine_ms``)."""
+
+    name = 'fine'
+
+    def wanted(self, context: RegistrationContext) -> bool:
+        """``refine``, a finite pose and ``fine.pair_method`` not ``off``."""
+        return (
+            context.refine
+            and bool(np.all(np.isfinite(context.transform)))
+            and context.config.fine.pair_method != 'off'
+        )
+
+    def run(self, context: RegistrationContext) -> None:
+        """Refine the transform; doubt it when the refinement moved it beyond the bounds."""
+        cfg, source, target, coarse = (
+            context.config,
+            context.source,
+            context.target,
+            context.transform,
+        )
+        alignment = align_pair(
+            alignment_cloud(source, cfg.fine, pair=True),
+            alignment_cloud(target, cfg.fine, pair=True),
+            coarse,
+            cfg.fine,
+            cfg.fine.pair_method,
+        )
+        bounds = RefinementBounds.of(cfg.odometry)
+        refused = refinement_refusal(alignment, bounds)
+        context.diagnostics.update(
+            fine_inlier_fraction=alignment.inlier_fraction,
+            fine_iterations=alignment.iterations,
+            fine_refused=refused or '',
+        )
+        # an accepted pose the refinement moved beyond the correction bounds is refused
+        context.doubt(correction_refusal(alignment, bounds))
+        if refused and context.scoring.refused_path().refinement_holds(
+            alignment.T_target_source, coarse, source, target
+        ):
+            context.diagnostics['fine_refused_kept'] = True
+            refused = ''
+        if not refused:
+            context.transform = alignment.T_target_source
+            alignment, degenerate = degeneracy(alignment, cfg.confidence, context.diagnostics)
+            context.doubt(degenerate)
+        context.coarse, context.alignment = coarse, alignment
+
+
+def degeneracy(
+    alignment: Alignment, conf: ConfidenceConfig, diagnostics: dict[str, Any]
+) -> tuple[Alignment, str]:
+    """
+    Localizability of the fine alignment (``degeneracy_*`` diagnostics) and its verdict.
+
+    ``confidence.degeneracy``: ``report`` leaves the alignment as it is, ``inflate``
+    returns it with the Hessian's weak translation eigenvalue divided by
+    ``confidence.degeneracy_inflation`` (so every covariance derived from it grows along
+    the weak direction), ``refuse`` returns the reason to refuse.
+    """
+    found = confidence.localizability(alignment.hessian, alignment.T_target_source[:3, :3])
+    if found is None:
+        return alignment, ''
+    weak = found.ratio < conf.min_localizability
+    diagnostics.update(found.as_diagnostics())
+    diagnostics['degeneracy_weak'] = weak
+    diagnostics['degeneracy_action'] = conf.degeneracy if weak else ''
+    if weak and conf.degeneracy == 'inflate':
+        hessian = confidence.inflated_hessian(alignment.hessian, conf.degeneracy_inflation)
+        return dataclasses.replace(alignment, hessian=hessian), ''
+    return alignment, confidence.degeneracy_refusal(found, conf)

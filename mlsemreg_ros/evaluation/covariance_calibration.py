@@ -1,0 +1,281 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+NEES of the pose covariance on real pairs and drives, and its calibration (docs/covariance.md).
+
+A sample is one accepted estimate: its error ``e = log(T_truth^-1 T_estimate)``
+(``[t, rotvec]``, the estimate's axes) and its Hessian covariance ``C_H`` (scale 1, no
+calibration). The NEES of a calibration is ``e^T inv(C) e`` with ``C`` from
+:func:`~mlsemreg_ros.core.alignment.covariance.calibrated_covariance`; a consistent
+covariance gives chi-square values with 6 degrees of freedom: mean 6, 95 % below 12.59.
+The samples are kept, so a calibration is scored without registering again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+import itertools
+from typing import Any
+
+from mlsemreg_ros.core.alignment.covariance import (
+    calibrated_covariance,
+    CovarianceConfig,
+    motion_size,
+)
+import numpy as np
+from scipy.spatial.transform import Rotation
+from scipy.stats import chi2
+
+#: The 95 % bound of a chi-square with 6 degrees of freedom.
+NEES_BOUND_95 = float(chi2.ppf(0.95, 6))
+
+
+@dataclass
+class CovarianceSample:
+    """One accepted estimate: its error (6,) and its Hessian covariance (6, 6), ROS order."""
+
+    error: np.ndarray
+    hessian_covariance: np.ndarray
+    distance: float = 0.0  # m, the motion the covariance describes (keyframe to scan)
+    turn_deg: float = 0.0  # deg, the rotation angle of that motion
+
+
+def pose_error(T_estimate: np.ndarray, T_truth: np.ndarray) -> np.ndarray:
+    """``[t, rotvec]`` of ``T_truth^-1 T_estimate`` (as core.metrics' NEES)."""
+    error = np.linalg.solve(np.asarray(T_truth, np.float64), np.asarray(T_estimate, np.float64))
+    return np.concatenate([error[:3, 3], Rotation.from_matrix(error[:3, :3]).as_rotvec()])
+
+
+def uncalibrated(config: Any) -> Any:
+    """``config`` with covariance scale 1 and no calibration (the samples' covariance)."""
+    return replace(config, covariance=CovarianceConfig()).replace(
+        {'odometry.covariance_scale': 1.0}
+    )
+
+
+def pair_samples(pair_files: list[Any], config: Any) -> list[CovarianceSample]:
+    """Global registrations of pair files (accepted ones with a fine alignment)."""
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.datasets.pairs import load_pair
+
+    registration = Registration(uncalibrated(config))
+    samples = []
+    for file in pair_files:
+        pair = load_pair(file)
+        source, target = registration.prepare_scans(
+            {'points': pair.pts_src, 'labels': pair.label_src, 'voxelize': False},
+            {'points': pair.pts_dst, 'labels': pair.label_dst, 'voxelize': False},
+        )
+        result = registration.register(source, target)
+        if not result.success or result.alignment is None:
+            continue
+        covariance = result.alignment.covariance(1.0, axes='source')
+        error = pose_error(result.transform, pair.trans_gt)
+        samples.append(CovarianceSample(error, covariance, *motion_size(result.transform)))
+    return samples
+
+
+def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
+    """
+    Run the odometry over ``scans``; return the samples as ``mlsemreg eval-bag`` scores them.
+
+    ``scans``: objects with ``xyz``, ``labels``, ``stamp_ns``, ``point_times``, ``pose``
+    and ``index``. A sample is the estimate relative to its keyframe against the ground
+    truth, with its frame covariance.
+    """
+    from mlsemreg_ros.core.odometry import Odometry
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.core.rigid import relative_transform
+    from mlsemreg_ros.evaluation.estimators import OdometryEstimator
+
+    estimator = OdometryEstimator(Odometry(Registration(uncalibrated(config))))
+    truth: dict[int, np.ndarray] = {}
+    samples = []
+    for scan in scans:
+        if scan.pose is not None:
+            truth[scan.index] = np.asarray(scan.pose)
+        estimate = estimator.step(scan)
+        keyframe = estimate.keyframe_index
+        if (
+            not estimate.accepted
+            or estimate.relative is None
+            or estimate.frame_covariance is None
+            or keyframe not in truth
+            or scan.index not in truth
+        ):
+            continue
+        T_truth = relative_transform(truth[keyframe], truth[scan.index])
+        error = pose_error(estimate.relative, T_truth)
+        size = motion_size(estimate.relative)
+        samples.append(CovarianceSample(error, estimate.frame_covariance, *size))
+    return samples
+
+
+def nees_values(
+    samples: list[CovarianceSample], scale: float, cfg: CovarianceConfig
+) -> np.ndarray:
+    """Return the NEES of every sample under a calibration (NaN: a singular covariance)."""
+    values = np.full(len(samples), np.nan)
+    for index, sample in enumerate(samples):
+        covariance = calibrated_covariance(
+            sample.hessian_covariance, scale, cfg, sample.distance, sample.turn_deg
+        )
+        try:
+            values[index] = float(sample.error @ np.linalg.solve(covariance, sample.error))
+        except np.linalg.LinAlgError:
+            continue
+    return values
+
+
+def _batch_nees(
+    errors: np.ndarray,
+    covariances: np.ndarray,
+    distances: np.ndarray,
+    turns: np.ndarray,
+    scale: float,
+    cfg: CovarianceConfig,
+) -> np.ndarray:
+    """:func:`nees_values` for stacked samples without degenerate inflation (the fit)."""
+    sigma_t = (
+        cfg.floor_translation
+        + cfg.per_metre_translation * distances
+        + cfg.per_degree_translation * turns
+    )
+    sigma_r = np.radians(
+        cfg.floor_rotation + cfg.per_metre_rotation * distances + cfg.per_degree_rotation * turns
+    )
+    floor = np.zeros_like(covariances)
+    floor[:, [0, 1, 2], [0, 1, 2]] = (sigma_t**2)[:, None]
+    floor[:, [3, 4, 5], [3, 4, 5]] = (sigma_r**2)[:, None]
+    solved = np.linalg.solve(scale * covariances + floor, errors[:, :, None])[:, :, 0]
+    return np.einsum('ki,ki->k', errors, solved)
+
+
+def nees_summary(values: np.ndarray) -> dict[str, float]:
+    """Mean, median and the share inside the 95 % bound (percent) of NEES values."""
+    finite = values[np.isfinite(values)]
+    if finite.size == 0:
+        return {'samples': 0, 'nees_mean': np.nan, 'nees_median': np.nan, 'inside_95_pct': np.nan}
+    return {
+        'samples': int(finite.size),
+        'nees_mean': float(finite.mean()),
+        'nees_median': float(np.median(finite)),
+        'inside_95_pct': float(100.0 * np.mean(finite <= NEES_BOUND_95)),
+    }
+
+
+def calibration_cost(summaries: list[dict[str, float]]) -> float:
+    """
+    How far a calibration is from consistent on every data set (0 is ideal).
+
+    The worst data set counts: ``|log(mean / 6)|`` plus a penalty per percent below 85 %
+    inside the 95 % bound, plus one for a mean outside 3-12.
+    """
+    worst = 0.0
+    for s in summaries:
+        mean, inside = s['nees_mean'], s['inside_95_pct']
+        if not np.isfinite(mean):
+            return np.inf
+        cost = abs(np.log(mean / 6.0)) + 0.05 * max(0.0, 85.0 - inside)
+        cost += 1.0 if not 3.0 <= mean <= 12.0 else 0.0
+        worst = max(worst, cost)
+    return worst
+
+
+def fit_calibration(
+    datasets: dict[str, list[CovarianceSample]],
+    grid: dict[str, tuple[float, ...]] | None = None,
+) -> tuple[float, CovarianceConfig, float]:
+    """
+    Grid search: ``(scale, CovarianceConfig, cost)`` of the best calibration.
+
+    ``grid``: the values tried per parameter (``scale`` and the ``covariance`` fields;
+    default :data:`FIT_GRID`); the degenerate-direction inflation is not fitted.
+    """
+    grid = {**FIT_GRID, **(grid or {})}
+    stacks = [
+        (
+            np.array([s.error for s in samples]).reshape(-1, 6),
+            np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
+            np.array([s.distance for s in samples], dtype=np.float64),
+            np.array([s.turn_deg for s in samples], dtype=np.float64),
+        )
+        for samples in datasets.values()
+        if samples
+    ]
+    names = list(grid)
+    best = (1.0, CovarianceConfig(), np.inf)
+    for values in itertools.product(*(grid[name] for name in names)):
+        chosen = dict(zip(names, values, strict=True))
+        scale = chosen.pop('scale')
+        cfg = CovarianceConfig(**chosen)
+        try:
+            summaries = [nees_summary(_batch_nees(*stack, scale, cfg)) for stack in stacks]
+        except np.linalg.LinAlgError:
+            continue
+        cost = calibration_cost(summaries)
+        if cost < best[2]:
+            best = (scale, cfg, cost)
+    return best
+
+
+#: The values :func:`fit_calibration` tries by default.
+FIT_GRID: dict[str, tuple[float, ...]] = {
+    'scale': (1.0, 3.0, 7.0, 15.0),
+    'floor_translation': (0.0, 0.005, 0.01, 0.02, 0.03),
+    'floor_rotation': (0.0, 0.02, 0.05, 0.1),
+    'per_metre_translation': (0.0, 0.002, 0.004, 0.006),
+    'per_metre_rotation': (0.0, 0.01, 0.02),
+    'per_degree_translation': (0.0, 0.02, 0.05, 0.1, 0.2),
+    'per_degree_rotation': (0.0, 0.05, 0.1, 0.2, 0.4),
+}
+
+
+def chain_scans(pair_files: list[Any], period_s: float = 2.0) -> list[Any]:
+    """Return the frames of a pair chain as scans ``period_s`` apart, at their chained poses."""
+    from types import SimpleNamespace
+
+    from mlsemreg_ros.datasets.pair_chain import chain_frames
+
+    return [
+        SimpleNamespace(
+            xyz=frame.points,
+            labels=frame.labels,
+            stamp_ns=round(index * period_s * 1e9),
+            point_times=None,
+            pose=frame.T_0_frame,
+            index=index,
+        )
+        for index, frame in enumerate(chain_frames(pair_files))
+    ]
+
+
+def save_samples(path: Any, samples: list[CovarianceSample]) -> None:
+    """Write samples as ``errors`` (K, 6) and ``covariances`` (K, 6, 6) in an npz file."""
+    np.savez(
+        path,
+        errors=np.array([s.error for s in samples]).reshape(-1, 6),
+        covariances=np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
+        distances=np.array([s.distance for s in samples], dtype=np.float64),
+        turns_deg=np.array([s.turn_deg for s in samples], dtype=np.float64),
+    )
+
+
+def load_samples(path: Any) -> list[CovarianceSample]:
+    """Read samples written by :func:`save_samples`."""
+    with np.load(path) as data:
+        turns = data['turns_deg'] if 'turns_deg' in data.files else np.zeros(len(data['errors']))
+        rows = zip(data['errors'], data['covariances'], data['distances'], turns, strict=True)
+        return [CovarianceSample(e, c, float(d), float(a)) for e, c, d, a in rows]

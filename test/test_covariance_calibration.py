@@ -1,0 +1,129 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""The calibrated pose covariance and its NEES (core/alignment/covariance.py)."""
+
+from __future__ import annotations
+
+from mlsemreg_ros.core.alignment.covariance import (
+    calibrated_covariance,
+    CovarianceConfig,
+    degenerate_inflation,
+    motion_size,
+)
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.odometry import Odometry
+from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
+from mlsemreg_ros.evaluation.covariance_calibration import (
+    CovarianceSample,
+    fit_calibration,
+    load_samples,
+    NEES_BOUND_95,
+    nees_summary,
+    nees_values,
+    save_samples,
+)
+import numpy as np
+import pytest
+
+
+def test_the_default_calibration_only_scales() -> None:
+    hessian = np.diag([1e-6, 2e-6, 3e-6, 1e-8, 2e-8, 3e-8])
+    assert np.allclose(calibrated_covariance(hessian, 7.0, CovarianceConfig()), 7.0 * hessian)
+
+
+def test_the_floor_grows_with_distance_and_turn() -> None:
+    cfg = CovarianceConfig(
+        floor_translation=0.01,
+        floor_rotation=0.1,
+        per_metre_translation=0.002,
+        per_metre_rotation=0.01,
+        per_degree_translation=0.05,
+        per_degree_rotation=0.2,
+    )
+    covariance = calibrated_covariance(np.zeros((6, 6)), 1.0, cfg, distance=10.0, turn_deg=2.0)
+    sigma_t = 0.01 + 0.002 * 10 + 0.05 * 2
+    sigma_r = np.radians(0.1 + 0.01 * 10 + 0.2 * 2)
+    assert np.allclose(np.diag(covariance), [sigma_t**2] * 3 + [sigma_r**2] * 3)
+    assert np.allclose(motion_size(motion(30.0, (3.0, 4.0, 0.0))), (5.0, 30.0))
+
+
+def test_a_weak_direction_of_the_hessian_is_inflated_along_it_only() -> None:
+    """A corridor: translation along x barely constrained (variance 100 times the others)."""
+    rotation = motion(30.0, (0, 0, 0))[:3, :3]
+    block = rotation @ np.diag([1e-2, 1e-4, 1e-4]) @ rotation.T
+    covariance = np.zeros((6, 6))
+    covariance[:3, :3] = block
+    covariance[3:, 3:] = np.eye(3) * 1e-8
+    cfg = CovarianceConfig(degenerate_ratio=10.0, degenerate_translation=0.5)
+    inflation = degenerate_inflation(covariance, cfg)
+    weak = rotation[:, 0]
+    assert np.allclose(inflation[:3, :3], 0.25 * np.outer(weak, weak), atol=1e-9)
+    assert np.allclose(inflation[3:, 3:], 0.0)  # the rotation block is well conditioned
+    assert np.allclose(degenerate_inflation(covariance, CovarianceConfig()), 0.0)
+
+
+@pytest.mark.parametrize('seed', [0, 1])
+def test_errors_drawn_from_the_true_covariance_have_a_chi_square_nees(seed: int) -> None:
+    """The Hessian claims 20 times too little; the scale 20 calibration makes it consistent."""
+    rng = np.random.default_rng(seed)
+    samples = []
+    for _ in range(400):
+        axes = np.linalg.qr(rng.normal(size=(6, 6)))[0]
+        truth = axes @ np.diag(rng.uniform(1e-5, 1e-3, 6)) @ axes.T
+        error = rng.multivariate_normal(np.zeros(6), truth)
+        samples.append(CovarianceSample(error, truth / 20.0))
+    before = nees_summary(nees_values(samples, 1.0, CovarianceConfig()))
+    after = nees_summary(nees_values(samples, 20.0, CovarianceConfig()))
+    assert before['nees_mean'] > 80.0
+    assert 5.0 < after['nees_mean'] < 7.0
+    assert 92.0 < after['inside_95_pct'] < 98.0 and NEES_BOUND_95 == pytest.approx(12.59, 0.01)
+    scale, cfg, _ = fit_calibration(
+        {'all': samples},
+        {
+            'scale': (1.0, 5.0, 20.0, 80.0),
+            'floor_translation': (0.0, 0.1),
+            'floor_rotation': (0.0,),
+            'per_metre_translation': (0.0,),
+            'per_metre_rotation': (0.0,),
+            'per_degree_translation': (0.0,),
+            'per_degree_rotation': (0.0,),
+        },
+    )
+    assert scale == 20.0 and cfg.floor_translation == 0.0
+
+
+def test_samples_survive_a_round_trip(tmp_path) -> None:
+    samples = [CovarianceSample(np.arange(6.0), np.eye(6), 3.0, 4.0)]
+    save_samples(tmp_path / 's.npz', samples)
+    (back,) = load_samples(tmp_path / 's.npz')
+    assert np.array_equal(back.error, np.arange(6.0)) and (back.distance, back.turn_deg) == (3, 4)
+
+
+def test_the_odometry_publishes_the_calibrated_covariance() -> None:
+    world, labels = street_scene(seed=3)
+    floor = {'covariance.floor_translation': 0.05, 'covariance.floor_rotation': 0.5}
+    steps = {}
+    for name, overrides in (('plain', {}), ('calibrated', floor)):
+        odometry = Odometry(Registration(RegistrationConfig().replace(overrides)))
+        for k in range(3):
+            pose = motion(0.0, (1.0 * k, 0.0, 0.0))
+            points, scan_labels = scan_at(world, labels, pose, seed=10 + k, max_points=15000)
+            step = odometry.process(points, scan_labels, k * 100_000_000)
+        assert step.accepted
+        steps[name] = step
+    plain, calibrated = steps['plain'].frame_covariance, steps['calibrated'].frame_covariance
+    added = np.diag([0.05**2] * 3 + [np.radians(0.5) ** 2] * 3)
+    assert np.allclose(calibrated, plain + added, rtol=1e-3, atol=1e-9)

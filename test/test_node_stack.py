@@ -1,0 +1,204 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+mlsemreg_node's continuous output with the real rclpy (ros/outputs.py).
+
+A refused scan still publishes odometry from the core's prediction with an inflated
+covariance (and nothing on ``mlsemreg/transform``); ``mlsemreg/cloud_registered`` carries
+the scan in ``odom``; the ``/diagnostics`` heartbeat says ``no input for N s``. The scans
+are one synthetic street seen from a sensor that drives 0.5 m per 0.1 s along x; the
+refused scan is uniform noise.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import Any
+
+from mlsemreg_ros.codec.pointcloud2 import pointcloud2_to_arrays
+from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
+from mlsemreg_ros.ros.probe import node_and_probe, NodeProbe, to_stamp
+import numpy as np
+from pose_messages import pose_message, pose_of, publish_pose, yawed
+import pytest
+from ros_domains import domain_id
+from scipy.spatial import cKDTree
+
+pytestmark = pytest.mark.usefixtures('rclpy_module')  # skip without rclpy (conftest.py)
+
+DOMAIN_ID = domain_id('node_stack')
+TIMEOUT_S = 60.0
+STEP_M = 0.5  # the sensor's motion per scan along x
+_stamps = itertools.count(100)
+
+
+@pytest.fixture(scope='module')
+def ros() -> Any:
+    from sensor_msgs.msg import PointCloud2
+
+    args = ['--ros-args', '-p', 'keypoints.count:=1500']
+    with node_and_probe(DOMAIN_ID, args) as (node, probe):
+        probe.received['cloud_registered'] = []
+        probe.node.create_subscription(
+            PointCloud2, 'mlsemreg/cloud_registered', probe._recorder('cloud_registered'), 10
+        )
+        yield node, probe
+
+
+@pytest.fixture(scope='module')
+def street() -> tuple[np.ndarray, np.ndarray]:
+    pair = synthetic_pair(seed=0)
+    return pair.pts_dst, pair.label_dst.astype(np.uint32)
+
+
+@pytest.fixture
+def probe(ros: Any) -> NodeProbe:
+    _, probe = ros
+    assert probe.reset()
+    assert all(r.successful for r in probe.set_parameters({'publish_predicted_on_refusal': True}))
+    return probe
+
+
+def send(probe: NodeProbe, points: np.ndarray, labels: np.ndarray) -> tuple[Any, dict]:
+    stamp = to_stamp(next(_stamps) * 0.1)
+    probe.publish(probe.cloud(points, labels, stamp))
+    status = probe.status_for(stamp, TIMEOUT_S)
+    assert status is not None, 'no diagnostics for the scan'
+    return stamp, status
+
+
+def drive(probe: NodeProbe, street: tuple[np.ndarray, np.ndarray], scans: int) -> list[Any]:
+    """Send the street from x = 0, STEP_M, ...; every scan must be accepted."""
+    points, labels = street
+    stamps = []
+    for k in range(scans):
+        stamp, status = send(probe, points - [k * STEP_M, 0.0, 0.0], labels)
+        assert status['level'] == 0, status['message']
+        stamps.append(stamp)
+    return stamps
+
+
+def noise(street: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(0)
+    labels = rng.choice(np.unique(street[1]), 3000).astype(np.uint32)
+    return rng.uniform(-30.0, 30.0, (3000, 3)), labels
+
+
+def covariance(msg: Any) -> np.ndarray:
+    return np.asarray(msg.pose.covariance).reshape(6, 6)
+
+
+def test_a_refused_scan_publishes_the_predicted_odometry_with_inflated_covariance(
+    probe: NodeProbe, street: Any
+) -> None:
+    stamps = drive(probe, street, 4)
+    last = probe.wait_for('odometry', stamps[-1], 5.0)
+    assert last is not None
+    stamp, status = send(probe, *noise(street))
+    assert status['level'] == 1 and 'frame rejected' in status['message'], status['message']
+    assert status['published'] == 'prediction', status
+    assert 'from the prediction' in status['message']
+    msg = probe.wait_for('odometry', stamp, 5.0)
+    assert msg is not None, 'no odometry for the refused scan'
+    position = msg.pose.pose.position
+    expected_x = 4 * STEP_M  # constant velocity: one more step
+    assert abs(position.x - expected_x) < 0.1 and abs(position.y) < 0.1, position
+    before, after = np.diag(covariance(last)), np.diag(covariance(msg))
+    assert np.all(after > before), (before, after)
+    assert after[0] >= (0.2 * STEP_M) ** 2  # at least the model's error of one step
+    assert probe.wait_for('transform', stamp, 1.0) is None, 'a refused scan on transform'
+
+
+def test_publish_predicted_on_refusal_false_publishes_nothing(
+    probe: NodeProbe, street: Any
+) -> None:
+    assert all(r.successful for r in probe.set_parameters({'publish_predicted_on_refusal': False}))
+    drive(probe, street, 4)
+    stamp, status = send(probe, *noise(street))
+    assert status['published'] == 'nothing', status
+    assert probe.wait_for('odometry', stamp, 1.0) is None
+
+
+def test_cloud_registered_is_the_scan_in_odom(probe: NodeProbe, street: Any) -> None:
+    stamps = drive(probe, street, 3)
+    msg = probe.wait_for('cloud_registered', stamps[-1], 5.0)
+    assert msg is not None, 'no mlsemreg/cloud_registered'
+    assert msg.header.frame_id == 'odom'
+    cloud = pointcloud2_to_arrays(msg, 'label')
+    assert cloud.xyz.shape[0] > 1000
+    # moved by the pose (x = 2 STEP_M), the points are the street's again
+    distances, _ = cKDTree(street[0]).query(cloud.xyz)
+    assert np.median(distances) < 0.05, np.median(distances)
+    unmoved, _ = cKDTree(street[0]).query(cloud.xyz - [2 * STEP_M, 0.0, 0.0])
+    assert np.median(unmoved) > 0.2  # the check can tell a pose that was not applied
+
+
+@pytest.mark.parametrize('topic', ['mlsemreg/set_pose', '/initialpose'])
+def test_a_pose_without_a_map_sets_the_odometry_pose(
+    probe: NodeProbe, street: Any, topic: str
+) -> None:
+    drive(probe, street, 2)  # somewhere else first
+    given = yawed(10.0, 5.0, 30.0)
+    publish_pose(probe, topic, pose_message('odom', given))
+    stamps = drive(probe, street, 2)
+    first = probe.wait_for('odometry', stamps[0], 5.0)
+    assert first is not None
+    np.testing.assert_allclose(pose_of(first), given, atol=1e-3)
+    second = probe.wait_for('odometry', stamps[1], 5.0)
+    expected = given.copy()
+    expected[:3, 3] += given[:3, :3] @ [STEP_M, 0.0, 0.0]  # driven on from there
+    np.testing.assert_allclose(pose_of(second)[:3, 3], expected[:3, 3], atol=0.1)
+
+
+def test_a_pose_in_an_unknown_frame_is_refused(probe: NodeProbe, street: Any) -> None:
+    drive(probe, street, 1)
+    publish_pose(probe, 'mlsemreg/set_pose', pose_message('velodyne', yawed(10.0, 5.0, 30.0)))
+    stamps = drive(probe, street, 2)
+    msg = probe.wait_for('odometry', stamps[1], 5.0)
+    assert abs(pose_of(msg)[0, 3] - STEP_M) < 0.1  # the odometry went on, not restarted
+
+
+def test_reset_keeps_the_pose_when_asked(probe: NodeProbe, street: Any) -> None:
+    drive(probe, street, 3)  # at x = 2 STEP_M (the fixture's reset applied at identity)
+    assert all(r.successful for r in probe.set_parameters({'reset_keeps_pose': True}))
+    try:
+        assert probe.reset()
+        stamp = drive(probe, street, 1)[0]
+        msg = probe.wait_for('odometry', stamp, 5.0)
+        assert abs(pose_of(msg)[0, 3] - 2 * STEP_M) < 0.05
+    finally:
+        assert all(r.successful for r in probe.set_parameters({'reset_keeps_pose': False}))
+    assert probe.reset()
+    stamp = drive(probe, street, 1)[0]
+    msg = probe.wait_for('odometry', stamp, 5.0)
+    np.testing.assert_allclose(pose_of(msg), np.eye(4), atol=1e-9)
+
+
+def test_the_heartbeat_says_no_input(ros: Any) -> None:
+    _, probe = ros
+
+    def heartbeat() -> Any:
+        for _, msg in reversed(probe.received['diagnostics']):
+            for status in msg.status:
+                if status.name.endswith(': heartbeat') and status.message.startswith(
+                    'no input for'
+                ):
+                    return status
+        return None
+
+    status = probe.wait_until(heartbeat, 10.0)
+    assert status is not None, 'no heartbeat saying "no input for N s"'
+    values = {kv.key: kv.value for kv in status.values}
+    assert float(values['seconds_since_input']) >= 1.0
