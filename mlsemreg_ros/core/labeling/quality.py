@@ -75,11 +75,6 @@ class LabelQuality:
     unlabeled: bool  # matched and judged as unlabeled
     diagnostics: dict[str, Any] = field(default_factory=dict)
 
-    def as_unlabeled(self) -> LabelQuality:
-        """The same judgement, to be matched and judged as unlabeled (the fallback)."""
-        diagnostics = {**self.diagnostics, 'labels_judged_unlabeled': True, 'label_weight': 0.0}
-        return replace(self, weight=0.0, unlabeled=True, diagnostics=diagnostics)
-
     @property
     def widen(self) -> bool:
         """Whether Group Matching widens: poorer labels (0 < weight < FULL_WEIGHT)."""
