@@ -106,6 +106,11 @@ def default_stages() -> list[Stage]:
     ]
 
 
+#: A refused pair with poorer labels takes the unlabeled result only with this many times
+#: estimator.min_inliers (docs/labels.md).
+FALLBACK_INLIER_FACTOR = 3
+
+
 class Registration:
     """
     ML-SemReg + SC2-PCR registration of labeled scans, configured once.
@@ -340,10 +345,30 @@ class Registration:
             quality.unlabeled_view(target, wildcard),
             refine,
         )
-        if not plain.success:
+        strong = plain.num_inliers >= FALLBACK_INLIER_FACTOR * self.config.estimator.min_inliers
+        if not (plain.success and strong) or self._labels_refuse(
+            source, target, plain.transform, judged
+        ):
             return result
         plain.diagnostics['labels_fallback_unlabeled'] = True
         return plain
+
+    def _labels_refuse(
+        self, source: PreparedScan, target: PreparedScan, transform: np.ndarray, judged: Any
+    ) -> str:
+        """
+        Why the labels refuse a pose the unlabeled fallback accepted ('' if they do not).
+
+        The fallback's pose must pass the weighed label check too
+        (core/estimation/label_model.py ``label_refusal``), and have
+        ``FALLBACK_INLIER_FACTOR`` times ``estimator.min_inliers`` inliers: on the 40 m GEDI
+        dev pairs the unlabeled judgement (``--labels none`` too) accepts a pose 42 m off
+        with 84 inliers and a higher label agreement than the truth; the right fallbacks
+        of the 20 m pairs have 155-371.
+        """
+        evidence, _ = self.judge(source, target, transform)
+        conf = judged.config(self.config).confidence
+        return label_model.label_refusal(evidence.label_agreement, evidence.label_ceiling, conf)
 
     def _run_stages(
         self, source: PreparedScan, target: PreparedScan, refine: bool
