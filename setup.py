@@ -79,6 +79,7 @@ setup(
             'mlsemreg-fuzz-node = mlsemreg_ros.tools.fuzz_node:main',
             'mlsemreg-cut-pairs = mlsemreg_ros.tools.cut_pairs:main',
             'mlsemreg-chain-pairs = mlsemreg_ros.tools.chain_pairs:main',
+            'mlsemreg-bench-labels = mlsemreg_ros.tools.bench_labels:main',
             'mlsemreg-label-noise-sweep = mlsemreg_ros.tools.label_noise_sweep:main',
             'mlsemreg-params = mlsemreg_ros.tools.params:main',
             'mlsemreg-relocalize = mlsemreg_ros.tools.relocalize:main',

@@ -80,15 +80,10 @@ def test_geometric_labels_are_weighed_by_their_trust(scene) -> None:
     assert result.diagnostics['label_pair_source'] == 'geometric'
 
 
-def test_poorer_labels_relax_the_label_checks() -> None:
-    config = RegistrationConfig()
-    judged = quality.LabelQuality(0.5, 0.9, 'geometric', False)
-    relaxed = judged.config(config).confidence
-    assert relaxed.min_relative_agreement < config.confidence.min_relative_agreement
-    assert relaxed.contradicting_objects == 0
-    assert judged.widen
-    full = quality.LabelQuality(1.0, 0.95, 'field', False)
-    assert full.config(config) is config and not full.widen
+def test_only_poorer_labels_widen_and_are_judged_as_unlabeled() -> None:
+    assert quality.LabelQuality(0.5, 0.9, 'geometric', False).widen
+    assert not quality.LabelQuality(0.8, 0.95, 'field', False).widen
+    assert not quality.LabelQuality(0.0, 0.5, 'field', True).widen
 
 
 def test_widened_correspondences_are_the_union_without_duplicates() -> None:

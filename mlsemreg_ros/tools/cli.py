@@ -28,6 +28,7 @@ from typing import Annotated
 
 from mlsemreg_ros.tools import (
     bench,
+    bench_labels,
     bench_node,
     chain_pairs,
     confidence,
@@ -158,6 +159,7 @@ for module, function, name, panel in (
     (kitti_to_bag, kitti_to_bag.kitti_to_bag, 'kitti-to-bag', DATA),
     (cut_pairs, cut_pairs.cut_pairs, 'cut-pairs', DATA),
     (chain_pairs, chain_pairs.chain_pairs, 'chain-pairs', DATA),
+    (bench_labels, bench_labels.bench_labels, 'bench-labels', EVALUATION),
     (play, play.play, 'play', DATA),
     (params, params.params, 'params', MAINTENANCE),
 ):

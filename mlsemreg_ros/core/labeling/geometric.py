@@ -52,7 +52,8 @@ from mlsemreg_ros.core.features import kernels
 from mlsemreg_ros.core.labeling import geometric_kernels as gk
 from mlsemreg_ros.core.labeling.geometric_config import GeometricLabelsConfig
 import numpy as np
-from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 
 # SemanticKITTI raw ids (config/labels/semantic_kitti.yaml)
 UNLABELED, CAR, ROAD, BUILDING = 0, 10, 40, 50
@@ -189,7 +190,7 @@ class GeometricLabeler:
     def _above_ground(
         self, points: np.ndarray, height: np.ndarray, ground: np.ndarray, raw: np.ndarray
     ) -> None:
-        """Label the points above the ground in ``raw`` (building, fence, pole, ...)."""
+        """Label the points above the ground in ``raw`` (building, pole, vehicle, ...)."""
         cfg = self.config
         reach = np.einsum('ij,ij->i', points[:, :2], points[:, :2]) < cfg.max_range**2
         rows = np.flatnonzero(~ground & (height >= cfg.ground_distance) & reach)
@@ -206,28 +207,19 @@ class GeometricLabeler:
         described = counts[inverse] >= 3
         linear, scatter = per_point[:, 0], per_point[:, 2]
         normal_z, axis_z = per_point[:, 3], per_point[:, 4]
-        # columns of a dense ground grid around the sensor
-        side = math.ceil(2.0 * cfg.max_range / cfg.cell_size)
-        ix = np.floor((above[:, 0] + cfg.max_range) / cfg.cell_size).astype(np.int64)
-        iy = np.floor((above[:, 1] + cfg.max_range) / cfg.cell_size).astype(np.int64)
-        column = np.where((ix >= 0) & (ix < side) & (iy >= 0) & (iy < side), ix * side + iy, -1)
+        is_scatter = described & (scatter >= SCATTER)
+        # the occupied columns of the ground grid (only those: no dense raster)
+        columns = Columns.of(above, cfg.cell_size)
         everything = np.ones(rows.shape[0], dtype=bool)
-        top, base = gk.column_extent(column, h, everything, side * side)
-        canopy, _ = gk.column_extent(column, h, described & (scatter >= SCATTER), side * side)
-        inside = column >= 0
-        column_canopy = np.where(inside, canopy[np.maximum(column, 0)], -np.inf)
+        top, base = gk.column_extent(columns.index, h, everything, columns.count)
+        canopy, _ = gk.column_extent(columns.index, h, is_scatter, columns.count)
+        column_canopy = canopy[columns.index]
 
         labels = np.full(rows.shape[0], UNLABELED, dtype=np.uint32)
-        is_scatter = described & (scatter >= SCATTER)
         labels[described] = VEGETATION  # scatter, and what no rule below claims
         # vertical lines standing alone: few occupied columns in their 3 x 3 neighbourhood
-        occupied = np.zeros(side * side, dtype=np.float64)
-        occupied[column[inside]] = 1.0
-        crowd = ndimage.uniform_filter(
-            occupied.reshape(side, side), size=3, mode='constant'
-        ).reshape(-1)
-        alone = np.zeros(rows.shape[0], dtype=bool)
-        alone[inside] = 9.0 * crowd[column[inside]] <= ALONE + 0.5
+        crowd = columns.window_sum(np.ones(columns.count), 1)
+        alone = crowd[columns.index] <= ALONE
         line = described & ~is_scatter & (linear >= LINEAR) & (axis_z >= VERTICAL_AXIS) & alone
         surface = described & ~is_scatter & ~line
         labels[surface & (normal_z < VERTICAL_NORMAL)] = BUILDING
@@ -237,7 +229,7 @@ class GeometricLabeler:
         labels[standing] = np.where(
             column_canopy[standing] >= h[standing] + TRUNK_CANOPY, TRUNK, POLE
         )
-        vehicle = self._vehicles(top, base, column, scatter, described, side)
+        vehicle = self._vehicles(columns, top, base, scatter, described)
         labels[vehicle & (h >= cfg.ground_distance)] = CAR
         raw[rows] = labels
 
@@ -251,65 +243,128 @@ class GeometricLabeler:
         with at most ``POLE_RING_SHARE`` of the core's band points in the ring of columns
         around the core (5 x 5 minus 3 x 3).
         """
-        cfg = self.config
-        side = math.ceil(2.0 * cfg.max_range / POLE_CELL)
-        ix = np.floor((above[:, 0] + cfg.max_range) / POLE_CELL).astype(np.int64)
-        iy = np.floor((above[:, 1] + cfg.max_range) / POLE_CELL).astype(np.int64)
-        inside = (ix >= 0) & (ix < side) & (iy >= 0) & (iy < side)
-        column = np.where(inside, ix * side + iy, 0)
-        band = inside & (h >= POLE_BAND[0]) & (h <= POLE_BAND[1])
-        counts = np.bincount(column[band], minlength=side * side).astype(np.float64)
-        low, high = gk.column_extent(np.where(band, column, -1), h, band, side * side)[::-1]
-        grid = counts.reshape(side, side)
-        core = ndimage.uniform_filter(grid, size=3, mode='constant') * 9.0
-        wide = ndimage.uniform_filter(grid, size=5, mode='constant') * 25.0
-        occupied = ndimage.uniform_filter((grid > 0).astype(np.float64), size=3, mode='constant')
+        band = (h >= POLE_BAND[0]) & (h <= POLE_BAND[1])
+        if not band.any():
+            return np.zeros(h.shape[0], dtype=bool)
+        columns = Columns.of(above, POLE_CELL)
+        counts = np.bincount(columns.index[band], minlength=columns.count).astype(np.float64)
+        high, low = gk.column_extent(columns.index, h, band, columns.count)
+        core = columns.window_sum(counts, 1)
+        wide = columns.window_sum(counts, 2)
+        occupied = columns.window_sum((counts > 0).astype(np.float64), 1)
         candidate = (
             (high - low >= POLE_MIN_EXTENT)
             & (low <= POLE_MAX_BASE)
-            & (9.0 * occupied.reshape(-1) <= POLE_CORE + 0.5)
-            & ((wide - core).reshape(-1) <= POLE_RING_SHARE * core.reshape(-1))
+            & (occupied <= POLE_CORE)
+            & (wide - core <= POLE_RING_SHARE * core)
         )
-        # the candidate's own and its occupied neighbour columns, every height
-        grown = ndimage.binary_dilation(
-            candidate.reshape(side, side), structure=np.ones((3, 3), dtype=bool)
-        ).reshape(-1)
-        return inside & grown[column] & (counts[column] > 0)
+        # the candidate's own and its neighbour columns with band points, every height
+        grown = columns.window_sum(candidate.astype(np.float64), 1) > 0
+        return grown[columns.index] & (counts[columns.index] > 0)
 
     def _vehicles(
         self,
+        columns: Columns,
         top: np.ndarray,
         base: np.ndarray,
-        column: np.ndarray,
         scatter: np.ndarray,
         described: np.ndarray,
-        side: int,
     ) -> np.ndarray:
         """Points (of the above-ground rows) in compact, smooth clusters of low columns."""
         cfg = self.config
         low = (top >= VEHICLE_LOW) & (top <= VEHICLE_HIGH) & (base <= VEHICLE_MAX_BASE)
         # only near the sensor: far clusters are too sparse to tell
-        centre = (np.arange(side) + 0.5) * cfg.cell_size - cfg.max_range
-        near = (centre[:, None] ** 2 + centre[None, :] ** 2) <= VEHICLE_RANGE**2
-        raster = low.reshape(side, side) & near
-        clusters, count = ndimage.label(raster, structure=np.ones((3, 3), dtype=bool))
+        centre = (columns.cells + 0.5) * cfg.cell_size
+        low &= np.einsum('ij,ij->i', centre, centre) <= VEHICLE_RANGE**2
+        cluster = columns.clusters(low)  # -1: not a low column
+        count = int(cluster.max(initial=-1)) + 1
         if count == 0:
-            return np.zeros(column.shape[0], dtype=bool)
-        keep = np.zeros(count + 1, dtype=bool)
-        for index, box in enumerate(ndimage.find_objects(clusters), start=1):
-            sides = sorted((box[0].stop - box[0].start, box[1].stop - box[1].start))
-            width, length = sides[0] * cfg.cell_size, sides[1] * cfg.cell_size
-            keep[index] = (
-                VEHICLE_MIN_LENGTH <= length <= cfg.vehicle_max_length
-                and width <= VEHICLE_MAX_WIDTH
-            )
-        flat_clusters = clusters.reshape(-1)
-        point_cluster = np.where(column >= 0, flat_clusters[np.maximum(column, 0)], 0)
+            return np.zeros(columns.index.shape[0], dtype=bool)
+        members = cluster >= 0
+        ix, iy, which = columns.cells[members, 0], columns.cells[members, 1], cluster[members]
+        lengths = []
+        for axis in (ix, iy):
+            lo = np.full(count, np.iinfo(np.int64).max)
+            hi = np.full(count, np.iinfo(np.int64).min)
+            np.minimum.at(lo, which, axis)
+            np.maximum.at(hi, which, axis)
+            lengths.append((hi - lo + 1) * cfg.cell_size)
+        width, length = np.minimum(*lengths), np.maximum(*lengths)
+        keep = (
+            (length >= VEHICLE_MIN_LENGTH)
+            & (length <= cfg.vehicle_max_length)
+            & (width <= VEHICLE_MAX_WIDTH)
+        )
+        point_cluster = cluster[columns.index]
         # smooth surfaces: the cluster's mean scatter of its described points stays low
-        weights = described.astype(np.float64)
-        total = np.bincount(point_cluster, weights=weights, minlength=count + 1)
-        rough = np.bincount(point_cluster, weights=weights * scatter, minlength=count + 1)
-        smooth = rough <= VEHICLE_MAX_SCATTER * np.maximum(total, 1.0)
-        keep &= smooth
-        keep[0] = False
-        return keep[point_cluster]
+        inside = point_cluster >= 0
+        weights = described[inside].astype(np.float64)
+        total = np.bincount(point_cluster[inside], weights=weights, minlength=count)
+        rough = np.bincount(
+            point_cluster[inside], weights=weights * scatter[inside], minlength=count
+        )
+        keep &= rough <= VEHICLE_MAX_SCATTER * np.maximum(total, 1.0)
+        return inside & keep[np.maximum(point_cluster, 0)]
+
+
+@dataclass
+class Columns:
+    """The occupied columns of a ground grid: integer cells, and the points' column."""
+
+    cells: np.ndarray  # (M, 2) int64 cell of each occupied column (floor(xy / size))
+    keys: np.ndarray  # (M,) int64 sorted linear keys of the cells
+    index: np.ndarray  # (N,) int64 column of every point
+    span: int  # key = (ix + offset) * span + (iy + offset)
+    offset: int
+    neighbours: dict[tuple[int, int], np.ndarray] = field(default_factory=dict)  # cache
+
+    @classmethod
+    def of(cls, points: np.ndarray, size: float) -> Columns:
+        """Columns of ``points`` (N, 3) on a grid of ``size`` metres."""
+        cell = np.floor(points[:, :2] / size).astype(np.int64)
+        offset = int(-cell.min(initial=0)) + 2
+        span = int(cell.max(initial=0)) + offset + 3
+        key = (cell[:, 0] + offset) * span + (cell[:, 1] + offset)
+        keys, first, index = np.unique(key, return_index=True, return_inverse=True)
+        return cls(cell[first], keys, index.reshape(-1), span, offset)
+
+    @property
+    def count(self) -> int:
+        """Return the number of occupied columns."""
+        return int(self.keys.shape[0])
+
+    def _neighbour(self, dx: int, dy: int) -> np.ndarray:
+        """Column of each column's neighbour at ``(dx, dy)`` cells, -1 where unoccupied."""
+        known = self.neighbours.get((dx, dy))
+        if known is None:
+            wanted = self.keys + dx * self.span + dy
+            found = np.minimum(np.searchsorted(self.keys, wanted), self.count - 1)
+            known = self.neighbours[dx, dy] = np.where(self.keys[found] == wanted, found, -1)
+        return known
+
+    def window_sum(self, values: np.ndarray, radius: int) -> np.ndarray:
+        """Sum of ``values`` (M,) over each column's (2 radius + 1)^2 window."""
+        total = np.zeros(self.count)
+        for dx in range(-radius, radius + 1):
+            for dy in range(-radius, radius + 1):
+                neighbour = self._neighbour(dx, dy)
+                total += np.where(neighbour >= 0, values[np.maximum(neighbour, 0)], 0.0)
+        return total
+
+    def clusters(self, member: np.ndarray) -> np.ndarray:
+        """8-connected clusters of the ``member`` columns: (M,) cluster id, -1 for others."""
+        rows, cols = [], []
+        for dx, dy in ((1, -1), (1, 0), (1, 1), (0, 1)):
+            neighbour = self._neighbour(dx, dy)
+            linked = member & (neighbour >= 0)
+            linked[linked] &= member[neighbour[linked]]
+            rows.append(np.flatnonzero(linked))
+            cols.append(neighbour[linked])
+        rows_all, cols_all = np.concatenate(rows), np.concatenate(cols)
+        graph = coo_matrix(
+            (np.ones(rows_all.shape[0]), (rows_all, cols_all)), shape=(self.count, self.count)
+        )
+        _, label = connected_components(graph, directed=False)
+        out = np.full(self.count, -1, dtype=np.int64)
+        _, out[member] = np.unique(label[member], return_inverse=True)
+        return out

@@ -35,6 +35,9 @@ Then:
   and judged as unlabeled. Views of the two scans without labels (every keypoint in
   every group, no landmarks) go through the same pipeline, exactly as ``label_source:
   none`` would give them; before, such a pair was refused outright;
+- **a refused pair with poorer labels** is registered again as unlabeled (the fallback,
+  ``Registration.register``), and that result is taken when it is accepted: what no
+  labels would accept is accepted;
 - **poorer labels** (``w < FULL_WEIGHT``): the label checks give way to the geometric evidence
   (overlap, inliers, rivals). The label agreement needed shrinks to ``1 - (1 - w) *
   LABEL_RELIEF`` of its value (``confidence.min_relative_agreement`` and
