@@ -112,7 +112,7 @@ def subscribed(probe: NodeProbe) -> bool:
 
 
 def topics(node: Any) -> set[str]:
-    """The node's own subscribed and published topics (not the graph's: other test runs)."""
+    """Return the names the node itself subscribes and publishes, not the whole graph's."""
     return {e.topic_name for e in (*node.subscriptions, *node.publishers)}
 
 

@@ -61,9 +61,9 @@ def drive() -> list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]:
 
 def _right(step: Any, truth: np.ndarray) -> bool:
     delta = invert_transform(truth) @ step.pose
-    return rotation_error_deg(delta[:3, :3], np.eye(3)) < 0.5 and np.linalg.norm(
-        delta[:3, 3]
-    ) < 0.1
+    return (
+        rotation_error_deg(delta[:3, :3], np.eye(3)) < 0.5 and np.linalg.norm(delta[:3, 3]) < 0.1
+    )
 
 
 # -- 1. a keyframe must deserve it ----------------------------------------------------------
