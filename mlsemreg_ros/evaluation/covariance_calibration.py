@@ -33,6 +33,7 @@ from mlsemreg_ros.core.alignment.covariance import (
     calibrated_covariance,
     CovarianceConfig,
     motion_size,
+    no_calibration,
 )
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -60,9 +61,7 @@ def pose_error(T_estimate: np.ndarray, T_truth: np.ndarray) -> np.ndarray:
 
 def uncalibrated(config: Any) -> Any:
     """``config`` with covariance scale 1 and no calibration (the samples' covariance)."""
-    return replace(config, covariance=CovarianceConfig()).replace(
-        {'odometry.covariance_scale': 1.0}
-    )
+    return replace(config, covariance=no_calibration()).replace({'odometry.covariance_scale': 1.0})
 
 
 def pair_samples(pair_files: list[Any], config: Any) -> list[CovarianceSample]:
