@@ -123,7 +123,7 @@ class CovarianceConfig:
 
 def no_calibration() -> CovarianceConfig:
     """Return the calibration that adds nothing (the Hessian covariance times the scale)."""
-    return CovarianceConfig(**{name: 0.0 for name in CovarianceConfig.__dataclass_fields__})
+    return CovarianceConfig(**dict.fromkeys(CovarianceConfig.__dataclass_fields__, 0.0))
 
 
 def degenerate_inflation(covariance: np.ndarray, cfg: CovarianceConfig) -> np.ndarray:
