@@ -16,11 +16,14 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 from mlsemreg_ros.core.alignment.covariance import (
     calibrated_covariance,
     CovarianceConfig,
     degenerate_inflation,
     motion_size,
+    no_calibration,
 )
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry import Odometry
@@ -38,10 +41,13 @@ from mlsemreg_ros.evaluation.covariance_calibration import (
 import numpy as np
 import pytest
 
+#: No calibration: the Hessian covariance times the scale.
+OFF = no_calibration()
+
 
 def test_the_default_calibration_only_scales() -> None:
     hessian = np.diag([1e-6, 2e-6, 3e-6, 1e-8, 2e-8, 3e-8])
-    assert np.allclose(calibrated_covariance(hessian, 7.0, CovarianceConfig()), 7.0 * hessian)
+    assert np.allclose(calibrated_covariance(hessian, 7.0, OFF), 7.0 * hessian)
 
 
 def test_the_floor_grows_with_distance_and_turn() -> None:
@@ -52,6 +58,7 @@ def test_the_floor_grows_with_distance_and_turn() -> None:
         per_metre_rotation=0.01,
         per_degree_translation=0.05,
         per_degree_rotation=0.2,
+        degenerate_ratio=0.0,
     )
     covariance = calibrated_covariance(np.zeros((6, 6)), 1.0, cfg, distance=10.0, turn_deg=2.0)
     sigma_t = 0.01 + 0.002 * 10 + 0.05 * 2
@@ -67,11 +74,17 @@ def test_a_weak_direction_of_the_hessian_is_inflated_along_it_only() -> None:
     covariance = np.zeros((6, 6))
     covariance[:3, :3] = block
     covariance[3:, 3:] = np.eye(3) * 1e-8
-    cfg = CovarianceConfig(degenerate_ratio=10.0, degenerate_translation=0.5)
+    cfg = replace(OFF, degenerate_ratio=10.0, degenerate_translation=0.5)
     inflation = degenerate_inflation(covariance, cfg)
     weak = rotation[:, 0]
     assert np.allclose(inflation[:3, :3], 0.25 * np.outer(weak, weak), atol=1e-9)
     assert np.allclose(inflation[3:, 3:], 0.0)  # the rotation block is well conditioned
+    assert np.allclose(degenerate_inflation(covariance, OFF), 0.0)
+    # the default threshold (100) inflates it, and leaves a milder one (ratio 50) alone
+    assert np.allclose(
+        degenerate_inflation(covariance, CovarianceConfig())[:3, :3], inflation[:3, :3]
+    )
+    covariance[:3, :3] = rotation @ np.diag([5e-3, 1e-4, 1e-4]) @ rotation.T
     assert np.allclose(degenerate_inflation(covariance, CovarianceConfig()), 0.0)
 
 
@@ -85,8 +98,8 @@ def test_errors_drawn_from_the_true_covariance_have_a_chi_square_nees(seed: int)
         truth = axes @ np.diag(rng.uniform(1e-5, 1e-3, 6)) @ axes.T
         error = rng.multivariate_normal(np.zeros(6), truth)
         samples.append(CovarianceSample(error, truth / 20.0))
-    before = nees_summary(nees_values(samples, 1.0, CovarianceConfig()))
-    after = nees_summary(nees_values(samples, 20.0, CovarianceConfig()))
+    before = nees_summary(nees_values(samples, 1.0, OFF))
+    after = nees_summary(nees_values(samples, 20.0, OFF))
     assert before['nees_mean'] > 80.0
     assert 5.0 < after['nees_mean'] < 7.0
     assert 92.0 < after['inside_95_pct'] < 98.0 and NEES_BOUND_95 == pytest.approx(12.59, 0.01)
@@ -114,9 +127,10 @@ def test_samples_survive_a_round_trip(tmp_path) -> None:
 
 def test_the_odometry_publishes_the_calibrated_covariance() -> None:
     world, labels = street_scene(seed=3)
-    floor = {'covariance.floor_translation': 0.05, 'covariance.floor_rotation': 0.5}
+    off = {f'covariance.{k}': 0.0 for k in vars(OFF)}
+    floor = {**off, 'covariance.floor_translation': 0.05, 'covariance.floor_rotation': 0.5}
     steps = {}
-    for name, overrides in (('plain', {}), ('calibrated', floor)):
+    for name, overrides in (('plain', off), ('calibrated', floor)):
         odometry = Odometry(Registration(RegistrationConfig().replace(overrides)))
         for k in range(3):
             pose = motion(0.0, (1.0 * k, 0.0, 0.0))

@@ -272,11 +272,11 @@ class OdometryConfig:
         high=1.0,
     )
     covariance_scale: float = param(
-        7.0,
+        3.0,
         'Factor on the pose covariance inv(H) * 2E / (n - 6) of the fine alignment '
-        '(H Hessian, E final error, n inliers). Calibrated on the simulated drives (seeds '
-        '0-2, strides 1-20, 756 frames): the mean NEES of the relative pose errors was 41 '
-        'with factor 1, about 6 (consistent) with 7.',
+        '(H Hessian, E final error, n inliers), before the covariance section adds its '
+        'floors (docs/covariance.md). Fitted with them by mlsemreg covariance-nees on real '
+        'KITTI pairs and field-mode drives (2026-12-04).',
         low=1e-6,
         high=1e6,
     )

@@ -59,7 +59,7 @@ def covariance_nees(
     json_path: JsonOption = None,
 ) -> int:
     """Print the NEES per data set with the uncalibrated and the configured covariance."""
-    from mlsemreg_ros.core.alignment.covariance import CovarianceConfig
+    from mlsemreg_ros.core.alignment.covariance import no_calibration
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.datasets.factory import open_scan_source
     from mlsemreg_ros.datasets.pairs import list_pairs
@@ -97,7 +97,7 @@ def covariance_nees(
     report: dict = {'bound_95': cc.NEES_BOUND_95, 'datasets': {}}
     rows = []
     for name, data in datasets.items():
-        before = cc.nees_summary(cc.nees_values(data, SCALE_BEFORE, CovarianceConfig()))
+        before = cc.nees_summary(cc.nees_values(data, SCALE_BEFORE, no_calibration()))
         after = cc.nees_summary(cc.nees_values(data, scale, calibration))
         report['datasets'][name] = {'before': before, 'after': after}
         rows.append(

@@ -24,7 +24,9 @@
   through the world of ``mlsemreg simulate --seed S`` (the opposite direction in the other
   lane, or a route of another seed kept where it is far from the first drive); in the field
   world ``--deskew odometry`` (the default) runs the odometry over every sweep and writes
-  the scans it deskewed, the points the node relocalizes.
+  the scans it deskewed, the points the node relocalizes;
+- ``mlsemreg map export MAP OUT.pcd|OUT.ply`` and ``mlsemreg map import CLOUD MAP
+  [--trajectory FILE]``: point maps for and from other tools (``tools/map_points.py``).
 """
 
 from __future__ import annotations
@@ -54,7 +56,7 @@ from mlsemreg_ros.tools.map_points import (
 )
 import typer
 
-HELP = 'Keyframe maps: build one from a bag, write relocalization queries.'
+HELP = 'Keyframe maps: build from a bag, export or import point maps (PCD, PLY), write queries.'
 BUILD_HELP = 'Build a map folder (docs/maps.md) from a labeled bag.'
 QUERIES_HELP = 'Write every K-th scan of a bag (with ground truth) as relocalization queries.'
 SIM_QUERIES_HELP = 'Write relocalization queries from a second drive through a simulated world.'

@@ -53,7 +53,7 @@ class CovarianceConfig:
     """Calibration of the fine alignment's pose covariance (docs/covariance.md)."""
 
     floor_translation: float = param(
-        0.0,
+        0.01,
         'Standard deviation added to every axis of the pose covariance (errors the '
         'Hessian does not see: deskew, labels, the keyframe).',
         unit='m',
@@ -61,14 +61,14 @@ class CovarianceConfig:
         high=100.0,
     )
     floor_rotation: float = param(
-        0.0,
+        0.02,
         'Standard deviation added to every rotation axis of the pose covariance.',
         unit='deg',
         low=0.0,
         high=180.0,
     )
     per_metre_translation: float = param(
-        0.0,
+        0.002,
         'Standard deviation added to every translation axis per metre of the motion the '
         'covariance describes (from the keyframe to the scan).',
         unit='m/m',
@@ -91,14 +91,14 @@ class CovarianceConfig:
         high=10.0,
     )
     per_degree_rotation: float = param(
-        0.0,
+        0.1,
         'Standard deviation added to every rotation axis per degree the motion turned.',
         unit='deg/deg',
         low=0.0,
         high=10.0,
     )
     degenerate_ratio: float = param(
-        0.0,
+        100.0,
         'An eigen-direction of the translation or rotation block of the Hessian covariance '
         'is degenerate when its variance exceeds this many times the smallest of its '
         'block (0: no inflation).',
@@ -106,19 +106,24 @@ class CovarianceConfig:
         high=1e12,
     )
     degenerate_translation: float = param(
-        0.0,
+        0.5,
         'Standard deviation added along a degenerate translation direction.',
         unit='m',
         low=0.0,
         high=1000.0,
     )
     degenerate_rotation: float = param(
-        0.0,
+        2.0,
         'Standard deviation added along a degenerate rotation direction.',
         unit='deg',
         low=0.0,
         high=180.0,
     )
+
+
+def no_calibration() -> CovarianceConfig:
+    """Return the calibration that adds nothing (the Hessian covariance times the scale)."""
+    return CovarianceConfig(**dict.fromkeys(CovarianceConfig.__dataclass_fields__, 0.0))
 
 
 def degenerate_inflation(covariance: np.ndarray, cfg: CovarianceConfig) -> np.ndarray:
