@@ -35,6 +35,7 @@ from mlsemreg_ros.evaluation.records import FrameRecord
 from mlsemreg_ros.evaluation.settings import EvaluationConfig
 import pytest
 from ros_domains import domain_id
+from tune_pairs import write_tiny_pair
 
 optuna = pytest.importorskip('optuna')
 DOMAIN_ID = domain_id('params_yaml')  # the node is only started to read its parameters
@@ -245,21 +246,8 @@ def test_storage_urls() -> None:
 # -- the written parameter file ------------------------------------------------------------
 @pytest.fixture(scope='module')
 def pair_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One small generated pair with keypoints and a stand-in 'gedi' descriptor (FPFH)."""
-    from mlsemreg_ros.core.features.features import sample_keypoints
-    from mlsemreg_ros.core.features.fpfh import fpfh_at_keypoints
-    from mlsemreg_ros.datasets.pairs import save_pair
-    from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
-
-    folder = tmp_path_factory.mktemp('pairs')
-    pair = synthetic_pair(0, yaw_deg=6.0, translation=(2.0, 0.5, 0.0), max_points=4000)
-    for side in ('src', 'dst'):
-        pts = getattr(pair, f'pts_{side}')
-        idx = sample_keypoints(pts, 400, 'random', 1.0, 0)
-        setattr(pair, f'kpts_{side}', pts[idx])
-        getattr(pair, f'descriptors_{side}')['gedi'] = fpfh_at_keypoints(pts, idx, 0.9, 1.5, 0.6)
-    save_pair(folder / '000000.npz', pair)
-    return folder
+    """One small generated pair (tune_pairs.py)."""
+    return write_tiny_pair(tmp_path_factory.mktemp('pairs'))
 
 
 @pytest.fixture(scope='module')

@@ -34,6 +34,7 @@ import subprocess
 import tempfile
 
 import pytest
+from tune_pairs import write_tiny_pair
 
 optuna = pytest.importorskip('optuna')
 pytest.importorskip('psycopg', reason='psycopg (PostgreSQL driver) missing: requirements.txt')
@@ -105,21 +106,8 @@ def postgres_url() -> Iterator[str]:
 
 @pytest.fixture(scope='module')
 def pair_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One small generated pair with keypoints and a stand-in 'gedi' descriptor (FPFH)."""
-    from mlsemreg_ros.core.features.features import sample_keypoints
-    from mlsemreg_ros.core.features.fpfh import fpfh_at_keypoints
-    from mlsemreg_ros.datasets.pairs import save_pair
-    from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
-
-    folder = tmp_path_factory.mktemp('pg_pairs')
-    pair = synthetic_pair(0, yaw_deg=6.0, translation=(2.0, 0.5, 0.0), max_points=4000)
-    for side in ('src', 'dst'):
-        pts = getattr(pair, f'pts_{side}')
-        idx = sample_keypoints(pts, 400, 'random', 1.0, 0)
-        setattr(pair, f'kpts_{side}', pts[idx])
-        getattr(pair, f'descriptors_{side}')['gedi'] = fpfh_at_keypoints(pts, idx, 0.9, 1.5, 0.6)
-    save_pair(folder / '000000.npz', pair)
-    return folder
+    """One small generated pair (tune_pairs.py)."""
+    return write_tiny_pair(tmp_path_factory.mktemp('pg_pairs'))
 
 
 @pytest.mark.slow  # a PostgreSQL server and four trials on two spawned workers (~1 min)
