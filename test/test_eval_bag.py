@@ -185,3 +185,48 @@ def test_covariance_is_consistent_on_a_simulated_drive(drive: Path, tmp_path: Pa
         assert summary['registration_recall_pct'] == 100.0
         assert 1.5 <= summary['nees_mean'] <= 15.0, (stride, summary['nees_mean'])
         assert summary['translation_error_cm'] < 2.0 and summary['rotation_error_deg'] < 0.1
+
+
+def test_drop_scans_chooses_a_seeded_round_share_never_the_first() -> None:
+    from mlsemreg_ros.evaluation.drop_scans import degenerate_positions
+
+    for n, share in ((20, 0.2), (20, 0.05), (7, 0.5), (3, 1.0)):
+        chosen = degenerate_positions(n, share, seed=4)
+        assert len(chosen) == min(round(share * n), n - 1)
+        assert 0 not in chosen and max(chosen) < n
+        assert chosen == degenerate_positions(n, share, seed=4)
+    assert degenerate_positions(20, 0.2, 0) != degenerate_positions(20, 0.2, 1)
+    assert degenerate_positions(20, 0.0, 0) == set()
+
+
+def test_drop_scans_recover_within_two_scans_and_leave_p0_unchanged(
+    drive: Path, tmp_path: Path
+) -> None:
+    """
+    --drop-scans 0.2: 4 of 20 scans degenerate, every good scan after one registers within 2.
+
+    RR is over the good scans (100 %), no wrong pose is published, and the degenerate scans
+    are marked in frames.csv; P = 0 gives the summary of a run without the option.
+    """
+    args = [str(drive), '--quiet', '--no-plots', *FAST]
+    assert eval_bag.main([*args, '-o', str(tmp_path / 'p02'), '--drop-scans', '0.2']) == 0
+    summary = json.loads((tmp_path / 'p02' / 'summary.json').read_text())
+    assert summary['degenerate_scans'] == round(0.2 * 20)
+    assert summary['n_frames'] == 20 - summary['degenerate_scans']
+    assert summary['after_degenerate'] >= 1
+    assert summary['recovered_within_2'] == summary['after_degenerate']
+    assert summary['wrong_published'] == 0
+    assert summary['registration_recall_pct'] == 100.0
+    with (tmp_path / 'p02' / 'frames.csv').open() as f:
+        marked = [row for row in csv.DictReader(f) if row['message'].startswith('degenerate')]
+    assert len(marked) == summary['degenerate_scans']
+
+    timing = ('latency_ms_p50', 'latency_ms_p95')
+    summaries = []
+    for name, extra in (('plain', []), ('p0', ['--drop-scans', '0', '--drop-seed', '3'])):
+        assert eval_bag.main([*args, '-o', str(tmp_path / name), *extra]) == 0
+        summaries.append(json.loads((tmp_path / name / 'summary.json').read_text()))
+    assert tuple(summaries[1]) == SUMMARY_KEYS
+    plain, p0 = summaries
+    for key in set(SUMMARY_KEYS) - set(timing):  # multithreaded sums: last digits vary
+        assert p0[key] == (None if plain[key] is None else pytest.approx(plain[key], rel=1e-6))

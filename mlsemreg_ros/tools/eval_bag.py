@@ -161,6 +161,18 @@ def eval_bag(
             'repeatable',
         ),
     ] = None,
+    drop_scans: Annotated[
+        float,
+        typer.Option(
+            metavar='P',
+            min=0.0,
+            max=1.0,
+            help='replace a seeded share P of the scans by degenerate ones (3 points) and count '
+            'the recovery (docs/evaluation.md)',
+            rich_help_panel=DATA,
+        ),
+    ] = 0.0,
+    drop_seed: Annotated[int, typer.Option(help='seed of --drop-scans', rich_help_panel=DATA)] = 0,
 ) -> int:
     """Replay a bag offline through the node's odometry and score it (alias mlsemreg-eval-bag)."""
     from mlsemreg_ros.core.config import RegistrationConfig
@@ -173,6 +185,7 @@ def eval_bag(
         read_kitti_poses,
     )
     from mlsemreg_ros.datasets.source import SourceError
+    from mlsemreg_ros.evaluation import drop_scans as drop
     from mlsemreg_ros.evaluation import peer_runs, reports, tables
     from mlsemreg_ros.evaluation.estimators import OdometryEstimator
     from mlsemreg_ros.evaluation.replay import replay, ReplayOptions
@@ -215,13 +228,18 @@ def eval_bag(
     if imu_topic or wheel_topic:
         estimator = _fed_with_prior(bag, ours, imu_topic, wheel_topic)
     source = open_source()
+    if drop_scans:
+        source = drop.DroppedScans(source, drop_scans, drop_seed)
     try:
         run_ = replay(source, estimator, bounds, options)
     finally:
         source.close()
     if not run_.records:
         raise CommandError('no scans read')
-    summary = summarize_run(run_)
+    if drop_scans:
+        summary = drop.summarize_with_drops(run_, source.degenerate_indices)
+    else:
+        summary = summarize_run(run_)
     deskewed = {run_.method: ours.deskewed_scans}
     details = run_details(
         run_,
@@ -258,6 +276,8 @@ def eval_bag(
     if output is None:
         reports.link_latest(out)
     tables.print_table(tables.sequence_summary_table(summary, run_.method, others))
+    if drop_scans:
+        tables.print_table(drop.recovery_table(summary))
     tables.print_text(
         'deskewed scans (per-point times): '
         + ', '.join(f'{name} {n}/{len(run_.records)}' for name, n in deskewed.items())
