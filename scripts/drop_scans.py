@@ -23,7 +23,10 @@ the scan the odometry started or last re-initialised on). Usage::
     PYTHONPATH=$PWD .venv/bin/python scripts/drop_scans.py BAG [BAG ...] --share 0.2 \\
         [--stride 1] [--seed 100]
 
-(The stress tool of issue 29 is to become ``mlsemreg eval-bag --drop-scans P``.)
+The replacement and the recovery counting are :mod:`mlsemreg_ros.evaluation.drop_scans`'s, as in
+``mlsemreg eval-bag BAG --drop-scans P`` (which replaces exactly ``round(P * n)`` scans and
+judges each scan against its keyframe's truth; this script draws each scan with probability
+P and judges poses from the origin, as the issue 29 table of docs/confidence.md did).
 """
 
 from __future__ import annotations
@@ -31,8 +34,6 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-
-DEGENERATE = np.array([[5.0, 0.0, 0.0], [0.0, 5.0, 0.0], [5.0, 5.0, 1.0]])
 
 
 def run(bag: str, share: float, stride: int, seed: int) -> dict[str, int]:
@@ -42,6 +43,7 @@ def run(bag: str, share: float, stride: int, seed: int) -> dict[str, int]:
     from mlsemreg_ros.core.pipeline import Registration
     from mlsemreg_ros.core.rigid import invert_transform
     from mlsemreg_ros.datasets.factory import open_scan_source
+    from mlsemreg_ros.evaluation.drop_scans import degenerate_scan, recovery_after
 
     scans = list(open_scan_source(bag).scans(stride=stride))
     drop = np.random.default_rng(seed).random(len(scans)) < share
@@ -49,10 +51,11 @@ def run(bag: str, share: float, stride: int, seed: int) -> dict[str, int]:
     odometry = Odometry(Registration())
     origin = None
     kinds: list[tuple[bool, bool]] = []  # (degenerate, registered right)
-    counts = {'good': 0, 'right': 0, 'wrong': 0, 'after': 0, 'within_1': 0, 'within_2': 0}
+    counts = {'good': 0, 'right': 0, 'wrong': 0}
     for k, scan in enumerate(scans):
         if drop[k]:
-            odometry.process(DEGENERATE, np.full(3, 40), scan.stamp_ns)
+            bad = degenerate_scan(scan)
+            odometry.process(bad.xyz, bad.labels, bad.stamp_ns)
             kinds.append((True, False))
             continue
         step = odometry.process(scan.xyz, scan.labels, scan.stamp_ns, point_times=scan.point_times)
@@ -70,11 +73,10 @@ def run(bag: str, share: float, stride: int, seed: int) -> dict[str, int]:
         counts['good'] += 1
         counts['right'] += right
         kinds.append((False, right))
-    for k in range(1, len(kinds)):
-        if not kinds[k][0] and kinds[k - 1][0]:
-            counts['after'] += 1
-            counts['within_1'] += kinds[k][1]
-            counts['within_2'] += any(not d and r for d, r in kinds[k : k + 2])
+    recovery = recovery_after(kinds)
+    counts['after'] = recovery['after_degenerate']
+    counts['within_1'] = recovery['recovered_within_1']
+    counts['within_2'] = recovery['recovered_within_2']
     return counts
 
 

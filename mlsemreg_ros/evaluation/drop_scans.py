@@ -94,30 +94,36 @@ class DroppedScans:
         return getattr(self.source, name)
 
 
-def recovery_counts(records: list[FrameRecord], degenerate: set[int]) -> dict[str, int]:
+def recovery_after(kinds: list[tuple[bool, bool]]) -> dict[str, int]:
     """
-    Count the recovery after degenerate scans in a scored replay.
+    Count the good scans right after a degenerate one and how soon they registered.
 
-    - ``degenerate_scans``: scans replaced;
-    - ``after_degenerate``: good scans right after a degenerate one;
-    - ``recovered_within_1`` / ``recovered_within_2``: of those, the ones that registered
-      within the bounds themselves / that or the next scan (if good) did;
-    - ``wrong_published``: accepted scans outside the bounds, degenerate ones included.
+    ``kinds``: per scan in order, (degenerate, registered right). Returns
+    ``after_degenerate`` and, of those, ``recovered_within_1`` (the scan itself registered)
+    and ``recovered_within_2`` (it or the next scan, if good, did).
     """
-    kinds = [(r.bag_index in degenerate, r.success) for r in records]
-    counts = {
-        'degenerate_scans': sum(d for d, _ in kinds),
-        'after_degenerate': 0,
-        'recovered_within_1': 0,
-        'recovered_within_2': 0,
-        'wrong_published': sum(r.registered and r.accepted and not r.success for r in records),
-    }
+    counts = {'after_degenerate': 0, 'recovered_within_1': 0, 'recovered_within_2': 0}
     for k in range(1, len(kinds)):
         if not kinds[k][0] and kinds[k - 1][0]:
             counts['after_degenerate'] += 1
             counts['recovered_within_1'] += kinds[k][1]
             counts['recovered_within_2'] += any(not d and ok for d, ok in kinds[k:][:2])
     return counts
+
+
+def recovery_counts(records: list[FrameRecord], degenerate: set[int]) -> dict[str, int]:
+    """
+    Count the recovery after degenerate scans in a scored replay.
+
+    ``degenerate_scans`` (scans replaced), the counts of :func:`recovery_after` (registered
+    right = accepted within the success bounds) and ``wrong_published`` (accepted scans
+    outside the bounds, degenerate ones included).
+    """
+    return {
+        'degenerate_scans': sum(r.bag_index in degenerate for r in records),
+        **recovery_after([(r.bag_index in degenerate, r.success) for r in records]),
+        'wrong_published': sum(r.registered and r.accepted and not r.success for r in records),
+    }
 
 
 def good_scans_only(run: EvalRun, degenerate: set[int]) -> EvalRun:
