@@ -19,9 +19,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
-from mlsemreg_ros.core.maps.map_io import load_map, save_map
+from mlsemreg_ros.codec.poses import transform_message_to_matrix
+from mlsemreg_ros.core.maps.map_io import load_map
 from mlsemreg_ros.core.metrics import rotation_error_deg
 from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
@@ -29,33 +28,17 @@ from mlsemreg_ros.ros.probe import node_and_probe, NodeProbe, to_stamp
 import numpy as np
 import pytest
 from ros_domains import domain_id
+from street_map import STREET_SEED, write_street_map
 
 pytestmark = pytest.mark.usefixtures('rclpy_module')  # skip without rclpy (conftest.py)
 
-STREET_SEED = 3
 TIMEOUT_S = 120.0
-
-
-def _matrix(transform: Any) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    t, q = transform.translation, transform.rotation
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    out[:3, 3] = [t.x, t.y, t.z]
-    return out
 
 
 @pytest.fixture(scope='module')
 def map_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Write a map of the synthetic street: five keyframes 15 m apart."""
-    store = KeyframeStore(RegistrationConfig())
-    world, labels = street_scene(seed=STREET_SEED)
-    for k, x in enumerate((-30.0, -15.0, 0.0, 15.0, 30.0)):
-        pose = motion(5.0 * k, (x, 0.3 * k, 0.0))
-        points, scan_labels = scan_at(world, labels, pose, seed=200 + k, max_points=15000)
-        store.add(points, scan_labels, pose, k)
-    return save_map(tmp_path_factory.mktemp('maps') / 'street', store, 'map')
+    return write_street_map(tmp_path_factory.mktemp('maps') / 'street')
 
 
 @pytest.fixture(scope='module')
@@ -95,14 +78,14 @@ def test_a_node_started_with_a_map_publishes_map_to_odom(ros: Any) -> None:
     assert found is not None, 'no mlsemreg/map_pose for a scan of the map'
     assert (found.header.frame_id, found.child_frame_id) == ('map', 'odom')
     # the first scan is the odom origin: T_map_odom is the scan's pose in the map
-    error = invert_transform(truth) @ _matrix(found.transform)
+    error = invert_transform(truth) @ transform_message_to_matrix(found.transform)
     assert np.linalg.norm(error[:3, 3]) < 0.3
     assert rotation_error_deg(error[:3, :3], np.eye(3)) < 2.0
     # localized: the next scan is tracked by the odometry and map -> odom keeps holding
     stamp = _send(probe, truth @ motion(2.0, (1.0, 0.0, 0.0)), 10.1, seed=902)
     again = probe.wait_for('map_pose', stamp, 10.0)
     assert again is not None
-    assert np.linalg.norm(_matrix(again.transform)[:3, 3] - truth[:3, 3]) < 0.3
+    assert np.linalg.norm(transform_message_to_matrix(again.transform)[:3, 3] - truth[:3, 3]) < 0.3
 
 
 def test_save_map_writes_the_loaded_map(ros: Any, map_folder: Path) -> None:

@@ -25,9 +25,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
-from mlsemreg_ros.core.maps.map_io import save_map
+from mlsemreg_ros.codec.poses import transform_message_to_matrix
 from mlsemreg_ros.core.metrics import rotation_error_deg
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 from mlsemreg_ros.ros.probe import node_and_probe, NodeProbe, to_stamp
@@ -35,32 +33,17 @@ import numpy as np
 from pose_messages import pose_message, pose_of, publish_pose
 import pytest
 from ros_domains import domain_id
+from street_map import STREET_SEED, write_street_map
 
 pytestmark = pytest.mark.usefixtures('rclpy_module')  # skip without rclpy (conftest.py)
 
-STREET_SEED = 3
 TIMEOUT_S = 120.0
-
-
-def _matrix(transform: Any) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    t, q = transform.translation, transform.rotation
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    out[:3, 3] = [t.x, t.y, t.z]
-    return out
 
 
 @pytest.fixture(scope='module')
 def map_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    store = KeyframeStore(RegistrationConfig())
-    world, labels = street_scene(seed=STREET_SEED)
-    for k, x in enumerate((-30.0, -15.0, 0.0, 15.0, 30.0)):
-        pose = motion(5.0 * k, (x, 0.3 * k, 0.0))
-        points, scan_labels = scan_at(world, labels, pose, seed=200 + k, max_points=15000)
-        store.add(points, scan_labels, pose, k)
-    return save_map(tmp_path_factory.mktemp('maps') / 'street', store, 'map')
+    """Write a map of the synthetic street: five keyframes 15 m apart."""
+    return write_street_map(tmp_path_factory.mktemp('maps') / 'street')
 
 
 @pytest.fixture(scope='module')
@@ -93,7 +76,7 @@ def map_pose_of(probe: NodeProbe, stamp: Any, timeout: float = 10.0) -> np.ndarr
     odometry = probe.wait_for('odometry', stamp, timeout)
     if found is None or odometry is None:
         return None
-    return _matrix(found.transform) @ pose_of(odometry)
+    return transform_message_to_matrix(found.transform) @ pose_of(odometry)
 
 
 def assert_at(estimate: np.ndarray | None, truth: np.ndarray) -> None:

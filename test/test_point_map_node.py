@@ -17,9 +17,9 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 from mlsemreg_ros.codec.pose_files import write_tum_poses
+from mlsemreg_ros.codec.poses import transform_message_to_matrix
 from mlsemreg_ros.core.maps.cloud_files import write_cloud
 from mlsemreg_ros.core.metrics import rotation_error_deg
 from mlsemreg_ros.core.rigid import invert_transform
@@ -29,22 +29,12 @@ from mlsemreg_ros.tools.cli import app
 import numpy as np
 import pytest
 from ros_domains import domain_id
+from street_map import STREET_SEED
 from typer.testing import CliRunner
 
 pytestmark = pytest.mark.usefixtures('rclpy_module')  # skip without rclpy (conftest.py)
 
-STREET_SEED = 3
 TIMEOUT_S = 120.0
-
-
-def _matrix(transform: Any) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    t, q = transform.translation, transform.rotation
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    out[:3, 3] = [t.x, t.y, t.z]
-    return out
 
 
 @pytest.fixture(scope='module')
@@ -90,6 +80,6 @@ def test_a_node_localizes_in_an_imported_point_map(imported_map: Path) -> None:
         found = probe.wait_for('map_pose', stamp, 10.0)
         assert found is not None, 'no mlsemreg/map_pose in the imported map'
         assert (found.header.frame_id, found.child_frame_id) == ('map', 'odom')
-        error = invert_transform(truth) @ _matrix(found.transform)
+        error = invert_transform(truth) @ transform_message_to_matrix(found.transform)
         assert np.linalg.norm(error[:3, 3]) < 0.3
         assert rotation_error_deg(error[:3, :3], np.eye(3)) < 2.0

@@ -1,0 +1,34 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""The keyframe map of the synthetic street that the map-node tests localize in."""
+
+from pathlib import Path
+
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
+from mlsemreg_ros.core.maps.map_io import save_map
+from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
+
+STREET_SEED = 3
+
+
+def write_street_map(folder: Path) -> Path:
+    """Write a map of the synthetic street to ``folder``: five keyframes 15 m apart."""
+    store = KeyframeStore(RegistrationConfig())
+    world, labels = street_scene(seed=STREET_SEED)
+    for k, x in enumerate((-30.0, -15.0, 0.0, 15.0, 30.0)):
+        pose = motion(5.0 * k, (x, 0.3 * k, 0.0))
+        points, scan_labels = scan_at(world, labels, pose, seed=200 + k, max_points=15000)
+        store.add(points, scan_labels, pose, k)
+    return save_map(folder, store, 'map')
