@@ -92,10 +92,14 @@ def test_the_default_stages_run_in_order_and_each_is_timed_by_the_loop(prepared)
         'estimator',
         'verification',
         'confidence',
+        'objects',
         'bev_search',
+        'bev_search_swapped',
         'guided',
         'full_graph',
         'polish',
+        'covisibility',
+        'level_check',
         'fine',
     ]
     result = registration.register(source, target)
