@@ -95,6 +95,7 @@ def test_the_default_stages_run_in_order_and_each_is_timed_by_the_loop(prepared)
         'objects',
         'bev_search',
         'bev_search_swapped',
+        'far_search',
         'guided',
         'full_graph',
         'polish',

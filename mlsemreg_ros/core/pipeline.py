@@ -50,6 +50,7 @@ from mlsemreg_ros.core.stages.confidence import ConfidenceStage, consider
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
 from mlsemreg_ros.core.stages.covisibility import CovisibilityStage
 from mlsemreg_ros.core.stages.estimation import EstimationStage
+from mlsemreg_ros.core.stages.far_search import FarSearchStage
 from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
 from mlsemreg_ros.core.stages.label_quality import LabelQualityStage
 from mlsemreg_ros.core.stages.levelling import LevelCheckStage
@@ -105,6 +106,7 @@ def default_stages() -> list[Stage]:
         ObjectStage(),  # 5a. refused or weak: the object hypotheses, 4-DoF in levelled frames
         BevSearchStage(),  # 5. refused or weak: the semantic bird's-eye-view search
         SwappedSearchStage(),  # 5b. still refused: the BEV search from the target's side
+        FarSearchStage(),  # 5c. still refused: the BEV search on the far fields, polished
         GuidedStage(),  # 6. still refused: guided re-matching around the searched peaks,
         FullGraphStage(),  # 6. SC2-PCR on the full correspondence graph,
         PolishStage(),  # 6. the pool's best candidates polished on the dense scans

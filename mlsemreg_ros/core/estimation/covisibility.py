@@ -63,6 +63,23 @@ class CovisibilityConfig:
         '(the scans swapped, the peaks inverted): a 60 m pair found in one direction is '
         'often missed in the other (core/stages/swapped_search.py).',
     )
+    far_min_range: float = param(
+        20.0,
+        'When the BEV searches left the pose refused, search again on the far points only '
+        '(farther than this from their sensor, both scans, both directions), polish the '
+        'best peaks on the dense scans and add them to the candidates: two scans 60 m apart '
+        'share only their far field, and their near fields make false peaks '
+        '(core/stages/far_search.py); 0: off.',
+        unit='m',
+        low=0.0,
+        high=200.0,
+    )
+    far_peaks: int = param(
+        6,
+        'Best peaks of each direction of the far search that are polished and verified.',
+        low=1,
+        high=1000,
+    )
     bin_deg: float = param(
         2.0,
         'Azimuth and elevation size of a range-image bin.',
