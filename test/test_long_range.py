@@ -183,7 +183,17 @@ def test_object_stage_puts_the_60_m_pose_in_the_pool():
 
 
 def test_covisible_overlap_of_a_far_pose():
+    """The right pose 60 m away is seen ~1 where both see; a turned one is seen through."""
     world, labels = long_street()
+    rng = np.random.default_rng(1)
+    walls = [
+        np.column_stack(
+            [rng.uniform(-25, 85, 6000), np.full(6000, side), rng.uniform(0, 6, 6000)]
+        )
+        for side in (-9.0, 9.0)
+    ]
+    world = np.concatenate([world, *walls])
+    labels = np.concatenate([labels, np.full(12000, BUILDING)])
     T_ws, T_wt = pose(0.0, 0.0, 1.7, 0.0), pose(60.0, -1.0, 1.7, 175.0)
     sides = []
     for T in (T_ws, T_wt):
@@ -193,7 +203,7 @@ def test_covisible_overlap_of_a_far_pose():
         sides.append((sample, weight, cKDTree(points), RangeImage.of(points, 2.0)))
     truth = np.linalg.inv(T_wt) @ T_ws
     overlap, checked = mutual_covisible_overlap(
-        np.stack([truth, np.eye(4)]), sides[0], sides[1], 0.6, 1.0
+        np.stack([truth, pose(0, 0, 0, 30.0) @ truth]), sides[0], sides[1], 0.6, 1.0
     )
     assert overlap[0] > 0.95 and checked[0] > 0.03
-    assert overlap[1] < 0.8
+    assert overlap[1] < 0.8  # the walls turned across the street: the target sees through
