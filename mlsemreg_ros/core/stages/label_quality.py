@@ -19,12 +19,15 @@ Before the pair is matched its labels are judged (their ceiling and their source
 
 - labels no better than chance: both scans are replaced by views without labels, and the
   pair is matched and judged exactly as with ``label_source: none``;
-- poorer labels: the label checks of the confidence rule give way to the geometric
-  evidence (``context.config``), and the matching stage widens Group Matching
+- poorer labels: the verification's scores and the confidence rule give way to the
+  geometric evidence (``context.config`` and ``context.scoring``), the labels keep a veto
+  by their information, and the matching stage widens Group Matching
   (``context.label_quality.widen``).
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 from mlsemreg_ros.core.labeling import quality
 from mlsemreg_ros.core.stages.context import RegistrationContext
@@ -49,5 +52,6 @@ class LabelQualityStage:
             context.source = quality.unlabeled_view(context.source, wildcard)
             context.target = quality.unlabeled_view(context.target, wildcard)
         context.config = judged.config(context.config)
+        context.scoring = replace(context.scoring, config=context.config)  # scores weighed too
         context.label_quality = judged
         context.diagnostics.update(judged.diagnostics)
