@@ -340,7 +340,7 @@ class Registration:
             source_keypoints=len(source.keypoints), target_keypoints=len(target.keypoints)
         )
         for stage in self.stages:
-            if not stage.wanted(context):
+            if stage.name in context.done or not stage.wanted(context):
                 continue
             with context.timed(stage.name):
                 found = stage.run(context)

@@ -102,6 +102,7 @@ class RegistrationContext:
     coarse: np.ndarray | None = None  # the pose before the fine alignment
     alignment: Alignment | None = None
     doubts: list[str] = field(default_factory=list)  # later stages' reasons to refuse
+    done: set[str] = field(default_factory=set)  # stages an earlier stage did (label quality)
 
     def timed(self, stage: str) -> Any:
         """Time a ``with`` block as ``timings_ms[stage + '_ms']``."""
