@@ -576,11 +576,12 @@ class ConfidenceConfig:
         choices=('relative', 'fixed', 'information'),
     )
     min_relative_information: float = param(
-        0.4,
+        0.3,
         'information rule: smallest label agreement beyond chance (Cohen kappa of the '
         "pose's dense label co-occurrence) as a share of the labels' own (the geometric "
-        "mean of both scans' kappa against their nearest neighbours). Dev pairs, 30 % "
-        'flips: right poses 0.43-1.16, wrong ones at 20 m up to 0.57 (docs/labels.md).',
+        "mean of both scans' kappa against their nearest neighbours): the labels' veto. "
+        'Dev pairs: right poses 0.37-1.16 with 30 % flips, 0.37-0.80 with geometric '
+        'labels (docs/labels.md).',
         low=0.0,
         high=2.0,
     )
