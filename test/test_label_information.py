@@ -144,3 +144,44 @@ def test_thirty_percent_flips_are_weighed_not_dropped(scene) -> None:
     assert result.success
     error = np.linalg.norm(result.transform[:3, 3] - scene.trans_gt[:3, 3])
     assert error < 0.3
+
+
+def permuted(labels: np.ndarray) -> np.ndarray:
+    """Return ``labels`` with their classes shifted (road -> sidewalk -> building ...)."""
+    classes = np.unique(labels[labels > 0])
+    out = np.array(labels, copy=True)
+    for old, new in zip(classes, np.roll(classes, 1), strict=True):
+        out[labels == old] = new
+    return out
+
+
+def test_poorer_labels_take_the_unlabeled_pose_unless_they_contradict_it(scene) -> None:
+    """Geometric-weight labels: the unlabeled pose is kept; labels that contradict it veto it."""
+    # 2000 keypoints: the unlabeled pose has 80 inliers, above 3 x estimator.min_inliers
+    strong = {'keypoints.count': 2000, 'estimator.min_inliers': 20}
+    zeros = register_pair(
+        scene, np.zeros_like(scene.label_src), np.zeros_like(scene.label_dst), **strong
+    )
+    kept = register_pair(
+        scene, scene.label_src, scene.label_dst, label_source='geometric', **strong
+    )
+    assert kept.diagnostics['label_weight'] < 0.75  # geometric labels weigh half
+    assert kept.diagnostics.get('labels_unlabeled_first')
+    assert kept.diagnostics['labels_unlabeled_information'] > 0.6
+    assert kept.success and zeros.success
+    np.testing.assert_allclose(kept.estimate, zeros.estimate, atol=1e-9)  # the same pose
+    vetoed = register_pair(
+        scene, permuted(scene.label_src), scene.label_dst, label_source='geometric', **strong
+    )
+    assert not vetoed.diagnostics.get('labels_unlabeled_first')
+    assert vetoed.diagnostics['labels_unlabeled_information'] < 0.3
+
+
+def register_pair(scene, label_src, label_dst, **changes):
+    """Register the scene's pair with the given labels and config changes."""
+    registration = Registration(RegistrationConfig().replace({**CONFIG, **changes}))
+    source, target = registration.prepare_scans(
+        {'points': scene.pts_src, 'labels': label_src},
+        {'points': scene.pts_dst, 'labels': label_dst},
+    )
+    return registration.register(source, target)
