@@ -51,6 +51,7 @@ from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
 from mlsemreg_ros.core.stages.label_quality import LabelQualityStage
 from mlsemreg_ros.core.stages.matching import MatchingStage
+from mlsemreg_ros.core.stages.near_miss import NearMissStage
 from mlsemreg_ros.core.stages.refused_path import FullGraphStage, GuidedStage, PolishStage
 from mlsemreg_ros.core.stages.scoring import Scoring
 from mlsemreg_ros.core.stages.verification import VerificationStage
@@ -102,6 +103,7 @@ def default_stages() -> list[Stage]:
         FullGraphStage(),  # 6. SC2-PCR on the full correspondence graph,
         PolishStage(),  # 6. the pool's best candidates polished on the dense scans
         FineAlignmentStage(),  # 7. GICP of the pair from the chosen pose (refine=True)
+        NearMissStage(),  # 8. accepted and refined: no second basin from perturbed starts
     ]
 
 
