@@ -34,6 +34,7 @@ from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry import Odometry
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.rigid import rotation_angle_deg
+from mlsemreg_ros.core.settings import parse_overrides
 from mlsemreg_ros.datasets.pairs import dev_pairs_dir, list_pairs, load_pair
 import numpy as np
 
@@ -77,7 +78,7 @@ def main() -> None:
     parser.add_argument('--degenerate', default='', help='first, insert:K or replace:K')
     parser.add_argument('--set', action='append', default=[], help='section.key=value')
     args = parser.parse_args()
-    config = RegistrationConfig().replace(dict(kv.split('=', 1) for kv in args.set))
+    config = RegistrationConfig().replace(parse_overrides(args.set))
     scans, poses = chain(args.directory)
     odometry = Odometry(Registration(config))
     last, right, wrong = None, 0, 0

@@ -33,6 +33,7 @@ from mlsemreg_ros.core.alignment.near_miss import judge_basins, PointToDistribut
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.rigid import rotation_angle_deg
+from mlsemreg_ros.core.settings import parse_overrides
 from mlsemreg_ros.datasets.pairs import list_pairs, load_pair
 import numpy as np
 
@@ -93,7 +94,7 @@ def main() -> None:
     parser.add_argument('directory')
     parser.add_argument('--set', action='append', default=[], help='section.key=value')
     args = parser.parse_args()
-    config = RegistrationConfig().replace(dict(kv.split('=', 1) for kv in args.set))
+    config = RegistrationConfig().replace(parse_overrides(args.set))
     registration = Registration(config)
     counts = {'right kept': 0, 'right refused': 0, 'wrong kept': 0, 'wrong refused': 0}
     for path in list_pairs(args.directory):
