@@ -51,6 +51,7 @@ class Basin:
     T_target_source: np.ndarray  # (4, 4)
     inlier_fraction: float
     residual: float  # mean point-to-distribution residual of the inliers (inf: none)
+    alignment: Alignment | None = None  # the alignment that converged there
 
 
 @dataclass(frozen=True)
@@ -154,7 +155,7 @@ def judge_basins(
     returns (inlier share, residual) where an alignment converged (pairs: the
     point-to-distribution fit; the odometry: :func:`alignment_fit`).
     """
-    home = Basin(refined.T_target_source, *fit(refined))
+    home = Basin(refined.T_target_source, *fit(refined), refined)
     if cfg.max_residual > 0 and home.residual > cfg.max_residual:
         return NearMiss(
             f'near miss: point-to-distribution residual {home.residual:.3g} > '
@@ -167,7 +168,7 @@ def judge_basins(
         moved = again.T_target_source
         if not np.all(np.isfinite(moved)):
             continue
-        other = Basin(moved, *fit(again))
+        other = Basin(moved, *fit(again), again)
         others.append(other)
         shift, turn = _gap(home.T_target_source, moved)
         if shift <= cfg.agreement_translation and turn <= cfg.agreement_rotation:
@@ -184,6 +185,24 @@ def judge_basins(
                 f'(refined {home.residual:.3g}): two basins'
             )
     return NearMiss(refusal, home, others, disputed)
+
+
+def better_place(verdict: NearMiss, cfg: NearMissConfig) -> Basin | None:
+    """
+    Return the rival place that fits better than the refined pose by both measures, or None.
+
+    At least the refined pose's inlier share and a lower residual: the same cost's deeper
+    minimum, which the refinement stopped short of (the best residual of them).
+    """
+    home = verdict.refined
+    better = [
+        b
+        for b in verdict.others
+        if b.inlier_fraction >= home.inlier_fraction
+        and b.residual < home.residual
+        and _gap(home.T_target_source, b.T_target_source)[0] > cfg.agreement_translation
+    ]
+    return min(better, key=lambda b: b.residual) if better else None
 
 
 def alignment_fit(alignment: Alignment) -> tuple[float, float]:

@@ -20,7 +20,9 @@ Two cases, both judged by the basins of the map alignment (core/alignment/near_m
 - **A pose from a sparse global registration** (source ``global``): refined on the map, it
   must sit alone in its basin. A start that converges elsewhere about as well disputes
   it: the scan is refused, or (``near_miss.action: inflate``) its covariance grows along
-  the disputed direction until it covers the gap.
+  the disputed direction until it covers the gap. A place better by both measures (more
+  inliers, lower cost) is the same cost's deeper minimum, where the map alignment stopped
+  short: the pose moves there if it is trusted and undisputed in turn.
 - **A candidate refused by a rule its own evidence may overrule** (no candidate vetoes
   another): the refined estimate of a global registration that succeeded, refused only
   because it kept fewer map inliers than the last accepted frames did (a scan far from
@@ -43,6 +45,7 @@ from mlsemreg_ros.core.alignment.fine_alignment import (
 )
 from mlsemreg_ros.core.alignment.near_miss import (
     alignment_fit,
+    better_place,
     disputed_hessian,
     judge_basins,
     NearMiss,
@@ -94,6 +97,23 @@ def _near_miss(
     verdict = basins(tracker, candidate, scan, cfg)
     if not verdict.refusal:
         return chosen
+    better = better_place(verdict, cfg.near_miss)
+    if better is not None and better.alignment is not None:  # the refinement stopped short
+        moved = tracker.trust.judge('global', candidate.T_initial, better.alignment, cfg.odometry)
+        again = basins(tracker, moved, scan, cfg) if moved.acceptable else None
+        if again is not None and not again.refusal:
+            alignment = moved.alignment
+            note = f'moved to a better place {verdict.refusal.partition(": ")[2]}'
+            return dataclasses.replace(
+                chosen,
+                reason='; '.join(r for r in (chosen.reason, note) if r),
+                pose=alignment.T_target_source,
+                frame_covariance=alignment.covariance(
+                    cfg.odometry.covariance_scale, axes='source'
+                ),
+                inlier_fraction=alignment.inlier_fraction,
+                candidates=[*chosen.candidates, moved],
+            )
     if cfg.near_miss.action == 'refuse' or verdict.disputed is None:
         return Decision(
             source='',
