@@ -23,6 +23,8 @@ Issue 35: the odometry adapts to the sensor and the platform without per-sensor 
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from mlsemreg_ros.core.alignment.alignment import Alignment
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry import motion_bound, sensor_scale
@@ -158,3 +160,38 @@ def test_the_trust_tracks_a_hand_turn_once_the_prediction_has_been_off_by_as_muc
     assert 'max_correction' in trust.judge('global', np.eye(4), turn, ODOMETRY).refusal
     trust.restart()
     assert not trust.judge('prediction', np.eye(4), turn, ODOMETRY).acceptable
+
+
+def test_a_sparse_sensor_lowers_the_keyframes_point_count_by_the_square_of_its_spacing() -> None:
+    sparse = sensor_scale.measure(_shell(1.5), RegistrationConfig())
+    default = RegistrationConfig().keyframe.min_points
+    assert sparse.picked['keyframe.min_points'] == round(default / sensor_scale.MAX_SCALE**2)
+
+
+def test_the_moved_copy_is_the_scan_seen_from_the_moved_sensor() -> None:
+    from mlsemreg_ros.evaluation.self_pairs import moved_copy, sensor_motion
+
+    points = np.random.default_rng(1).uniform(-20.0, 20.0, (1000, 3))
+    T = sensor_motion(8.0, 30.0)
+    copy = moved_copy(points, T, keep=1.0, noise_m=0.0)
+    assert np.allclose(copy @ T[:3, :3].T + T[:3, 3], points)
+    assert np.linalg.norm(T[:3, 3]) == pytest.approx(8.0)
+    noisy = moved_copy(points, T, keep=0.7, noise_m=0.02)
+    assert len(noisy) == 700
+
+
+REAL_SCANS = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'real_sensor_scans'
+
+
+@pytest.mark.skipif(
+    not (REAL_SCANS / 'velodyne_vlp16.pcd').is_file(),
+    reason=f'the real sensor scans are not in {REAL_SCANS} (outside the repo)',
+)
+def test_a_real_16_beam_scan_is_registered_against_its_moved_copy_with_scaled_values() -> None:
+    from mlsemreg_ros.core.maps.cloud_files import read_cloud
+    from mlsemreg_ros.evaluation.self_pairs import register_self
+
+    points = read_cloud(REAL_SCANS / 'velodyne_vlp16.pcd').points
+    result = register_self('vlp16', points, RegistrationConfig(), 2.0, 10.0)
+    assert result.right, result
+    assert 'keyframe.min_points=250' in result.picked

@@ -62,9 +62,10 @@ class FineAlignmentConfig:
     )
     scale_with_sensor: bool = param(
         True,
-        "Odometry: measure the first scan's angular point spacing and scale "
-        'fine.downsampling_resolution by it (up to x2) on a sensor sparser than a 64-beam '
-        'one; a value the user set (other than the default) is kept '
+        "Odometry: measure the first scan's angular point spacing and, on a sensor sparser "
+        'than a 64-beam one, scale fine.downsampling_resolution by it (up to x2) and '
+        'keyframe.min_points by its inverse square; a value the user set (other than the '
+        'default) is kept '
         '(core/odometry/sensor_scale.py, docs/sensors.md).',
     )
     voxel_size: float = param(
