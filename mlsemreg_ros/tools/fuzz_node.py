@@ -129,7 +129,9 @@ def fuzz_node(
             str(r.wrong),
             'yes' if r.crashed else '',
             ', '.join(
-                f'{k}={v}' for k, v in sorted(r.counts.items()) if '.' in k or k == 'prior_refused'
+                f'{k}={v}'
+                for k, v in sorted(r.counts.items())
+                if '.' in k or k in ('prior_refused', 'deskew_refused')
             )[:120],
         ]
         for r in results
