@@ -81,7 +81,7 @@ class PreprocessConfig:
     )
     deskew_check_margin: float = param(
         0.0,
-        'How much larger the raw scan\'s share of map inliers must be than the deskewed '
+        "How much larger the raw scan's share of map inliers must be than the deskewed "
         "scan's for the deskew to be refused (preprocess.deskew_check).",
         low=0.0,
         high=1.0,
