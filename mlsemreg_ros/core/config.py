@@ -35,7 +35,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
-from mlsemreg_ros.core.alignment.config import FineAlignmentConfig, SweepAlignmentConfig
+from mlsemreg_ros.core.alignment.config import (
+    FineAlignmentConfig,
+    NearMissConfig,
+    SweepAlignmentConfig,
+)
 from mlsemreg_ros.core.alignment.covariance import CovarianceConfig
 from mlsemreg_ros.core.estimation.config import (
     BevSearchConfig,
@@ -326,6 +330,7 @@ class RegistrationConfig(Settings):
     covisibility: CovisibilityConfig = field(default_factory=CovisibilityConfig)
     confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
     fine: FineAlignmentConfig = field(default_factory=FineAlignmentConfig)
+    near_miss: NearMissConfig = field(default_factory=NearMissConfig)
     sweep_alignment: SweepAlignmentConfig = field(default_factory=SweepAlignmentConfig)
     local_map: LocalMapConfig = field(default_factory=LocalMapConfig)
     keyframe: KeyframeConfig = field(default_factory=KeyframeConfig)

@@ -54,15 +54,34 @@ class OdometryPeer(StrEnum):
 ODOMETRY_PEERS = tuple(peer.value for peer in OdometryPeer)
 
 
+class LoopPeer(StrEnum):
+    """The loop-closure peers of ``map build --baseline`` (evaluation/loop_peers.py)."""
+
+    kiss_slam = 'kiss-slam'
+    map_closures = 'map-closures'
+
+
+class PlacePeer(StrEnum):
+    """The place-recognition peers of ``relocalize --baseline`` (evaluation/loop_peers.py)."""
+
+    map_closures = 'map-closures'
+
+
+#: What each peer imports besides its own package (KISS-SLAM's loop closer is MapClosures).
+PEER_NEEDS = {'kiss-slam': ('map-closures',)}
+
+
 class PeerUnavailable(RuntimeError):
     """A peer's package is not installed."""
 
 
 def missing_peers(names: list[str]) -> list[str]:
     """Return ``'name (install line)'`` of each named peer whose package is missing."""
+    wanted = [str(name) for name in names]
+    wanted += [need for name in wanted for need in PEER_NEEDS.get(name, ())]
     return [
         f'{name} ({PEER_PACKAGES[name][1]})'
-        for name in dict.fromkeys(map(str, names))
+        for name in dict.fromkeys(wanted)
         if importlib.util.find_spec(PEER_PACKAGES[name][0]) is None
     ]
 

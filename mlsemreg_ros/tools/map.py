@@ -36,6 +36,7 @@ from pathlib import Path
 import sys
 from typing import Annotated, Any, Literal
 
+from mlsemreg_ros.evaluation.peer_runs import LoopPeer
 from mlsemreg_ros.tools.common import (
     CommandError,
     ConfigOption,
@@ -85,6 +86,13 @@ def build(
         int | None, typer.Option(min=1, help='read at most this many scans')
     ] = None,
     frame_id: Annotated[str, typer.Option(help='frame of the map')] = 'map',
+    baseline: Annotated[
+        list[LoopPeer] | None,
+        typer.Option(
+            help='also run this loop-closure peer on the same scans and compare the loops '
+            '(--poses odometry); repeatable',
+        ),
+    ] = None,
     config: ConfigOption = None,
     labels: LabelsOption = None,
     overrides: SetOption = None,
@@ -93,22 +101,35 @@ def build(
     quiet: QuietOption = False,
 ) -> int:
     """Build a map folder from a bag."""
+    import time
+
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.maps.map_io import MapError, save_map
     from mlsemreg_ros.datasets.factory import open_scan_source
     from mlsemreg_ros.datasets.source import SourceError
+    from mlsemreg_ros.evaluation import peer_runs
     from mlsemreg_ros.evaluation.tables import print_text
 
+    peers = [str(peer) for peer in baseline or []]
+    if peers and poses != 'odometry':
+        raise CommandError('--baseline compares loop closures: it needs --poses odometry', 2)
+    try:
+        peer_runs.require_peers(peers)
+    except peer_runs.PeerUnavailable as error:
+        raise CommandError(str(error), 2) from None
     (core,) = settings((RegistrationConfig,), config, with_labels(overrides, labels))
     replace_output(out, force)
     try:
         source = open_scan_source(bag)
     except (SourceError, OSError, ValueError) as error:
         raise CommandError(f'cannot read {bag}: {error}') from None
+    tic = time.perf_counter()
     try:
         built = build_map(source, core, poses, max_frames, progress=not quiet)
     finally:
         source.close()
+    seconds = time.perf_counter() - tic
+    built['summary']['time_s'] = seconds
     if len(built['mapper'].store) == 0:
         raise CommandError(
             f'{bag}: no keyframe (no labeled scan, or none with ground truth for '
@@ -136,9 +157,25 @@ def build(
             f'{summary["loops_true"]} right, {summary["loops_wrong"]} wrong, of '
             f'{summary["revisits"]} keyframes that revisit a place'
         )
+    if peers:
+        summary['baselines'] = _compare_loops(bag, peers, max_frames, core, summary, seconds)
     if json_path is not None:
         json_path.write_text(json.dumps(summary, indent=2) + '\n')
     return 0
+
+
+def _compare_loops(
+    bag: Path, peers: list[str], max_frames: int | None, core: Any, ours: dict, seconds: float
+) -> dict[str, Any]:
+    """Run the loop peers on the bag's scans; print the loops of all side by side."""
+    from mlsemreg_ros.datasets.factory import open_scan_source
+    from mlsemreg_ros.evaluation.loop_peers import loop_table, ours_loop_summary, run_loop_peers
+    from mlsemreg_ros.evaluation.tables import print_table
+
+    results = run_loop_peers(lambda: open_scan_source(bag), peers, max_frames, core.map)
+    mine = ours_loop_summary(ours, seconds)
+    print_table(loop_table([mine, *results.values()]))
+    return {'ours': mine, **results}
 
 
 def build_map(
@@ -261,6 +298,7 @@ def _deskewed_by_truth(scans: Any, config: Any) -> Any:
 def _loop_edge(loop: Any, truth: dict[int, Any], store: Any) -> dict[str, Any]:
     """Return a loop edge against the ground truth: its error, whether it is right, its check."""
     from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg
+    from mlsemreg_ros.evaluation.loop_peers import is_right
     import numpy as np
 
     true_motion = invert_transform(truth[loop.match]) @ truth[loop.current]
@@ -274,7 +312,7 @@ def _loop_edge(loop: Any, truth: dict[int, Any], store: Any) -> dict[str, Any]:
         'distance_m': float(np.linalg.norm(true_motion[:3, 3])),
         'te_m': te,
         're_deg': re,
-        'right': bool(te <= 0.6 and re <= 5.0),
+        'right': is_right(te, re),
         'T_match_current': np.asarray(loop.T_match_current).tolist(),
     }
     if loop.check is not None:

@@ -28,6 +28,7 @@ import json
 from pathlib import Path
 from typing import Annotated, Any
 
+from mlsemreg_ros.evaluation.peer_runs import PlacePeer
 from mlsemreg_ros.tools.common import (
     alias,
     CommandError,
@@ -59,12 +60,22 @@ def relocalize(
             'place already tried)',
         ),
     ] = 1,
+    baseline: Annotated[
+        list[PlacePeer] | None,
+        typer.Option(help='also relocalize the queries with this peer as place recognition'),
+    ] = None,
     config: ConfigOption = None,
     labels: LabelsOption = None,
     overrides: SetOption = None,
     json_path: JsonOption = None,
 ) -> int:
     """Relocalize the queries against the map and print the recall (alias mlsemreg-relocalize)."""
+    from mlsemreg_ros.evaluation import peer_runs
+
+    try:
+        peer_runs.require_peers([str(peer) for peer in baseline or []])
+    except peer_runs.PeerUnavailable as error:
+        raise CommandError(str(error), 2) from None
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.labeling.source import LabelSource
     from mlsemreg_ros.core.maps.map_io import load_map, MapError
@@ -137,9 +148,34 @@ def relocalize(
         f'ms, p90 {summary["time_ms_p90"]:.0f} ms; registrations per query '
         f'{summary["registrations_mean"]:.1f}'
     )
+    output: dict[str, Any] = {'queries': records, 'summary': summary}
+    if baseline:
+        output['baselines'] = place_peer_summaries(data.keyframes, files)
     if json_path is not None:
-        json_path.write_text(json.dumps({'queries': records, 'summary': summary}, indent=2) + '\n')
+        json_path.write_text(json.dumps(output, indent=2) + '\n')
     return 0
+
+
+def place_peer_summaries(keyframes: list[Any], files: list[Path]) -> dict[str, Any]:
+    """Relocalize with MapClosures as place recognition, same map and queries; print, return."""
+    from mlsemreg_ros.evaluation.loop_peers import map_closures_relocalize
+    from mlsemreg_ros.evaluation.tables import print_text
+
+    queries = [read_query(file) for file in files]
+    found = map_closures_relocalize(
+        [(k.points, k.T_map_keyframe) for k in keyframes], [q['points'] for q in queries]
+    )
+    records = [
+        score(f.stem, a, q.get('T_map_scan'))
+        for f, a, q in zip(files, found, queries, strict=True)
+    ]
+    summary = summarize(records)
+    print_text(
+        f'MapClosures as place recognition: recall {summary["recall_pct"]:.1f} %, '
+        f'{summary["accepted"]} accepted, {summary["wrong_accepted"]} wrong accepted; time '
+        f'p50 {summary["time_ms_p50"]:.0f} ms, p90 {summary["time_ms_p90"]:.0f} ms'
+    )
+    return {'map-closures': {'queries': records, 'summary': summary}}
 
 
 def _fmt(value: float | None, spec: str) -> str:
@@ -188,6 +224,7 @@ def score(name: str, found: Any, truth: Any) -> dict[str, Any]:
                 'inliers': t.inliers,
                 'message': t.message,
                 'time_ms': t.time_ms,
+                'quick': t.quick,
             }
             for t in found.trials
         ],

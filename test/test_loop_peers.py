@@ -1,0 +1,157 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The loop-closure peers of ``map build --baseline`` and ``relocalize --baseline``.
+
+- the scoring of a peer's local-map loops against the ground truth (known answers);
+- a 12-scan simulated drive through ``map build --baseline kiss-slam --baseline
+  map-closures`` and ``relocalize --baseline map-closures`` (skipped without the peers);
+- a missing peer stops the command with its install line.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from mlsemreg_ros.evaluation import loop_peers, peer_runs
+from mlsemreg_ros.tools import cli, relocalize, simulate
+import numpy as np
+import pytest
+
+
+def _pose(x: float, y: float, yaw_deg: float = 0.0) -> np.ndarray:
+    pose = np.eye(4)
+    c, s = np.cos(np.radians(yaw_deg)), np.sin(np.radians(yaw_deg))
+    pose[:2, :2] = [[c, -s], [s, c]]
+    pose[:2, 3] = x, y
+    return pose
+
+
+def _out_and_back() -> loop_peers.LocalMapLoops:
+    """Out 150 m along x and back 3.6 m to the left: four local maps of 75 scans."""
+    out = [_pose(x, 0.0) for x in np.arange(0.0, 150.0, 1.0)]
+    back = [_pose(x, 3.6, 180.0) for x in np.arange(150.0, 0.0, -1.0)]
+    truth = out + back
+    run = loop_peers.LocalMapLoops('peer', [0, 75, 150, 225], truth=truth)
+    run.poses_odometry = run.poses_loops = np.stack(truth)
+    return run
+
+
+def test_local_map_loops_are_scored_against_the_ground_truth() -> None:
+    run = _out_and_back()
+    truth = np.stack(run.truth)
+    exact = np.linalg.inv(truth[150]) @ truth[75]  # T_query_reference, map 2 onto map 1
+    off = exact.copy()
+    off[0, 3] += 1.0
+    run.proposed = [(1, 2, exact, True), (0, 3, off, True), (0, 2, exact, False)]
+    summary = loop_peers.score_local_map_loops(run)
+    assert summary['proposed'] == 3 and summary['closed'] == 2
+    assert summary['right'] == 1 and summary['wrong'] == 1
+    assert summary['precision_pct'] == pytest.approx(50.0)
+    # maps 2 and 3 come back along maps 1 and 0; map 2 onto map 1 only is right
+    assert summary['revisits'] == 2 and summary['recall_pct'] == pytest.approx(50.0)
+    edges = summary['loop_edges']
+    assert edges[0]['right'] and edges[0]['te_m'] < 1e-9
+    assert not edges[1]['right'] and edges[1]['te_m'] == pytest.approx(1.0)
+    assert edges[1]['same_place']  # right place, pose beyond the bound
+    assert summary['ate_loops_m'] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_without_ground_truth_a_peer_run_is_only_counted() -> None:
+    run = _out_and_back()
+    run.truth[5] = None
+    summary = loop_peers.score_local_map_loops(run)
+    assert summary['local_maps'] == 4 and 'right' not in summary
+
+
+@pytest.fixture(scope='module')
+def drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    missing = peer_runs.missing_peers(list(loop_peers.LOOP_PEERS))
+    if missing:
+        pytest.skip(f'loop peers not installed: {missing}')
+    out = tmp_path_factory.mktemp('loop_peers') / 'sim'
+    assert simulate.main([str(out), '--frames', '12', '--seed', '0', '--quiet']) == 0
+    return out
+
+
+def test_map_build_runs_both_loop_peers_on_the_same_scans(
+    drive: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out, report = drive.parent / 'map', drive.parent / 'build.json'
+    args = ['map', 'build', str(drive), str(out), '--quiet', '--json', str(report)]
+    args += [
+        '--set',
+        'keypoints.count=1500',
+        '--baseline',
+        'kiss-slam',
+        '--baseline',
+        'map-closures',
+    ]
+    assert cli.main(args) == 0
+    printed = capsys.readouterr().out
+    assert 'KISS-SLAM' in printed and 'MapClosures' in printed and 'recall %' in printed
+    assert 'iteration=' not in printed  # g2o's own prints are silenced
+    baselines = json.loads(report.read_text())['baselines']
+    assert set(baselines) == {'ours', 'kiss-slam', 'map-closures'}
+    for name in ('kiss-slam', 'map-closures'):
+        peer = baselines[name]
+        assert peer['scans'] == 12 and peer['local_maps'] == 1
+        assert peer['closed'] == 0 and peer['wrong'] == 0
+        assert peer['ate_odometry_m'] < 0.2 and peer['ate_loops_m'] < 0.2, name
+    assert baselines['ours']['scans'] == 12 and baselines['ours']['wrong'] == 0
+
+
+def test_relocalize_compares_with_map_closures_as_place_recognition(
+    drive: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out, queries = drive.parent / 'map_gt', drive.parent / 'queries'
+    assert (
+        cli.main(['map', 'build', str(drive), str(out), '--poses', 'ground-truth', '--quiet']) == 0
+    )
+    assert (
+        cli.main(['map', 'queries', str(drive), str(queries), '--every', '3', '--start', '1']) == 0
+    )
+    capsys.readouterr()
+    report = drive.parent / 'reloc.json'
+    args = [str(out), str(queries), '--baseline', 'map-closures', '--json', str(report),
+            '--set', 'keypoints.count=1500']  # fmt: skip
+    assert relocalize.main(args) == 0
+    assert 'MapClosures as place recognition' in capsys.readouterr().out
+    peer = json.loads(report.read_text())['baselines']['map-closures']
+    assert peer['summary']['queries'] == 4
+    for record in peer['queries']:  # a pose from the keyframe it matched, T convention right
+        if record['accepted']:
+            assert record['te_m'] < 1.5, record
+
+
+def test_a_missing_loop_peer_is_named_with_its_install_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    real = peer_runs.importlib.util.find_spec
+    monkeypatch.setattr(
+        peer_runs.importlib.util,
+        'find_spec',
+        lambda name, *a: None if name == 'map_closures' else real(name, *a),
+    )
+    out = tmp_path / 'map'
+    assert (
+        cli.main(['map', 'build', str(tmp_path / 'bag'), str(out), '--baseline', 'kiss-slam']) == 2
+    )
+    err = capsys.readouterr().err
+    assert 'map-closures' in err and '--no-deps' in err
+    assert not out.exists()  # stopped before anything ran
+    queries = ['relocalize', str(tmp_path), str(tmp_path), '--baseline', 'map-closures']
+    assert cli.main(queries) == 2 and 'map-closures' in capsys.readouterr().err
