@@ -17,7 +17,7 @@ Stage 5c, the far search: the BEV search on the scans' far fields, both directio
 Two scans 60 m apart share only a lens of space far from both sensors; their near fields
 (the road and facades around each sensor) make the BEV search's strongest false peaks.
 On the 60 m dev pairs, a peak within 8 deg and 4 m of the truth ranked in the top three
-for 7 of 16 pair directions with the points nearer than 20 m left out, and for 3 of 16
+for 7 of 16 pair directions with the points nearer than 20 m left out, and for 1 of 16
 with them (``covisibility.far_min_range``). The best ``covisibility.far_peaks`` peaks of
 each direction (the swapped one inverted) are polished on the dense scans (the yaw-only
 ICP of core/estimation/polish.py) and verified (origin ``far_search``); the covisible
