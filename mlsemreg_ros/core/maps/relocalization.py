@@ -68,7 +68,7 @@ class _WhenDecided:
         self.name = stage.name
 
     def wanted(self, context: RegistrationContext) -> bool:
-        """Tell whether to run: the stage's own condition, for a pose accepted as strong."""
+        """Return the stage's condition, for an accepted pose of ``bev_search.weak_inliers``."""
         strong = context.evidence is not None and (
             context.evidence.num_inliers >= context.config.bev_search.weak_inliers
         )
@@ -120,7 +120,7 @@ class Relocalizer:
 
     def quick_registration(self) -> Registration:
         """
-        Return the registration without the BEV search and the stages after it (quick pass).
+        Return the registration that stops before the BEV search (``map.quick_first``).
 
         The same label map and stage list; made again when the registration's config changes.
         Its fine alignment runs only for a pose the quick pass can keep (:class:`_WhenDecided`).
