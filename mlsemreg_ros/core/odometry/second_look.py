@@ -20,9 +20,9 @@ Two cases, both judged by the basins of the map alignment (core/alignment/near_m
 - **A pose from a sparse global registration** (source ``global``): refined on the map, it
   must sit alone in its basin. A start that converges elsewhere about as well disputes
   it: the scan is refused, or (``near_miss.action: inflate``) its covariance grows along
-  the disputed direction until it covers the gap. A place better by both measures (more
-  inliers, lower cost) is the same cost's deeper minimum, where the map alignment stopped
-  short: the pose moves there if it is trusted and undisputed in turn.
+  the disputed direction until it covers the gap. A rival place with a lower cost is the
+  same cost's deeper minimum, where the map alignment stopped short: the pose moves there
+  if it is trusted and undisputed in turn.
 - **A candidate refused by a rule its own evidence may overrule** (no candidate vetoes
   another): the refined estimate of a global registration that succeeded, refused only
   because it kept fewer map inliers than the last accepted frames did (a scan far from
