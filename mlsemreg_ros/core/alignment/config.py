@@ -54,10 +54,19 @@ class FineAlignmentConfig:
     downsampling_resolution: float = param(
         0.5,
         'Odometry: voxel edge to which the scan (already voxelized at '
-        'features.voxel_size) is downsampled for the map alignment (0: as it is).',
+        'features.voxel_size) is downsampled for the map alignment (0: as it is). '
+        'Scaled with a sparse sensor (fine.scale_with_sensor) unless set.',
         unit='m',
         low=0.0,
         high=5.0,
+    )
+    scale_with_sensor: bool = param(
+        True,
+        "Odometry: measure the first scan's angular point spacing and, on a sensor sparser "
+        'than a 64-beam one, scale fine.downsampling_resolution by it (up to x2) and '
+        'keyframe.min_points by its inverse square; a value the user set (other than the '
+        'default) is kept '
+        '(core/odometry/sensor_scale.py, docs/sensors.md).',
     )
     voxel_size: float = param(
         1.0,
@@ -121,13 +130,19 @@ class SweepAlignmentConfig:
         choices=('auto', 'off'),
     )
     points: int = param(
-        2000,
+        1000,
         'Raw points in the sweep alignment (every k-th point of the sweep, movable classes '
-        'left out).',
+        'left out; 2000 before issue 35: the same poses at a higher cost, docs/sensors.md).',
         low=100,
         high=1000000,
     )
-    iterations: int = param(8, 'Gauss-Newton steps of the sweep alignment.', low=1, high=100)
+    iterations: int = param(
+        5,
+        'Gauss-Newton steps of the sweep alignment (the robust kernel narrows from a '
+        'scale of 64 to 1 by the second-to-last step).',
+        low=1,
+        high=100,
+    )
     max_distance: float = param(
         1.0,
         'A point pairs with its nearest map voxel mean only within this distance.',

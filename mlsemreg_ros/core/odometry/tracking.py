@@ -105,6 +105,10 @@ class Tracker:
         """
         if cfg.fine.method == 'off':
             return chain(register(current, keyframe), cfg)
+        self.trust.motion_bound.predicted(
+            None if prediction is None else prediction.T_odom_current,
+            None if prediction is None else prediction.sigmas,
+        )
         predicted = self.refine_prediction(current, prediction, cfg, timings)
         gap = prediction.stamp_gap if prediction is not None else 1.0
         why_global = self.trust.tracking_refusal(predicted, gap, cfg.odometry)
@@ -175,6 +179,7 @@ class Tracker:
         )
         tic = time.perf_counter()
         raw, pose, note, sweep_twist = self.align_sweep(raw, pose, preprocessor, cfg)
+        self.trust.motion_bound.accepted(pose)  # the prediction's error (motion_bound.py)
         chosen.timings_ms['sweep_alignment_ms'] = 1e3 * (time.perf_counter() - tic)
         if note:
             chosen.reason = '; '.join(r for r in (chosen.reason, note) if r)
