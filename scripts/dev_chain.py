@@ -99,7 +99,7 @@ def main() -> None:
             last = (k, step.pose)
         name = 'degenerate' if k is None else f'scan {k}'
         state = f'accepted ({step.source})' if step.accepted else 'refused'
-        print(f'{name}: {state} {verdict} | {step.reason[:160]}')
+        print(f'{name}: {state} {verdict} | {step.reason[:int(__import__("os").environ.get("W", 160))]}')
     print(f'{right} right, {wrong} wrong of {len(scans)} chain scans')
 
 
