@@ -56,14 +56,14 @@ from mlsemreg_ros.core.odometry.trust import Candidate, relative_inlier_refusal
 from mlsemreg_ros.core.results import PreparedScan
 import numpy as np
 
+if TYPE_CHECKING:
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.odometry.tracking import Tracker
+
 #: A successful global registration's refinement may keep this share of
 #: ``odometry.min_inlier_fraction`` when every perturbed start comes back to it (a scan 20 m
 #: from the map's scans overlaps it less; the dev chain's scan 7 kept 0.22).
 GLOBAL_INLIER_FLOOR = 0.6
-
-if TYPE_CHECKING:
-    from mlsemreg_ros.core.config import RegistrationConfig
-    from mlsemreg_ros.core.odometry.tracking import Tracker
 
 
 def basins(
