@@ -77,6 +77,7 @@ def main() -> None:
     parser.add_argument('directory', nargs='?', default=str(dev_pairs_dir()))
     parser.add_argument('--degenerate', default='', help='first, insert:K or replace:K')
     parser.add_argument('--set', action='append', default=[], help='section.key=value')
+    parser.add_argument('--width', type=int, default=160, help='characters of each reason')
     args = parser.parse_args()
     config = RegistrationConfig().replace(parse_overrides(args.set))
     scans, poses = chain(args.directory)
@@ -99,7 +100,7 @@ def main() -> None:
             last = (k, step.pose)
         name = 'degenerate' if k is None else f'scan {k}'
         state = f'accepted ({step.source})' if step.accepted else 'refused'
-        print(f'{name}: {state} {verdict} | {step.reason[:160]}')
+        print(f'{name}: {state} {verdict} | {step.reason[: args.width]}')
     print(f'{right} right, {wrong} wrong of {len(scans)} chain scans')
 
 

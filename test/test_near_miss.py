@@ -157,3 +157,22 @@ def test_the_stage_follows_the_fine_alignment_and_has_a_switch(pair):
         *pair, True, RegistrationConfig().replace({'near_miss.enabled': False}), None
     )
     assert not NearMissStage().wanted(context)
+
+
+def test_better_place_is_a_rival_with_a_lower_residual() -> None:
+    from mlsemreg_ros.core.alignment.near_miss import Basin, better_place, NearMiss
+
+    def at(x: float) -> np.ndarray:
+        T = np.eye(4)
+        T[0, 3] = x
+        return T
+
+    cfg = RegistrationConfig().near_miss
+    home = Basin(at(0.0), 0.60, 5.0)
+    same = Basin(at(0.1), 0.70, 1.0)  # within the agreement: the same place
+    deeper = Basin(at(0.8), 0.58, 2.0)  # a rival, lower residual
+    deepest_but_poor = Basin(at(-0.8), 0.40, 1.0)  # lower residual, far fewer inliers
+    worse = Basin(at(1.6), 0.62, 6.0)
+    verdict = NearMiss('near miss', home, [same, deeper, deepest_but_poor, worse])
+    assert better_place(verdict, cfg) is deeper
+    assert better_place(NearMiss('near miss', home, [worse, same]), cfg) is None

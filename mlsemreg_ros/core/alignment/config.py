@@ -186,9 +186,11 @@ class NearMissConfig:
 
     enabled: bool = param(
         True,
-        'Check an accepted pair pose for a second basin: the fine alignment again from '
+        'Check an accepted pose for a second basin: the fine alignment again from '
         'perturbed starts must come back to the same place, or land somewhere clearly '
-        'worse (core/stages/near_miss.py).',
+        'worse (pairs: core/stages/near_miss.py; odometry: a pose decided on the global '
+        'registration or the prediction alone, and a refused candidate judged on its own '
+        'evidence, core/odometry/second_look.py). false: neither.',
     )
     action: str = param(
         'refuse',

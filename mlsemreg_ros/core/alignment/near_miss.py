@@ -189,16 +189,17 @@ def judge_basins(
 
 def better_place(verdict: NearMiss, cfg: NearMissConfig) -> Basin | None:
     """
-    Return the rival place that fits better than the refined pose by both measures, or None.
+    Return the rival place with a lower residual than the refined pose, or None.
 
-    At least the refined pose's inlier share and a lower residual: the same cost's deeper
-    minimum, which the refinement stopped short of (the best residual of them).
+    A rival (an inlier share at least ``near_miss.rival_share`` times the refined pose's)
+    with a lower residual is the same cost's deeper minimum, which the refinement stopped
+    short of (the lowest residual of them).
     """
     home = verdict.refined
     better = [
         b
         for b in verdict.others
-        if b.inlier_fraction >= home.inlier_fraction
+        if b.inlier_fraction >= cfg.rival_share * home.inlier_fraction
         and b.residual < home.residual
         and _gap(home.T_target_source, b.T_target_source)[0] > cfg.agreement_translation
     ]
