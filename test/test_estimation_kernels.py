@@ -49,7 +49,7 @@ def _pose(yaw_deg: float, t: tuple[float, float, float]) -> np.ndarray:
 def _keypoint_scan(
     keypoints: np.ndarray, descriptors: np.ndarray, labels: np.ndarray
 ) -> PreparedScan:
-    """A scan whose points are its keypoints (labels per keypoint)."""
+    """Make a scan whose points are its keypoints (labels per keypoint)."""
     return PreparedScan(
         keypoints,
         labels.astype(np.int32),
@@ -62,7 +62,7 @@ def _keypoint_scan(
 
 
 def _scans(seed: int, count: int = 600) -> tuple[PreparedScan, PreparedScan, np.ndarray]:
-    """Two keypoint scans, a third of them the same places and descriptors under a pose."""
+    """Make two keypoint scans: a third share places and descriptors under a pose."""
     rng = np.random.default_rng(seed)
     truth = _pose(rng.uniform(-180, 180), (rng.uniform(-10, 10), rng.uniform(-10, 10), 0.2))
     source = rng.uniform(-30, 30, (count, 3)) * [1, 1, 0.1]

@@ -36,7 +36,13 @@ from street_map import STREET_SEED, write_street_map
 def _found(T: np.ndarray | None, trials: int = 1, time_ms: float = 10.0) -> SimpleNamespace:
     """Return a stand-in relocalization answer (found when T is given)."""
     trial = SimpleNamespace(
-        keyframe_id=0, similarity=0.9, accepted=T is not None, inliers=50, message='', time_ms=1.0
+        keyframe_id=0,
+        similarity=0.9,
+        accepted=T is not None,
+        inliers=50,
+        message='',
+        time_ms=1.0,
+        quick=False,
     )
     return SimpleNamespace(
         found=T is not None, T_map_sensor=T, keyframe_id=0 if T is not None else -1,

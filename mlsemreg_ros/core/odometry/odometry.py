@@ -49,6 +49,8 @@ from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, motion
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, SweepMotion
 from mlsemreg_ros.core.labeling.source import LabelSource
+from mlsemreg_ros.core.odometry import sensor_scale
+from mlsemreg_ros.core.odometry.deskew_guard import guard_deskew
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (
     insert_accepted,
@@ -111,6 +113,7 @@ class Odometry:
         self._start_scan: tuple[PreprocessedScan, np.ndarray, int] | None = None  # to deskew
         self._sweep_twist: tuple[SweepMotion, int] | None = None  # (twist, stamp) of a sweep
         self._last_frame_covariance: np.ndarray | None = None  # of the last accepted frame
+        self.sensor_scale: sensor_scale.SensorScale | None = None  # from the first scan
 
     @property
     def config(self) -> RegistrationConfig:
@@ -131,6 +134,7 @@ class Odometry:
         alignment cloud only when ``fine`` changed; the local map is cleared when its
         structure (method, voxel size) changed.
         """
+        config = sensor_scale.apply(config, self.sensor_scale)  # a sparse sensor's values
         self.preprocessor.check(config)
         old = self.registration.config
         self.registration.config = config
@@ -222,6 +226,11 @@ class Odometry:
         restarted).
         """
         start = time.perf_counter()
+        if self.sensor_scale is None and self.keyframe is None:  # scale with the sensor
+            measured = sensor_scale.measure(points, self.config)
+            if measured.points >= sensor_scale.MIN_POINTS:
+                self.sensor_scale = measured
+                self.reconfigure(self.config)
         labelled = self.label_source(points, labels, self.config, intensity)  # None: no field
         labels = labelled.labels
         self.preprocessor.labelled = labelled  # noted at every preprocessing of this scan
@@ -239,12 +248,17 @@ class Odometry:
         chosen = self.tracker.estimate(
             raw.scan, prediction, self.keyframe, self.global_registration, self.config, timings
         )
+        given = (points, labels, point_times, stamp_ns)
         raw, chosen, prior_refusal = guard_prior(  # core/odometry/prior_guard.py
-            self, (points, labels, point_times, stamp_ns), prediction, raw, chosen, timings
+            self, given, prediction, raw, chosen, timings
+        )
+        raw, chosen, deskew_refusal = guard_deskew(  # core/odometry/deskew_guard.py
+            self, given, prediction, raw, chosen, timings
         )
         chosen = self._relocalize(raw, chosen, timings)  # core/odometry/recovery.py
         step = self._apply(index, stamp_ns, raw, chosen)
         step.prior_refusal = prior_refusal
+        step.deskew_refusal = deskew_refusal
         if not step.accepted:
             self._predict_rejected(step, prediction)
         self._count_failure(step, raw)
