@@ -16,8 +16,8 @@
 One configuration object for the whole registration core.
 
 Every tunable of the pipeline is a field of a section dataclass: in the ``config.py`` of
-its stage's folder (``core/features/config.py``, ``core/estimation/config.py``, ...),
-beside the code it configures, or below (the odometry's sections). Each field carries its
+its stage's folder (``core/features/config.py``, ``core/estimation/config.py``,
+``core/odometry/config.py``, ...), beside the code it configures. Each field carries its
 description, unit and valid range in its metadata, so the ROS layer can declare parameters
 (with descriptors) from these fields instead of copying defaults by hand. Flat names are
 ``<section>.<field>``, e.g. ``semantic.local_radius``.
@@ -58,6 +58,11 @@ from mlsemreg_ros.core.labeling.onnx_config import OnnxLabelsConfig
 from mlsemreg_ros.core.maps.config import MapConfig
 from mlsemreg_ros.core.matching.config import MatcherConfig, SemanticConfig
 from mlsemreg_ros.core.motion_prior import MotionPriorConfig
+from mlsemreg_ros.core.odometry.config import (
+    KeyframeConfig,
+    LocalMapConfig,
+    OdometryConfig,
+)
 
 # The settings engine, re-exported: most modules import it from here.
 from mlsemreg_ros.core.settings import (  # noqa: F401 (re-exported)
@@ -79,214 +84,6 @@ MAX_RECEPTIVE_FIELD_M = 300.0
 #: Largest BEV search grid side in cells (a chunk of 12 yaws x 3 channels of 512^2 float32
 #: grids and their spectra is ~80 MB).
 MAX_BEV_CELLS = 512
-
-
-@dataclass
-class LocalMapConfig:
-    """The odometry's local map: recent aligned scans in the odom frame, LRU-bounded."""
-
-    horizon: int = param(
-        100,
-        'Voxels that no inserted scan touched during this many insertions are dropped '
-        '(small_gicp LRU horizon).',
-        low=1,
-        high=100000,
-    )
-    clear_cycle: int = param(
-        10, 'Insertions between two LRU clean-ups of the local map.', low=1, high=100000
-    )
-
-
-@dataclass
-class KeyframeConfig:
-    """When the current scan replaces the keyframe (after an accepted frame)."""
-
-    policy: str = param(
-        'every_frame',
-        'every_frame: each registered scan becomes the keyframe (frame-to-frame '
-        'odometry); distance: only once it moved keyframe.min_distance or turned '
-        'keyframe.min_rotation away from the keyframe.',
-        choices=('every_frame', 'distance'),
-    )
-    min_distance: float = param(
-        1.0,
-        'distance policy: translation from the keyframe that makes a new keyframe.',
-        unit='m',
-        low=0.0,
-        high=1000.0,
-    )
-    min_rotation: float = param(
-        10.0,
-        'distance policy: rotation from the keyframe that makes a new keyframe.',
-        unit='deg',
-        low=0.0,
-        high=180.0,
-    )
-    min_points: int = param(
-        1000,
-        'A scan becomes a keyframe only with at least this many points after '
-        'voxelization (a degenerate scan would make every later one fail).',
-        low=1,
-        high=10000000,
-    )
-    min_keypoints: int = param(
-        100,
-        'A scan becomes a keyframe only with at least this many keypoints (with a '
-        'valid descriptor; at most keypoints.count are asked for).',
-        low=3,
-        high=100000,
-    )
-    min_structure: float = param(
-        0.02,
-        'A scan becomes a keyframe only if the fine alignment can pin it in every '
-        'direction: the ratio of the smallest to the largest eigenvalue of the translation '
-        'block of its Hessian aligned onto itself (GICP, from its normals) must reach this '
-        '(measured: real scans of 12 sensors and the KITTI dev pairs 0.17 to 0.64, '
-        'simulated field drives 0.34 to 0.41, a corridor 0.004, a flat ground 0.001; '
-        '0: no check; not with fine.method off).',
-        low=0.0,
-        high=1.0,
-    )
-    relocalization_keyframes: int = param(
-        5,
-        'Past keyframes the odometry keeps: after keyframe.max_failures rejections in a '
-        'row the scan is registered onto them (newest first) before a re-initialisation '
-        '(0: re-initialise at once).',
-        low=0,
-        high=100,
-    )
-    max_failures: int = param(
-        10,
-        'After this many rejected frames in a row against one keyframe, the odometry '
-        're-initialises on the current scan at the last accepted pose (the map restarts '
-        'from it; 0: never).',
-        low=0,
-        high=100000,
-    )
-
-
-@dataclass
-class OdometryConfig:
-    """
-    Which estimate of a frame the odometry accepts (see core/odometry.py).
-
-    Candidates: the global estimate (ML-SemReg + estimator onto the keyframe) composed with
-    the keyframe pose, and the constant-velocity prediction; each is refined against the
-    local map. A refined pose is acceptable when the fine alignment kept enough of the scan
-    as inliers and moved its initial guess by no more than the correction bounds.
-    """
-
-    constant_velocity: bool = param(
-        True,
-        'Refine the constant-velocity prediction against the local map; when it agrees '
-        'with the global estimate only one alignment is paid for, and when the global '
-        'estimate fails the prediction can still be accepted.',
-    )
-    global_registration: str = param(
-        'on_demand',
-        'always: ML-SemReg + SC2-PCR onto the keyframe for every scan (the '
-        'previous default; about twice the time per scan); on_demand: only when the refined '
-        'prediction is not trusted (no prediction, refused, corrected by more than '
-        'odometry.tracking_translation/rotation, fewer inliers than usual, a gap in the '
-        'stamps) and at least every odometry.global_interval scans as a check of the motion '
-        'model.',
-        choices=('always', 'on_demand'),
-    )
-    global_interval: int = param(
-        30,
-        'on_demand: the longest run of scans tracked by the refined prediction alone; '
-        'the next one is registered globally (1: every scan).',
-        low=1,
-        high=100000,
-    )
-    tracking_translation: float = param(
-        0.5,
-        'on_demand: a refined prediction that the fine alignment moved further than this '
-        'is not trusted alone (the motion model did not hold).',
-        unit='m',
-        low=0.0,
-        high=100.0,
-    )
-    tracking_rotation: float = param(
-        4.0,
-        'on_demand: a refined prediction that the fine alignment turned further than this '
-        'is not trusted alone (simulated drives: up to 4 deg at the start and end of turns, '
-        'with 0.97 of the scan as inliers).',
-        unit='deg',
-        low=0.0,
-        high=180.0,
-    )
-    tracking_inlier_share: float = param(
-        0.9,
-        'on_demand: a refined prediction is trusted alone only with at least this share '
-        'of the median inlier fraction of the last accepted scans (as good as usual).',
-        low=0.0,
-        high=1.0,
-    )
-    tracking_min_inlier_fraction: float = param(
-        0.7,
-        'on_demand: ... and with at least this share of the scan as map inliers: '
-        'tracking is for scans that overlap the map well (simulated drives: 0.97 at 1 m '
-        'per scan, 0.80 at 8 m, 0.63 at 16 m; scans 20 m apart stay registered globally).',
-        low=0.0,
-        high=1.0,
-    )
-    agreement_translation: float = param(
-        0.3,
-        'The refined prediction agrees with the global estimate within this '
-        'translation (and odometry.agreement_rotation).',
-        unit='m',
-        low=0.0,
-        high=100.0,
-    )
-    agreement_rotation: float = param(
-        1.0,
-        'The refined prediction agrees with the global estimate within this rotation.',
-        unit='deg',
-        low=0.0,
-        high=180.0,
-    )
-    max_correction_translation: float = param(
-        1.5,
-        'A fine alignment that moves its initial guess further than this is not '
-        'accepted (it ran away or started outside its basin).',
-        unit='m',
-        low=0.0,
-        high=100.0,
-    )
-    max_correction_rotation: float = param(
-        5.0,
-        'A fine alignment that turns its initial guess further than this is not accepted.',
-        unit='deg',
-        low=0.0,
-        high=180.0,
-    )
-    min_inlier_fraction: float = param(
-        0.25,
-        "Share of the scan's alignment points that must have a correspondence "
-        '(map or target scan) within fine.max_correspondence_distance after the fine '
-        'alignment.',
-        low=0.0,
-        high=1.0,
-    )
-    min_relative_inlier_fraction: float = param(
-        0.6,
-        'The inlier fraction must also reach this share of the median inlier fraction '
-        'of the last accepted frames: a pose that overlaps the map only by chance (the '
-        'mirror pose of a street, a different street) keeps far fewer inliers than the '
-        'frames before it (0: no such check).',
-        low=0.0,
-        high=1.0,
-    )
-    covariance_scale: float = param(
-        3.0,
-        'Factor on the pose covariance inv(H) * 2E / (n - 6) of the fine alignment '
-        '(H Hessian, E final error, n inliers), before the covariance section adds its '
-        'floors (docs/covariance.md). Fitted with them by mlsemreg covariance-nees on real '
-        'KITTI pairs and field-mode drives (2026-12-04).',
-        low=1e-6,
-        high=1e6,
-    )
 
 
 #: Parameters that existed once, with what replaced them (reported when they are set).
