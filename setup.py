@@ -80,6 +80,7 @@ setup(
             'mlsemreg-cut-pairs = mlsemreg_ros.tools.cut_pairs:main',
             'mlsemreg-chain-pairs = mlsemreg_ros.tools.chain_pairs:main',
             'mlsemreg-bench-labels = mlsemreg_ros.tools.bench_labels:main',
+            'mlsemreg-self-pairs = mlsemreg_ros.tools.self_pairs:main',
             'mlsemreg-label-noise-sweep = mlsemreg_ros.tools.label_noise_sweep:main',
             'mlsemreg-params = mlsemreg_ros.tools.params:main',
             'mlsemreg-relocalize = mlsemreg_ros.tools.relocalize:main',

@@ -226,3 +226,25 @@ def test_simulate_cli_writes_a_labeled_bag_with_ground_truth(tmp_path: Path) -> 
         assert scan.intensity is not None and len(scan) > 1000
     assert 1.9 < np.linalg.norm(poses[2, :3, 3]) < 2.1  # 1 m per frame
     assert simulate.main([str(out), '--frames', '1', '--quiet']) == 2  # exists, no --force
+
+
+def test_kitti_sequence_to_bag_from_python(tmp_path: Path) -> None:
+    """The conversion without the CLI: stride, frame count, summary; a bad sequence leaves none."""
+    from mlsemreg_ros.datasets.bag import BagLayout
+    from mlsemreg_ros.datasets.kitti_bag import kitti_sequence_to_bag, KittiFiles
+
+    fake = write_fake_kitti(tmp_path / 'seq', np.random.default_rng(4))
+    out = tmp_path / 'bag'
+    layout = BagLayout('sqlite3', frame_id='lidar')
+    conversion = kitti_sequence_to_bag(
+        tmp_path / 'seq', out, layout, KittiFiles(start_time_s=10.0), stride=2, progress=False
+    )
+    assert conversion.written.frames == 2 and conversion.labelled
+    assert conversion.summary(out).startswith(f'wrote {out}: 2 scans, ')
+    scans = list(open_scan_source(out).scans())
+    assert [s.frame_id for s in scans] == ['lidar', 'lidar'] and scans[0].stamp_ns == 10**10
+    np.testing.assert_array_equal(scans[1].xyz, fake['clouds'][2][:, :3].astype(np.float64))
+    (tmp_path / 'seq' / 'times.txt').write_text('0.0\n')  # 1 time for 3 scans
+    with pytest.raises(SourceError, match='times'):
+        kitti_sequence_to_bag(tmp_path / 'seq', tmp_path / 'bad', layout, progress=False)
+    assert not (tmp_path / 'bad').exists()

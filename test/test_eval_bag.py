@@ -230,3 +230,62 @@ def test_drop_scans_recover_within_two_scans_and_leave_p0_unchanged(
     plain, p0 = summaries
     for key in set(SUMMARY_KEYS) - set(timing):  # multithreaded sums: last digits vary
         assert p0[key] == (None if plain[key] is None else pytest.approx(plain[key], rel=1e-6))
+
+
+def test_evaluate_bag_from_python_equals_the_command(
+    bag: Path, default_run: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """evaluate_bag (no CLI) gives the command's summary and writes under results_root/latest."""
+    from mlsemreg_ros.evaluation.bag_run import (
+        BagEvalOptions,
+        BagTopics,
+        evaluate_bag,
+        print_bag_evaluation,
+    )
+    from mlsemreg_ros.evaluation.settings import EvaluationSettings
+
+    core = RegistrationConfig().replace({'keypoints.count': 1500})
+    options = BagEvalOptions(stride=2, plots=False, progress=False, argv=('python',))
+    result = evaluate_bag(
+        bag,
+        core,
+        EvaluationSettings().evaluation,
+        BagTopics('label'),
+        options,
+        results_root=tmp_path,
+    )
+    assert result.output.parent == tmp_path / 'eval_bag'
+    assert (tmp_path / 'eval_bag' / 'latest').resolve() == result.output.resolve()
+    assert result.summary == json.loads((result.output / 'summary.json').read_text())
+    assert result.details['argv'] == ['python'] and result.details['stride'] == 2
+    assert not result.dropped and result.peers.summaries == {}
+    assert result.deskewed_scans == {result.run.method: result.details['deskewed_scans']}
+    command = json.loads((default_run / 'summary.json').read_text())
+    for key in set(SUMMARY_KEYS) - {'latency_ms_p50', 'latency_ms_p95'}:
+        expected = command[key]
+        assert result.summary[key] == (
+            None if expected is None else pytest.approx(expected, rel=1e-6)
+        ), key
+    print_bag_evaluation(result)
+    printed = capsys.readouterr().out
+    assert 'wrong poses published' in printed and str(result.output) in printed
+
+
+def test_evaluate_bag_names_bad_input(bag: Path, tmp_path: Path) -> None:
+    from mlsemreg_ros.evaluation.bag_run import (
+        BagEvalOptions,
+        BagInputError,
+        BagTopics,
+        evaluate_bag,
+    )
+    from mlsemreg_ros.evaluation.settings import EvaluationSettings
+
+    bounds, options = EvaluationSettings().evaluation, BagEvalOptions(progress=False)
+    core = RegistrationConfig()
+    with pytest.raises(BagInputError, match='neither a rosbag2'):
+        evaluate_bag(tmp_path, core, bounds, BagTopics('label'), options, tmp_path / 'o')
+    with pytest.raises(BagInputError):
+        evaluate_bag(
+            bag, core, bounds, BagTopics('label', points_topic='/no/such'), options, tmp_path
+        )
+    assert not (tmp_path / 'o').exists()

@@ -257,8 +257,12 @@ def test_a_dev_pair_with_30_percent_confused_labels_is_accepted_at_its_pose_not_
     assert rotation_error_deg(T[:3, :3], pair.trans_gt[:3, :3]) < 5.0
     assert translation_error_m(T[:3, 3], pair.trans_gt[:3, 3]) < 0.6
     assert result.success, result.message
-    agreement = result.diagnostics['confidence_label_agreement']
-    ceiling = result.diagnostics['confidence_label_ceiling']
+    # the labels' evidence at the pose (the pair may have been taken from its unlabeled
+    # attempt, core/stages/label_quality.py, whose evidence has no labels)
+    at_pose, _ = registration.judge(
+        source, target, T, None, result.source_points, result.target_points
+    )
+    agreement, ceiling = at_pose.label_agreement, at_pose.label_ceiling
     assert agreement < 0.6 < agreement / ceiling  # fixed rule: refused
     assert label_refusal(agreement, ceiling, ConfidenceConfig(label_rule='fixed'))
 

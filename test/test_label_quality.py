@@ -52,8 +52,8 @@ def register(scene, label_src, label_dst, **changes):
 
 
 def test_labels_no_better_than_chance_are_judged_as_unlabeled(scene) -> None:
-    """60 % flips: the pair registers exactly as with --labels none (the same pose, verdict)."""
-    noisy = register(scene, flipped(scene.label_src, 0.6, 1), flipped(scene.label_dst, 0.6, 2))
+    """85 % flips: the pair registers exactly as with --labels none (the same pose, verdict)."""
+    noisy = register(scene, flipped(scene.label_src, 0.85, 1), flipped(scene.label_dst, 0.85, 2))
     zeros = register(scene, np.zeros_like(scene.label_src), np.zeros_like(scene.label_dst))
     assert noisy.diagnostics['labels_judged_unlabeled']
     assert noisy.diagnostics['label_weight'] == 0.0
@@ -81,9 +81,21 @@ def test_geometric_labels_are_weighed_by_their_trust(scene) -> None:
 
 
 def test_only_poorer_labels_widen_and_are_judged_as_unlabeled() -> None:
-    assert quality.LabelQuality(0.5, 0.9, 'geometric', False).widen
-    assert not quality.LabelQuality(0.8, 0.95, 'field', False).widen
-    assert not quality.LabelQuality(0.0, 0.5, 'field', True).widen
+    assert quality.LabelQuality(0.5, 0.9, 0.9, 'geometric', False).widen
+    assert not quality.LabelQuality(0.8, 0.95, 0.9, 'field', False).widen
+    assert not quality.LabelQuality(0.0, 0.5, 0.05, 'field', True).widen
+
+
+def test_poorer_labels_switch_to_the_information_rule_and_weigh_the_score() -> None:
+    config = RegistrationConfig()
+    weighed = quality.LabelQuality(0.4, 0.7, 0.3, 'field', False).config(config)
+    assert weighed.confidence.label_rule == 'information'
+    assert weighed.confidence.contradicting_objects == 0
+    assert weighed.confidence.min_distinctive_ceiling == 1.0  # objects off below 0.5
+    assert weighed.verification.label_weight == pytest.approx(
+        np.sqrt(0.4) * config.verification.label_weight
+    )
+    assert quality.LabelQuality(0.9, 0.95, 0.9, 'field', False).config(config) is config
 
 
 def test_widened_correspondences_are_the_union_without_duplicates() -> None:

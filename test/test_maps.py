@@ -211,6 +211,26 @@ def test_a_query_between_keyframes_relocalizes_without_a_guess(
     assert rotation_error_deg(error[:3, :3], np.eye(3)) < 2.0
 
 
+def test_the_quick_pass_answers_as_the_full_path_on_strong_evidence(
+    street_store: KeyframeStore,
+) -> None:
+    world, labels = street_scene(seed=STREET_SEED)
+    truth = motion(-40.0, (7.0, -1.0, 0.0))
+    points, scan_labels = scan_at(world, labels, truth, seed=999, max_points=15000)
+    answers = []
+    for quick_first in (True, False):
+        config = street_store.config.replace({'map.quick_first': quick_first})
+        store = KeyframeStore(config, street_store.label_map)
+        for keyframe in street_store:
+            store.add(keyframe.points, keyframe.labels, keyframe.T_map_keyframe)
+        registration = Registration(config, store.label_map)
+        answers.append(Relocalizer(registration, store).relocalize(points, scan_labels))
+    quick, full = answers
+    assert quick.found and full.found and quick.keyframe_id == full.keyframe_id
+    assert quick.trials[-1].quick and not any(t.quick for t in full.trials)
+    np.testing.assert_allclose(quick.T_map_sensor, full.T_map_sensor, atol=1e-9)
+
+
 def test_a_query_from_an_unseen_street_is_refused(street_store: KeyframeStore) -> None:
     config = street_store.config.replace({'map.candidates': 2})
     store = KeyframeStore(config, street_store.label_map)
@@ -223,7 +243,8 @@ def test_a_query_from_an_unseen_street_is_refused(street_store: KeyframeStore) -
         points, scan_labels = scan_at(world, labels, motion(0.0, (0.0, 0.0, 0.0)), seed=5)
         found = relocalizer.relocalize(points, scan_labels)
         assert not found.found and found.T_map_sensor is None
-        assert len(found.trials) == 2 and not any(t.accepted for t in found.trials)
+        full = [t for t in found.trials if not t.quick]  # after the quick pass (quick_first)
+        assert len(full) == 2 and not any(t.accepted for t in found.trials)
 
 
 def _square_loop(steps: int = 40, side: float = 25.0) -> np.ndarray:

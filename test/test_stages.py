@@ -92,11 +92,17 @@ def test_the_default_stages_run_in_order_and_each_is_timed_by_the_loop(prepared)
         'estimator',
         'verification',
         'confidence',
+        'objects',
         'bev_search',
+        'bev_search_swapped',
+        'far_search',
         'guided',
         'full_graph',
         'polish',
+        'covisibility',
+        'level_check',
         'fine',
+        'near_miss',
     ]
     result = registration.register(source, target)
     assert result.success, result.message
@@ -107,6 +113,7 @@ def test_the_default_stages_run_in_order_and_each_is_timed_by_the_loop(prepared)
         'verification_ms',
         'confidence_ms',
         'fine_ms',
+        'near_miss_ms',
     } <= set(result.timings_ms)
     assert 'bev_search_ms' not in result.timings_ms  # an accepted, strong pose: not wanted
     assert np.linalg.norm(result.transform[:3, 3] - truth[:3, 3]) < 0.3

@@ -379,3 +379,42 @@ def test_tune_on_a_bag_measures_kiss_icp_once(tmp_path: Path) -> None:
         trial.user_attrs['latency_ms_p50'] / study.user_attrs['kiss_latency_ms_p50']
     )
     assert RegistrationConfig.from_yaml(out).keypoints.count == 800
+
+
+def test_tune_parameters_from_python_runs_the_study_and_returns_the_chosen_values(
+    pair_dir: Path, tmp_path: Path, capsys: Any
+) -> None:
+    """tune_parameters (no CLI): one trial of the start, its trials file, no parameter file."""
+    from mlsemreg_ros.evaluation.settings import EvaluationSettings
+    from mlsemreg_ros.evaluation.tune_run import (
+        tune_parameters,
+        TuneConsole,
+        TuneInputError,
+        TuneOptions,
+    )
+
+    core = RegistrationConfig().replace(
+        {'fine.pair_method': 'off', 'bev_search.enabled': False, 'semantic.top_k': 1}
+    )
+    bounds, out = EvaluationSettings().evaluation, tmp_path / 'p.yaml'
+    space = ('semantic.top_k=1:2',)
+    options = TuneOptions(trials=1, storage=f'journal:{tmp_path / "p.log"}', space=space)
+    result = tune_parameters(pair_dir, core, bounds, options, out, TuneConsole(quiet=True))
+    assert result.chosen is not None and result.chosen.params['semantic.top_k'] == 1
+    assert result.values == core.to_flat_dict()  # the start is the first trial
+    (top_k,) = [d for d in result.task.space if d.key == 'semantic.top_k']
+    assert top_k.describe() == 'int 1..2'
+    record = json.loads(result.trials_path.read_text())
+    assert result.trials_path == tmp_path / 'p_trials.json' and record['chosen'] == 0
+    assert not out.exists()  # the parameter file is the command's
+    assert result.header(out)[0].startswith('Parameters of mlsemreg_node tuned by')
+    TuneConsole(quiet=True).result(result)
+    assert 'Pareto front' in capsys.readouterr().out
+    again = tune_parameters(
+        pair_dir, core, bounds, TuneOptions(trials=0, storage=options.storage, space=space), out
+    )
+    assert len(again.study.get_trials()) == 1 and again.chosen.number == 0  # resumed
+    with pytest.raises(TuneInputError, match='no pair files'):
+        tune_parameters(tmp_path, core, bounds, options, out)
+    with pytest.raises(TuneInputError, match='search space'):
+        tune_parameters(pair_dir, core, bounds, TuneOptions(space=('semantic.nope=1:2',)), out)

@@ -41,19 +41,24 @@ from mlsemreg_ros.core.estimation.verification import (
 )
 from mlsemreg_ros.core.features import features, fpfh
 from mlsemreg_ros.core.features.scan_input import sanitize_scan_for
-from mlsemreg_ros.core.labeling import quality
 from mlsemreg_ros.core.matching import landmarks, signatures
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.results import Landmarks, PreparedScan, RegistrationResult
 from mlsemreg_ros.core.stages.bev_search import BevSearchStage
 from mlsemreg_ros.core.stages.confidence import ConfidenceStage, consider
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
+from mlsemreg_ros.core.stages.covisibility import CovisibilityStage
 from mlsemreg_ros.core.stages.estimation import EstimationStage
+from mlsemreg_ros.core.stages.far_search import FarSearchStage
 from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
 from mlsemreg_ros.core.stages.label_quality import LabelQualityStage
+from mlsemreg_ros.core.stages.levelling import LevelCheckStage
 from mlsemreg_ros.core.stages.matching import MatchingStage
+from mlsemreg_ros.core.stages.near_miss import NearMissStage
+from mlsemreg_ros.core.stages.objects import ObjectStage
 from mlsemreg_ros.core.stages.refused_path import FullGraphStage, GuidedStage, PolishStage
 from mlsemreg_ros.core.stages.scoring import Scoring
+from mlsemreg_ros.core.stages.swapped_search import SwappedSearchStage
 from mlsemreg_ros.core.stages.verification import VerificationStage
 from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
@@ -98,17 +103,18 @@ def default_stages() -> list[Stage]:
         EstimationStage(),  # 2. the robust estimator (SC2-PCR): hypotheses, best first
         VerificationStage(),  # 3. the hypotheses scored on the dense labeled scans
         ConfidenceStage(),  # 4. the choice and the confidence rule's verdict
+        ObjectStage(),  # 5a. refused or weak: the object hypotheses, 4-DoF in levelled frames
         BevSearchStage(),  # 5. refused or weak: the semantic bird's-eye-view search
+        SwappedSearchStage(),  # 5b. still refused: the BEV search from the target's side
+        FarSearchStage(),  # 5c. still refused: the BEV search on the far fields, polished
         GuidedStage(),  # 6. still refused: guided re-matching around the searched peaks,
         FullGraphStage(),  # 6. SC2-PCR on the full correspondence graph,
         PolishStage(),  # 6. the pool's best candidates polished on the dense scans
+        CovisibilityStage(),  # 6b. still refused: the best overlap where both scans see
+        LevelCheckStage(),  # 6c. a tilt the two ground fits do not allow is refused
         FineAlignmentStage(),  # 7. GICP of the pair from the chosen pose (refine=True)
+        NearMissStage(),  # 8. accepted and refined: no second basin from perturbed starts
     ]
-
-
-#: A refused pair with poorer labels takes the unlabeled result only with this many times
-#: estimator.min_inliers (docs/labels.md).
-FALLBACK_INLIER_FACTOR = 3
 
 
 class Registration:
@@ -330,63 +336,31 @@ class Registration:
         instead). The fine alignment refines a refused pose too (it is the best one found;
         ``success`` stays false).
 
-        Never worse than no labels (core/labeling/quality.py): a refused pair whose labels
-        were judged poorer is registered again as unlabeled, and that result is taken when
-        it is accepted (``labels_fallback_unlabeled`` in its diagnostics).
+        Never worse than no labels: stage 0 judges the pair's labels and decides the one
+        path it takes (core/labeling/quality.py).
         """
         self.complete(source)
         self.complete(target)
-        result, judged = self._run_stages(source, target, refine)
-        if result.success or judged is None or not judged.widen:
-            return result
-        wildcard = self._unlabeled_local_ss
-        plain, _ = self._run_stages(
-            quality.unlabeled_view(source, wildcard),
-            quality.unlabeled_view(target, wildcard),
-            refine,
-        )
-        strong = plain.num_inliers >= FALLBACK_INLIER_FACTOR * self.config.estimator.min_inliers
-        if not (plain.success and strong) or self._labels_refuse(
-            source, target, plain.transform, judged
-        ):
-            return result
-        plain.diagnostics['labels_fallback_unlabeled'] = True
-        return plain
-
-    def _labels_refuse(
-        self, source: PreparedScan, target: PreparedScan, transform: np.ndarray, judged: Any
-    ) -> str:
-        """
-        Why the labels refuse a pose the unlabeled fallback accepted ('' if they do not).
-
-        The fallback's pose must pass the weighed label check too
-        (core/estimation/label_model.py ``label_refusal``), and have
-        ``FALLBACK_INLIER_FACTOR`` times ``estimator.min_inliers`` inliers: on the 40 m GEDI
-        dev pairs the unlabeled judgement (``--labels none`` too) accepts a pose 42 m off
-        with 84 inliers and a higher label agreement than the truth; the right fallbacks
-        of the 20 m pairs have 155-371.
-        """
-        evidence, _ = self.judge(source, target, transform)
-        conf = judged.config(self.config).confidence
-        return label_model.label_refusal(evidence.label_agreement, evidence.label_ceiling, conf)
+        return self._run_stages(source, target, refine)
 
     def _run_stages(
         self, source: PreparedScan, target: PreparedScan, refine: bool
-    ) -> tuple[RegistrationResult, Any]:
-        """Run :attr:`stages` on completed scans: the result and the labels' judgement."""
+    ) -> RegistrationResult:
+        """Run :attr:`stages` on completed scans."""
         context = RegistrationContext(source, target, refine, self.config, self.scoring())
+        context.label_names = self.label_map.names
         context.diagnostics.update(
             source_keypoints=len(source.keypoints), target_keypoints=len(target.keypoints)
         )
         for stage in self.stages:
-            if not stage.wanted(context):
+            if stage.name in context.done or not stage.wanted(context):
                 continue
             with context.timed(stage.name):
                 found = stage.run(context)
             if found is not None and found.hypotheses:
                 with context.timed(ConfidenceStage.name):
                     consider(context, found)
-        return context.result(), context.label_quality
+        return context.result()
 
     def scoring(self) -> Scoring:
         """Return the scores with the current config and label rule (core/stages/scoring.py)."""

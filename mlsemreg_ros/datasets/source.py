@@ -67,3 +67,9 @@ class ScanSource(Protocol):
 
 class SourceError(ValueError):
     """A sequence cannot be opened or read; the message says why and what exists."""
+
+
+def expected_frames(total: int, stride: int, max_frames: int | None) -> int:
+    """Return the number of scans ``scans(stride, max_frames)`` yields out of ``total``."""
+    n = len(range(0, total, stride))
+    return n if max_frames is None else min(n, max_frames)

@@ -29,7 +29,7 @@ from typing import Protocol
 
 from mlsemreg_ros.core.metrics import inlier_mask
 from mlsemreg_ros.core.rigid import relative_transform
-from mlsemreg_ros.datasets.source import Scan, ScanSource
+from mlsemreg_ros.datasets.source import expected_frames, Scan, ScanSource
 from mlsemreg_ros.evaluation.records import EvalRun, FrameEstimate, FrameRecord
 from mlsemreg_ros.evaluation.scoring import score_frame
 from mlsemreg_ros.evaluation.settings import EvaluationConfig
@@ -56,12 +56,6 @@ class ReplayOptions:
     gt_poses: np.ndarray | None = None  # (F_bag, 4, 4) ground truth by bag index (overrides)
     plot_frame: int | None = None  # bag index of the correspondence plot (default: middle)
     progress: bool = True  # tqdm progress bar
-
-
-def expected_frames(total: int, stride: int, max_frames: int | None) -> int:
-    """Return the number of scans a replay keeps out of ``total``."""
-    n = len(range(0, total, stride))
-    return n if max_frames is None else min(n, max_frames)
 
 
 def replay(

@@ -67,3 +67,24 @@ def stop_node(process: subprocess.Popen) -> None:
         except subprocess.TimeoutExpired:
             process.kill()
             process.wait()
+
+
+class NodeProcess:
+    """mlsemreg_node in its own process, started again on demand (after a crash)."""
+
+    def __init__(self, domain_id: int, params_file: Path | None, log: Path) -> None:
+        """Start the node (:func:`start_node`)."""
+        self._start = (domain_id, params_file, log)
+        self.process = start_node(*self._start)
+
+    def alive(self) -> bool:
+        """Return whether the current process still runs."""
+        return self.process.poll() is None
+
+    def restart(self) -> None:
+        """Start a new process with the same parameters and log."""
+        self.process = start_node(*self._start)
+
+    def stop(self) -> None:
+        """Stop the current process (:func:`stop_node`)."""
+        stop_node(self.process)

@@ -43,6 +43,7 @@ from mlsemreg_ros.tools import (
     params,
     play,
     relocalize,
+    self_pairs,
     simulate,
     soak,
     tune,
@@ -160,6 +161,7 @@ for module, function, name, panel in (
     (cut_pairs, cut_pairs.cut_pairs, 'cut-pairs', DATA),
     (chain_pairs, chain_pairs.chain_pairs, 'chain-pairs', DATA),
     (bench_labels, bench_labels.bench_labels, 'bench-labels', EVALUATION),
+    (self_pairs, self_pairs.self_pairs, 'self-pairs', EVALUATION),
     (play, play.play, 'play', DATA),
     (params, params.params, 'params', MAINTENANCE),
 ):

@@ -15,19 +15,14 @@
 """
 ``mlsemreg kitti-to-bag SEQUENCE OUT``: a SemanticKITTI sequence folder as a rosbag2.
 
-Reads ``velodyne/*.bin``, ``labels/*.label`` (optional: without it the clouds are
-unlabeled, label 0, and a warning says so), ``poses.txt`` + ``calib.txt`` (ground truth,
-expressed in the LiDAR frame with ``Tr``) and ``times.txt`` (stamps) with
-:class:`~mlsemreg_ros.datasets.kitti.KittiSequence`, and writes the bag layout of
-``mlsemreg simulate`` with :func:`~mlsemreg_ros.datasets.bag.write_sequence_bag`.
+The conversion is :func:`mlsemreg_ros.datasets.kitti_bag.kitti_sequence_to_bag`; this
+module is its command line.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
-import shutil
-from typing import Annotated, Any
+from typing import Annotated
 import warnings
 
 from mlsemreg_ros.datasets.bag import GT_TOPIC, POINTS_TOPIC, WORLD_FRAME
@@ -53,60 +48,58 @@ HELP = (
 )
 
 
-def _uint32_labels(scans: Iterator[Any]) -> Iterator[Any]:
-    """Yield the scans with their labels as uint32 (the bag's label field)."""
-    import numpy as np
-
-    for scan in scans:
-        if scan.labels is not None:
-            scan.labels = scan.labels.astype(np.uint32)
-        yield scan
+SequenceArgument = Annotated[
+    Path,
+    typer.Argument(exists=True, file_okay=False, help='sequence folder, e.g. .../sequences/08'),
+]
+OutArgument = Annotated[
+    Path, typer.Argument(help='output bag directory (must not exist, see --force)')
+]
+PosesOption = Annotated[
+    Path | None,
+    typer.Option(
+        dir_okay=False, help='poses file (default: SEQUENCE/poses.txt)', rich_help_panel=DATA
+    ),
+]
+CalibOption = Annotated[
+    Path | None,
+    typer.Option(
+        dir_okay=False, help='calib file (default: SEQUENCE/calib.txt)', rich_help_panel=DATA
+    ),
+]
+TimesOption = Annotated[
+    Path | None,
+    typer.Option(
+        dir_okay=False, help='times file (default: SEQUENCE/times.txt)', rich_help_panel=DATA
+    ),
+]
+StartTimeOption = Annotated[
+    float,
+    typer.Option(
+        min=0.0,
+        help='header stamp of time 0 of times.txt, seconds since the epoch',
+        rich_help_panel=DATA,
+    ),
+]
+StrideOption = Annotated[
+    int, typer.Option(min=1, help='keep every n-th scan', rich_help_panel=DATA)
+]
+MaxFramesOption = Annotated[
+    int | None, typer.Option(min=1, help='stop after this many scans', rich_help_panel=DATA)
+]
 
 
 def kitti_to_bag(
-    sequence: Annotated[
-        Path,
-        typer.Argument(
-            exists=True, file_okay=False, help='sequence folder, e.g. .../sequences/08'
-        ),
-    ],
-    out: Annotated[
-        Path, typer.Argument(help='output bag directory (must not exist, see --force)')
-    ],
+    sequence: SequenceArgument,
+    out: OutArgument,
     storage: StorageOption = 'mcap',
     compress: CompressOption = False,
-    poses: Annotated[
-        Path | None,
-        typer.Option(
-            dir_okay=False, help='poses file (default: SEQUENCE/poses.txt)', rich_help_panel=DATA
-        ),
-    ] = None,
-    calib: Annotated[
-        Path | None,
-        typer.Option(
-            dir_okay=False, help='calib file (default: SEQUENCE/calib.txt)', rich_help_panel=DATA
-        ),
-    ] = None,
-    times: Annotated[
-        Path | None,
-        typer.Option(
-            dir_okay=False, help='times file (default: SEQUENCE/times.txt)', rich_help_panel=DATA
-        ),
-    ] = None,
-    start_time: Annotated[
-        float,
-        typer.Option(
-            min=0.0,
-            help='header stamp of time 0 of times.txt, seconds since the epoch',
-            rich_help_panel=DATA,
-        ),
-    ] = 1.7e9,
-    stride: Annotated[
-        int, typer.Option(min=1, help='keep every n-th scan', rich_help_panel=DATA)
-    ] = 1,
-    max_frames: Annotated[
-        int | None, typer.Option(min=1, help='stop after this many scans', rich_help_panel=DATA)
-    ] = None,
+    poses: PosesOption = None,
+    calib: CalibOption = None,
+    times: TimesOption = None,
+    start_time: StartTimeOption = 1.7e9,
+    stride: StrideOption = 1,
+    max_frames: MaxFramesOption = None,
     points_topic: PointsTopicOption = POINTS_TOPIC,
     gt_topic: GtTopicOption = GT_TOPIC,
     frame_id: FrameIdOption = 'velodyne',
@@ -115,49 +108,22 @@ def kitti_to_bag(
     quiet: QuietOption = False,
 ) -> int:
     """Convert a SemanticKITTI sequence folder into a rosbag2 (alias mlsemreg-kitti-to-bag)."""
-    import time
-
-    from mlsemreg_ros.datasets.bag import BagLayout, write_sequence_bag
-    from mlsemreg_ros.datasets.kitti import KittiSequence
+    from mlsemreg_ros.datasets.bag import BagLayout
+    from mlsemreg_ros.datasets.kitti_bag import kitti_sequence_to_bag, KittiFiles
     from mlsemreg_ros.datasets.source import SourceError
-    from mlsemreg_ros.evaluation.replay import expected_frames
     from mlsemreg_ros.evaluation.tables import print_text
-    from tqdm import tqdm
 
     replace_output(out, force)
     warnings.simplefilter('default')
-    start = time.perf_counter()
+    layout = BagLayout(storage, compress, points_topic, gt_topic, frame_id, world_frame)
+    files = KittiFiles(poses, calib, times, start_time)
     try:
-        source = KittiSequence(
-            sequence,
-            poses=poses,
-            calib=calib,
-            times=times,
-            start_time_ns=round(start_time * 1e9),
-            frame_id=frame_id,
+        conversion = kitti_sequence_to_bag(
+            sequence, out, layout, files, stride, max_frames, progress=not quiet
         )
-        if source.poses is None:
-            warnings.warn(
-                f'{sequence} has no poses.txt: the bag has no ground truth', stacklevel=2
-            )
-        scans = tqdm(
-            source.scans(stride, max_frames),
-            desc='convert',
-            unit='scan',
-            total=expected_frames(len(source), stride, max_frames),
-            disable=quiet,
-        )
-        layout = BagLayout(storage, compress, points_topic, gt_topic, frame_id, world_frame)
-        written = write_sequence_bag(out, _uint32_labels(scans), layout)
     except SourceError as error:
-        shutil.rmtree(out, ignore_errors=True)
         raise CommandError(str(error)) from None
-    print_text(
-        f'wrote {out}: {written.frames} scans, {written.points_per_scan:.0f} '
-        f'points/scan, labels {"yes" if source.label_files is not None else "NO"}'
-        f'{"" if source.label_files is not None else " (unlabeled)"}, ground truth '
-        f'{"yes" if written.ground_truth else "no"}, {time.perf_counter() - start:.1f} s'
-    )
+    print_text(conversion.summary(out))
     return 0
 
 

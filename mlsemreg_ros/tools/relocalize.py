@@ -224,6 +224,7 @@ def score(name: str, found: Any, truth: Any) -> dict[str, Any]:
                 'inliers': t.inliers,
                 'message': t.message,
                 'time_ms': t.time_ms,
+                'quick': t.quick,
             }
             for t in found.trials
         ],

@@ -54,10 +54,19 @@ class FineAlignmentConfig:
     downsampling_resolution: float = param(
         0.5,
         'Odometry: voxel edge to which the scan (already voxelized at '
-        'features.voxel_size) is downsampled for the map alignment (0: as it is).',
+        'features.voxel_size) is downsampled for the map alignment (0: as it is). '
+        'Scaled with a sparse sensor (fine.scale_with_sensor) unless set.',
         unit='m',
         low=0.0,
         high=5.0,
+    )
+    scale_with_sensor: bool = param(
+        True,
+        "Odometry: measure the first scan's angular point spacing and, on a sensor sparser "
+        'than a 64-beam one, scale fine.downsampling_resolution by it (up to x2) and '
+        'keyframe.min_points by its inverse square; a value the user set (other than the '
+        'default) is kept '
+        '(core/odometry/sensor_scale.py, docs/sensors.md).',
     )
     voxel_size: float = param(
         1.0,
@@ -121,13 +130,19 @@ class SweepAlignmentConfig:
         choices=('auto', 'off'),
     )
     points: int = param(
-        2000,
+        1000,
         'Raw points in the sweep alignment (every k-th point of the sweep, movable classes '
-        'left out).',
+        'left out; 2000 before issue 35: the same poses at a higher cost, docs/sensors.md).',
         low=100,
         high=1000000,
     )
-    iterations: int = param(8, 'Gauss-Newton steps of the sweep alignment.', low=1, high=100)
+    iterations: int = param(
+        5,
+        'Gauss-Newton steps of the sweep alignment (the robust kernel narrows from a '
+        'scale of 64 to 1 by the second-to-last step).',
+        low=1,
+        high=100,
+    )
     max_distance: float = param(
         1.0,
         'A point pairs with its nearest map voxel mean only within this distance.',
@@ -156,4 +171,84 @@ class SweepAlignmentConfig:
         unit='m',
         low=0.0,
         high=10.0,
+    )
+
+
+@dataclass
+class NearMissConfig:
+    """
+    The near-miss check of an accepted pair pose (docs/confidence.md#near-misses).
+
+    After the fine alignment, the pair is aligned again from ``near_miss.starts``
+    perturbed poses; a start that converges elsewhere to a place about as good as the
+    refined pose (a second basin) disputes it.
+    """
+
+    enabled: bool = param(
+        True,
+        'Check an accepted pair pose for a second basin: the fine alignment again from '
+        'perturbed starts must come back to the same place, or land somewhere clearly '
+        'worse (core/stages/near_miss.py).',
+    )
+    action: str = param(
+        'refuse',
+        'A disputed pose: refuse it, or inflate its covariance along the disputed '
+        'direction until its standard deviation there covers the gap between the basins.',
+        choices=('refuse', 'inflate'),
+    )
+    starts: int = param(
+        4,
+        'Perturbed starts: 2 = along the weakest horizontal direction of the Hessian, both '
+        'ways; 4 adds the perpendicular direction, both ways (the weakest direction of a '
+        'nearly isotropic Hessian says little: a fence of posts 0.8 m apart was caught '
+        'from both sides only with 4).',
+        low=2,
+        high=4,
+    )
+    offset: float = param(
+        0.6,
+        'Translation of each perturbed start from the refined pose.',
+        unit='m',
+        low=0.05,
+        high=5.0,
+    )
+    yaw_offset: float = param(
+        1.0,
+        'Yaw of each perturbed start from the refined pose (the sign follows the shift).',
+        unit='deg',
+        low=0.0,
+        high=20.0,
+    )
+    agreement_translation: float = param(
+        0.4,
+        'A perturbed start that converges within this translation (and '
+        'near_miss.agreement_rotation) of the refined pose came back to the same place '
+        '(0.2 refused a right pose of a field drive at stride 20 for a place 0.37 m away: '
+        'two places that close are both within the 0.6 m bound).',
+        unit='m',
+        low=0.001,
+        high=5.0,
+    )
+    agreement_rotation: float = param(
+        1.0,
+        'Rotation of near_miss.agreement_translation.',
+        unit='deg',
+        low=0.001,
+        high=20.0,
+    )
+    rival_share: float = param(
+        0.95,
+        'Another basin disputes the refined pose when its inlier share is at least this '
+        "times the refined pose's (and its point-to-distribution residual at most "
+        "1/rival_share times the refined pose's); a clearly worse basin does not.",
+        low=0.0,
+        high=1.0,
+    )
+    max_residual: float = param(
+        0.0,
+        'Refuse a refined pose whose mean point-to-distribution residual (squared '
+        'Mahalanobis distance of the source points to their nearest target Gaussians, '
+        'inliers only) exceeds this (0: not checked).',
+        low=0.0,
+        high=1000.0,
     )

@@ -53,17 +53,16 @@ from mlsemreg_ros.core.alignment.config import SweepAlignmentConfig
 from mlsemreg_ros.core.features import kernels
 from mlsemreg_ros.core.features.deskew import deskew, SweepMotion
 import numpy as np
-from scipy.spatial.transform import Rotation
 import small_gicp
 
 #: Added to every map voxel's covariance (m^2): a voxel of a few points is not a plane of 0 m.
 VOXEL_REGULARIZATION = 0.01
 #: Weak prior on the pose correction: rotation (rad) and translation (m) standard deviations.
 POSE_PRIOR_SIGMA = (0.05, 0.5)
-#: Geman-McClure scale (squared Mahalanobis distance) of the first step; it halves at every
-#: step down to 1 (a voxel's spread): a bent sweep's far points still pull at first.
+#: Geman-McClure scale (squared Mahalanobis distance) of the first step; it falls
+#: geometrically to 1 (a voxel's spread) at the second-to-last step (halving at every step
+#: with the default 8 steps): a bent sweep's far points still pull at first.
 KERNEL_SCALE_START = 64.0
-KERNEL_SCALE_DECAY = 0.5
 #: Gauss-Newton stops when the update is below this (rad, m, rad/s, m/s).
 STEP_TOLERANCE = 1e-4
 
@@ -147,6 +146,7 @@ def align_sweep(
     )
     pose_offset = np.zeros(6)  # accumulated (phi, t) of T relative to T_initial
     pairs, iteration = 0, 0
+    decay = KERNEL_SCALE_START ** (-1.0 / max(config.iterations - 2, 1))
     for iteration in range(1, config.iterations + 1):
         motion = SweepMotion(xi[:3], xi[3:])
         deskewed = deskew(points, times, motion)
@@ -157,7 +157,7 @@ def align_sweep(
         if pairs < 12:
             break
         d, tau, j = deskewed[keep], times[keep], index[keep]
-        scale = max(1.0, KERNEL_SCALE_START * KERNEL_SCALE_DECAY ** (iteration - 1))
+        scale = max(1.0, KERNEL_SCALE_START * decay ** (iteration - 1))
         hessian, gradient = normal_equations(
             d, tau, world[keep] - gaussians.means[j], gaussians.covariances[j], T[:3, :3], scale
         )
@@ -243,6 +243,11 @@ def _skew_batch(vectors: np.ndarray) -> np.ndarray:
 def _se3_small(step: np.ndarray) -> np.ndarray:
     """Return the (4, 4) pose of a small step ``(phi, t)``: rotation exact, translation as is."""
     out = np.eye(4)
-    out[:3, :3] = Rotation.from_rotvec(step[:3]).as_matrix()
+    phi = np.asarray(step[:3], dtype=np.float64)
+    angle = float(np.sqrt(phi @ phi))
+    if angle > 0.0:  # Rodrigues (scipy's Rotation costs ten times as much on one vector)
+        k = phi / angle
+        skew = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        out[:3, :3] += np.sin(angle) * skew + (1.0 - np.cos(angle)) * (skew @ skew)
     out[:3, 3] = step[3:]
     return out

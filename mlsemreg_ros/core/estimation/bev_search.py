@@ -178,12 +178,16 @@ class Correlator:
         target = occupancy(target_xy, target_channel, grid, num_channels, limit)
         self.target_spectrum = fft.rfft2(target, workers=-1)
         self.shift = np.fft.fftfreq(grid.size, d=1.0 / grid.size) * grid.cell_size  # metres
-        reachable = np.abs(self.shift) <= grid.max_translation
-        self.window = reachable[:, None] & reachable[None, :]
+        # the reachable shifts, |shift| <= max_translation: in grid order (ascending cell)
+        # and as one block in shift order (ascending shift), for the local maxima
+        self.reachable = np.flatnonzero(np.abs(self.shift) <= grid.max_translation)
+        by_shift = np.argsort(self.shift[self.reachable], kind='stable')
+        self.to_shift_order = by_shift
+        self.to_grid_order = np.argsort(by_shift, kind='stable')
 
     def peaks(self, yaws: np.ndarray, peaks_per_yaw: int) -> np.ndarray:
         """Best ``peaks_per_yaw`` local maxima of the correlation at every yaw (deg)."""
-        grid, size = self.grid, self.grid.size
+        grid = self.grid
         rows = [np.zeros((0, 4))]
         for first in range(0, yaws.size, _YAW_CHUNK):
             chunk = yaws[first:][:_YAW_CHUNK]
@@ -192,29 +196,46 @@ class Correlator:
             ]
             rotated = self.source_xy[None] @ rotation.transpose(0, 2, 1)  # (Y, n, 2)
             source = _rasterise(rotated, self.source_channel, grid, self.num_channels, grid.radius)
-            spectrum = fft.rfft2(source, workers=-1)
-            np.conjugate(spectrum, out=spectrum)
-            spectrum *= self.target_spectrum[None]
-            correlation = fft.irfft2(spectrum.sum(axis=1), s=(size, size), workers=-1)
-            correlation[:, ~self.window] = -np.inf
-            local_max = ndimage.maximum_filter(correlation, size=(1, 3, 3), mode='wrap')
-            is_peak = (correlation == local_max) & np.isfinite(correlation)
+            correlation = self._reachable_correlation(source)  # (Y, w, w), grid order
+            # local maxima over the reachable block in shift order; -inf beyond it (as the
+            # full grid with the unreachable shifts at -inf: the block does not wrap)
+            in_shift = correlation[:, self.to_shift_order][:, :, self.to_shift_order]
+            local_max = ndimage.maximum_filter(
+                in_shift, size=(1, 3, 3), mode='constant', cval=-np.inf
+            )
+            is_peak = in_shift == local_max
+            is_peak = is_peak[:, self.to_grid_order][:, :, self.to_grid_order]
+            width = self.reachable.size
             for y in range(chunk.size):  # one small top-k per yaw
                 flat = np.flatnonzero(is_peak[y])
                 values = correlation[y].ravel()[flat]
                 best = flat[np.argsort(-values, kind='stable')[:peaks_per_yaw]]
-                u, v = np.unravel_index(best, (size, size))
+                u, v = np.unravel_index(best, (width, width))
                 rows.append(
                     np.column_stack(
                         [
                             correlation[y][u, v],
                             np.full(best.size, chunk[y]),
-                            self.shift[u],
-                            self.shift[v],
+                            self.shift[self.reachable[u]],
+                            self.shift[self.reachable[v]],
                         ]
                     )
                 )
         return np.concatenate(rows)
+
+    def _reachable_correlation(self, source: np.ndarray) -> np.ndarray:
+        """
+        Correlation of ``(Y, C, s, s)`` source grids with the target at the reachable shifts.
+
+        Summed over channels in the frequency domain; returns ``(Y, w, w)`` float32, the
+        reachable rows and columns in grid order.
+        """
+        size = self.grid.size
+        spectrum = fft.rfft2(source, workers=-1)
+        np.conjugate(spectrum, out=spectrum)
+        spectrum *= self.target_spectrum[None]
+        correlation = fft.irfft2(spectrum.sum(axis=1), s=(size, size), workers=-1)
+        return np.ascontiguousarray(correlation[:, self.reachable][:, :, self.reachable])
 
 
 def yaw_search(

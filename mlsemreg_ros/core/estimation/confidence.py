@@ -94,6 +94,10 @@ class Evidence:
     label_ceiling: float = float('nan')
     #: the same for the distinctive classes only (label_model.distinctive_ceiling); NaN: unknown
     distinctive_ceiling: float = float('nan')
+    #: agreement beyond chance at the pose (label_model.information); NaN: not measured
+    label_information: float = float('nan')
+    #: what the labels give against themselves (label_model.information_ceiling); NaN: unknown
+    information_ceiling: float = float('nan')
 
     @property
     def inlier_ratio(self) -> float:
@@ -203,12 +207,19 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
             f'overlap {evidence.overlap:.3f} < confidence.min_overlap={config.min_overlap:g}'
         )
     ceiling = evidence.label_ceiling
-    if np.isfinite(ceiling) and ceiling < config.min_label_ceiling:
+    information = config.label_rule == 'information'  # poorer labels: replaces the ceiling
+    if not information and np.isfinite(ceiling) and ceiling < config.min_label_ceiling:
         reasons.append(
             f'label ceiling {ceiling:.2f} < confidence.min_label_ceiling='
             f'{config.min_label_ceiling:g}: the labels are too noisy to vouch for a pose'
         )
-    label = label_refusal(evidence.label_agreement, evidence.label_ceiling, config)
+    label = label_refusal(
+        evidence.label_agreement,
+        evidence.label_ceiling,
+        config,
+        evidence.label_information,
+        evidence.information_ceiling,
+    )
     if label:
         reasons.append(label)
     if not evidence.tilt_deg <= config.max_tilt:  # NaN fails too

@@ -569,9 +569,30 @@ class ConfidenceConfig:
         'relative',
         'How the label agreement is judged (core/estimation/label_model.py, docs/label_noise.md): '
         'relative (against the ceiling these labels can give, the geometric mean of the two '
-        "scans' self-agreement: min_relative_agreement and label_floor) or fixed "
-        '(min_label_agreement).',
-        choices=('relative', 'fixed'),
+        "scans' self-agreement: min_relative_agreement and label_floor), fixed "
+        '(min_label_agreement) or information (the agreement beyond chance against what the '
+        'labels give against themselves: min_relative_information; the label-quality stage '
+        'sets it for poorer labels, docs/labels.md).',
+        choices=('relative', 'fixed', 'information'),
+    )
+    min_relative_information: float = param(
+        0.3,
+        'information rule: smallest label agreement beyond chance (Cohen kappa of the '
+        "pose's dense label co-occurrence) as a share of the labels' own (the geometric "
+        "mean of both scans' kappa against their nearest neighbours): the labels' veto. "
+        'Dev pairs: right poses 0.37-1.16 with 30 % flips, 0.37-0.80 with geometric '
+        'labels (docs/labels.md).',
+        low=0.0,
+        high=2.0,
+    )
+    min_label_information: float = param(
+        0.1,
+        "Labels whose own agreement beyond chance (the geometric mean of both scans' kappa "
+        'against their nearest neighbours) is below this are no better than chance: the '
+        'pair is matched and judged as unlabeled (core/labeling/quality.py). Dev pairs: '
+        '0.87-0.96 as given, 0.14-0.46 with 30 % flips, 0.01-0.08 with 70 %.',
+        low=0.0,
+        high=1.0,
     )
     min_relative_agreement: float = param(
         0.75,

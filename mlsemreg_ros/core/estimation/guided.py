@@ -26,7 +26,9 @@ the true matches and drops most false ones. SC2-PCR then runs again on them.
 
 from __future__ import annotations
 
+from mlsemreg_ros.core.estimation import kernels
 from mlsemreg_ros.core.estimation.verification import LabelCompatibility
+from mlsemreg_ros.core.features.kernels import use_compiled
 from mlsemreg_ros.core.results import Correspondences, PreparedScan
 import numpy as np
 from scipy.spatial import cKDTree
@@ -38,6 +40,7 @@ def guided_correspondences(
     T_target_source: np.ndarray,
     radius: float,
     labels: LabelCompatibility | None = None,
+    compiled: bool | None = None,
 ) -> Correspondences:
     """
     Match every source keypoint only near where ``T_target_source`` puts it.
@@ -53,6 +56,8 @@ def guided_correspondences(
         return empty
     T = np.asarray(T_target_source, dtype=np.float64)
     moved = source.keypoints @ T[:3, :3].T + T[:3, 3]
+    if use_compiled(compiled):
+        return _compiled(moved, source, target, radius, labels)
     near = cKDTree(moved).sparse_distance_matrix(
         cKDTree(target.keypoints), radius, output_type='ndarray'
     )
@@ -73,3 +78,33 @@ def guided_correspondences(
     order = np.lexsort((distance, i))  # by source keypoint, best descriptor first
     first = order[np.unique(i[order], return_index=True)[1]]
     return Correspondences(i[first], j[first], distance[first].astype(np.float64))
+
+
+def _compiled(
+    moved: np.ndarray,
+    source: PreparedScan,
+    target: PreparedScan,
+    radius: float,
+    labels: LabelCompatibility | None,
+) -> Correspondences:
+    """:func:`guided_correspondences` by the compiled kernel."""
+    if labels is not None:
+        source_labels = np.asarray(source.labels, dtype=np.int64)[source.keypoint_indices]
+        target_labels = np.asarray(target.labels, dtype=np.int64)[target.keypoint_indices]
+        compatible = np.asarray(labels.compatible) > 0
+    else:
+        source_labels = np.zeros(len(moved), dtype=np.int64)
+        target_labels = np.zeros(len(target.keypoints), dtype=np.int64)
+        compatible = np.ones((1, 1), dtype=bool)
+    i, j, distance = kernels.nearest_in_descriptor_space(
+        np.ascontiguousarray(moved, dtype=np.float64),
+        np.ascontiguousarray(target.keypoints, dtype=np.float64),
+        float(radius),
+        np.ascontiguousarray(source.descriptors, dtype=np.float32),
+        np.ascontiguousarray(target.descriptors, dtype=np.float32),
+        np.ascontiguousarray(source_labels),
+        np.ascontiguousarray(target_labels),
+        np.ascontiguousarray(compatible),
+        labels is not None,
+    )
+    return Correspondences(i, j, distance.astype(np.float64))

@@ -53,8 +53,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 import time
 
+from mlsemreg_ros.core.estimation import kernels
 from mlsemreg_ros.core.estimation.config import EstimatorConfig, VerificationConfig
 from mlsemreg_ros.core.estimation.sc2pcr import count_inliers, post_refinement
+from mlsemreg_ros.core.features.kernels import use_compiled
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.poses import distinct_hypotheses, residuals, same_pose
 from mlsemreg_ros.core.results import (
@@ -284,18 +286,33 @@ def verify_hypotheses(
 
 
 def refine_starts(
-    starts: np.ndarray, src: np.ndarray, dst: np.ndarray, estimator: EstimatorConfig
+    starts: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    estimator: EstimatorConfig,
+    compiled: bool | None = None,
 ) -> np.ndarray:
     """
     SC2-PCR post-refinement of every ``(N, 4, 4)`` start on the correspondences near it.
 
     Near: residual below ``_REFINE_SUPPORT x estimator.refine_threshold`` under the start
     (as in :func:`candidate_hypotheses`). A start with fewer than three near
-    correspondences is returned as it is.
+    correspondences is returned as it is. ``compiled``: None uses the numba kernel when
+    available (:func:`~mlsemreg_ros.core.estimation.kernels.refine_all`, all starts in one
+    loop), False one NumPy post-refinement per start.
     """
     finite = np.isfinite(src).all(axis=1) & np.isfinite(dst).all(axis=1)
     p, q = src[finite], dst[finite]
     support = _REFINE_SUPPORT * estimator.refine_threshold
+    if use_compiled(compiled) and len(starts):
+        return kernels.refine_all(
+            np.ascontiguousarray(starts, dtype=np.float64),
+            np.ascontiguousarray(p, dtype=np.float64),
+            np.ascontiguousarray(q, dtype=np.float64),
+            float(support),
+            float(estimator.refine_threshold),
+            int(estimator.refine_iterations),
+        )
     refined = starts.copy()
     for i, start in enumerate(starts):  # one small least-squares problem per start
         near = residuals(start, p, q) < support

@@ -116,6 +116,13 @@ class MapConfig:
         'Stop at the first candidate whose registration is accepted (else register onto '
         'every candidate and keep the accepted one with the most inliers).',
     )
+    quick_first: bool = param(
+        True,
+        'With map.stop_at_first_accepted: register every candidate first without the BEV '
+        'search and the refused path, and keep the first whose pose is accepted on strong '
+        'evidence (the full registration would return the same); only then register the '
+        'candidates again with the full path (core/maps/relocalization.py).',
+    )
     relocalize_after_failures: int = param(
         2,
         'A lost odometry (this many rejected scans in a row) relocalizes against its own '

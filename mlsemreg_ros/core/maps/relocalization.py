@@ -29,6 +29,15 @@ For a query scan (sensor frame, labeled):
    ``map.stop_at_first_accepted`` the first accepted candidate (best scan context first)
    is the answer; else the accepted one with the most sparse inliers.
 
+Quick pass first (``map.quick_first``, with ``map.stop_at_first_accepted``): the candidates
+are first registered without the BEV search and the stages after it
+(``bev_search.enabled`` false). A pose accepted there on strong evidence
+(``bev_search.weak_inliers`` or more) is exactly what the full registration returns, since
+the search would not have run; it is taken at once. Only when no candidate gives one are
+the candidates registered again with the full path, best scan context first. A place seen
+again is then found at the cost of the cheap stages, and a refused query pays the quick pass
+on top of the full one.
+
 No accepted candidate: the query is refused (``found`` false) and no pose is given.
 """
 
@@ -40,8 +49,34 @@ import time
 from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
 from mlsemreg_ros.core.maps.submap_check import refine_on_submap, static_points
 from mlsemreg_ros.core.pipeline import Registration
-from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
+from mlsemreg_ros.core.results import PreparedScan, RegistrationResult, VerificationResult
+from mlsemreg_ros.core.stages.context import RegistrationContext, Stage
 import numpy as np
+
+
+class _WhenDecided:
+    """
+    The quick pass's fine alignment: only for a pose accepted on strong evidence.
+
+    Any other quick result is set aside and the candidate registered again with the full
+    path, so refining it would be wasted (one GICP per refused candidate).
+    """
+
+    def __init__(self, stage: Stage) -> None:
+        """Wrap the registration's fine-alignment stage."""
+        self.stage = stage
+        self.name = stage.name
+
+    def wanted(self, context: RegistrationContext) -> bool:
+        """The stage's own condition, for an accepted pose of ``bev_search.weak_inliers``."""
+        strong = context.evidence is not None and (
+            context.evidence.num_inliers >= context.config.bev_search.weak_inliers
+        )
+        return strong and not context.refusal and self.stage.wanted(context)
+
+    def run(self, context: RegistrationContext) -> VerificationResult | None:
+        """Run the wrapped stage."""
+        return self.stage.run(context)
 
 
 @dataclass
@@ -54,6 +89,7 @@ class CandidateTrial:
     inliers: int
     message: str
     time_ms: float
+    quick: bool = False  # registered in the quick pass (map.quick_first)
 
 
 @dataclass
@@ -80,6 +116,25 @@ class Relocalizer:
         """Use ``registration`` (its config) and the keyframes of ``store``."""
         self.registration = registration
         self.store = store
+        self._quick: tuple[object, Registration] | None = None
+
+    def quick_registration(self) -> Registration:
+        """
+        The registration without the BEV search and the stages after it (``map.quick_first``).
+
+        The same label map and stage list; made again when the registration's config changes.
+        Its fine alignment runs only for a pose the quick pass can keep (:class:`_WhenDecided`).
+        """
+        config = self.registration.config
+        if self._quick is None or self._quick[0] is not config:
+            quick = config.replace({'bev_search.enabled': False})
+            registration = Registration(quick, self.registration.label_map)
+            registration.stages = [
+                _WhenDecided(stage) if stage.name == 'fine' else stage
+                for stage in self.registration.stages
+            ]
+            self._quick = (config, registration)
+        return self._quick[1]
 
     def relocalize(
         self,
@@ -111,12 +166,26 @@ class Relocalizer:
         trials: list[CandidateTrial] = []
         best: tuple[int, RegistrationResult] | None = None
         tic = time.perf_counter()
-        for candidate in shortlist:
+        search = self.registration.config.bev_search
+        passes = [(self.registration, False)]
+        if cfg.quick_first and cfg.stop_at_first_accepted and search.enabled:
+            passes.insert(0, (self.quick_registration(), True))
+        decided: set[int] = set()  # the full path would give the quick pass's result
+        for (registration, quick), candidate in [(p, c) for p in passes for c in shortlist]:
+            if best is not None and cfg.stop_at_first_accepted:
+                break
             keyframe_id = ids[candidate.index]
+            if keyframe_id in decided:
+                continue
             began = time.perf_counter()
             target = self.store.prepared(keyframe_id, self.registration)
-            result = self.registration.register(prepared, target)
+            result = registration.register(prepared, target)
             accepted = bool(result.success) and bool(np.all(np.isfinite(result.transform)))
+            if quick and accepted:  # weak evidence: the full path would search
+                strong = result.diagnostics.get('confidence_num_inliers', 0)
+                accepted = strong >= search.weak_inliers
+                if accepted:
+                    decided.add(keyframe_id)
             inliers = int(np.count_nonzero(result.inlier_mask))
             T_keyframe_query, message = result.transform, result.message
             if accepted and cfg.relocalize_refine:
@@ -139,12 +208,11 @@ class Relocalizer:
                     inliers,
                     message,
                     1e3 * (time.perf_counter() - began),
+                    quick,
                 )
             )
             if accepted and (best is None or inliers > int(np.count_nonzero(best[1].inlier_mask))):
                 best = (keyframe_id, result, T_keyframe_query)
-                if cfg.stop_at_first_accepted:
-                    break
         timings['registration_ms'] = 1e3 * (time.perf_counter() - tic)
         timings['total_ms'] = 1e3 * (time.perf_counter() - start)
         if best is None:

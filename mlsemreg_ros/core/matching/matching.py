@@ -193,6 +193,14 @@ def group_bitmask(local_ss: np.ndarray) -> np.ndarray:
     return np.bitwise_or.reduce(np.where(local_ss, weights, np.uint64(0)), axis=1)
 
 
+def _one_pattern(source_groups: np.ndarray, target_groups: np.ndarray) -> bool:
+    """Whether every source and target keypoint joins exactly the same (nonempty) groups."""
+    if len(source_groups) == 0 or len(target_groups) == 0:
+        return False
+    first = source_groups[0]
+    return bool(first != 0 and np.all(source_groups == first) and np.all(target_groups == first))
+
+
 # ----------------------------------------------------------------------------------------
 def semantic_match(
     source_descriptors: np.ndarray,
@@ -219,6 +227,11 @@ def semantic_match(
     """
     src = np.ascontiguousarray(source_descriptors, dtype=np.float32)
     dst_all = np.ascontiguousarray(target_descriptors, dtype=np.float32)
+    if source_bmr is None and _one_pattern(source_groups, target_groups):
+        # every keypoint in the same groups (an unlabeled scan: every group): each group
+        # matches alike, so one group gives the same union (~40 times faster)
+        source_groups = np.ones(len(source_groups), dtype=np.uint64)
+        target_groups = np.ones(len(target_groups), dtype=np.uint64)
     groups_present = np.bitwise_or.reduce(
         source_groups, initial=np.uint64(0)
     ) & np.bitwise_or.reduce(target_groups, initial=np.uint64(0))

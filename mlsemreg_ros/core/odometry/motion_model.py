@@ -48,6 +48,8 @@ class Prediction:
     T_odom_current: np.ndarray  # (4, 4)
     stamp_gap: float  # time since the last accepted pose, in nominal frame intervals
     #                   (1 when the stamps cannot tell); the tracking trust rule reads it
+    sigmas: tuple[float, float] | None = None  # a prior's stated (m, deg) standard deviations
+    #                   (None: constant velocity); widen the correction bounds (motion_bound)
 
 
 class MotionModel(Protocol):

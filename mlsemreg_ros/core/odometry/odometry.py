@@ -49,6 +49,7 @@ from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, motion
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, SweepMotion
 from mlsemreg_ros.core.labeling.source import LabelSource
+from mlsemreg_ros.core.odometry import sensor_scale
 from mlsemreg_ros.core.odometry.deskew_guard import guard_deskew
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (
@@ -112,6 +113,7 @@ class Odometry:
         self._start_scan: tuple[PreprocessedScan, np.ndarray, int] | None = None  # to deskew
         self._sweep_twist: tuple[SweepMotion, int] | None = None  # (twist, stamp) of a sweep
         self._last_frame_covariance: np.ndarray | None = None  # of the last accepted frame
+        self.sensor_scale: sensor_scale.SensorScale | None = None  # from the first scan
 
     @property
     def config(self) -> RegistrationConfig:
@@ -132,6 +134,7 @@ class Odometry:
         alignment cloud only when ``fine`` changed; the local map is cleared when its
         structure (method, voxel size) changed.
         """
+        config = sensor_scale.apply(config, self.sensor_scale)  # a sparse sensor's values
         self.preprocessor.check(config)
         old = self.registration.config
         self.registration.config = config
@@ -223,6 +226,11 @@ class Odometry:
         restarted).
         """
         start = time.perf_counter()
+        if self.sensor_scale is None and self.keyframe is None:  # scale with the sensor
+            measured = sensor_scale.measure(points, self.config)
+            if measured.points >= sensor_scale.MIN_POINTS:
+                self.sensor_scale = measured
+                self.reconfigure(self.config)
         labelled = self.label_source(points, labels, self.config, intensity)  # None: no field
         labels = labelled.labels
         self.preprocessor.labelled = labelled  # noted at every preprocessing of this scan

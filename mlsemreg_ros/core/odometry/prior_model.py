@@ -136,7 +136,7 @@ class PriorMotionModel:
             gap = min(gap, 1.0)  # the prior spans the gap: as good as one frame interval
         self.last_source = prior.source
         self._count(prior.source)
-        return Prediction(pose @ prior.T, gap)
+        return Prediction(pose @ prior.T, gap, (sigma_t, sigma_r))
 
     def update(self, pose: np.ndarray, stamp_ns: int) -> None:
         """Take an accepted pose: learn the biases and the wheel scale from the last interval."""

@@ -42,6 +42,7 @@ from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
 from mlsemreg_ros.core.odometry.local_map import Keyframe, LocalMap
 from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
+from mlsemreg_ros.core.odometry.second_look import second_look
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.trust import Candidate, InlierHistory, Trust
 from mlsemreg_ros.core.results import PreparedScan
@@ -104,6 +105,10 @@ class Tracker:
         """
         if cfg.fine.method == 'off':
             return chain(register(current, keyframe), cfg)
+        self.trust.motion_bound.predicted(
+            None if prediction is None else prediction.T_odom_current,
+            None if prediction is None else prediction.sigmas,
+        )
         predicted = self.refine_prediction(current, prediction, cfg, timings)
         gap = prediction.stamp_gap if prediction is not None else 1.0
         why_global = self.trust.tracking_refusal(predicted, gap, cfg.odometry)
@@ -114,6 +119,7 @@ class Tracker:
         chosen = decide(
             estimate, predicted, lambda T: self.candidate('global', T, current, cfg), cfg
         )
+        chosen = second_look(self, chosen, estimate, current, cfg)  # near misses, rescue
         chosen.reason = '; '.join(
             r for r in (f'registered globally: {why_global}', chosen.reason) if r
         )
@@ -173,6 +179,7 @@ class Tracker:
         )
         tic = time.perf_counter()
         raw, pose, note, sweep_twist = self.align_sweep(raw, pose, preprocessor, cfg)
+        self.trust.motion_bound.accepted(pose)  # the prediction's error (motion_bound.py)
         chosen.timings_ms['sweep_alignment_ms'] = 1e3 * (time.perf_counter() - tic)
         if note:
             chosen.reason = '; '.join(r for r in (chosen.reason, note) if r)

@@ -26,6 +26,8 @@ map and judged here (:meth:`Trust.judge`):
                         fraction of the last accepted frames (:class:`InlierHistory`)
     tracking            the refined prediction may be accepted alone, without a global
                         registration (:meth:`Trust.tracking_refusal`)
+    motion bound        the prediction's correction and tracking bounds widen with its own
+                        recent errors (core/odometry/motion_bound.py)
 
 The decision between trusted candidates is ``core/odometry/decision.py``.
 """
@@ -38,6 +40,7 @@ from typing import TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.alignment import Alignment
 from mlsemreg_ros.core.alignment.fine_alignment import refinement_refusal, RefinementBounds
+from mlsemreg_ros.core.odometry.motion_bound import MotionBound
 from mlsemreg_ros.core.poses import within_bounds
 from mlsemreg_ros.core.rigid import rotation_angle_deg
 import numpy as np
@@ -165,16 +168,20 @@ class Trust:
     def __init__(self) -> None:
         self.history = InlierHistory()  # inlier fractions of the last accepted frames
         self.tracked_in_a_row = 0  # scans accepted by the refined prediction alone
+        self.motion_bound = MotionBound()  # the prediction's bounds from its recent errors
 
     def restart(self) -> None:
         """Forget the history (a new map)."""
         self.history.clear()
         self.tracked_in_a_row = 0
+        self.motion_bound.clear()
 
     def judge(
         self, name: str, T_initial: np.ndarray, alignment: Alignment, odometry: OdometryConfig
     ) -> Candidate:
         """Return the candidate ``name``: its alignment and why it is not trusted ('' if it is)."""
+        if name == 'prediction':
+            odometry = self.motion_bound.widen(odometry)
         refusal = refinement_refusal(
             alignment, RefinementBounds.of(odometry)
         ) or relative_inlier_refusal(
@@ -187,7 +194,11 @@ class Trust:
     ) -> str:
         """Why the refined prediction may not be accepted alone ('' if it may)."""
         return tracking_refusal(
-            predicted, odometry, self.tracked_in_a_row, stamp_gap, self.history
+            predicted,
+            self.motion_bound.widen(odometry),
+            self.tracked_in_a_row,
+            stamp_gap,
+            self.history,
         )
 
     def accepted(self, inlier_fraction: float | None) -> None:

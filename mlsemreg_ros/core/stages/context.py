@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.estimation.candidates import CandidatePool
     from mlsemreg_ros.core.estimation.confidence import Evidence
+    from mlsemreg_ros.core.features.levelling import GroundFit
     from mlsemreg_ros.core.labeling.quality import LabelQuality
     from mlsemreg_ros.core.stages.scoring import Scoring
 
@@ -74,6 +75,9 @@ class RegistrationContext:
     scoring: Scoring  # the verification's scores with this config (core/stages/scoring.py)
     timings_ms: dict[str, float] = field(default_factory=dict)
     diagnostics: dict[str, Any] = field(default_factory=dict)
+    label_names: tuple[str, ...] = ()  # the label map's class names, by learning id
+    # levelling (core/stages/levelling.py): the two scans' ground fits, once measured
+    ground_fits: tuple[GroundFit | None, GroundFit | None] | None = None
     # label quality
     label_quality: LabelQuality | None = None  # the pair's labels judged (None: not judged)
     # matching
@@ -90,7 +94,8 @@ class RegistrationContext:
     pool: CandidatePool | None = None
     chosen: int | None = None  # index into pool.hypotheses (None: the estimator's pose)
     trusted: bool = True  # the distinctive objects may decide (confidence.objects_trusted)
-    ceilings: tuple[float, float] = (1.0, 1.0)  # the labels' and the distinctive classes'
+    #: the labels', the distinctive classes' and the information ceiling (label_model.py)
+    ceilings: tuple[float, float, float] = (1.0, 1.0, float('nan'))
     inliers: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))  # (K,)
     evidence: Evidence | None = None
     refusal: str = ''  # the confidence rule's verdict on ``transform`` ('' = accepted)
@@ -101,6 +106,7 @@ class RegistrationContext:
     coarse: np.ndarray | None = None  # the pose before the fine alignment
     alignment: Alignment | None = None
     doubts: list[str] = field(default_factory=list)  # later stages' reasons to refuse
+    done: set[str] = field(default_factory=set)  # stages an earlier stage did (label quality)
 
     def timed(self, stage: str) -> Any:
         """Time a ``with`` block as ``timings_ms[stage + '_ms']``."""

@@ -104,15 +104,35 @@ class Scoring:
             self.config.verification.overlap_distance,
         )
 
-    def ceilings(self, source: PreparedScan, target: PreparedScan) -> tuple[float, float]:
-        """Return the labels' ceiling and the distinctive classes' (estimation/label_model.py)."""
+    def ceilings(self, source: PreparedScan, target: PreparedScan) -> tuple[float, float, float]:
+        """
+        Return the labels' ceiling, the distinctive classes' and the information ceiling.
+
+        (core/estimation/label_model.py.) The information ceiling is measured only under the
+        ``information`` label rule (poorer labels, core/labeling/quality.py), else NaN.
+        """
         cfg = self.config.verification
+        information = float('nan')
+        if self.config.confidence.label_rule == 'information':
+            information = label_model.information_ceiling(source, target, self.compatibility, cfg)
         return (
             label_model.label_ceiling(source, target, self.compatibility, cfg),
             label_model.distinctive_ceiling(
                 source, target, self.distinctive, cfg.overlap_distance
             ),
+            information,
         )
+
+    def information(
+        self, transform: np.ndarray, source: PreparedScan, target: PreparedScan
+    ) -> float:
+        """Label agreement beyond chance at ``transform`` (NaN unless the information rule)."""
+        if self.config.confidence.label_rule != 'information':
+            return float('nan')
+        counts = label_model.cooccurrence(
+            transform, source, target, len(self.compatibility.counted), self.config.verification
+        )
+        return label_model.information(counts, self.compatibility)
 
     def evidence(
         self,
@@ -123,7 +143,7 @@ class Scoring:
         chosen: int | None,
         source: PreparedScan,
         target: PreparedScan,
-        ceilings: tuple[float, float] | None = None,
+        ceilings: tuple[float, float, float] | None = None,
     ) -> tuple[np.ndarray, confidence.Evidence]:
         """
         Inlier mask and the evidence of ``transform`` (``pool.hypotheses[chosen]`` or new).
@@ -175,6 +195,8 @@ class Scoring:
                 int(pool.points[chosen]),
                 int(pool.views[chosen]),
             )
+        if ceilings is None:
+            ceilings = self.ceilings(source, target)
         rival_T = np.concatenate([pool.transforms(), np.concatenate(extra)])
         rival_scores = np.concatenate([pool.scores(), scores])
         rival_shares = np.concatenate([pool.shares, shares])
@@ -202,5 +224,7 @@ class Scoring:
             rival_share,
             rival,
             rival_objects,
-            *(self.ceilings(source, target) if ceilings is None else ceilings),
+            *ceilings[:2],
+            label_information=self.information(transform, source, target),
+            information_ceiling=ceilings[2],
         )

@@ -1,0 +1,252 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+
+"""
+Compiled kernels of the global path's refused stages (numba, ``core/features/kernels.py``).
+
+- :func:`refine_all`: SC2-PCR's post-refinement (reweighted least squares, Chen et al.
+  CVPR 2022, Sec. 3.5) of many starting poses in one compiled loop, each on the
+  correspondences near it (the BEV search's peaks, ``core/estimation/bev_search.py``);
+- :func:`nearest_in_descriptor_space`: the guided re-matching's search
+  (``core/estimation/guided.py``): for every moved source keypoint, the target keypoint
+  nearest in descriptor space among those within a radius and of a compatible label,
+  through a hash of ``radius``-sized cells instead of a pair list of every close pair.
+
+Each is the NumPy code's arithmetic in another order: the same poses and matches up to
+rounding (``test/test_estimation_kernels.py`` compares both). Without numba the same
+Python functions run uncompiled (slow, only for a fresh clone without numba).
+"""
+
+from __future__ import annotations
+
+from mlsemreg_ros.core.features.kernels import jit
+import numpy as np
+
+#: A batch whose weights sum to at most this is solved with uniform weights
+#: (as ``core/rigid.py``).
+_MIN_WEIGHT_SUM = 1e-12
+
+
+@jit
+def _apply(pose: np.ndarray, point: np.ndarray, out: np.ndarray) -> None:
+    """``out = R point + t`` of one ``(4, 4)`` pose."""
+    for a in range(3):
+        out[a] = (
+            pose[a, 0] * point[0] + pose[a, 1] * point[1] + pose[a, 2] * point[2] + pose[a, 3]
+        )
+
+
+@jit
+def _weighted_kabsch(src: np.ndarray, dst: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Weighted Kabsch of ``(n, 3)`` pairs (``core/rigid.py:weighted_rigid_transform``)."""
+    count = src.shape[0]
+    total = 0.0
+    for k in range(count):
+        total += max(weights[k], 0.0)
+    w = np.empty(count)
+    for k in range(count):
+        w[k] = 1.0 / count if total <= _MIN_WEIGHT_SUM else max(weights[k], 0.0) / total
+    centre_src = np.zeros(3)
+    centre_dst = np.zeros(3)
+    for k in range(count):
+        for a in range(3):
+            centre_src[a] += w[k] * src[k, a]
+            centre_dst[a] += w[k] * dst[k, a]
+    cov = np.zeros((3, 3))
+    for k in range(count):
+        for a in range(3):
+            for b in range(3):
+                cov[a, b] += w[k] * (src[k, a] - centre_src[a]) * (dst[k, b] - centre_dst[b])
+    u, _, vt = np.linalg.svd(cov)
+    v = vt.T.copy()
+    ut = u.T.copy()
+    v_ut = v @ ut
+    if np.linalg.det(v_ut) < 0.0:
+        v[:, 2] = -v[:, 2]
+    rotation = v @ ut
+    pose = np.eye(4)
+    pose[:3, :3] = rotation
+    for a in range(3):
+        pose[a, 3] = centre_dst[a] - (
+            rotation[a, 0] * centre_src[0]
+            + rotation[a, 1] * centre_src[1]
+            + rotation[a, 2] * centre_src[2]
+        )
+    return pose
+
+
+@jit
+def refine_all(
+    starts: np.ndarray,
+    src: np.ndarray,
+    dst: np.ndarray,
+    support: float,
+    threshold: float,
+    iterations: int,
+) -> np.ndarray:
+    """
+    Post-refine every ``(S, 4, 4)`` start on the correspondences within ``support`` of it.
+
+    Per start: the finite ``(K, 3)`` pairs with residual ``< support`` under it; with at
+    least three, up to ``iterations`` reweighted steps (inliers ``r < threshold``, weights
+    ``1 / (1 + (r / threshold)^2)``, stop when the inlier count repeats or drops below
+    three), as ``core/estimation/sc2pcr.py:post_refinement``. Fewer than three near pairs:
+    the start is kept. Returns ``(S, 4, 4)``.
+    """
+    count = src.shape[0]
+    refined = starts.copy()
+    moved = np.empty(3)
+    near_src = np.empty((count, 3))
+    near_dst = np.empty((count, 3))
+    residual = np.empty(count)
+    for s in range(starts.shape[0]):
+        pose = starts[s].copy()
+        near = 0
+        for k in range(count):
+            _apply(pose, src[k], moved)
+            r = np.sqrt(
+                (moved[0] - dst[k, 0]) ** 2
+                + (moved[1] - dst[k, 1]) ** 2
+                + (moved[2] - dst[k, 2]) ** 2
+            )
+            if r < support:
+                near_src[near] = src[k]
+                near_dst[near] = dst[k]
+                near += 1
+        if near < 3:
+            continue
+        previous = -1
+        for _ in range(iterations):
+            inliers = 0
+            for k in range(near):
+                _apply(pose, near_src[k], moved)
+                residual[k] = np.sqrt(
+                    (moved[0] - near_dst[k, 0]) ** 2
+                    + (moved[1] - near_dst[k, 1]) ** 2
+                    + (moved[2] - near_dst[k, 2]) ** 2
+                )
+                if residual[k] < threshold:
+                    inliers += 1
+            if inliers == previous or inliers < 3:
+                break
+            previous = inliers
+            p = np.empty((inliers, 3))
+            q = np.empty((inliers, 3))
+            w = np.empty(inliers)
+            at = 0
+            for k in range(near):
+                if residual[k] < threshold:
+                    p[at] = near_src[k]
+                    q[at] = near_dst[k]
+                    w[at] = 1.0 / (1.0 + (residual[k] / threshold) ** 2)
+                    at += 1
+            pose = _weighted_kabsch(p, q, w)
+        refined[s] = pose
+    return refined
+
+
+@jit
+def nearest_in_descriptor_space(
+    moved: np.ndarray,
+    target: np.ndarray,
+    radius: float,
+    source_descriptors: np.ndarray,
+    target_descriptors: np.ndarray,
+    source_labels: np.ndarray,
+    target_labels: np.ndarray,
+    compatible: np.ndarray,
+    use_labels: bool,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """
+    Per moved source keypoint, the descriptor-nearest target keypoint within ``radius``.
+
+    - ``moved``: ``(n, 3)`` source keypoints under the pose; ``target``: ``(m, 3)``.
+    - ``*_descriptors``: ``(n, D)``, ``(m, D)`` float32.
+    - ``*_labels``: learning ids of the keypoints; with ``use_labels`` a pair counts only
+      when both ids lie inside ``compatible`` ``(C, C)`` (bool) and are compatible.
+
+    Distances ``<= radius`` (Euclidean); ties in descriptor distance keep the lower target
+    row. Returns ``(source rows ascending, target rows, float32 descriptor distances)``.
+    """
+    n, m = moved.shape[0], target.shape[0]
+    size = compatible.shape[0]
+    low = np.empty(3, dtype=np.int64)
+    for a in range(3):
+        low[a] = np.int64(np.floor(target[:, a].min() / radius)) - 1
+    cells = np.empty((m, 3), dtype=np.int64)
+    extent = np.zeros(3, dtype=np.int64)
+    for j in range(m):
+        for a in range(3):
+            cells[j, a] = np.int64(np.floor(target[j, a] / radius)) - low[a]
+            extent[a] = max(extent[a], cells[j, a] + 2)
+    keys = (cells[:, 0] * extent[1] + cells[:, 1]) * extent[2] + cells[:, 2]
+    order = np.argsort(keys, kind='mergesort')
+    sorted_keys = keys[order]
+    limit = radius * radius
+    out_i = np.empty(n, dtype=np.int64)
+    out_j = np.empty(n, dtype=np.int64)
+    out_d = np.empty(n, dtype=np.float32)
+    found = 0
+    dims = source_descriptors.shape[1]
+    cell = np.empty(3, dtype=np.int64)
+    for i in range(n):
+        outside = False
+        for a in range(3):
+            cell[a] = np.int64(np.floor(moved[i, a] / radius)) - low[a]
+            if cell[a] < 0 or cell[a] > extent[a] - 1:
+                outside = True
+        if outside:
+            continue
+        a_label = source_labels[i]
+        if use_labels and (a_label < 0 or a_label >= size):
+            continue
+        best, best_j = np.inf, -1
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    cx, cy, cz = cell[0] + dx, cell[1] + dy, cell[2] + dz
+                    if cx < 0 or cy < 0 or cz < 0 or cx >= extent[0] or cy >= extent[1]:
+                        continue
+                    if cz >= extent[2]:
+                        continue
+                    key = (cx * extent[1] + cy) * extent[2] + cz
+                    first = np.searchsorted(sorted_keys, key, side='left')
+                    last = np.searchsorted(sorted_keys, key, side='right')
+                    for at in range(first, last):
+                        j = order[at]
+                        d2 = (
+                            (moved[i, 0] - target[j, 0]) ** 2
+                            + (moved[i, 1] - target[j, 1]) ** 2
+                            + (moved[i, 2] - target[j, 2]) ** 2
+                        )
+                        if d2 > limit:
+                            continue
+                        if use_labels:
+                            b_label = target_labels[j]
+                            if b_label < 0 or b_label >= size or not compatible[a_label, b_label]:
+                                continue
+                        total = 0.0
+                        for k in range(dims):
+                            diff = np.float64(source_descriptors[i, k]) - np.float64(
+                                target_descriptors[j, k]
+                            )
+                            total += diff * diff
+                        distance = np.sqrt(total)
+                        if distance < best or (distance == best and j < best_j):
+                            best, best_j = distance, j
+        if best_j >= 0:
+            out_i[found], out_j[found], out_d[found] = i, best_j, np.float32(best)
+            found += 1
+    return out_i[:found], out_j[:found], out_d[:found]

@@ -1,0 +1,153 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Scale the odometry's point budget with the sensor, from what the first scan shows.
+
+The defaults were tuned on a 64-beam sensor (HDL-64E: about 0.28 deg between neighbouring
+points). A sparser sensor (VLP-16: about 0.7 deg; a 70 deg solid-state pattern) has fewer
+points per square metre of surface at every range, so the same voxel grids keep a larger
+share of its points and its fixed per-scan costs weigh more, while it has less detail to
+lose (issue 35, docs/sensors.md).
+
+The scan's **angular spacing** is measured without a sensor model: the solid angle the
+scan covers (its elevation band, 1st to 99th percentile, times the share of the azimuth
+circle it occupies, in 1 deg bins) divided by its point count, ``sqrt(Omega / N)``. It does
+not need a ``ring`` field, and it reads a non-repetitive pattern as well as a spinning one.
+
+What scales, by ``k = clip(spacing / REFERENCE_SPACING_DEG, 1, MAX_SCALE)``:
+
+    fine.downsampling_resolution    x k (the alignment cloud keeps a similar number of
+                                    points per beam; 0.5 m -> 1.0 m on a VLP-16)
+    keyframe.min_points             / k^2 (a scan has k^2 times fewer points per square
+                                    metre: 1000 -> 250 voxels on a VLP-16, whose real scans
+                                    keep 900-1000 voxels of 0.3 m)
+
+A parameter the user set (its value differs from the default) is never scaled; so is
+none with ``fine.scale_with_sensor: false``. Nothing scales below the reference: a denser
+sensor keeps the defaults.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+#: The angular spacing of the sensor the defaults were tuned on (the simulator's HDL-64E,
+#: 122k points over 360 x 26.9 deg), degrees.
+REFERENCE_SPACING_DEG = 0.28
+#: The largest scale factor (a sparser sensor is scaled as this).
+MAX_SCALE = 2.0
+#: Points closer than this are the platform, not the scene (m).
+MIN_RANGE = 0.5
+#: A scan with fewer points is not measured (the next one is).
+MIN_POINTS = 100
+#: The parameters that scale: (section, field, power): the default times ``k ** power``.
+SCALED = (('fine', 'downsampling_resolution', 1), ('keyframe', 'min_points', -2))
+
+
+@dataclass(frozen=True)
+class SensorScale:
+    """The first scan's angular spacing and the parameter values it picked."""
+
+    spacing_deg: float  # sqrt(solid angle / points), degrees
+    points: int  # points the spacing was measured on
+    picked: dict[str, Any] = field(default_factory=dict)  # 'section.field' -> value
+
+    @property
+    def factor(self) -> float:
+        """Return the scale factor ``k`` (1: the defaults)."""
+        return float(np.clip(self.spacing_deg / REFERENCE_SPACING_DEG, 1.0, MAX_SCALE))
+
+    def summary(self) -> str:
+        """One line: the spacing, the factor and the values picked."""
+        picked = ', '.join(f'{k}={v:g}' for k, v in self.picked.items()) or 'defaults kept'
+        return (
+            f'sensor: {self.points} points, {self.spacing_deg:.2f} deg apart '
+            f'(x{self.factor:.2f} of {REFERENCE_SPACING_DEG} deg): {picked}'
+        )
+
+
+def angular_spacing_deg(points: np.ndarray) -> tuple[float, int]:
+    """
+    Return the mean angular spacing of a scan's points (degrees) and the points counted.
+
+    ``sqrt(Omega / N)``: ``Omega`` the solid angle covered (elevation band between the 1st
+    and 99th percentile, times the occupied share of 360 one-degree azimuth bins), ``N``
+    the finite points beyond :data:`MIN_RANGE` inside that band. 0 with fewer than
+    :data:`MIN_POINTS`.
+    """
+    xyz = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+    ranges = np.linalg.norm(xyz, axis=1)
+    xyz, ranges = xyz[ranges > MIN_RANGE], ranges[ranges > MIN_RANGE]
+    if len(xyz) < MIN_POINTS:
+        return 0.0, len(xyz)
+    elevation = np.arcsin(np.clip(xyz[:, 2] / ranges, -1.0, 1.0))
+    low, high = np.percentile(elevation, [1.0, 99.0])
+    inside = (elevation >= low) & (elevation <= high)
+    azimuth = np.degrees(np.arctan2(xyz[inside, 1], xyz[inside, 0]))
+    bins = np.unique(np.floor(azimuth).astype(np.int64) % 360)
+    solid_angle = (len(bins) / 360.0) * 2.0 * np.pi * (np.sin(high) - np.sin(low))
+    count = int(np.count_nonzero(inside))
+    if count == 0 or solid_angle <= 0.0:
+        return 0.0, count
+    return float(np.degrees(np.sqrt(solid_angle / count))), count
+
+
+def measure(points: np.ndarray, config: Any) -> SensorScale:
+    """Measure a scan and return the values the scaling picks for ``config``."""
+    spacing, count = angular_spacing_deg(points)
+    scale = SensorScale(spacing, count)
+    return SensorScale(spacing, count, picked(config, scale.factor))
+
+
+def picked(config: Any, factor: float) -> dict[str, Any]:
+    """
+    Return ``{'section.field': value}`` scaled by ``factor`` for ``config``.
+
+    Only the :data:`SCALED` fields still at their defaults (a value the user set wins),
+    only with ``fine.scale_with_sensor``, and only when ``factor`` exceeds 1.
+    """
+    if factor <= 1.0 or not getattr(config.fine, 'scale_with_sensor', False):
+        return {}
+    out: dict[str, Any] = {}
+    for section_name, name, power in SCALED:
+        section = getattr(config, section_name)
+        default = _default(type(section), name)
+        if getattr(section, name) != default:
+            continue  # set by the user: it wins
+        value = float(default) * factor**power
+        out[f'{section_name}.{name}'] = (
+            round(value) if isinstance(default, int) else round(value, 3)
+        )
+    return out
+
+
+def apply(config: Any, scale: SensorScale | None) -> Any:
+    """Return ``config`` with the values ``scale`` picks for it (itself when none)."""
+    if scale is None:
+        return config
+    values = picked(config, scale.factor)
+    return config.replace(values) if values else config
+
+
+def _default(section_type: type, name: str) -> Any:
+    """Return the declared default of ``section_type.name``."""
+    for item in fields(section_type):
+        if item.name == name:
+            return item.default
+    raise KeyError(name)

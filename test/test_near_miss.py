@@ -1,0 +1,159 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+
+"""The near-miss check (core/alignment/near_miss.py, stage 8): two basins 0.8 m apart."""
+
+from __future__ import annotations
+
+from mlsemreg_ros.core.alignment.alignment import align_pair, AlignmentCloud
+from mlsemreg_ros.core.alignment.near_miss import judge_basins, PointToDistribution
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.pipeline import default_stages
+from mlsemreg_ros.core.results import PreparedScan
+from mlsemreg_ros.core.stages.context import RegistrationContext
+from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
+from mlsemreg_ros.core.stages.near_miss import NearMissStage
+import numpy as np
+import pytest
+
+#: The true pose of the source scan in the target scan.
+T_TRUE = np.array(
+    [[1.0, 0.0, 0.0, 0.3], [0.0, 1.0, 0.0, 0.1], [0.0, 0.0, 1.0, 0.0], [0.0, 0.0, 0.0, 1.0]]
+)
+SPACING = 0.8  # the posts' spacing: the wrong basin is one post along
+
+
+def fence_scene() -> np.ndarray:
+    """
+    Ground and two rows of posts 0.8 m apart, with gaps (N, 3).
+
+    Shifted by one post along x, every post meets a post again except at the gaps: a
+    second basin 0.8 m from the true one, a little worse.
+    """
+    grid = np.arange(-12.0, 12.01, 1.0)
+    gx, gy = np.meshgrid(grid, grid)
+    parts = [np.c_[gx.ravel(), gy.ravel(), np.zeros(gx.size)]]
+    angles = np.linspace(0.0, 2.0 * np.pi, 12, endpoint=False)
+    ring = 0.1 * np.c_[np.cos(angles), np.sin(angles)]
+    for y in (4.0, -4.0):
+        for k, x in enumerate(np.arange(-8.0, 8.01, SPACING)):
+            if k in (5, 6, 13):
+                continue
+            for z in np.linspace(0.1, 2.0, 12):
+                parts.append(np.c_[ring + np.array([x, y]), np.full(len(angles), z)])
+    return np.vstack(parts)
+
+
+def scan(points: np.ndarray) -> PreparedScan:
+    """Return a prepared scan with only what the fine alignment and the near-miss check read."""
+    return PreparedScan(
+        points,
+        np.zeros(len(points), np.int32),
+        np.zeros((0, 3)),
+        np.zeros(0, np.int64),
+        np.zeros((0, 8), np.float32),
+        np.zeros((0, 1), bool),
+        None,
+    )
+
+
+@pytest.fixture(scope='module')
+def pair() -> tuple[PreparedScan, PreparedScan]:
+    target = fence_scene()
+    source = (target - T_TRUE[:3, 3]) @ T_TRUE[:3, :3]
+    return scan(source), scan(target)
+
+
+def shifted(dx: float) -> np.ndarray:
+    start = T_TRUE.copy()
+    start[0, 3] += dx
+    return start
+
+
+def register_from(pair, start: np.ndarray, config: RegistrationConfig) -> RegistrationContext:
+    """Stages 7 and 8 from ``start``, as if the sparse registration had accepted it."""
+    source, target = pair
+    context = RegistrationContext(source, target, True, config, None)
+    context.transform = start
+    for stage in (FineAlignmentStage(), NearMissStage()):
+        if stage.wanted(context):
+            stage.run(context)
+    return context
+
+
+def error(T: np.ndarray) -> tuple[float, float]:
+    delta = np.linalg.solve(T_TRUE, T)
+    turn = np.degrees(np.arccos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1, 1)))
+    return float(np.linalg.norm(delta[:3, 3])), float(turn)
+
+
+def test_the_scene_has_two_basins_0_8_m_apart(pair):
+    """Without the check, a start 0.8 m off converges to the wrong basin and is accepted."""
+    config = RegistrationConfig().replace({'near_miss.enabled': False})
+    context = register_from(pair, shifted(SPACING), config)
+    assert not context.doubts
+    shift, _ = error(context.transform)
+    assert 0.7 < shift < 0.9  # a near miss: just beyond the 0.6 m bound
+
+
+@pytest.mark.parametrize('dx', [0.0, 0.1, 0.3, 0.7, SPACING, -SPACING, 0.9, 1.0])
+def test_the_accepted_pose_is_the_true_one_or_none(pair, dx):
+    context = register_from(pair, shifted(dx), RegistrationConfig())
+    shift, turn = error(context.transform)
+    if not context.doubts:
+        assert shift <= 0.1 and turn <= 0.5, (dx, shift, turn)
+    if shift > 0.3:  # landed in the wrong basin: refused, and the diagnostics say why
+        assert context.doubts and context.doubts[0].startswith('near miss')
+        assert 'two basins' in context.diagnostics['near_miss_refusal']
+
+
+def test_the_true_basin_is_kept(pair):
+    context = register_from(pair, shifted(0.1), RegistrationConfig())
+    assert not context.doubts
+    assert context.diagnostics['near_miss_refusal'] == ''
+    assert error(context.transform)[0] < 0.01
+
+
+def test_inflate_publishes_a_covariance_that_covers_the_gap(pair):
+    config = RegistrationConfig().replace({'near_miss.action': 'inflate'})
+    context = register_from(pair, shifted(SPACING), config)
+    assert not context.doubts and context.diagnostics['near_miss_inflated']
+    sigma_x = np.sqrt(context.alignment.covariance()[0, 0])
+    assert sigma_x >= 0.7  # the gap between the basins, along x
+    plain = register_from(
+        pair, shifted(SPACING), RegistrationConfig().replace({'near_miss.enabled': False})
+    )
+    assert sigma_x > 10 * np.sqrt(plain.alignment.covariance()[0, 0])
+
+
+def test_judge_basins_names_the_disputed_direction(pair):
+    source, target = (AlignmentCloud.build(s.points, 0.0, 20) for s in pair)
+    cfg = RegistrationConfig()
+    align = lambda T: align_pair(source, target, T, cfg.fine, 'gicp')  # noqa: E731
+    fit = PointToDistribution(source, target, cfg.fine.max_correspondence_distance)
+    verdict = judge_basins(align(shifted(-SPACING)), align, fit, cfg.near_miss)
+    assert verdict.refusal
+    direction = verdict.disputed / np.linalg.norm(verdict.disputed)
+    assert abs(direction[0]) > 0.95
+    assert 0.7 < np.linalg.norm(verdict.disputed) < 0.9
+
+
+def test_the_stage_follows_the_fine_alignment_and_has_a_switch(pair):
+    names = [stage.name for stage in default_stages()]
+    assert names.index('near_miss') == names.index('fine') + 1
+    context = RegistrationContext(
+        *pair, True, RegistrationConfig().replace({'near_miss.enabled': False}), None
+    )
+    assert not NearMissStage().wanted(context)

@@ -1,0 +1,197 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Issue 35: the odometry adapts to the sensor and the platform without per-sensor tuning.
+
+- the scaling rule (core/odometry/sensor_scale.py) on hand-made clouds of known angular
+  spacing, and a value the user set wins;
+- the prediction's bounds (core/odometry/motion_bound.py) on a simulated turn: a car's stay
+  tight, a hand's turn widens them, a prior's covariance widens them, and the cap holds.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mlsemreg_ros.core.alignment.alignment import Alignment
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.odometry import motion_bound, sensor_scale
+from mlsemreg_ros.core.odometry.motion_bound import MotionBound
+from mlsemreg_ros.core.odometry.trust import Trust
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+ODOMETRY = RegistrationConfig().odometry
+
+
+def _shell(spacing_deg: float, low_deg: float = -15.0, high_deg: float = 15.0) -> np.ndarray:
+    """Points on a 20 m sphere, ``spacing_deg`` apart in azimuth and elevation."""
+    azimuth = np.radians(np.arange(0.0, 360.0, spacing_deg))
+    elevation = np.radians(np.arange(low_deg, high_deg + 1e-9, spacing_deg))
+    a, e = np.meshgrid(azimuth, elevation)
+    # the azimuth step shrinks with cos(elevation) on the sphere: widen it to keep the spacing
+    a = a / np.cos(e).clip(0.5)
+    keep = a < 2 * np.pi
+    a, e = a[keep], e[keep]
+    return 20.0 * np.column_stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+
+
+@pytest.mark.parametrize('spacing', [0.28, 0.4, 0.7, 1.5])
+def test_the_angular_spacing_of_a_cloud_of_known_density_is_measured(spacing: float) -> None:
+    measured, count = sensor_scale.angular_spacing_deg(_shell(spacing))
+    assert count > 1000
+    assert measured == pytest.approx(spacing, rel=0.1)
+
+
+def test_the_spacing_ignores_the_field_of_view_and_the_platform() -> None:
+    wide, _ = sensor_scale.angular_spacing_deg(_shell(0.5, -30.0, 30.0))
+    cloud = _shell(0.5)
+    narrow = cloud[np.abs(np.degrees(np.arctan2(cloud[:, 1], cloud[:, 0]))) < 35.0]  # 70 deg
+    near = np.random.default_rng(0).normal(0.0, 0.1, (5000, 3))  # the platform, < 0.5 m
+    forward, _ = sensor_scale.angular_spacing_deg(np.concatenate([narrow, near]))
+    assert wide == pytest.approx(0.5, rel=0.1)
+    assert forward == pytest.approx(0.5, rel=0.1)
+
+
+def test_a_sparse_sensor_scales_the_alignment_cloud_and_a_dense_one_keeps_the_defaults() -> None:
+    config = RegistrationConfig()
+    default = config.fine.downsampling_resolution
+    dense = sensor_scale.measure(_shell(0.28), config)
+    assert dense.factor == pytest.approx(1.0, abs=0.05)
+    assert sensor_scale.apply(config, dense).fine.downsampling_resolution == pytest.approx(
+        default, rel=0.05
+    )
+    middle = sensor_scale.measure(_shell(0.42), config)
+    assert middle.picked['fine.downsampling_resolution'] == pytest.approx(1.5 * default, rel=0.1)
+    sparse = sensor_scale.measure(_shell(1.5), config)
+    assert sparse.factor == sensor_scale.MAX_SCALE
+    scaled = sensor_scale.apply(config, sparse)
+    assert scaled.fine.downsampling_resolution == pytest.approx(sensor_scale.MAX_SCALE * default)
+    assert 'fine.downsampling_resolution=' in sparse.summary()
+
+
+def test_a_value_the_user_set_wins_and_the_scaling_can_be_switched_off() -> None:
+    sparse = sensor_scale.measure(_shell(1.5), RegistrationConfig())
+    set_by_user = RegistrationConfig().replace({'fine.downsampling_resolution': 0.6})
+    assert sensor_scale.apply(set_by_user, sparse).fine.downsampling_resolution == 0.6
+    off = RegistrationConfig().replace({'fine.scale_with_sensor': False})
+    assert sensor_scale.apply(off, sparse) == off
+
+
+def test_the_odometry_scales_on_its_first_scan_and_keeps_it_through_a_reconfigure() -> None:
+    from mlsemreg_ros.core.odometry import Odometry
+
+    odometry = Odometry(config=RegistrationConfig())
+    cloud = _shell(1.0)
+    odometry.process(cloud, np.zeros(len(cloud), np.int64), 1)
+    resolution = RegistrationConfig().fine.downsampling_resolution * sensor_scale.MAX_SCALE
+    assert odometry.sensor_scale is not None
+    assert odometry.config.fine.downsampling_resolution == pytest.approx(resolution)
+    odometry.reconfigure(RegistrationConfig())  # the node's parameters, as declared
+    assert odometry.config.fine.downsampling_resolution == pytest.approx(resolution)
+
+
+def _pose(yaw_deg: float, x: float) -> np.ndarray:
+    pose = np.eye(4)
+    pose[:3, :3] = Rotation.from_euler('z', yaw_deg, degrees=True).as_matrix()
+    pose[0, 3] = x
+    return pose
+
+
+def _turn(bound: MotionBound, errors_deg: list[float]) -> None:
+    """Record predictions off by ``errors_deg`` in yaw (a constant-velocity guess in a turn)."""
+    for k, error in enumerate(errors_deg):
+        bound.predicted(_pose(10.0 * k, k))
+        bound.accepted(_pose(10.0 * k + error, k))
+
+
+def test_a_car_keeps_its_tight_bound_and_a_hand_turn_widens_it() -> None:
+    car = MotionBound()
+    _turn(car, [0.1, -0.2, 0.15] * 10)
+    assert car.bounds(1.5, 5.0) == (1.5, 5.0)
+    hand = MotionBound()
+    _turn(hand, [0.5, 6.0, 12.0, 8.0, 3.0])
+    translation, rotation = hand.bounds(1.5, 5.0)
+    assert translation == 1.5
+    assert rotation == pytest.approx(motion_bound.GAIN * 12.0)
+    wild = MotionBound()
+    _turn(wild, [40.0, 80.0])
+    assert wild.bounds(1.5, 5.0)[1] == motion_bound.CAP_ROTATION
+    jump = MotionBound()
+    _turn(jump, [170.0])  # a relocalization, not a prediction error
+    assert jump.bounds(1.5, 5.0) == (1.5, 5.0)
+
+
+def test_a_priors_stated_covariance_widens_the_bound() -> None:
+    bound = MotionBound()
+    bound.predicted(np.eye(4), sigmas=(0.02, 3.0))  # (m, deg)
+    translation, rotation = bound.bounds(1.5, 5.0)
+    assert translation == 1.5
+    assert rotation == pytest.approx(motion_bound.SIGMAS * 3.0)
+
+
+def _turned(yaw_deg: float, inliers: int = 900) -> Alignment:
+    """An alignment that turned the identity guess by ``yaw_deg``."""
+    return Alignment(_pose(yaw_deg, 0.0), np.eye(4), True, 5, inliers, 1000, 1.0, np.eye(6))
+
+
+def test_the_trust_tracks_a_hand_turn_once_the_prediction_has_been_off_by_as_much() -> None:
+    trust = Trust()
+    turn = _turned(9.0)
+    assert 'max_correction' in trust.judge('prediction', np.eye(4), turn, ODOMETRY).refusal
+    _turn(trust.motion_bound, [2.0, 8.0, 10.0])
+    candidate = trust.judge('prediction', np.eye(4), turn, ODOMETRY)
+    assert candidate.acceptable
+    assert trust.tracking_refusal(candidate, 1.0, ODOMETRY) == ''
+    # a global estimate keeps the configured bound, and a restart forgets the turns
+    assert 'max_correction' in trust.judge('global', np.eye(4), turn, ODOMETRY).refusal
+    trust.restart()
+    assert not trust.judge('prediction', np.eye(4), turn, ODOMETRY).acceptable
+
+
+def test_a_sparse_sensor_lowers_the_keyframes_point_count_by_the_square_of_its_spacing() -> None:
+    sparse = sensor_scale.measure(_shell(1.5), RegistrationConfig())
+    default = RegistrationConfig().keyframe.min_points
+    assert sparse.picked['keyframe.min_points'] == round(default / sensor_scale.MAX_SCALE**2)
+
+
+def test_the_moved_copy_is_the_scan_seen_from_the_moved_sensor() -> None:
+    from mlsemreg_ros.evaluation.self_pairs import moved_copy, sensor_motion
+
+    points = np.random.default_rng(1).uniform(-20.0, 20.0, (1000, 3))
+    T = sensor_motion(8.0, 30.0)
+    copy = moved_copy(points, T, keep=1.0, noise_m=0.0)
+    assert np.allclose(copy @ T[:3, :3].T + T[:3, 3], points)
+    assert np.linalg.norm(T[:3, 3]) == pytest.approx(8.0)
+    noisy = moved_copy(points, T, keep=0.7, noise_m=0.02)
+    assert len(noisy) == 700
+
+
+REAL_SCANS = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'real_sensor_scans'
+
+
+@pytest.mark.skipif(
+    not (REAL_SCANS / 'velodyne_vlp16.pcd').is_file(),
+    reason=f'the real sensor scans are not in {REAL_SCANS} (outside the repo)',
+)
+def test_a_real_16_beam_scan_is_registered_against_its_moved_copy_with_scaled_values() -> None:
+    from mlsemreg_ros.core.maps.cloud_files import read_cloud
+    from mlsemreg_ros.evaluation.self_pairs import register_self
+
+    points = read_cloud(REAL_SCANS / 'velodyne_vlp16.pcd').points
+    result = register_self('vlp16', points, RegistrationConfig(), 2.0, 10.0)
+    assert result.right, result
+    assert 'keyframe.min_points=250' in result.picked
