@@ -17,8 +17,8 @@ The deskew check (core/odometry/deskew_guard.py): a deskew that bends the scan i
 
 Known answers of the comparison, and a real dev pair whose moved scan carries a plausible
 time field that does not give the capture times (a uint8 counter read as milliseconds, as
-``mlsemreg fuzz-node`` sends it): with the check the pose is right and the step says why;
-without it the bent scan is accepted beyond the 0.6 m bound.
+``mlsemreg fuzz-node`` sends it, with its IMU and wheel streams): with the check the scan
+is registered raw, the pose is right and the step says why.
 """
 
 from __future__ import annotations
@@ -51,12 +51,17 @@ def _moved_scan_with_a_counter_for_times(check: bool) -> tuple[object, np.ndarra
     cfg = RegistrationConfig().replace({'keypoints.count': 2000, 'preprocess.deskew_check': check})
     odometry = Odometry(Registration(cfg))
     timeline = Timeline(1000.0, 1.0)  # the keyframe at t0, the moved scan at t2 (fuzz-node)
-    wheel = good_streams(pair.trans_gt, timeline)['wheel']  # the pair's motion, 50 Hz
+    streams = good_streams(pair.trans_gt, timeline)  # the pair's motion: 200 Hz IMU, 50 Hz wheels
+    model = odometry.motion_model
 
     def feed(after: float, until: float) -> None:
-        kept = [(t, f['pose']) for t, f in wheel if after < t <= until]
-        stamps = np.array([round(t * 1e9) for t, _ in kept], dtype=np.int64)
-        odometry.motion_model.add_wheel(stamps, np.stack([pose for _, pose in kept]))
+        imu = [(t, f['gyro']) for t, f in streams['imu'] if after < t <= until]
+        wheel = [(t, f['pose']) for t, f in streams['wheel'] if after < t <= until]
+        stamps = np.array([round(t * 1e9) for t, _ in imu], dtype=np.int64)
+        gravity = np.tile([0.0, 0.0, 9.81], (len(imu), 1))
+        model.add_imu(stamps, np.stack([gyro for _, gyro in imu]), gravity)
+        stamps = np.array([round(t * 1e9) for t, _ in wheel], dtype=np.int64)
+        model.add_wheel(stamps, np.stack([pose for _, pose in wheel]))
 
     t0, _, t2 = timeline.scans
     feed(0.0, t0)

@@ -77,7 +77,8 @@ class PreprocessConfig:
         'the bent dev pairs 0.007 to 0.05 less), register it raw and flag it in '
         '/diagnostics (deskew_refusal): a plausible time field that does not give the '
         'capture times bends the scan '
-        '(docs/hostile_input.md). Costs one fine alignment per deskewed scan.',
+        '(docs/hostile_input.md). Only where a prior (IMU, wheels) deskewed the scan or '
+        'sweep_alignment.mode is off. Costs one fine alignment per such scan.',
     )
     deskew_check_margin: float = param(
         0.0,

@@ -357,8 +357,14 @@ class Odometry:
         if sweep_twist is not None:
             self._sweep_twist = (sweep_twist, stamp_ns)
         current, relative = raw.scan, invert_transform(keyframe.pose) @ pose
+        predicted = [c.T_initial for c in chosen.candidates if c.name == 'prediction']
+        correction = motion_size(invert_transform(predicted[0]) @ pose) if predicted else (0, 0)
         chosen.frame_covariance = calibrated_covariance(  # docs/covariance.md
-            chosen.frame_covariance, 1.0, self.config.covariance, *motion_size(relative)
+            chosen.frame_covariance,
+            1.0,
+            self.config.covariance,
+            *motion_size(relative),
+            correction=correction,
         )
         last, self._last_accepted = self._last_accepted, (pose.copy(), stamp_ns)
         self._accepted.append(self._last_accepted)
