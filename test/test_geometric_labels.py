@@ -190,3 +190,32 @@ def test_twelve_real_sensors_sane() -> None:
         shares = lab.label(voxels).shares()
         assert max(shares.values()) <= 0.8, (file.name, shares)
         assert 0.05 <= shares.get(g.ROAD, 0.0) <= 0.8, (file.name, shares)
+
+
+def test_object_points_without_support_take_their_runner_up_class() -> None:
+    """A pole point alone on a wall becomes building; a pole of 10 points stays a pole."""
+    wall_ = np.c_[
+        np.full(50, 5.0), np.repeat(np.arange(10) * 0.2, 5), np.tile(np.arange(5) * 0.2, 10)
+    ]
+    pole_ = np.c_[np.full(10, 9.0), np.zeros(10), np.arange(10) * 0.2]
+    points = np.concatenate([wall_, pole_])
+    raw = np.r_[np.full(50, g.BUILDING), np.full(10, g.POLE)].astype(np.uint32)
+    raw[12] = g.POLE  # a stray pole point inside the wall
+    second = np.r_[np.full(50, g.BUILDING), np.full(10, g.VEGETATION)].astype(np.uint32)
+    g._drop_unsupported(points, raw, second)
+    assert raw[12] == g.BUILDING
+    assert np.all(raw[50:] == g.POLE)
+    assert np.all(np.delete(raw[:50], 12) == g.BUILDING)
+
+
+def test_every_point_has_a_runner_up_class() -> None:
+    """Objects keep the shape class under them as runner-up; the ground its own class."""
+    rng = np.random.default_rng(2)
+    scene = np.concatenate([ground(rng), pole(8.0, 3.0), wall(-14.0), box(7.0, -8.0)])
+    out = GeometricLabeler().label(scene)
+    assert out.second is not None and out.second.shape == out.raw.shape
+    objects = np.isin(out.raw, (g.POLE, g.TRUNK, g.CAR))
+    assert objects.any()
+    assert not np.isin(out.second[objects], (g.POLE, g.TRUNK, g.CAR)).any()
+    road = out.raw == g.ROAD
+    assert np.all(out.second[road] == g.ROAD)

@@ -93,7 +93,7 @@ def test_poorer_labels_switch_to_the_information_rule_and_weigh_the_score() -> N
     assert weighed.confidence.contradicting_objects == 0
     assert weighed.confidence.min_distinctive_ceiling == 1.0  # objects off below 0.5
     assert weighed.verification.label_weight == pytest.approx(
-        0.4 * config.verification.label_weight
+        np.sqrt(0.4) * config.verification.label_weight
     )
     assert quality.LabelQuality(0.9, 0.95, 0.9, 'field', False).config(config) is config
 

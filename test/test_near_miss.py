@@ -59,8 +59,13 @@ def fence_scene() -> np.ndarray:
 def scan(points: np.ndarray) -> PreparedScan:
     """Return a prepared scan with only what the fine alignment and the near-miss check read."""
     return PreparedScan(
-        points, np.zeros(len(points), np.int32), np.zeros((0, 3)), np.zeros(0, np.int64),
-        np.zeros((0, 8), np.float32), np.zeros((0, 1), bool), None,
+        points,
+        np.zeros(len(points), np.int32),
+        np.zeros((0, 3)),
+        np.zeros(0, np.int64),
+        np.zeros((0, 8), np.float32),
+        np.zeros((0, 1), bool),
+        None,
     )
 
 
@@ -127,8 +132,9 @@ def test_inflate_publishes_a_covariance_that_covers_the_gap(pair):
     assert not context.doubts and context.diagnostics['near_miss_inflated']
     sigma_x = np.sqrt(context.alignment.covariance()[0, 0])
     assert sigma_x >= 0.7  # the gap between the basins, along x
-    plain = register_from(pair, shifted(SPACING), RegistrationConfig().replace(
-        {'near_miss.enabled': False}))
+    plain = register_from(
+        pair, shifted(SPACING), RegistrationConfig().replace({'near_miss.enabled': False})
+    )
     assert sigma_x > 10 * np.sqrt(plain.alignment.covariance()[0, 0])
 
 
@@ -147,6 +153,7 @@ def test_judge_basins_names_the_disputed_direction(pair):
 def test_the_stage_follows_the_fine_alignment_and_has_a_switch(pair):
     names = [stage.name for stage in default_stages()]
     assert names.index('near_miss') == names.index('fine') + 1
-    context = RegistrationContext(*pair, True, RegistrationConfig().replace(
-        {'near_miss.enabled': False}), None)
+    context = RegistrationContext(
+        *pair, True, RegistrationConfig().replace({'near_miss.enabled': False}), None
+    )
     assert not NearMissStage().wanted(context)

@@ -609,3 +609,78 @@ def test_an_unlabeled_velodyne_cloud_is_registered_with_defaults(
         assert status['level'] == 1 and 'missing label field' in status['message']
     finally:
         assert all(r.successful for r in probe.set_parameters({'label_source': 'auto'}))
+
+
+# -- issue 29: the real dev chain through the node -------------------------------------------
+DEGENERATE = (np.array([[5.0, 0.0, 0.0], [0.0, 5.0, 0.0], [5.0, 5.0, 1.0]]), np.full(3, 40))
+
+
+def _dev_chain() -> tuple[list[tuple[np.ndarray, np.ndarray]], list[np.ndarray]]:
+    """Return the 11 scans of the chained dev pairs (~20 m apart) and their poses."""
+    from dev_pairs import dev_pair_files
+
+    pairs = [load_pair(path) for path in dev_pair_files()]  # skips without them
+    scans = [(pairs[0].pts_src, pairs[0].label_src)] + [(p.pts_dst, p.label_dst) for p in pairs]
+    poses = [np.eye(4)]
+    for pair in pairs:  # trans_gt: T_dst_src, and the next scan is the dst
+        poses.append(poses[-1] @ np.linalg.inv(pair.trans_gt))
+    return scans, poses
+
+
+def _stream(probe: NodeProbe, feed: list[tuple[int | None, Any, Any]]) -> list[tuple]:
+    """Publish (chain index or None, points, labels, stamp); (index, accepted, odom pose)."""
+    out = []
+    for index, points, labels, stamp in feed:
+        probe.publish(probe.cloud(points, np.asarray(labels).astype(np.uint32), stamp))
+        status = probe.status_for(stamp, TIMEOUT_S)
+        assert status is not None, 'no diagnostics for the scan'
+        accepted = status['level'] == 0
+        odom = probe.wait_for('odometry', stamp, 5.0) if accepted else None
+        out.append((index, accepted, matrix(odom.pose.pose) if odom else None, status['message']))
+    return out
+
+
+def _judged(steps: list[tuple], poses: list[np.ndarray]) -> tuple[int, list]:
+    """Count the chain scans accepted right (pose relative to the last accepted one); wrong."""
+    right, wrong, last = 0, [], None
+    for index, accepted, pose, message in steps:
+        if index is None or not accepted:
+            continue
+        if last is not None:
+            truth = np.linalg.inv(poses[last[0]]) @ poses[index]
+            estimate = np.linalg.inv(last[1]) @ pose
+            re = rotation_error_deg(estimate[:3, :3], truth[:3, :3])
+            te = translation_error_m(estimate[:3, 3], truth[:3, 3])
+            if re > 5.0 or te > 0.6:
+                wrong.append((index, te, re, message))
+                continue
+        right += 1
+        last = (index, pose)
+    return right, wrong
+
+
+@pytest.mark.slow
+def test_the_dev_chain_after_a_degenerate_first_scan(defaults: NodeProbe) -> None:
+    """Issue 29: a degenerate first scan, then >= 8 of the next 10 real scans right, 0 wrong."""
+    scans, poses = _dev_chain()
+    feed = [(None, *DEGENERATE, _next_stamp())]
+    feed += [(k, *scans[k], _next_stamp()) for k in range(10)]
+    steps = _stream(defaults, feed)
+    assert not steps[0][1] and 'no keyframe yet' in steps[0][3]
+    right, wrong = _judged(steps, poses)
+    assert right >= 8 and not wrong, (right, wrong, [s[3] for s in steps])
+
+
+@pytest.mark.slow
+def test_the_dev_chain_registers_the_scan_after_a_degenerate_one(defaults: NodeProbe) -> None:
+    """Issue 29: a degenerate message between two real scans; the scan after it registers."""
+    scans, poses = _dev_chain()
+    feed = [(k, *scans[k], _next_stamp()) for k in range(6)]
+    last = feed[-1][3]
+    feed.append((None, *DEGENERATE, to_stamp(last.sec + 1e-9 * last.nanosec + 0.05)))
+    feed += [(k, *scans[k], _next_stamp()) for k in (6, 7)]
+    steps = _stream(defaults, feed)
+    assert not steps[6][1]  # the degenerate scan
+    assert steps[7][1], steps[7][3]  # the scan after it
+    right, wrong = _judged(steps, poses)
+    assert right == 8 and not wrong, (right, wrong, [s[3] for s in steps])

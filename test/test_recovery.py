@@ -182,3 +182,53 @@ def test_without_a_past_keyframe_the_run_reinitialises_flagged(drive: Any) -> No
     assert 'relocalization failed (no past keyframe)' in steps[5].reason
     assert steps[5].covariance[0, 0] >= 100.0  # the jump is flagged
     np.testing.assert_array_equal(steps[5].pose, steps[3].pose)
+
+
+# -- 2. no veto: a candidate refused by a rule its own evidence overrules ------------------
+def _blind_from(config: RegistrationConfig, drive: Any, blind_from: int, frames: int) -> list:
+    registration = BlindRegistration(config)
+    odometry = Odometry(registration)
+    steps = []
+    for k, (points, labels, _, stamp) in enumerate(drive[:frames]):
+        if k == blind_from:  # from here on every global registration fails
+            registration.blind.add(id(odometry.keyframe.prepared))
+        steps.append(odometry.process(points, labels, stamp))
+    return steps
+
+
+def test_a_prediction_refused_only_by_its_correction_is_judged_on_its_basin(drive: Any) -> None:
+    """The global registration fails; the prediction moved more than the bound, yet is right."""
+    config = CONFIG.replace({'odometry.max_correction_translation': 0.05})
+    steps = _blind_from(config, drive, 3, 4)
+    step = steps[3]
+    assert 'moved its guess by' in step.reason and 'blind to this keyframe' in step.reason
+    assert step.accepted and step.source == 'prediction', step.reason
+    assert 'prediction accepted on its own evidence' in step.reason
+    assert 'perturbed starts came back to it' in step.reason
+    assert _right(step, invert_transform(drive[0][2]) @ drive[3][2])
+    unchecked = _blind_from(config.replace({'near_miss.enabled': False}), drive, 3, 4)
+    assert not unchecked[3].accepted and 'own evidence' not in unchecked[3].reason
+
+
+def test_a_right_global_pose_is_not_vetoed_by_the_inlier_history(drive: Any) -> None:
+    """A successful registration whose map inliers are below the usual share stays accepted."""
+    config = CONFIG.replace(
+        {'odometry.constant_velocity': False, 'odometry.min_relative_inlier_fraction': 1.0}
+    )
+    origin = drive[0][2]
+    for enabled in (True, False):
+        odometry = Odometry(Registration(config.replace({'near_miss.enabled': enabled})))
+        steps = [odometry.process(*drive[0][:2], drive[0][3])]
+        for points, labels, _, stamp in drive[1:4]:
+            for _ in range(10):  # the last frames overlapped the map far more than this one
+                odometry.tracker.history.append(1.0)
+            steps.append(odometry.process(points, labels, stamp))
+        if not enabled:
+            assert not any(s.accepted for s in steps[1:])
+            assert all('min_relative_inlier_fraction' in s.reason for s in steps[1:])
+            continue
+        for step in steps[1:]:
+            assert step.accepted and step.source == 'global', step.reason
+            assert 'global accepted on its own evidence' in step.reason
+            assert 'min_relative_inlier_fraction' in step.reason
+            assert _right(step, invert_transform(origin) @ drive[step.index][2]), step.reason

@@ -47,8 +47,11 @@ from mlsemreg_ros.core.estimation.config import (
     EstimatorConfig,
     VerificationConfig,
 )
+from mlsemreg_ros.core.estimation.covisibility import CovisibilityConfig
+from mlsemreg_ros.core.estimation.object_registration import ObjectsConfig
 from mlsemreg_ros.core.features.config import FeatureConfig, KeypointConfig
 from mlsemreg_ros.core.features.deskew import PreprocessConfig
+from mlsemreg_ros.core.features.levelling import LevellingConfig
 from mlsemreg_ros.core.features.moving_objects import MovingObjectsConfig
 from mlsemreg_ros.core.labeling.geometric_config import GeometricLabelsConfig, LABEL_SOURCES
 from mlsemreg_ros.core.labeling.onnx_config import OnnxLabelsConfig
@@ -322,6 +325,9 @@ class RegistrationConfig(Settings):
     estimator: EstimatorConfig = field(default_factory=EstimatorConfig)
     verification: VerificationConfig = field(default_factory=VerificationConfig)
     bev_search: BevSearchConfig = field(default_factory=BevSearchConfig)
+    levelling: LevellingConfig = field(default_factory=LevellingConfig)
+    objects: ObjectsConfig = field(default_factory=ObjectsConfig)
+    covisibility: CovisibilityConfig = field(default_factory=CovisibilityConfig)
     confidence: ConfidenceConfig = field(default_factory=ConfidenceConfig)
     fine: FineAlignmentConfig = field(default_factory=FineAlignmentConfig)
     near_miss: NearMissConfig = field(default_factory=NearMissConfig)

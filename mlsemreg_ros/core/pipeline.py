@@ -47,13 +47,18 @@ from mlsemreg_ros.core.results import Landmarks, PreparedScan, RegistrationResul
 from mlsemreg_ros.core.stages.bev_search import BevSearchStage
 from mlsemreg_ros.core.stages.confidence import ConfidenceStage, consider
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
+from mlsemreg_ros.core.stages.covisibility import CovisibilityStage
 from mlsemreg_ros.core.stages.estimation import EstimationStage
+from mlsemreg_ros.core.stages.far_search import FarSearchStage
 from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
 from mlsemreg_ros.core.stages.label_quality import LabelQualityStage
+from mlsemreg_ros.core.stages.levelling import LevelCheckStage
 from mlsemreg_ros.core.stages.matching import MatchingStage
 from mlsemreg_ros.core.stages.near_miss import NearMissStage
+from mlsemreg_ros.core.stages.objects import ObjectStage
 from mlsemreg_ros.core.stages.refused_path import FullGraphStage, GuidedStage, PolishStage
 from mlsemreg_ros.core.stages.scoring import Scoring
+from mlsemreg_ros.core.stages.swapped_search import SwappedSearchStage
 from mlsemreg_ros.core.stages.verification import VerificationStage
 from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
@@ -98,10 +103,15 @@ def default_stages() -> list[Stage]:
         EstimationStage(),  # 2. the robust estimator (SC2-PCR): hypotheses, best first
         VerificationStage(),  # 3. the hypotheses scored on the dense labeled scans
         ConfidenceStage(),  # 4. the choice and the confidence rule's verdict
+        ObjectStage(),  # 5a. refused or weak: the object hypotheses, 4-DoF in levelled frames
         BevSearchStage(),  # 5. refused or weak: the semantic bird's-eye-view search
+        SwappedSearchStage(),  # 5b. still refused: the BEV search from the target's side
+        FarSearchStage(),  # 5c. still refused: the BEV search on the far fields, polished
         GuidedStage(),  # 6. still refused: guided re-matching around the searched peaks,
         FullGraphStage(),  # 6. SC2-PCR on the full correspondence graph,
         PolishStage(),  # 6. the pool's best candidates polished on the dense scans
+        CovisibilityStage(),  # 6b. still refused: the best overlap where both scans see
+        LevelCheckStage(),  # 6c. a tilt the two ground fits do not allow is refused
         FineAlignmentStage(),  # 7. GICP of the pair from the chosen pose (refine=True)
         NearMissStage(),  # 8. accepted and refined: no second basin from perturbed starts
     ]
@@ -338,6 +348,7 @@ class Registration:
     ) -> RegistrationResult:
         """Run :attr:`stages` on completed scans."""
         context = RegistrationContext(source, target, refine, self.config, self.scoring())
+        context.label_names = self.label_map.names
         context.diagnostics.update(
             source_keypoints=len(source.keypoints), target_keypoints=len(target.keypoints)
         )

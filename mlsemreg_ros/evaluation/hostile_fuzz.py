@@ -110,7 +110,7 @@ class FuzzReport:
                 ', '.join(
                     f'{k}={v}'
                     for k, v in sorted(r.counts.items())
-                    if '.' in k or k == 'prior_refused'
+                    if '.' in k or k in ('prior_refused', 'deskew_refused')
                 )[:120],
             ]
             for r in self.results

@@ -46,7 +46,14 @@ PUBLISH_PAUSE_S = 0.001
 #: Success bounds of a published pose (the node tests' and the issue's).
 MAX_RE_DEG, MAX_TE_M = 5.0, 0.6
 #: Counters of the node's /diagnostics that the fuzz reports per case.
-COUNTED = ('_dropped', 'callback_errors', 'prior_refused', 'frames_malformed', 'errors')
+COUNTED = (
+    '_dropped',
+    'callback_errors',
+    'prior_refused',
+    'deskew_refused',
+    'frames_malformed',
+    'errors',
+)
 
 
 @dataclass

@@ -634,6 +634,9 @@ class MlSemRegNode(GuardedCallbacks, Node):
         if step.prior_refusal:  # the prior disagreed with the scan (core/odometry/prior_guard.py)
             self._count('prior_refused')
             values['prior_refusal'] = step.prior_refusal
+        if step.deskew_refusal:  # the deskew bent the scan (core/odometry/deskew_guard.py)
+            self._count('deskew_refused')
+            values['deskew_refusal'] = step.deskew_refusal
         if scan.time_warning:  # registered without deskew: a warning (docs/ros_interface.md)
             values['point_times_warning'] = scan.time_warning
             level, message = ('warn' if level == 'ok' else level), f'{message}; not deskewed'

@@ -51,6 +51,7 @@ class Basin:
     T_target_source: np.ndarray  # (4, 4)
     inlier_fraction: float
     residual: float  # mean point-to-distribution residual of the inliers (inf: none)
+    alignment: Alignment | None = None  # the alignment that converged there
 
 
 @dataclass(frozen=True)
@@ -95,15 +96,16 @@ class PointToDistribution:
         covs = np.asarray(target.cloud.covs(), dtype=np.float64).reshape(-1, 4, 4)
         self.covs = covs[:, :3, :3] + regularization * np.eye(3)
 
-    def __call__(self, T_target_source: np.ndarray) -> tuple[float, float]:
+    def __call__(self, alignment: Alignment) -> tuple[float, float]:
         """
-        Return (inlier share, mean residual) at ``T_target_source``.
+        Return (inlier share, mean residual) where ``alignment`` converged.
 
         The residual of a point is its squared Mahalanobis distance to its nearest target
         point under that point's covariance; the mean is over the inliers (inf: none).
         """
         if not len(self.source) or not len(self.target):
             return 0.0, float('inf')
+        T_target_source = alignment.T_target_source
         moved = self.source @ T_target_source[:3, :3].T + T_target_source[:3, 3]
         index, squared = self.target.tree.batch_nearest_neighbor_search(moved, 1)
         index, squared = np.asarray(index).ravel(), np.asarray(squared).ravel()
@@ -143,16 +145,17 @@ def perturbed_starts(alignment: Alignment, cfg: NearMissConfig) -> list[np.ndarr
 def judge_basins(
     refined: Alignment,
     align: Callable[[np.ndarray], Alignment],
-    fit: Callable[[np.ndarray], tuple[float, float]],
+    fit: Callable[[Alignment], tuple[float, float]],
     cfg: NearMissConfig,
 ) -> NearMiss:
     """
     Align again from :func:`perturbed_starts` and say whether another basin disputes ``refined``.
 
-    ``align(T_initial)`` is the same fine alignment as the refined pose's; ``fit(T)``
-    returns (inlier share, point-to-distribution residual) at a pose.
+    ``align(T_initial)`` is the same fine alignment as the refined pose's; ``fit(alignment)``
+    returns (inlier share, residual) where an alignment converged (pairs: the
+    point-to-distribution fit; the odometry: :func:`alignment_fit`).
     """
-    home = Basin(refined.T_target_source, *fit(refined.T_target_source))
+    home = Basin(refined.T_target_source, *fit(refined), refined)
     if cfg.max_residual > 0 and home.residual > cfg.max_residual:
         return NearMiss(
             f'near miss: point-to-distribution residual {home.residual:.3g} > '
@@ -161,10 +164,11 @@ def judge_basins(
         )
     others, refusal, disputed = [], '', None
     for start in perturbed_starts(refined, cfg):
-        moved = align(start).T_target_source
+        again = align(start)
+        moved = again.T_target_source
         if not np.all(np.isfinite(moved)):
             continue
-        other = Basin(moved, *fit(moved))
+        other = Basin(moved, *fit(again), again)
         others.append(other)
         shift, turn = _gap(home.T_target_source, moved)
         if shift <= cfg.agreement_translation and turn <= cfg.agreement_rotation:
@@ -181,6 +185,31 @@ def judge_basins(
                 f'(refined {home.residual:.3g}): two basins'
             )
     return NearMiss(refusal, home, others, disputed)
+
+
+def better_place(verdict: NearMiss, cfg: NearMissConfig) -> Basin | None:
+    """
+    Return the rival place that fits better than the refined pose by both measures, or None.
+
+    At least the refined pose's inlier share and a lower residual: the same cost's deeper
+    minimum, which the refinement stopped short of (the best residual of them).
+    """
+    home = verdict.refined
+    better = [
+        b
+        for b in verdict.others
+        if b.inlier_fraction >= home.inlier_fraction
+        and b.residual < home.residual
+        and _gap(home.T_target_source, b.T_target_source)[0] > cfg.agreement_translation
+    ]
+    return min(better, key=lambda b: b.residual) if better else None
+
+
+def alignment_fit(alignment: Alignment) -> tuple[float, float]:
+    """Return the alignment's own (inlier share, GICP cost per inlier): the map's fit."""
+    if alignment.num_inliers <= 0:
+        return 0.0, float('inf')
+    return alignment.inlier_fraction, 2.0 * alignment.error / alignment.num_inliers
 
 
 def disputed_hessian(alignment: Alignment, disputed: np.ndarray) -> np.ndarray:

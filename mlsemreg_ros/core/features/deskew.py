@@ -69,6 +69,23 @@ class PreprocessConfig:
         low=1,
         high=MAX_DESKEW_WINDOW,
     )
+    deskew_check: bool = param(
+        True,
+        'After a deskewed scan is accepted, align the scan as it came too, from the accepted '
+        'pose; if the raw scan keeps more of its points as map inliers (by more than '
+        'deskew_check_margin; on the field drives the deskewed scans keep 0.005 to 0.23 more, '
+        'the bent dev pairs 0.007 to 0.05 less), register it raw and flag it in '
+        '/diagnostics (deskew_refusal): a plausible time field that does not give the '
+        'capture times bends the scan '
+        '(docs/hostile_input.md). Costs one fine alignment per deskewed scan.',
+    )
+    deskew_check_margin: float = param(
+        0.0,
+        "How much larger the raw scan's share of map inliers must be than the deskewed "
+        "scan's for the deskew to be refused (preprocess.deskew_check).",
+        low=0.0,
+        high=1.0,
+    )
     time_field: str = param(
         '',
         "PointCloud2 field holding the per-point time ('': auto-detect time, t, timestamp, "

@@ -38,9 +38,9 @@ flipped or confused. Before a pair is matched its labels are judged (docs/labels
   (:func:`widened`), so a keypoint whose true partner carries another label is still
   matched;
 - the geometric evidence carries the decision: the verification score weighs the label
-  agreement by ``w`` (``verification.label_weight * w``: at ``w = 0`` the overlap alone, as
-  without labels), the contradiction check is off, and below ``OBJECTS_MIN_WEIGHT`` the
-  distinctive objects decide nothing;
+  agreement by ``sqrt(w)`` (``verification.label_weight * sqrt(w)``: at ``w = 0`` the
+  overlap alone, as without labels), the contradiction check is off, and below
+  ``OBJECTS_MIN_WEIGHT`` the distinctive objects decide nothing;
 - the labels keep a veto by likelihood rather than raw agreement
   (``confidence.label_rule: information``): the pose's label co-occurrence must agree
   beyond chance by at least ``confidence.min_relative_information`` of what the labels
@@ -91,10 +91,11 @@ class LabelQuality:
         changes = {'label_rule': 'information', 'contradicting_objects': 0}
         if self.weight < OBJECTS_MIN_WEIGHT:
             changes['min_distinctive_ceiling'] = 1.0  # objects decide only when spotless
+        weighed = ver.label_weight * math.sqrt(self.weight)
         return replace(
             config,
             confidence=replace(conf, **changes),
-            verification=replace(ver, label_weight=ver.label_weight * self.weight),
+            verification=replace(ver, label_weight=weighed),
         )
 
 

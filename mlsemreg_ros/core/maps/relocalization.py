@@ -49,8 +49,34 @@ import time
 from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
 from mlsemreg_ros.core.maps.submap_check import refine_on_submap, static_points
 from mlsemreg_ros.core.pipeline import Registration
-from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
+from mlsemreg_ros.core.results import PreparedScan, RegistrationResult, VerificationResult
+from mlsemreg_ros.core.stages.context import RegistrationContext, Stage
 import numpy as np
+
+
+class _WhenDecided:
+    """
+    The quick pass's fine alignment: only for a pose accepted on strong evidence.
+
+    Any other quick result is set aside and the candidate registered again with the full
+    path, so refining it would be wasted (one GICP per refused candidate).
+    """
+
+    def __init__(self, stage: Stage) -> None:
+        """Wrap the registration's fine-alignment stage."""
+        self.stage = stage
+        self.name = stage.name
+
+    def wanted(self, context: RegistrationContext) -> bool:
+        """The stage's own condition, for an accepted pose of ``bev_search.weak_inliers``."""
+        strong = context.evidence is not None and (
+            context.evidence.num_inliers >= context.config.bev_search.weak_inliers
+        )
+        return strong and not context.refusal and self.stage.wanted(context)
+
+    def run(self, context: RegistrationContext) -> VerificationResult | None:
+        """Run the wrapped stage."""
+        return self.stage.run(context)
 
 
 @dataclass
@@ -97,12 +123,16 @@ class Relocalizer:
         The registration without the BEV search and the stages after it (``map.quick_first``).
 
         The same label map and stage list; made again when the registration's config changes.
+        Its fine alignment runs only for a pose the quick pass can keep (:class:`_WhenDecided`).
         """
         config = self.registration.config
         if self._quick is None or self._quick[0] is not config:
             quick = config.replace({'bev_search.enabled': False})
             registration = Registration(quick, self.registration.label_map)
-            registration.stages = list(self.registration.stages)
+            registration.stages = [
+                _WhenDecided(stage) if stage.name == 'fine' else stage
+                for stage in self.registration.stages
+            ]
             self._quick = (config, registration)
         return self._quick[1]
 

@@ -198,9 +198,7 @@ def _one_pattern(source_groups: np.ndarray, target_groups: np.ndarray) -> bool:
     if len(source_groups) == 0 or len(target_groups) == 0:
         return False
     first = source_groups[0]
-    return bool(
-        first != 0 and np.all(source_groups == first) and np.all(target_groups == first)
-    )
+    return bool(first != 0 and np.all(source_groups == first) and np.all(target_groups == first))
 
 
 # ----------------------------------------------------------------------------------------

@@ -50,6 +50,7 @@ from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, SweepMotion
 from mlsemreg_ros.core.labeling.source import LabelSource
 from mlsemreg_ros.core.odometry import sensor_scale
+from mlsemreg_ros.core.odometry.deskew_guard import guard_deskew
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (
     insert_accepted,
@@ -247,12 +248,17 @@ class Odometry:
         chosen = self.tracker.estimate(
             raw.scan, prediction, self.keyframe, self.global_registration, self.config, timings
         )
+        given = (points, labels, point_times, stamp_ns)
         raw, chosen, prior_refusal = guard_prior(  # core/odometry/prior_guard.py
-            self, (points, labels, point_times, stamp_ns), prediction, raw, chosen, timings
+            self, given, prediction, raw, chosen, timings
+        )
+        raw, chosen, deskew_refusal = guard_deskew(  # core/odometry/deskew_guard.py
+            self, given, prediction, raw, chosen, timings
         )
         chosen = self._relocalize(raw, chosen, timings)  # core/odometry/recovery.py
         step = self._apply(index, stamp_ns, raw, chosen)
         step.prior_refusal = prior_refusal
+        step.deskew_refusal = deskew_refusal
         if not step.accepted:
             self._predict_rejected(step, prediction)
         self._count_failure(step, raw)

@@ -77,6 +77,7 @@ class OdometryStep:
     #                             dropped (moving_objects.matching): the input of ``prepared``
     labels: np.ndarray | None = None  # (N,) their raw labels
     prior_refusal: str = ''  # the prior disagreed with the scan: what was done, and why
+    deskew_refusal: str = ''  # the deskewed scan aligned worse than the raw one (deskew_guard)
     predicted_pose: np.ndarray | None = None  # (4, 4) rejected scans: the motion model's
     #                             (or IMU's) T_odom_current at the stamp; None without one
     predicted_covariance: np.ndarray | None = None  # (6, 6) odom axes: the pose's covariance

@@ -42,6 +42,7 @@ from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
 from mlsemreg_ros.core.odometry.local_map import Keyframe, LocalMap
 from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
+from mlsemreg_ros.core.odometry.second_look import second_look
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.trust import Candidate, InlierHistory, Trust
 from mlsemreg_ros.core.results import PreparedScan
@@ -118,6 +119,7 @@ class Tracker:
         chosen = decide(
             estimate, predicted, lambda T: self.candidate('global', T, current, cfg), cfg
         )
+        chosen = second_look(self, chosen, estimate, current, cfg)  # near misses, rescue
         chosen.reason = '; '.join(
             r for r in (f'registered globally: {why_global}', chosen.reason) if r
         )

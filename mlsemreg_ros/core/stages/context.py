@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.estimation.candidates import CandidatePool
     from mlsemreg_ros.core.estimation.confidence import Evidence
+    from mlsemreg_ros.core.features.levelling import GroundFit
     from mlsemreg_ros.core.labeling.quality import LabelQuality
     from mlsemreg_ros.core.stages.scoring import Scoring
 
@@ -74,6 +75,9 @@ class RegistrationContext:
     scoring: Scoring  # the verification's scores with this config (core/stages/scoring.py)
     timings_ms: dict[str, float] = field(default_factory=dict)
     diagnostics: dict[str, Any] = field(default_factory=dict)
+    label_names: tuple[str, ...] = ()  # the label map's class names, by learning id
+    # levelling (core/stages/levelling.py): the two scans' ground fits, once measured
+    ground_fits: tuple[GroundFit | None, GroundFit | None] | None = None
     # label quality
     label_quality: LabelQuality | None = None  # the pair's labels judged (None: not judged)
     # matching

@@ -105,12 +105,17 @@ def _unlabeled_first(context: RegistrationContext, judged: quality.LabelQuality)
     ran are then done. Otherwise the pair goes on with its labels, weighed.
     """
     wildcard = context.scoring.unlabeled_local_ss
+    # no second SC2-PCR on the full graph: it runs when the sampled one found fewer inliers
+    # than estimator.graph_retry_inliers, far below what the attempt needs to be kept
+    quick = replace(
+        context.config, estimator=replace(context.config.estimator, graph_retry_inliers=0)
+    )
     attempt = RegistrationContext(
         quality.unlabeled_view(context.source, wildcard),
         quality.unlabeled_view(context.target, wildcard),
         context.refine,
-        context.config,
-        context.scoring,
+        quick,
+        replace(context.scoring, config=quick),
     )
     for stage in UNLABELED_FIRST:
         if stage.wanted(attempt):

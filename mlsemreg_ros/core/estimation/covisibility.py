@@ -1,0 +1,211 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Overlap where both scans can see: the share of the *checkable* source surface on the target.
+
+The dense overlap of the verification
+(:func:`~mlsemreg_ros.core.estimation.verification.dense_scores`) divides by the whole
+source scan. Two scans 60 m apart share a lens of space only, so the
+right pose overlaps 4-30 % of the source and is refused by ``confidence.min_overlap``, while
+a wrong pose that drops the source onto the target's near field overlaps as much.
+
+Here a source point counts only where the target can say something about it (free-space
+carving, as in MapClosures' and occupancy-based loop checks): the target's
+*range image* (azimuth x elevation bins of ``covisibility.bin_deg``, each holding the
+nearest target range) tells, for a source point moved into the target frame at range
+``r`` in a bin of nearest range ``r_t``:
+
+- **on the target**: a target point within ``verification.overlap_distance``;
+- **seen through**: ``r < r_t - covisibility.margin``: the target's beam passed where the
+  point is, so the pose contradicts the target;
+- **hidden** (``r > r_t + margin``), in an empty bin or beyond the target's reach: the
+  target cannot check it, and it is left out.
+
+The covisible overlap is ``on / (on + seen through)`` (range-weighted, as the dense
+overlap), with ``checked`` the weighted share of the source that was checkable. Both
+directions are measured (the source's view of the moved target too), and the smaller
+counts: a pose must survive both scans' free space.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from mlsemreg_ros.core.settings import param
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+@dataclass
+class CovisibilityConfig:
+    """The ``covisibility`` section: the overlap where both scans can see."""
+
+    enabled: bool = param(
+        True,
+        "Judge the overlap only where both scans can see (free space of each scan's range "
+        'image): confidence.min_overlap applies to the covisible overlap of a pose that has '
+        'covisibility.min_checked of its surface checkable (core/estimation/covisibility.py).',
+    )
+    swapped_search: bool = param(
+        True,
+        "When the BEV search left the pose refused, search again from the target's side "
+        '(the scans swapped, the peaks inverted): a 60 m pair found in one direction is '
+        'often missed in the other (core/stages/swapped_search.py).',
+    )
+    far_min_range: float = param(
+        20.0,
+        'When the BEV searches left the pose refused, search again on the far points only '
+        '(farther than this from their sensor, both scans, both directions), polish the '
+        'best peaks on the dense scans and add them to the candidates: two scans 60 m apart '
+        'share only their far field, and their near fields make false peaks '
+        '(core/stages/far_search.py); 0: off.',
+        unit='m',
+        low=0.0,
+        high=200.0,
+    )
+    far_peaks: int = param(
+        6,
+        'Best peaks of each direction of the far search that are polished and verified.',
+        low=1,
+        high=1000,
+    )
+    bin_deg: float = param(
+        2.0,
+        'Azimuth and elevation size of a range-image bin.',
+        unit='deg',
+        low=0.1,
+        high=30.0,
+    )
+    margin: float = param(
+        1.0,
+        'A moved point nearer than the target surface of its bin by more than this is seen '
+        'through (the pose contradicts the free space); farther: hidden, not checked.',
+        unit='m',
+        low=0.05,
+        high=20.0,
+    )
+    min_checked: float = param(
+        0.03,
+        'Smallest share of the source surface (range-weighted) the target can check for '
+        'the covisible overlap to stand in for the overlap.',
+        low=0.0,
+        high=1.0,
+    )
+    min_overlap: float = param(
+        0.5,
+        'Smallest covisible overlap (on / (on + seen through)) of an accepted pose that '
+        'is judged by it.',
+        low=0.0,
+        high=1.0,
+    )
+
+
+@dataclass(frozen=True)
+class RangeImage:
+    """The nearest range of a scan per (azimuth, elevation) bin; ``inf`` where empty."""
+
+    nearest: np.ndarray  # (A, E) float64
+    bin_rad: float
+    min_elevation: float  # rad, lower edge of bin 0
+
+    @classmethod
+    def of(cls, points: np.ndarray, bin_deg: float) -> RangeImage:
+        """Build the range image of sensor-frame ``points`` ``(N, 3)``."""
+        bin_rad = np.radians(bin_deg)
+        ranges = np.linalg.norm(points, axis=1)
+        elevation = np.arcsin(np.clip(points[:, 2] / np.maximum(ranges, 1e-9), -1.0, 1.0))
+        low = float(elevation.min()) if len(points) else 0.0
+        cols = int(np.ceil((float(elevation.max()) - low) / bin_rad)) + 1 if len(points) else 1
+        rows = int(np.ceil(2.0 * np.pi / bin_rad))
+        nearest = np.full((rows, cols), np.inf)
+        a, e = cls._bins(points, ranges, elevation, bin_rad, low, rows, cols)
+        np.minimum.at(nearest, (a, e), ranges)
+        return cls(nearest, bin_rad, low)
+
+    @staticmethod
+    def _bins(
+        points: np.ndarray,
+        ranges: np.ndarray,
+        elevation: np.ndarray,
+        bin_rad: float,
+        low: float,
+        rows: int,
+        cols: int,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        azimuth = np.arctan2(points[:, 1], points[:, 0]) + np.pi
+        a = np.minimum((azimuth / bin_rad).astype(np.int64), rows - 1)
+        e = np.floor((elevation - low) / bin_rad).astype(np.int64)
+        return a, e
+
+    def surface(self, points: np.ndarray) -> np.ndarray:
+        """``(N,)`` the nearest range of the bin of each point (inf: empty or out of view)."""
+        rows, cols = self.nearest.shape
+        ranges = np.linalg.norm(points, axis=1)
+        elevation = np.arcsin(np.clip(points[:, 2] / np.maximum(ranges, 1e-9), -1.0, 1.0))
+        a, e = self._bins(points, ranges, elevation, self.bin_rad, self.min_elevation, rows, cols)
+        inside = (e >= 0) & (e < cols)
+        out = np.full(len(points), np.inf)
+        out[inside] = self.nearest[a[inside], e[inside]]
+        return out
+
+
+def covisible_overlap(
+    transforms: np.ndarray,
+    source_points: np.ndarray,
+    target_tree: cKDTree,
+    target_image: RangeImage,
+    weight: np.ndarray,
+    overlap_distance: float,
+    margin: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """
+    ``(overlap (N,), checked (N,))`` of ``(N, 4, 4)`` poses, one direction (module docstring).
+
+    ``source_points`` ``(n, 3)`` sampled source points with their ``weight`` ``(n,)``
+    (summing to 1); ``target_tree`` and ``target_image`` of the target scan.
+    """
+    count = len(transforms)
+    moved = source_points @ transforms[:, :3, :3].transpose(0, 2, 1) + transforms[:, None, :3, 3]
+    flat = moved.reshape(-1, 3)
+    distance, _ = target_tree.query(flat, distance_upper_bound=overlap_distance)
+    on = np.isfinite(distance).reshape(count, -1)
+    surface = target_image.surface(flat).reshape(count, -1)
+    ranges = np.linalg.norm(moved, axis=2)
+    through = ~on & np.isfinite(surface) & (ranges < surface - margin)
+    on_weight, through_weight = on @ weight, through @ weight
+    checked = on_weight + through_weight
+    overlap = np.where(checked > 0, on_weight / np.maximum(checked, 1e-12), 0.0)
+    return overlap, checked
+
+
+def mutual_covisible_overlap(
+    transforms: np.ndarray,
+    source: tuple[np.ndarray, np.ndarray, cKDTree, RangeImage],
+    target: tuple[np.ndarray, np.ndarray, cKDTree, RangeImage],
+    overlap_distance: float,
+    margin: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Both directions: the smaller overlap and the smaller checked share of each pose.
+
+    ``source``/``target``: ``(sampled points, weights, KD-tree, range image)`` of a scan.
+    """
+    forward = covisible_overlap(
+        transforms, source[0], target[2], target[3], source[1], overlap_distance, margin
+    )
+    inverse = np.linalg.inv(transforms)
+    backward = covisible_overlap(
+        inverse, target[0], source[2], source[3], target[1], overlap_distance, margin
+    )
+    return np.minimum(forward[0], backward[0]), np.minimum(forward[1], backward[1])

@@ -1,0 +1,197 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+The odometry's second look at a decision (issue 29): near misses and a prediction over a gap.
+
+Two cases, both judged by the basins of the map alignment (core/alignment/near_miss.py,
+``near_miss.*``): the scan is aligned to the local map again from perturbed starts.
+
+- **A pose from a sparse global registration** (source ``global``): refined on the map, it
+  must sit alone in its basin. A start that converges elsewhere about as well disputes
+  it: the scan is refused, or (``near_miss.action: inflate``) its covariance grows along
+  the disputed direction until it covers the gap. A place better by both measures (more
+  inliers, lower cost) is the same cost's deeper minimum, where the map alignment stopped
+  short: the pose moves there if it is trusted and undisputed in turn.
+- **A candidate refused by a rule its own evidence may overrule** (no candidate vetoes
+  another): the refined estimate of a global registration that succeeded, refused only
+  because it kept fewer map inliers than the last accepted frames did (a scan far from
+  them overlaps the map less); the refined prediction, when the global registration
+  failed, refused only by the correction bounds (a prediction extrapolated over a gap, a
+  refused scan or a stride, is rougher than they assume). Each is judged on its own
+  evidence: every perturbed start must come back to it, with no rival basin. Then it is
+  accepted (the reason says so); otherwise the refusal stands.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import TYPE_CHECKING
+
+from mlsemreg_ros.core.alignment.fine_alignment import (
+    correction_refusal,
+    refinement_refusal,
+    RefinementBounds,
+)
+from mlsemreg_ros.core.alignment.near_miss import (
+    alignment_fit,
+    better_place,
+    disputed_hessian,
+    judge_basins,
+    NearMiss,
+)
+from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
+from mlsemreg_ros.core.odometry.steps import Decision
+from mlsemreg_ros.core.odometry.trust import Candidate, relative_inlier_refusal
+from mlsemreg_ros.core.results import PreparedScan
+import numpy as np
+
+if TYPE_CHECKING:
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.odometry.tracking import Tracker
+
+
+def basins(
+    tracker: Tracker, candidate: Candidate, scan: PreparedScan, cfg: RegistrationConfig
+) -> NearMiss:
+    """Align ``scan`` to the map again from perturbed starts around ``candidate``'s pose."""
+    return judge_basins(
+        candidate.alignment,
+        lambda start: tracker.map.align_scan(scan, start),
+        alignment_fit,
+        cfg.near_miss,
+    )
+
+
+def second_look(
+    tracker: Tracker,
+    chosen: Decision,
+    estimate: GlobalEstimate,
+    scan: PreparedScan,
+    cfg: RegistrationConfig,
+) -> Decision:
+    """Return ``chosen``, refused or inflated when disputed, or a rescued candidate."""
+    if not cfg.near_miss.enabled:
+        return chosen
+    if chosen.accepted:
+        return _near_miss(tracker, chosen, scan, cfg)
+    return _rescue(tracker, chosen, estimate, scan, cfg)
+
+
+def _near_miss(
+    tracker: Tracker, chosen: Decision, scan: PreparedScan, cfg: RegistrationConfig
+) -> Decision:
+    if chosen.source != 'global':
+        return chosen
+    candidate = next(c for c in chosen.candidates if c.name == 'global')
+    verdict = basins(tracker, candidate, scan, cfg)
+    if not verdict.refusal:
+        return chosen
+    better = better_place(verdict, cfg.near_miss)
+    if better is not None and better.alignment is not None:  # the refinement stopped short
+        moved = tracker.trust.judge('global', candidate.T_initial, better.alignment, cfg.odometry)
+        again = basins(tracker, moved, scan, cfg) if moved.acceptable else None
+        if again is not None and not again.refusal:
+            alignment = moved.alignment
+            note = f'moved to a better place {verdict.refusal.partition(": ")[2]}'
+            return dataclasses.replace(
+                chosen,
+                reason='; '.join(r for r in (chosen.reason, note) if r),
+                pose=alignment.T_target_source,
+                frame_covariance=alignment.covariance(
+                    cfg.odometry.covariance_scale, axes='source'
+                ),
+                inlier_fraction=alignment.inlier_fraction,
+                candidates=[*chosen.candidates, moved],
+            )
+    if cfg.near_miss.action == 'refuse' or verdict.disputed is None:
+        return Decision(
+            source='',
+            reason='; '.join(r for r in (chosen.reason, f'global: {verdict.refusal}') if r),
+            result=chosen.result,
+            relative=chosen.result.transform if chosen.result is not None else None,
+            candidates=chosen.candidates,
+            timings_ms=chosen.timings_ms,
+        )
+    alignment = dataclasses.replace(
+        candidate.alignment,
+        hessian=disputed_hessian(candidate.alignment, verdict.disputed),
+    )
+    chosen.frame_covariance = alignment.covariance(cfg.odometry.covariance_scale, axes='source')
+    chosen.reason = '; '.join(r for r in (chosen.reason, f'inflated: {verdict.refusal}') if r)
+    return chosen
+
+
+def _own_evidence(
+    candidate: Candidate, estimate: GlobalEstimate, tracker: Tracker, cfg: RegistrationConfig
+) -> bool:
+    """
+    Whether ``candidate`` was refused only by a rule its own evidence may overrule.
+
+    The refined global estimate of a registration that succeeded, refused only by the
+    inliers relative to the last accepted frames (a scan far from the last ones overlaps
+    the map less than they did); the refined prediction, when the global registration
+    failed, refused only by the correction bounds (a prediction over a gap is rougher
+    than they assume).
+    """
+    alignment, odometry = candidate.alignment, cfg.odometry
+    bounds = RefinementBounds.of(odometry)
+    if candidate.acceptable or not np.all(np.isfinite(alignment.T_target_source)):
+        return False
+    if candidate.name == 'global':
+        return estimate.usable and not refinement_refusal(alignment, bounds)
+    return (
+        candidate.name == 'prediction'
+        and not estimate.usable
+        and bool(correction_refusal(alignment, bounds))
+        and alignment.inlier_fraction >= bounds.min_inlier_fraction
+        and not relative_inlier_refusal(
+            alignment, odometry.min_relative_inlier_fraction, tracker.history
+        )
+    )
+
+
+def _rescue(
+    tracker: Tracker,
+    chosen: Decision,
+    estimate: GlobalEstimate,
+    scan: PreparedScan,
+    cfg: RegistrationConfig,
+) -> Decision:
+    for candidate in sorted(chosen.candidates, key=lambda c: c.name != 'global'):
+        if not _own_evidence(candidate, estimate, tracker, cfg):
+            continue
+        alignment = candidate.alignment
+        verdict = basins(tracker, candidate, scan, cfg)
+        came_back = [
+            np.linalg.norm(np.linalg.solve(alignment.T_target_source, b.T_target_source)[:3, 3])
+            <= cfg.near_miss.agreement_translation
+            for b in verdict.others
+        ]
+        if verdict.refusal or not came_back or not all(came_back):
+            continue
+        note = (
+            f'{candidate.name} accepted on its own evidence ({candidate.refusal}; '
+            f'{len(came_back)} perturbed starts came back to it)'
+        )
+        return Decision(
+            source=candidate.name,
+            reason='; '.join(r for r in (chosen.reason.split('; ')[0], note) if r),
+            result=chosen.result,
+            pose=alignment.T_target_source,
+            frame_covariance=alignment.covariance(cfg.odometry.covariance_scale, axes='source'),
+            inlier_fraction=alignment.inlier_fraction,
+            candidates=chosen.candidates,
+            timings_ms=chosen.timings_ms,
+        )
+    return chosen

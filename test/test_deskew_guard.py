@@ -1,0 +1,77 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+The deskew check (core/odometry/deskew_guard.py): a deskew that bends the scan is not used.
+
+Known answers of the comparison, and a real dev pair whose moved scan carries a plausible
+time field that does not give the capture times (a uint8 counter read as milliseconds, as
+``mlsemreg fuzz-node`` sends it): with the check the pose is right and the step says why;
+without it the bent scan is accepted beyond the 0.6 m bound.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.odometry import Odometry
+from mlsemreg_ros.core.odometry.deskew_guard import deskew_refusal
+from mlsemreg_ros.core.pipeline import Registration
+import numpy as np
+import pytest
+
+DEV_PAIRS = Path(__file__).resolve().parents[2] / 'shared' / 'data' / 'kitti_pairs_dev'
+
+
+def test_the_deskew_is_refused_only_when_the_raw_scan_keeps_more_inliers() -> None:
+    assert deskew_refusal(0.53, 0.57, 0.0).startswith('the raw scan aligns better: 0.570')
+    assert deskew_refusal(0.57, 0.53, 0.0) == ''
+    assert deskew_refusal(0.53, 0.53, 0.0) == ''  # equal: the deskew is kept
+    assert deskew_refusal(0.53, 0.57, 0.05) == ''  # within the margin
+    assert deskew_refusal(None, 0.9, 0.0) == '' and deskew_refusal(0.5, None, 0.0) == ''
+
+
+def _moved_scan_with_a_counter_for_times(check: bool) -> tuple[object, np.ndarray]:
+    from mlsemreg_ros.datasets.pairs import list_pairs, load_pair
+    from mlsemreg_ros.evaluation.hostile_cases import good_streams, Timeline
+
+    pair = load_pair(list_pairs(DEV_PAIRS)[4])
+    cfg = RegistrationConfig().replace({'keypoints.count': 2000, 'preprocess.deskew_check': check})
+    odometry = Odometry(Registration(cfg))
+    timeline = Timeline(1000.0, 1.0)  # the keyframe at t0, the moved scan at t2 (fuzz-node)
+    wheel = good_streams(pair.trans_gt, timeline)['wheel']  # the pair's motion, 50 Hz
+
+    def feed(after: float, until: float) -> None:
+        kept = [(t, f['pose']) for t, f in wheel if after < t <= until]
+        stamps = np.array([round(t * 1e9) for t, _ in kept], dtype=np.int64)
+        odometry.motion_model.add_wheel(stamps, np.stack([pose for _, pose in kept]))
+
+    t0, _, t2 = timeline.scans
+    feed(0.0, t0)
+    odometry.process(pair.pts_dst, pair.label_dst, round(t0 * 1e9))
+    feed(t0, t2 + 0.1)
+    rng = np.random.default_rng(0)
+    counter = np.round(np.sort(rng.uniform(0.0, 0.1, len(pair.pts_src))) * 2000)
+    times = counter.astype(np.uint8) * 1e-3  # 0..200 read as ms: a plausible 0.2 s sweep
+    step = odometry.process(pair.pts_src, pair.label_src, round(t2 * 1e9), point_times=times)
+    return step, pair.trans_gt
+
+
+@pytest.mark.skipif(not DEV_PAIRS.is_dir(), reason=f'no dev pairs at {DEV_PAIRS}')
+def test_a_scan_bent_by_its_time_field_is_registered_raw() -> None:
+    step, truth = _moved_scan_with_a_counter_for_times(check=True)
+    assert step.accepted and not step.deskewed
+    assert step.deskew_refusal.startswith('not used: the raw scan aligns better')
+    assert np.linalg.norm((np.linalg.inv(truth) @ step.pose)[:3, 3]) < 0.6
