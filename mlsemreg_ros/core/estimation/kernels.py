@@ -43,9 +43,7 @@ _MIN_WEIGHT_SUM = 1e-12
 def _apply(pose: np.ndarray, point: np.ndarray, out: np.ndarray) -> None:
     """``out = R point + t`` of one ``(4, 4)`` pose."""
     for a in range(3):
-        out[a] = (
-            pose[a, 0] * point[0] + pose[a, 1] * point[1] + pose[a, 2] * point[2] + pose[a, 3]
-        )
+        out[a] = pose[a, 0] * point[0] + pose[a, 1] * point[1] + pose[a, 2] * point[2] + pose[a, 3]
 
 
 @jit

@@ -98,9 +98,7 @@ class ObjectsConfig:
         low=10,
         high=20000,
     )
-    seeds: int = param(
-        48, 'Cliques grown, from the best second-order scores.', low=1, high=10000
-    )
+    seeds: int = param(48, 'Cliques grown, from the best second-order scores.', low=1, high=10000)
     min_objects: int = param(
         4,
         'Fewest consistent object matches a pose needs to become a candidate.',

@@ -50,9 +50,7 @@ class ObjectStage:
         cfg = context.config
         weak = context.evidence.num_inliers < cfg.bev_search.weak_inliers
         return (
-            cfg.objects.enabled
-            and bool(context.refusal or weak)
-            and context.verified is not None
+            cfg.objects.enabled and bool(context.refusal or weak) and context.verified is not None
         )
 
     def run(self, context: RegistrationContext) -> VerificationResult | None:
@@ -87,6 +85,4 @@ class ObjectStage:
 def _objects(scan: PreparedScan, level: np.ndarray, ids: list, config: object) -> Objects:
     """Return the objects of ``scan`` in its levelled frame."""
     levelled = scan.points @ level[:3, :3].T + level[:3, 3]
-    return extract_objects(
-        levelled, scan.labels, ids, config.building_segment, config.max_range
-    )
+    return extract_objects(levelled, scan.labels, ids, config.building_segment, config.max_range)
