@@ -144,7 +144,7 @@ def test_a_priors_stated_covariance_widens_the_bound() -> None:
 
 
 def _turned(yaw_deg: float, inliers: int = 900) -> Alignment:
-    """An alignment that turned the identity guess by ``yaw_deg``."""
+    """Return an alignment that turned the identity guess by ``yaw_deg``."""
     return Alignment(_pose(yaw_deg, 0.0), np.eye(4), True, 5, inliers, 1000, 1.0, np.eye(6))
 
 
