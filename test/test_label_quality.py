@@ -92,6 +92,7 @@ def test_poorer_labels_switch_to_the_information_rule_and_weigh_the_score() -> N
     assert weighed.confidence.label_rule == 'information'
     assert weighed.confidence.contradicting_objects == 0
     assert weighed.confidence.min_distinctive_ceiling == 1.0  # objects off below 0.5
+    assert not weighed.levelling.enabled  # nor the ground of those labels
     assert weighed.verification.label_weight == pytest.approx(
         np.sqrt(0.4) * config.verification.label_weight
     )

@@ -175,7 +175,8 @@ def test_object_stage_puts_the_60_m_pose_in_the_pool():
     truth = np.linalg.inv(T_wt) @ T_ws
     pool = seen['pool']
     found = [
-        h for h in pool.hypotheses
+        h
+        for h in pool.hypotheses
         if h.origin == 'objects' and within_bounds(h.T_target_source, truth, 0.5, 2.0)
     ]
     assert found, [h.origin for h in pool.hypotheses]

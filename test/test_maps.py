@@ -22,7 +22,7 @@ from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
 from mlsemreg_ros.core.maps.map_io import load_map, load_store, MAP_FILE, MapError, save_map
 from mlsemreg_ros.core.maps.place_recognition import context_similarity, PlaceIndex
 from mlsemreg_ros.core.maps.pose_graph import PoseGraph
-from mlsemreg_ros.core.maps.relocalization import Relocalizer
+from mlsemreg_ros.core.maps.relocalization import FIRST_ROUND_DECIDED, Relocalizer
 from mlsemreg_ros.core.metrics import rotation_error_deg
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.rigid import invert_transform
@@ -228,6 +228,7 @@ def test_the_quick_pass_answers_as_the_full_path_on_strong_evidence(
     quick, full = answers
     assert quick.found and full.found and quick.keyframe_id == full.keyframe_id
     assert quick.trials[-1].quick and not any(t.quick for t in full.trials)
+    assert quick.result.diagnostics[FIRST_ROUND_DECIDED]  # no stage after the first round
     np.testing.assert_allclose(quick.T_map_sensor, full.T_map_sensor, atol=1e-9)
 
 

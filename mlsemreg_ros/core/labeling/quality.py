@@ -40,7 +40,8 @@ flipped or confused. Before a pair is matched its labels are judged (docs/labels
 - the geometric evidence carries the decision: the verification score weighs the label
   agreement by ``sqrt(w)`` (``verification.label_weight * sqrt(w)``: at ``w = 0`` the
   overlap alone, as without labels), the contradiction check is off, and below
-  ``OBJECTS_MIN_WEIGHT`` the distinctive objects decide nothing;
+  ``OBJECTS_MIN_WEIGHT`` the distinctive objects decide nothing and the ground fitted to
+  the labels levels nothing (``levelling.enabled`` off for the pair);
 - the labels keep a veto by likelihood rather than raw agreement
   (``confidence.label_rule: information``): the pose's label co-occurrence must agree
   beyond chance by at least ``confidence.min_relative_information`` of what the labels
@@ -89,13 +90,18 @@ class LabelQuality:
             return config
         conf, ver = config.confidence, config.verification
         changes = {'label_rule': 'information', 'contradicting_objects': 0}
+        sections = {}
         if self.weight < OBJECTS_MIN_WEIGHT:
             changes['min_distinctive_ceiling'] = 1.0  # objects decide only when spotless
+            # nor does a ground fitted to their road labels (30 % flips: a right pose of dev
+            # pair 000012 refused as 7.4 deg off the flipped ground)
+            sections['levelling'] = replace(config.levelling, enabled=False)
         weighed = ver.label_weight * math.sqrt(self.weight)
         return replace(
             config,
             confidence=replace(conf, **changes),
             verification=replace(ver, label_weight=weighed),
+            **sections,
         )
 
 

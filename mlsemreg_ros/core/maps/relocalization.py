@@ -31,10 +31,12 @@ For a query scan (sensor frame, labeled):
 
 Quick pass first (``map.quick_first``, with ``map.stop_at_first_accepted``): the candidates
 are first registered without the BEV search and the stages after it
-(``bev_search.enabled`` false). A pose accepted there on strong evidence
-(``bev_search.weak_inliers`` or more) is exactly what the full registration returns, since
-the search would not have run; it is taken at once. Only when no candidate gives one are
-the candidates registered again with the full path, best scan context first. A place seen
+(``bev_search.enabled`` false). A pose the first round's confidence stage accepts on
+strong evidence (``bev_search.weak_inliers`` or more) is exactly what the full registration
+returns, since every stage that searches or rescues needs a refused or weak pose; it is
+taken at once. A pose that a later stage of the quick pass rescues is set aside. Only
+when no candidate gives one are the candidates registered again with the full path, best
+scan context first. A place seen
 again is then found at the cost of the cheap stages, and a refused query pays the quick pass
 on top of the full one.
 
@@ -53,10 +55,42 @@ from mlsemreg_ros.core.results import PreparedScan, RegistrationResult, Verifica
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage
 import numpy as np
 
+#: Diagnostics key of the quick pass: the first round's verdict was an accepted pose on
+#: strong evidence (``bev_search.weak_inliers``), so no refused-path stage could run.
+FIRST_ROUND_DECIDED = 'quick_first_round_decided'
+
+
+def _first_round_decided(context: RegistrationContext) -> bool:
+    """Tell whether the pose is accepted on strong evidence now (no stage would search)."""
+    return (
+        context.evidence is not None
+        and not context.refusal
+        and context.evidence.num_inliers >= context.config.bev_search.weak_inliers
+    )
+
+
+class _FirstVerdict:
+    """The quick pass's confidence stage: it also notes the first round's verdict."""
+
+    def __init__(self, stage: Stage) -> None:
+        """Wrap the registration's confidence stage."""
+        self.stage = stage
+        self.name = stage.name
+
+    def wanted(self, context: RegistrationContext) -> bool:
+        """Return the wrapped stage's condition."""
+        return self.stage.wanted(context)
+
+    def run(self, context: RegistrationContext) -> VerificationResult | None:
+        """Run the wrapped stage and note :data:`FIRST_ROUND_DECIDED`."""
+        found = self.stage.run(context)
+        context.diagnostics[FIRST_ROUND_DECIDED] = _first_round_decided(context)
+        return found
+
 
 class _WhenDecided:
     """
-    The quick pass's fine alignment: only for a pose accepted on strong evidence.
+    The quick pass's fine alignment: only for a pose decided in the first round.
 
     Any other quick result is set aside and the candidate registered again with the full
     path, so refining it would be wasted (one GICP per refused candidate).
@@ -68,11 +102,9 @@ class _WhenDecided:
         self.name = stage.name
 
     def wanted(self, context: RegistrationContext) -> bool:
-        """The stage's own condition, for an accepted pose of ``bev_search.weak_inliers``."""
-        strong = context.evidence is not None and (
-            context.evidence.num_inliers >= context.config.bev_search.weak_inliers
-        )
-        return strong and not context.refusal and self.stage.wanted(context)
+        """Return the stage's condition, for a pose decided in the first round."""
+        decided = bool(context.diagnostics.get(FIRST_ROUND_DECIDED, False))
+        return decided and _first_round_decided(context) and self.stage.wanted(context)
 
     def run(self, context: RegistrationContext) -> VerificationResult | None:
         """Run the wrapped stage."""
@@ -120,7 +152,7 @@ class Relocalizer:
 
     def quick_registration(self) -> Registration:
         """
-        The registration without the BEV search and the stages after it (``map.quick_first``).
+        Return the registration that stops before the BEV search (``map.quick_first``).
 
         The same label map and stage list; made again when the registration's config changes.
         Its fine alignment runs only for a pose the quick pass can keep (:class:`_WhenDecided`).
@@ -129,8 +161,9 @@ class Relocalizer:
         if self._quick is None or self._quick[0] is not config:
             quick = config.replace({'bev_search.enabled': False})
             registration = Registration(quick, self.registration.label_map)
+            wrappers = {'confidence': _FirstVerdict, 'fine': _WhenDecided}
             registration.stages = [
-                _WhenDecided(stage) if stage.name == 'fine' else stage
+                wrappers[stage.name](stage) if stage.name in wrappers else stage
                 for stage in self.registration.stages
             ]
             self._quick = (config, registration)
@@ -181,9 +214,8 @@ class Relocalizer:
             target = self.store.prepared(keyframe_id, self.registration)
             result = registration.register(prepared, target)
             accepted = bool(result.success) and bool(np.all(np.isfinite(result.transform)))
-            if quick and accepted:  # weak evidence: the full path would search
-                strong = result.diagnostics.get('confidence_num_inliers', 0)
-                accepted = strong >= search.weak_inliers
+            if quick and accepted:  # decided in the first round: the full path's answer
+                accepted = bool(result.diagnostics.get(FIRST_ROUND_DECIDED, False))
                 if accepted:
                     decided.add(keyframe_id)
             inliers = int(np.count_nonzero(result.inlier_mask))
