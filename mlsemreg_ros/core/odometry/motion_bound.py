@@ -28,7 +28,8 @@ against the prediction: the acceleration the model did not know) over the last
 
     bound = clip(max(configured, GAIN x largest recent error, SIGMAS x prior sigma), cap)
 
-per translation and rotation: the configured bound is the floor (a car never leaves it),
+for the rotation bounds (the translation bounds stay as configured, :meth:`MotionBound.widen`):
+the configured bound is the floor (a car never leaves it),
 a sensor that has turned fast recently gets a bound its motion needs, and a prediction
 from an IMU or wheel prior with a stated covariance (``Prediction.sigmas``) gets at least
 :data:`SIGMAS` standard deviations. It widens only the prediction's bounds; a global
@@ -115,22 +116,20 @@ class MotionBound:
         )
 
     def widen(self, odometry: OdometryConfig) -> OdometryConfig:
-        """Return ``odometry`` with the prediction's correction and tracking bounds widened."""
-        max_t, max_r = self.bounds(
+        """
+        Return ``odometry`` with the prediction's rotation bounds widened.
+
+        Only the rotation bounds (``odometry.max_correction_rotation``,
+        ``odometry.tracking_rotation``): a hand's prediction errors are turns, and a widened
+        translation bound let a pose 0.69 m off be tracked on the handheld OS1-128 drive at
+        stride 3 (the recorded translation errors include the poses' own errors there).
+        """
+        _, max_r = self.bounds(
             odometry.max_correction_translation, odometry.max_correction_rotation
         )
-        track_t, track_r = self.bounds(odometry.tracking_translation, odometry.tracking_rotation)
-        if (max_t, max_r, track_t, track_r) == (
-            odometry.max_correction_translation,
-            odometry.max_correction_rotation,
-            odometry.tracking_translation,
-            odometry.tracking_rotation,
-        ):
+        _, track_r = self.bounds(odometry.tracking_translation, odometry.tracking_rotation)
+        if (max_r, track_r) == (odometry.max_correction_rotation, odometry.tracking_rotation):
             return odometry
         return dataclasses.replace(
-            odometry,
-            max_correction_translation=max_t,
-            max_correction_rotation=max_r,
-            tracking_translation=track_t,
-            tracking_rotation=track_r,
+            odometry, max_correction_rotation=max_r, tracking_rotation=track_r
         )

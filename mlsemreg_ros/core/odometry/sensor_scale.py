@@ -53,8 +53,10 @@ REFERENCE_SPACING_DEG = 0.28
 MAX_SCALE = 2.0
 #: Points closer than this are the platform, not the scene (m).
 MIN_RANGE = 0.5
-#: A scan with fewer points is not measured (the next one is).
-MIN_POINTS = 100
+#: A scan with fewer points is not measured (the next one is): not a sweep of a real
+#: sensor (the sparsest here, a 70 deg solid-state pattern, has 7k points), and a degenerate
+#: scan must not fix the scale for the odometry's life.
+MIN_POINTS = 3000
 #: The parameters that scale: (section, field, power): the default times ``k ** power``.
 SCALED = (('fine', 'downsampling_resolution', 1), ('keyframe', 'min_points', -2))
 
