@@ -188,9 +188,7 @@ def test_covisible_overlap_of_a_far_pose():
     world, labels = long_street()
     rng = np.random.default_rng(1)
     walls = [
-        np.column_stack(
-            [rng.uniform(-25, 85, 6000), np.full(6000, side), rng.uniform(0, 6, 6000)]
-        )
+        np.column_stack([rng.uniform(-25, 85, 6000), np.full(6000, side), rng.uniform(0, 6, 6000)])
         for side in (-9.0, 9.0)
     ]
     world = np.concatenate([world, *walls])
