@@ -123,7 +123,7 @@ def test_openmp_threads_wait_passively_before_small_gicp_loads():
             '    def find_spec(self, name, path=None, target=None):',
             "        if name == 'small_gicp': print(os.environ.get('OMP_WAIT_POLICY'))",
             'sys.meta_path.insert(0, Spy())',
-            'import mlsemreg_ros.core.odometry',
+            'from mlsemreg_ros.core.odometry import Odometry',
         ]
     )
     env = {k: v for k, v in os.environ.items() if k != 'OMP_WAIT_POLICY'}
