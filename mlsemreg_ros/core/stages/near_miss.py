@@ -42,9 +42,12 @@ class NearMissStage:
     name = 'near_miss'
 
     def wanted(self, context: RegistrationContext) -> bool:
-        """``near_miss.enabled``, accepted so far, and refined by the fine alignment."""
+        """``near_miss.enabled``, accepted so far on at most ``near_miss.max_inliers``, refined."""
+        check = context.config.near_miss
+        strong = 0 < check.max_inliers < np.count_nonzero(context.inliers)
         return (
-            context.config.near_miss.enabled
+            check.enabled
+            and not strong
             and not context.refusal
             and not context.doubts
             and context.alignment is not None
