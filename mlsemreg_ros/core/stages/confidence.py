@@ -74,6 +74,14 @@ def _measure(context: RegistrationContext) -> functools.partial:
 def _judge(context: RegistrationContext) -> None:
     """Set the evidence of the current transform and the confidence rule's refusal."""
     cfg = context.config
+    score_current(context)
+    context.refusal = confidence.refusal(
+        context.evidence, cfg.confidence, cfg.estimator.min_inliers
+    )
+
+
+def score_current(context: RegistrationContext) -> None:
+    """Set the inliers and the evidence of the context's current transform."""
     context.inliers, context.evidence = context.scoring.evidence(
         context.transform,
         context.source_points,
@@ -83,7 +91,4 @@ def _judge(context: RegistrationContext) -> None:
         context.source,
         context.target,
         context.ceilings,
-    )
-    context.refusal = confidence.refusal(
-        context.evidence, cfg.confidence, cfg.estimator.min_inliers
     )

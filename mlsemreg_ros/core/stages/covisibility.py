@@ -33,6 +33,7 @@ from mlsemreg_ros.core.estimation import confidence
 from mlsemreg_ros.core.estimation.covisibility import mutual_covisible_overlap, RangeImage
 from mlsemreg_ros.core.estimation.verification import area_weights
 from mlsemreg_ros.core.results import PreparedScan, VerificationResult
+from mlsemreg_ros.core.stages.confidence import score_current
 from mlsemreg_ros.core.stages.context import RegistrationContext
 import numpy as np
 
@@ -81,16 +82,7 @@ class CovisibilityStage:
                 f'where both scans see, {checked[best]:.2f} of the surface checked)'
                 + (f'; {context.message}' if context.message else '')
             )
-            context.inliers, context.evidence = context.scoring.evidence(
-                context.transform,
-                context.source_points,
-                context.target_points,
-                context.pool,
-                context.chosen,
-                context.source,
-                context.target,
-                context.ceilings,
-            )
+            score_current(context)
         # the overlap is judged where both scans see: a far right pose is not refused for it
         judged = dataclasses.replace(
             context.evidence, overlap=max(context.evidence.overlap, cfg.confidence.min_overlap)
