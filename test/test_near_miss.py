@@ -159,6 +159,21 @@ def test_the_stage_follows_the_fine_alignment_and_has_a_switch(pair):
     assert not NearMissStage().wanted(context)
 
 
+def test_a_strong_sparse_consensus_skips_the_check(pair):
+    """More inliers than near_miss.max_inliers: not checked; at or under it, or 0: checked."""
+
+    def wanted(inliers: int, max_inliers: int) -> bool:
+        config = RegistrationConfig().replace({'near_miss.max_inliers': max_inliers})
+        context = register_from(pair, shifted(1.0), config.replace({'near_miss.enabled': False}))
+        context.config = config
+        context.doubts.clear()
+        context.inliers = np.arange(1000) < inliers
+        return NearMissStage().wanted(context)
+
+    assert wanted(200, 200) and wanted(201, 0)
+    assert not wanted(201, 200)
+
+
 def test_better_place_is_a_rival_with_a_lower_residual() -> None:
     from mlsemreg_ros.core.alignment.near_miss import Basin, better_place, NearMiss
 

@@ -195,3 +195,16 @@ def test_a_real_16_beam_scan_is_registered_against_its_moved_copy_with_scaled_va
     result = register_self('vlp16', points, RegistrationConfig(), 2.0, 10.0)
     assert result.right, result
     assert 'keyframe.min_points=250' in result.picked
+
+
+def test_a_cloud_voxelized_before_it_came_is_not_scaled() -> None:
+    """A 0.3 m voxel grid says nothing about the sensor: no spacing, no scaling."""
+    rng = np.random.default_rng(0)
+    raw = _shell(0.7)  # a sparse sensor's 20 m shell, plus a ground ring within 10 m
+    ground = np.column_stack([rng.uniform(-8, 8, (4000, 2)), np.full(4000, -1.7)])
+    near_raw = ground[np.linalg.norm(ground[:, :2], axis=1) > 1.0]
+    grid = np.unique(np.round(near_raw / 0.3), axis=0) * 0.3  # the same ground, voxelized
+    assert not sensor_scale.voxelized(near_raw)
+    assert sensor_scale.voxelized(grid)
+    assert sensor_scale.angular_spacing_deg(np.vstack([raw, near_raw]))[0] > 0.5
+    assert sensor_scale.angular_spacing_deg(np.vstack([raw, grid]))[0] == 0.0
