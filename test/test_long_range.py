@@ -215,8 +215,13 @@ def test_covisible_overlap_of_a_far_pose():
 
 def _choose(overlap, checked, inliers, scores, current, min_gain=0.03):
     return covisible_choice(
-        np.array(overlap), np.array(checked), np.array(inliers), np.array(scores),
-        current, 0.03, min_gain,
+        np.array(overlap),
+        np.array(checked),
+        np.array(inliers),
+        np.array(scores),
+        current,
+        0.03,
+        min_gain,
     )
 
 

@@ -125,8 +125,8 @@ class CovisibilityConfig:
         'The covisible choice keeps the current pose unless another candidate beats its '
         'covisible overlap by more than this, and a candidate with no more sparse inliers, '
         'score and surface on the other scan, and no less seen through, than the current '
-        'pose never replaces it (right 60 m poses measure 0.96-1.00 with a spread of 0.01-0.02 between '
-        'variants of the same pose).',
+        'pose never replaces it (right 60 m poses measure 0.96-1.00, with a spread of '
+        '0.01-0.02 between variants of the same pose).',
         low=0.0,
         high=1.0,
     )

@@ -19,7 +19,8 @@ overlap where both scans can see (core/estimation/covisibility.py): the right po
 60 m dev pair puts 0.97-1.00 of the checkable surface on the other scan, the best wrong
 candidates 0.73-0.92 and the zero motion 0.45-0.60 (docs/hard_pairs.md). The candidate with
 the highest covisible overlap (the current pose kept if it is within
-``covisibility.min_gain`` of it, and never replaced by one with less evidence: :func:`~mlsemreg_ros.core.estimation.covisibility.covisible_choice`), at least
+``covisibility.min_gain`` of it, and never replaced by one with less evidence:
+:func:`~mlsemreg_ros.core.estimation.covisibility.covisible_choice`), at least
 ``covisibility.min_overlap`` with ``covisibility.min_checked`` of its surface checkable,
 becomes the pose; and for the confidence rule its overlap is then enough
 (``confidence.min_overlap`` applies to the share of the whole scan, which a right pose 60 m
