@@ -98,6 +98,12 @@ class FineAlignmentConfig:
         high=20.0,
     )
     max_iterations: int = param(20, 'Maximum Gauss-Newton iterations.', low=1, high=1000)
+    refused_downsampled: bool = param(
+        True,
+        'Pairs: a pose the confidence rule still refuses is refined with the source scan '
+        'downsampled to fine.downsampling_resolution, as the polishing of refused candidates '
+        'does (a third of the time; the pose stays refused; docs/long_range.md).',
+    )
     rotation_epsilon: float = param(
         0.01,
         'Convergence: the iterations stop once an update turns less than this (and '
