@@ -171,9 +171,11 @@ class SweepAlignmentConfig:
         high=100.0,
     )
     min_change: float = param(
-        0.25,
+        0.5,
         'The scan is deskewed with the estimated twist and aligned again only when that '
-        'twist moves some point of the subset by more than this.',
+        'twist moves some point of the subset by more than this (0.25 m redid 37 % of the '
+        'VLP-16 and 44 % of the solid-state scans on noise of the 1000-point estimate, for '
+        'the same errors; docs/sensors.md).',
         unit='m',
         low=0.0,
         high=10.0,
