@@ -97,6 +97,9 @@ def test_the_fixed_count_is_kept_unless_chance_is_asked_for() -> None:
     evidence = Evidence(30, 1000, 1.0, 1.0, 0.0, chance_inliers=2.0)
     assert 'estimator.min_inliers=40' in refusal(evidence, fixed, 40)
     assert refusal(evidence, CHANCE, 40) == ''  # 30 > max(10, 2 x 2)
+    many = Evidence(30, 10000, 1.0, 1.0, 0.0, chance_inliers=2.0)  # ratio 0.003 < 0.005
+    assert 'min_inlier_ratio' in refusal(many, fixed, 20)
+    assert refusal(many, CHANCE, 20) == ''  # the chance count replaces the ratio too
     assert chance.required_inliers(float('nan'), CHANCE, 40) == 40  # not measured: fixed
     assert chance.required_inliers(3.0, CHANCE, 40) == 10  # the floor
     assert not chance.wanted(250, CHANCE)  # a strong consensus is not measured

@@ -28,7 +28,8 @@ correspondences with the target points re-paired at random (a permutation: the s
 points, the same extent and count, the same threshold, no true pairing), and the winning
 consensus of each run is a draw of the best chance consensus. The pose's count must exceed
 ``confidence.chance_margin`` times the largest of ``confidence.chance_shuffles`` draws,
-and ``confidence.chance_floor``. With ``confidence.count_rule: fixed`` (the default) the
+and ``confidence.chance_floor``; this count replaces both ``estimator.min_inliers`` and
+``confidence.min_inlier_ratio`` (a count scaled by the correspondences alone). With ``confidence.count_rule: fixed`` (the default) the
 fixed ``estimator.min_inliers`` applies instead; the draws are still measured (into the
 diagnostics, ``confidence_chance_inliers``) while ``chance_shuffles`` > 0.
 """

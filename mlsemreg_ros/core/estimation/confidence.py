@@ -199,8 +199,9 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
     """Why the evidence is not enough ('' when the registration is accepted)."""
     reasons = []
     required = required_inliers(evidence.chance_inliers, config, min_inliers)
+    by_chance = config.count_rule == 'chance' and np.isfinite(evidence.chance_inliers)
     if evidence.num_inliers < required:
-        if config.count_rule == 'chance' and np.isfinite(evidence.chance_inliers):
+        if by_chance:
             reasons.append(
                 f'{evidence.num_inliers} inliers < {required:g}: confidence.chance_margin='
                 f'{config.chance_margin:g} x {evidence.chance_inliers:g} won by chance '
@@ -210,7 +211,7 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
             reasons.append(
                 f'{evidence.num_inliers} inliers < estimator.min_inliers={min_inliers}'
             )
-    if evidence.inlier_ratio < config.min_inlier_ratio:
+    if not by_chance and evidence.inlier_ratio < config.min_inlier_ratio:  # chance: replaced
         reasons.append(
             f'inlier ratio {evidence.inlier_ratio:.4f} < '
             f'confidence.min_inlier_ratio={config.min_inlier_ratio:g}'

@@ -636,10 +636,10 @@ class ConfidenceConfig:
     )
     count_rule: str = param(
         'fixed',
-        'The sparse count a pose needs: fixed (estimator.min_inliers) or chance (more than '
-        'chance_margin times the consensus the estimator wins on randomly re-paired '
-        'correspondences of the same pair, and chance_floor; core/estimation/chance.py, '
-        'docs/confidence.md#acceptance-by-evidence).',
+        'The sparse count a pose needs: fixed (estimator.min_inliers and min_inlier_ratio) '
+        'or chance (more than chance_margin times the consensus the estimator wins on '
+        'randomly re-paired correspondences of the same pair, and chance_floor, in place of '
+        'both; core/estimation/chance.py, docs/confidence.md#acceptance-by-evidence).',
         choices=('fixed', 'chance'),
     )
     chance_shuffles: int = param(
