@@ -19,7 +19,7 @@ Random pairs: two unrelated rooms sampled on their floor and walls, each keypoin
 with a random one of the other (no true pairing). SC2-PCR still wins a consensus, and how
 large depends on the room: 15-25 of 800 correspondences in a 4 m room, 2-6 in a 30 m one.
 A fixed count cannot serve both; the count the chance rule asks for follows the room, so
-its false-accept rate on random pairs is 0 in both, and a right pair (10 % true
+its false-accept rate on random pairs is 0 in both, and a right pair (15 % true
 correspondences) passes in both.
 """
 
@@ -67,7 +67,7 @@ def test_no_random_pair_passes_the_chance_count_and_right_pairs_do(size: float) 
         src = _room(rng, CORRESPONDENCES, size)
         dst = _room(rng, CORRESPONDENCES, size)
         unrelated.append(_verdict(src, dst, CHANCE))
-        true = rng.random(CORRESPONDENCES) < 0.10  # 10 % true pairs, 5 cm of noise
+        true = rng.random(CORRESPONDENCES) < 0.15  # 15 % true pairs, 5 cm of noise
         dst[true] = src[true] @ rotation.T + [1.0, 0.5, 0.0]
         dst[true] += rng.normal(0.0, 0.05, (int(true.sum()), 3))
         right.append(_verdict(src, dst, CHANCE))
@@ -96,7 +96,7 @@ def test_the_fixed_count_is_kept_unless_chance_is_asked_for() -> None:
     fixed = ConfidenceConfig()
     evidence = Evidence(30, 1000, 1.0, 1.0, 0.0, chance_inliers=2.0)
     assert 'estimator.min_inliers=40' in refusal(evidence, fixed, 40)
-    assert refusal(evidence, CHANCE, 40) == ''  # 30 > max(10, 2 x 2)
+    assert refusal(evidence, CHANCE, 40) == ''  # 30 > max(10, 3 x 2)
     many = Evidence(30, 10000, 1.0, 1.0, 0.0, chance_inliers=2.0)  # ratio 0.003 < 0.005
     assert 'min_inlier_ratio' in refusal(many, fixed, 20)
     assert refusal(many, CHANCE, 20) == ''  # the chance count replaces the ratio too
