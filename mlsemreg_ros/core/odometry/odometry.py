@@ -72,6 +72,7 @@ from mlsemreg_ros.core.odometry.steps import (
     REINITIALIZATION_VARIANCE,
     step_at_pose,
 )
+from mlsemreg_ros.core.odometry.sweep_starts import retry_refused
 from mlsemreg_ros.core.odometry.tracking import Tracker
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
@@ -257,6 +258,7 @@ class Odometry:
         raw, chosen, deskew_refusal = guard_deskew(  # core/odometry/deskew_guard.py
             self, given, prediction, raw, chosen, timings
         )
+        raw, chosen = retry_refused(self, given, prediction, raw, chosen, timings)  # sweep_starts
         chosen = self._relocalize(raw, chosen, timings)  # core/odometry/recovery.py
         step = self._apply(index, stamp_ns, raw, chosen)
         step.prior_refusal = prior_refusal
