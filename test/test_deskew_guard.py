@@ -39,7 +39,12 @@ def test_the_deskew_is_refused_only_when_the_raw_scan_keeps_more_inliers() -> No
     assert deskew_refusal(0.53, 0.57, 0.0).startswith('the raw scan aligns better: 0.570')
     assert deskew_refusal(0.57, 0.53, 0.0) == ''
     assert deskew_refusal(0.53, 0.53, 0.0) == ''  # equal: the deskew is kept
-    assert deskew_refusal(0.53, 0.57, 0.05) == ''  # within the margin
+    assert deskew_refusal(0.53, 0.55, 0.05) == ''  # within the margin: 0.55 < 1.05 x 0.53
+    assert deskew_refusal(0.53, 0.57, 0.05).startswith('the raw scan')  # 7.5 % more
+    # the default margin: the bent dev pair with the smallest gap is refused (2.1 % more),
+    # the good IMU deskew of the field drive with the largest gap is kept (1.0 % more)
+    margin = RegistrationConfig().preprocess.deskew_check_margin
+    assert deskew_refusal(0.336, 0.343, margin) and not deskew_refusal(0.817, 0.825, margin)
     assert deskew_refusal(None, 0.9, 0.0) == '' and deskew_refusal(0.5, None, 0.0) == ''
 
 

@@ -24,7 +24,7 @@ accepted 0.5 to 0.7 m off (two poses of the dev-pair fuzz, ``mlsemreg fuzz-node`
 So after a deskewed scan is accepted (``preprocess.deskew_check``), the scan as it came is
 aligned to the local map too, from the accepted pose (one fine alignment). When the raw
 scan keeps a larger share of its points as map inliers than the deskewed one, by more than
-``preprocess.deskew_check_margin``, the deskew made the scan worse: the raw scan is
+``preprocess.deskew_check_margin`` of it, the deskew made the scan worse: the raw scan is
 registered (tracked or globally, as any scan) and, if accepted, kept in place of the
 deskewed one. The step says so (``deskew_refusal``, published in ``/diagnostics``).
 A scan whose times are right aligns better deskewed, and nothing changes.
@@ -104,9 +104,10 @@ def deskew_refusal(deskewed: float | None, raw: float | None, margin: float) -> 
     Why the deskewed scan is worse than the raw one ('' if it is not).
 
     ``deskewed``, ``raw``: the shares of each scan's points that are map inliers after
-    its alignment (None: not aligned).
+    its alignment (None: not aligned). ``margin``: how much larger the raw share must be,
+    relative to the deskewed one (``preprocess.deskew_check_margin``).
     """
-    if deskewed is None or raw is None or raw <= deskewed + margin:
+    if deskewed is None or raw is None or raw <= deskewed * (1.0 + margin):
         return ''
     return (
         f'the raw scan aligns better: {raw:.3f} of its points are map inliers, '
