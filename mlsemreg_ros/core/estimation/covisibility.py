@@ -42,6 +42,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mlsemreg_ros.core.estimation.nearest_grid import nearest_within
 from mlsemreg_ros.core.settings import param
 import numpy as np
 from scipy.spatial import cKDTree
@@ -199,7 +200,7 @@ def covisible_overlap(
     count = len(transforms)
     moved = source_points @ transforms[:, :3, :3].transpose(0, 2, 1) + transforms[:, None, :3, 3]
     flat = moved.reshape(-1, 3)
-    distance, _ = target_tree.query(flat, distance_upper_bound=overlap_distance)
+    distance, _ = nearest_within(target_tree, flat, overlap_distance, first_only=True)
     on = np.isfinite(distance).reshape(count, -1)
     surface = target_image.surface(flat).reshape(count, -1)
     ranges = np.linalg.norm(moved, axis=2)
