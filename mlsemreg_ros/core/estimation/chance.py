@@ -29,9 +29,10 @@ points, the same extent and count, the same threshold, no true pairing), and the
 consensus of each run is a draw of the best chance consensus. The pose's count must exceed
 ``confidence.chance_margin`` times the largest of ``confidence.chance_shuffles`` draws,
 and ``confidence.chance_floor``; this count replaces both ``estimator.min_inliers`` and
-``confidence.min_inlier_ratio`` (a count scaled by the correspondences alone). With ``confidence.count_rule: fixed`` (the default) the
-fixed ``estimator.min_inliers`` applies instead; the draws are still measured (into the
-diagnostics, ``confidence_chance_inliers``) while ``chance_shuffles`` > 0.
+``confidence.min_inlier_ratio`` (a count scaled by the correspondences alone). With
+``confidence.count_rule: fixed`` (the default) the fixed ``estimator.min_inliers`` applies
+instead; the draws are still measured (into the diagnostics, ``confidence_chance_inliers``)
+while ``chance_shuffles`` > 0.
 """
 
 from __future__ import annotations
