@@ -35,7 +35,7 @@ setup(
             f'share/{PACKAGE}/config',
             glob('config/*.yaml') + glob('config/*.xml') + glob('config/*.rviz'),
         ),
-        (f'share/{PACKAGE}/config/labels', glob('config/labels/*.yaml') + glob('config/labels/*.npz')),
+        (f'share/{PACKAGE}/config/labels', glob('config/labels/*.yaml')),
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
     ],
     install_requires=[

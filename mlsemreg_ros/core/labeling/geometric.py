@@ -59,7 +59,6 @@ import time
 
 from mlsemreg_ros.core.features import kernels
 from mlsemreg_ros.core.labeling import geometric_kernels as gk
-from mlsemreg_ros.core.labeling import geometric_learned as learned
 from mlsemreg_ros.core.labeling.geometric_config import GeometricLabelsConfig
 from mlsemreg_ros.core.matching import landmarks
 import numpy as np
@@ -137,8 +136,6 @@ class GeometricLabeler:
 
     def __init__(self, config: GeometricLabelsConfig | None = None) -> None:
         self.config = config if config is not None else GeometricLabelsConfig()
-        #: when a dict, each scan's above-ground rows and classifier features land here
-        self.collect: dict | None = None
 
     def label(self, points: np.ndarray) -> GeometricLabels:
         """Raw ids (N,) of a voxelized scan ``points`` (N, 3) in the sensor frame."""
@@ -266,12 +263,6 @@ class GeometricLabeler:
         )
         vehicle = self._vehicles(columns, top, base, scatter, described)
         labels[vehicle & (h >= cfg.ground_distance)] = CAR
-        if cfg.classifier == 'learned' or self.collect is not None:
-            x = learned.features(above, h, labels, column_canopy)
-            if self.collect is not None:  # training data (scripts/train_labeler.py)
-                self.collect.update(rows=rows, features=x)
-            if cfg.classifier == 'learned':
-                self._relabel(x, labels, h, column_canopy)
         raw[rows] = labels
         # the runner-up: the shape class under an object, else building <-> vegetation
         # where the scatter is close to the line between them
@@ -285,17 +276,6 @@ class GeometricLabeler:
         runner_up[close & (labels == VEGETATION)] = BUILDING
         runner_up[close & (labels == BUILDING)] = VEGETATION
         second[rows] = runner_up
-
-    def _relabel(
-        self, x: np.ndarray, labels: np.ndarray, h: np.ndarray, canopy: np.ndarray
-    ) -> None:
-        """Labels (in place) by the learned classifier of ``x``; pole under a canopy: trunk."""
-        if x.shape[0] == 0:
-            return
-        best = learned.shipped().probabilities(x).argmax(axis=1)
-        out = learned.CLASS_RAW_IDS[best]
-        out[(out == POLE) & (canopy >= h + TRUNK_CANOPY)] = TRUNK
-        labels[:] = out
 
     def _standing(self, above: np.ndarray, h: np.ndarray) -> np.ndarray:
         """

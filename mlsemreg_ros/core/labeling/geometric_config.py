@@ -99,13 +99,6 @@ class GeometricLabelsConfig:
         low=0.0,
         high=1.0,
     )
-    classifier: str = param(
-        'rules',
-        'How the points above the ground are classed: rules (eigenvalue, column and '
-        'cluster rules) or learned (a small perceptron over the same features, trained on '
-        'simulated drives only; core/labeling/geometric_learned.py, docs/labels.md).',
-        choices=('rules', 'learned'),
-    )
     vehicle_max_length: float = param(
         6.5,
         'Longest footprint side of a compact cluster above the ground that is a vehicle.',
