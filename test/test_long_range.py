@@ -19,11 +19,16 @@ Known answers on hand-made clouds:
 - the ground fit of a tilted scan, and the levelled object search on tilted scans;
 - a street 60 m long whose only anchors are poles and a building corner, seen from both
   ends: the object hypotheses find the pose, and the object stage puts it in the pool;
-- the overlap where both scans see: the right far pose ~1, the zero motion far less.
+- the overlap where both scans see: the right far pose ~1, the zero motion far less;
+- the covisible choice never swaps a candidate for one with less evidence.
 """
 
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.estimation.covisibility import mutual_covisible_overlap, RangeImage
+from mlsemreg_ros.core.estimation.covisibility import (
+    covisible_choice,
+    mutual_covisible_overlap,
+    RangeImage,
+)
 from mlsemreg_ros.core.estimation.object_registration import ObjectsConfig, register_objects
 from mlsemreg_ros.core.features.levelling import (
     fit_ground,
@@ -206,3 +211,33 @@ def test_covisible_overlap_of_a_far_pose():
     )
     assert overlap[0] > 0.95 and checked[0] > 0.03
     assert overlap[1] < 0.8  # the walls turned across the street: the target sees through
+
+
+def _choose(overlap, checked, inliers, scores, current, min_gain=0.03):
+    return covisible_choice(
+        np.array(overlap), np.array(checked), np.array(inliers), np.array(scores),
+        current, 0.03, min_gain,
+    )
+
+
+def test_covisible_choice_never_takes_less_evidence():
+    """A tie in covisible overlap on less checked surface, inliers and score is no reason."""
+    # the mirrored street (test_verification): the right BEV pose (1) against a pose
+    # 180 deg off that also sees 1.00 where both scans see, but of far less surface
+    assert _choose([1.0, 1.0], [0.11, 0.86], [0, 40], [0.11, 0.85], current=1) == 1
+    # a current pose with too little surface checked is not replaced by a candidate with
+    # less of every count (and nothing is judged by its covisible overlap: -1)
+    assert _choose([1.0, 0.6], [0.02, 0.03], [40, 3], [0.5, 0.1], current=0) == -1
+    # a candidate with more of one count (less surface seen through) may replace it
+    assert _choose([1.0, 0.9], [0.11, 0.86], [0, 40], [0.11, 0.85], 1, min_gain=0.0) == 0
+
+
+def test_covisible_choice_keeps_the_current_pose_within_the_gain():
+    """Variants of one pose differ by 0.01-0.02: the current one stays among them."""
+    kept = _choose([0.975, 0.986, 0.98], [0.05, 0.05, 0.05], [21, 20, 19], [0.17, 0.16, 0.17], 0)
+    assert kept == 0
+    # a wrong current pose (0.81) gives way; among the contenders the best score wins
+    assert _choose([0.81, 0.975, 0.96], [0.18, 0.11, 0.1], [53, 6, 7], [0.13, 0.06, 0.07], 0) == 2
+    # too little surface checked: not eligible at all
+    assert _choose([1.0, 0.5], [0.002, 0.2], [5, 40], [0.01, 0.2], 1) == 1
+    assert _choose([1.0], [0.002], [5], [0.01], 0) == -1

@@ -114,6 +114,24 @@ def test_map_build_runs_both_loop_peers_on_the_same_scans(
     assert baselines['ours']['scans'] == 12 and baselines['ours']['wrong'] == 0
 
 
+def test_the_peers_local_map_size_is_theirs_to_set(drive: Path) -> None:
+    """``map build --peer-local-map``: both peers cut a new local map that far from the last."""
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.datasets.factory import open_scan_source
+
+    source = open_scan_source(drive)
+    travel = np.linalg.norm(np.diff([s.pose[:3, 3] for s in source.scans()], axis=0), axis=1)
+    source.close()
+    split_m = float(travel.sum()) / 4.0
+    peers = loop_peers.run_loop_peers(
+        lambda: open_scan_source(drive), list(loop_peers.LOOP_PEERS), None,
+        RegistrationConfig().map, split_m,
+    )  # fmt: skip
+    for name, peer in peers.items():  # a straight drive: three or four local maps, not one
+        assert peer['scans'] == 12 and 3 <= peer['local_maps'] <= 4, (name, peer)
+        assert peer['closed'] == 0 and peer['ate_odometry_m'] < 0.2, name
+
+
 def test_relocalize_compares_with_map_closures_as_place_recognition(
     drive: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

@@ -154,6 +154,44 @@ def test_compiled_normal_equations_equal_numpy() -> None:
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
 
 
+def test_hashed_nearest_mean_equals_the_kd_tree_within_the_distance() -> None:
+    """The cell hash finds every point's nearest mean within its cell edge, as a KD-tree does."""
+    rng = np.random.default_rng(3)
+    means = rng.uniform(-30, 30, (4000, 3)) * [1.0, 1.0, 0.1]
+    means[:7] = [[0.0, 0.0, 0.0], [0.999, 0.0, 0.0], [-1e-9, 0.0, 0.0], [5.5, 5.5, 0.5]] + [
+        [9.0, 9.0, 0.0]
+    ] * 3  # a cell boundary, duplicates (one cell, several means)
+    near = means[:600] + rng.normal(0, 0.5, (600, 3))
+    points = np.vstack([near, rng.uniform(-40, 40, (400, 3))])
+    points[0] = [np.nan, 0.0, 0.0]
+    cells = sweep_kernels.CellIndex(means, 0.8)
+    index, squared = cells.nearest(points)
+    tree = small_gicp.KdTree(means, num_threads=1)
+    want_index, want_squared = (np.asarray(a) for a in tree.batch_nearest_neighbor_search(points))
+    within = want_squared < 0.8**2
+    assert 300 < np.count_nonzero(within) < 1000
+    np.testing.assert_array_equal(index[within], want_index[within])
+    np.testing.assert_allclose(squared[within], want_squared[within], rtol=1e-12)
+    assert np.all(squared[~within] >= 0.8**2)  # beyond the edge: none, or a farther mean
+    assert index[0] == -1 and np.isinf(squared[0])  # a non-finite point pairs with nothing
+
+
+def test_compiled_linearization_equals_numpy(street, monkeypatch) -> None:
+    """The one-pass sweep linearization (deskew, pairing, H, g) against the NumPy steps."""
+    world, gaussians = street
+    motion = SweepMotion(np.array([0.01, -0.02, 0.5]), np.array([8.0, 0.3, 0.0]))
+    T = _pose(2.0, 0.5, 10.0)
+    raw, times = _sweep(world, T, motion)
+    raw, times = sweep_alignment.sweep_subset(raw, times, 1000)
+    start = T @ _pose(0.3, -0.2, 1.0) @ invert_transform(_pose(0, 0, 0))
+    compiled = sweep_alignment.linearization(raw, times, motion, start, gaussians, 1.0, 8.0)
+    monkeypatch.setenv('MLSEMREG_KERNELS', 'numpy')
+    reference = sweep_alignment.linearization(raw, times, motion, start, gaussians, 1.0, 8.0)
+    assert compiled[2] == reference[2] > 500
+    for got, want in zip(compiled[:2], reference[:2], strict=True):
+        np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9 * np.abs(want).max())
+
+
 @pytest.mark.slow  # a 34-sweep HDL-64 field drive without an IMU: about 20 s
 def test_turns_starting_and_ending_within_a_sweep_without_imu(tmp_path: Path) -> None:
     """

@@ -61,7 +61,7 @@ RIGHT_ROTATION_DEG = 5.0
 REVISIT_RADIUS_M = 5.0
 REVISIT_MIN_SCANS = 10
 REVISIT_MIN_TRAVEL_M = 30.0  # as map.loop_min_travel
-LOCAL_MAP_SPLIT_M = 100.0  # MapClosures' pipeline: a new local map after 100 m
+LOCAL_MAP_SPLIT_M = 100.0  # both peers' default: a new local map 100 m from the last start
 
 
 def edge_error(T_estimate: np.ndarray, T_true: np.ndarray) -> tuple[float, float]:
@@ -115,18 +115,25 @@ def _silenced_stdout() -> Iterator[None]:
         os.close(saved)
 
 
-def run_kiss_slam(scans: Iterable[Scan]) -> LocalMapLoops:
-    """Run KISS-SLAM over ``scans`` as its own pipeline does; record every loop it tried."""
+def run_kiss_slam(scans: Iterable[Scan], split_m: float = LOCAL_MAP_SPLIT_M) -> LocalMapLoops:
+    """
+    Run KISS-SLAM over ``scans`` as its own pipeline does; record every loop it tried.
+
+    ``split_m``: its ``local_mapper.splitting_distance`` (a new local map this far, in a
+    straight line, from the current one's start).
+    """
     with _silenced_stdout():
-        return _run_kiss_slam(scans)
+        return _run_kiss_slam(scans, split_m)
 
 
-def _run_kiss_slam(scans: Iterable[Scan]) -> LocalMapLoops:
+def _run_kiss_slam(scans: Iterable[Scan], split_m: float) -> LocalMapLoops:
     from mlsemreg_ros.evaluation.peer_estimators import KissSlamEstimator
 
     tic = time.perf_counter()
     estimator = KissSlamEstimator()
     slam = estimator.odometry
+    slam.config.local_mapper.splitting_distance = split_m  # as its config file would set it
+    slam.local_map_splitting_distance = split_m  # (KissSLAM reads it once, in __init__)
     run = LocalMapLoops('KISS-SLAM', [0])
     compute = slam.closer.compute
 
@@ -164,15 +171,17 @@ def _chained(trajectories: list[list[np.ndarray]]) -> np.ndarray:
     return np.asarray(poses, dtype=np.float64)
 
 
-def run_map_closures(scans: Iterable[Scan], map_config: Any) -> LocalMapLoops:
+def run_map_closures(
+    scans: Iterable[Scan], map_config: Any, split_m: float = LOCAL_MAP_SPLIT_M
+) -> LocalMapLoops:
     """
     Run MapClosures' pipeline over ``scans``; loops into our pose graph over its local maps.
 
     As ``map_closures.pipeline``: KISS-ICP (voxel 1 m, 100 m range, deskew), the deskewed
-    scans in a voxel map of ``density_map_resolution``; past 100 m from the local map's
-    start, its points go to ``get_closures`` and every candidate with more than
-    ``inliers_threshold`` inliers is a loop; the far points are dropped and a new local map
-    starts at the current scan.
+    scans in a voxel map of ``density_map_resolution``; past ``split_m`` (its pipeline: the
+    100 m range) from the local map's start, its points go to ``get_closures`` and every
+    candidate with more than ``inliers_threshold`` inliers is a loop; the points beyond the
+    100 m range are dropped and a new local map starts at the current scan.
     """
     from map_closures.config import MapClosuresConfig
     from map_closures.map_closures import MapClosures
@@ -205,7 +214,7 @@ def run_map_closures(scans: Iterable[Scan], map_config: Any) -> LocalMapLoops:
         run.truth.append(scan.pose)
         T_map_scan = invert_transform(T_world_map) @ pose
         voxels.integrate_frame(np.asarray(estimator.deskewed), T_map_scan)
-        if np.linalg.norm(T_map_scan[:3, 3]) > LOCAL_MAP_SPLIT_M:
+        if np.linalg.norm(T_map_scan[:3, 3]) > split_m:
             close_local_map(pose)
             T_world_map = pose
             run.starts.append(number)
@@ -309,7 +318,7 @@ def _revisited(run: LocalMapLoops, truth: np.ndarray, query: int) -> list[int]:
 
 
 LOOP_RUNNERS: dict[str, Callable[..., LocalMapLoops]] = {
-    'kiss-slam': lambda scans, map_config: run_kiss_slam(scans),
+    'kiss-slam': lambda scans, map_config, split_m: run_kiss_slam(scans, split_m),
     'map-closures': run_map_closures,
 }
 
@@ -358,14 +367,22 @@ def map_closures_relocalize(
 
 
 def run_loop_peers(
-    open_source: Callable[[], Any], names: list[str], max_frames: int | None, map_config: Any
+    open_source: Callable[[], Any],
+    names: list[str],
+    max_frames: int | None,
+    map_config: Any,
+    split_m: float = LOCAL_MAP_SPLIT_M,
 ) -> dict[str, dict[str, Any]]:
-    """Run each named peer on a fresh source (``max_frames`` scans); its scored summary."""
+    """
+    Run each named peer on a fresh source (``max_frames`` scans); its scored summary.
+
+    ``split_m``: the peers' local-map size (a new one this far from the last start).
+    """
     out = {}
     for name in dict.fromkeys(map(str, names)):
         source = open_source()
         try:
-            run = LOOP_RUNNERS[name](source.scans(max_frames=max_frames), map_config)
+            run = LOOP_RUNNERS[name](source.scans(max_frames=max_frames), map_config, split_m)
         finally:
             source.close()
         out[name] = score_local_map_loops(run)

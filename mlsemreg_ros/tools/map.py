@@ -93,6 +93,14 @@ def build(
             '(--poses odometry); repeatable',
         ),
     ] = None,
+    peer_local_map: Annotated[
+        float,
+        typer.Option(
+            min=1.0,
+            help="the --baseline peers' local-map size, m (KISS-SLAM's "
+            'local_mapper.splitting_distance; their default 100)',
+        ),
+    ] = 100.0,
     config: ConfigOption = None,
     labels: LabelsOption = None,
     overrides: SetOption = None,
@@ -158,21 +166,29 @@ def build(
             f'{summary["revisits"]} keyframes that revisit a place'
         )
     if peers:
-        summary['baselines'] = _compare_loops(bag, peers, max_frames, core, summary, seconds)
+        summary['baselines'] = _compare_loops(
+            bag, peers, max_frames, core, summary, seconds, peer_local_map
+        )
     if json_path is not None:
         json_path.write_text(json.dumps(summary, indent=2) + '\n')
     return 0
 
 
 def _compare_loops(
-    bag: Path, peers: list[str], max_frames: int | None, core: Any, ours: dict, seconds: float
+    bag: Path,
+    peers: list[str],
+    max_frames: int | None,
+    core: Any,
+    ours: dict,
+    seconds: float,
+    split_m: float,
 ) -> dict[str, Any]:
     """Run the loop peers on the bag's scans; print the loops of all side by side."""
     from mlsemreg_ros.datasets.factory import open_scan_source
     from mlsemreg_ros.evaluation.loop_peers import loop_table, ours_loop_summary, run_loop_peers
     from mlsemreg_ros.evaluation.tables import print_table
 
-    results = run_loop_peers(lambda: open_scan_source(bag), peers, max_frames, core.map)
+    results = run_loop_peers(lambda: open_scan_source(bag), peers, max_frames, core.map, split_m)
     mine = ours_loop_summary(ours, seconds)
     print_table(loop_table([mine, *results.values()]))
     return {'ours': mine, **results}

@@ -40,7 +40,7 @@ are ``T exp(delta)`` and ``xi + delta_xi``; to first order
 
 with ``d = exp(tau xi) p`` the deskewed point. Every step is vectorised over the points
 (every k-th point, about ``sweep_alignment.points``); the map's nearest voxels come from
-small_gicp's KD-tree.
+a hash of the means by cells of ``max_distance`` (``sweep_kernels.CellIndex``).
 """
 
 from __future__ import annotations
@@ -51,7 +51,7 @@ from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.alignment import sweep_kernels
 from mlsemreg_ros.core.alignment.config import SweepAlignmentConfig
 from mlsemreg_ros.core.features import kernels
-from mlsemreg_ros.core.features.deskew import deskew, SweepMotion
+from mlsemreg_ros.core.features.deskew import _twist_terms, deskew, SMALL_ANGLE, SweepMotion
 import numpy as np
 import small_gicp
 
@@ -87,21 +87,45 @@ class SweepAlignment:
 
 
 class MapGaussians:
-    """A local map's voxel Gaussians with a KD-tree over the means (built once per use)."""
+    """
+    A local map's voxel Gaussians and a search of the nearest mean (built once per use).
+
+    With the compiled kernels, the means are hashed by cells of the search distance
+    (:class:`~mlsemreg_ros.core.alignment.sweep_kernels.CellIndex`: one pass, exact within
+    that distance); without them, or for an unbounded search, small_gicp's KD-tree.
+    """
 
     def __init__(self, means: np.ndarray, covariances: np.ndarray) -> None:
         """``means`` (V, 3) and ``covariances`` (V, 3, 3) in the map frame."""
         self.means = np.ascontiguousarray(means[:, :3], dtype=np.float64)
         self.covariances = np.asarray(covariances, dtype=np.float64)[:, :3, :3]
-        self.tree = small_gicp.KdTree(self.means, num_threads=threads.workers())
+        self._tree: small_gicp.KdTree | None = None
+        self._cells: sweep_kernels.CellIndex | None = None
 
     def __len__(self) -> int:
         """Voxels."""
         return len(self.means)
 
-    def nearest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Index and squared distance of each point's nearest mean."""
-        index, sq = self.tree.batch_nearest_neighbor_search(
+    def cells(self, cell: float) -> sweep_kernels.CellIndex:
+        """Return the means hashed by cells of edge ``cell`` (built on first use)."""
+        if self._cells is None or self._cells.cell != cell:
+            self._cells = sweep_kernels.CellIndex(self.means, cell)
+        return self._cells
+
+    def nearest(
+        self, points: np.ndarray, within: float | None = None
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Index and squared distance of each point's nearest mean.
+
+        ``within``: only a mean at most this far counts; a point without one may then get
+        index -1 and an infinite squared distance (the hashed search). None: any distance.
+        """
+        if within is not None and within > 0 and kernels.enabled():
+            return self.cells(within).nearest(points)
+        if self._tree is None:
+            self._tree = small_gicp.KdTree(self.means, num_threads=threads.workers())
+        index, sq = self._tree.batch_nearest_neighbor_search(
             np.ascontiguousarray(points), num_threads=threads.workers()
         )
         return np.asarray(index, dtype=np.int64), np.asarray(sq, dtype=np.float64)
@@ -113,8 +137,8 @@ def sweep_subset(
     """Return about ``count`` points with their times: every k-th (a sweep is column-ordered)."""
     step = max(1, len(points) // max(count, 1))
     return (
-        np.asarray(points[::step], dtype=np.float64),
-        np.asarray(times[::step], dtype=np.float64),
+        np.ascontiguousarray(points[::step], dtype=np.float64),
+        np.ascontiguousarray(times[::step], dtype=np.float64),
     )
 
 
@@ -148,19 +172,12 @@ def align_sweep(
     pairs, iteration = 0, 0
     decay = KERNEL_SCALE_START ** (-1.0 / max(config.iterations - 2, 1))
     for iteration in range(1, config.iterations + 1):
-        motion = SweepMotion(xi[:3], xi[3:])
-        deskewed = deskew(points, times, motion)
-        world = deskewed @ T[:3, :3].T + T[:3, 3]
-        index, sq = gaussians.nearest(world)
-        keep = sq < config.max_distance**2
-        pairs = int(np.count_nonzero(keep))
+        scale = max(1.0, KERNEL_SCALE_START * decay ** (iteration - 1))
+        hessian, gradient, pairs = linearization(
+            points, times, SweepMotion(xi[:3], xi[3:]), T, gaussians, config.max_distance, scale
+        )
         if pairs < 12:
             break
-        d, tau, j = deskewed[keep], times[keep], index[keep]
-        scale = max(1.0, KERNEL_SCALE_START * decay ** (iteration - 1))
-        hessian, gradient = normal_equations(
-            d, tau, world[keep] - gaussians.means[j], gaussians.covariances[j], T[:3, :3], scale
-        )
         state = np.concatenate([pose_offset, xi - xi0])
         hessian[np.diag_indices(12)] += prior
         gradient += prior * state
@@ -177,6 +194,54 @@ def align_sweep(
     change = deskew(points, times, motion) - deskew(points, times, motion_initial)
     change_m = float(np.sqrt(np.max(np.einsum('ni,ni->n', change, change), initial=0.0)))
     return SweepAlignment(T, motion, change_m, pairs, iteration)
+
+
+def linearization(
+    points: np.ndarray,
+    times: np.ndarray,
+    motion: SweepMotion,
+    T: np.ndarray,
+    gaussians: MapGaussians,
+    max_distance: float,
+    scale: float,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """
+    ``H``, ``g`` and the pair count of the points deskewed by ``motion`` and moved by ``T``.
+
+    Each point pairs with its nearest map mean within ``max_distance``. Compiled in one pass
+    (``sweep_kernels.sweep_linearization``) when the kernels are on; else the NumPy steps.
+    """
+    if kernels.enabled():
+        cells = gaussians.cells(max_distance)
+        return sweep_kernels.sweep_linearization(
+            points,
+            times,
+            _twist_terms(motion),
+            SMALL_ANGLE,
+            T,
+            cells,
+            gaussians.covariances,
+            max_distance,
+            VOXEL_REGULARIZATION,
+            scale,
+        )
+    deskewed = deskew(points, times, motion)
+    world = deskewed @ T[:3, :3].T + T[:3, 3]
+    index, sq = gaussians.nearest(world, max_distance)
+    keep = sq < max_distance**2
+    pairs = int(np.count_nonzero(keep))
+    if pairs < 12:
+        return np.zeros((12, 12)), np.zeros(12), pairs
+    j = index[keep]
+    hessian, gradient = normal_equations(
+        deskewed[keep],
+        times[keep],
+        world[keep] - gaussians.means[j],
+        gaussians.covariances[j],
+        T[:3, :3],
+        scale,
+    )
+    return hessian, gradient, pairs
 
 
 def normal_equations(

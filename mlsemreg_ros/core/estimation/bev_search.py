@@ -49,12 +49,14 @@ from dataclasses import dataclass
 import time
 from typing import TYPE_CHECKING
 
+from mlsemreg_ros.core.estimation import kernels
 from mlsemreg_ros.core.estimation.config import BevSearchConfig
 from mlsemreg_ros.core.estimation.verification import (
     LabelCompatibility,
     refine_starts,
     score_hypotheses,
 )
+from mlsemreg_ros.core.features import kernels as compiled
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.poses import distinct_hypotheses
 from mlsemreg_ros.core.results import PreparedScan, VerificationResult
@@ -184,6 +186,9 @@ class Correlator:
         by_shift = np.argsort(self.shift[self.reachable], kind='stable')
         self.to_shift_order = by_shift
         self.to_grid_order = np.argsort(by_shift, kind='stable')
+        # the grid rows a source point within grid.radius can occupy (_rasterise)
+        half, reach = grid.size // 2, int(np.floor(grid.radius / grid.cell_size))
+        self.source_rows = (max(half - reach - 2, 0), min(half + reach + 2, grid.size))
 
     def peaks(self, yaws: np.ndarray, peaks_per_yaw: int) -> np.ndarray:
         """Best ``peaks_per_yaw`` local maxima of the correlation at every yaw (deg)."""
@@ -197,6 +202,12 @@ class Correlator:
             rotated = self.source_xy[None] @ rotation.transpose(0, 2, 1)  # (Y, n, 2)
             source = _rasterise(rotated, self.source_channel, grid, self.num_channels, grid.radius)
             correlation = self._reachable_correlation(source)  # (Y, w, w), grid order
+            if compiled.enabled():
+                y, u, v, value = kernels.bev_local_peaks(
+                    correlation, self.to_grid_order, self.to_shift_order, peaks_per_yaw
+                )
+                rows.append(self._rows(value, chunk[y], u, v))
+                continue
             # local maxima over the reachable block in shift order; -inf beyond it (as the
             # full grid with the unreachable shifts at -inf: the block does not wrap)
             in_shift = correlation[:, self.to_shift_order][:, :, self.to_shift_order]
@@ -211,17 +222,15 @@ class Correlator:
                 values = correlation[y].ravel()[flat]
                 best = flat[np.argsort(-values, kind='stable')[:peaks_per_yaw]]
                 u, v = np.unravel_index(best, (width, width))
-                rows.append(
-                    np.column_stack(
-                        [
-                            correlation[y][u, v],
-                            np.full(best.size, chunk[y]),
-                            self.shift[self.reachable[u]],
-                            self.shift[self.reachable[v]],
-                        ]
-                    )
-                )
+                rows.append(self._rows(correlation[y][u, v], np.full(best.size, chunk[y]), u, v))
         return np.concatenate(rows)
+
+    def _rows(
+        self, value: np.ndarray, yaw: np.ndarray, u: np.ndarray, v: np.ndarray
+    ) -> np.ndarray:
+        """``(P, 4)`` rows ``(score, yaw_deg, tx, ty)`` of reachable cells ``(u, v)``."""
+        shift = self.shift[self.reachable]
+        return np.column_stack([value, yaw, shift[u], shift[v]])
 
     def _reachable_correlation(self, source: np.ndarray) -> np.ndarray:
         """
@@ -230,12 +239,18 @@ class Correlator:
         Summed over channels in the frequency domain; returns ``(Y, w, w)`` float32, the
         reachable rows and columns in grid order.
         """
-        size = self.grid.size
-        spectrum = fft.rfft2(source, workers=-1)
+        size, (low, high) = self.grid.size, self.source_rows
+        # rows beyond the source radius are empty: transform the occupied rows only, moved
+        # to the top (the row shift moves the correlation's rows by ``low``, undone below)
+        spectrum = fft.rfft(source[:, :, low:high], axis=-1, workers=-1)
+        spectrum = fft.fft(spectrum, n=size, axis=-2, workers=-1, overwrite_x=True)
         np.conjugate(spectrum, out=spectrum)
         spectrum *= self.target_spectrum[None]
-        correlation = fft.irfft2(spectrum.sum(axis=1), s=(size, size), workers=-1)
-        return np.ascontiguousarray(correlation[:, self.reachable][:, :, self.reachable])
+        # only the reachable rows and columns: the row transform first, then the reachable rows'
+        rows = fft.ifft(spectrum.sum(axis=1), axis=-2, workers=-1, overwrite_x=True)
+        rows = rows[:, (self.reachable + low) % size]
+        correlation = fft.irfft(rows, n=size, axis=-1, workers=-1, overwrite_x=True)
+        return np.ascontiguousarray(correlation[:, :, self.reachable])
 
 
 def yaw_search(

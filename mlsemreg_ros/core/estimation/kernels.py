@@ -248,3 +248,65 @@ def nearest_in_descriptor_space(
             out_i[found], out_j[found], out_d[found] = i, best_j, np.float32(best)
             found += 1
     return out_i[:found], out_j[:found], out_d[:found]
+
+
+@jit
+def bev_local_peaks(
+    correlation: np.ndarray, to_grid_order: np.ndarray, to_shift_order: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """
+    Return the best ``k`` local maxima of every yaw's correlation (``Correlator.peaks``).
+
+    ``correlation`` ``(Y, w, w)`` float32 over the reachable shifts in grid order;
+    ``to_shift_order`` lists the grid rows in ascending shift, ``to_grid_order`` is its
+    inverse. A cell is a local maximum when no neighbour of its 3x3 block in shift order
+    (nothing beyond the block) is larger, as ``ndimage.maximum_filter(..., cval=-inf)``.
+    Per yaw, the largest values first; equal values by ascending grid cell ``u * w + v``.
+    Returns ``(yaw row, u, v, value)`` of every kept peak, yaw by yaw.
+    """
+    count, width = correlation.shape[0], correlation.shape[1]
+    out_y = np.empty(count * k, dtype=np.int64)
+    out_u = np.empty(count * k, dtype=np.int64)
+    out_v = np.empty(count * k, dtype=np.int64)
+    out_value = np.empty(count * k, dtype=np.float32)
+    top_value = np.empty(k, dtype=np.float32)
+    top_cell = np.empty(k, dtype=np.int64)
+    found = 0
+    for y in range(count):
+        kept = 0
+        for u in range(width):
+            a = to_grid_order[u]
+            for v in range(width):
+                b = to_grid_order[v]
+                value = correlation[y, u, v]
+                peak = True
+                for da in range(-1, 2):
+                    na = a + da
+                    if na < 0 or na >= width:
+                        continue
+                    row = to_shift_order[na]
+                    for db in range(-1, 2):
+                        nb = b + db
+                        if nb < 0 or nb >= width or (da == 0 and db == 0):
+                            continue
+                        if correlation[y, row, to_shift_order[nb]] > value:
+                            peak = False
+                            break
+                    if not peak:
+                        break
+                if not peak:
+                    continue
+                if kept == k and not value > top_value[k - 1]:
+                    continue
+                at = min(kept, k - 1)  # the slot after every kept value >= this one
+                while at > 0 and top_value[at - 1] < value:
+                    if at < k:
+                        top_value[at], top_cell[at] = top_value[at - 1], top_cell[at - 1]
+                    at -= 1
+                top_value[at], top_cell[at] = value, u * width + v
+                kept = min(kept + 1, k)
+        for r in range(kept):
+            out_y[found], out_value[found] = y, top_value[r]
+            out_u[found], out_v[found] = top_cell[r] // width, top_cell[r] % width
+            found += 1
+    return out_y[:found], out_u[:found], out_v[:found], out_value[:found]

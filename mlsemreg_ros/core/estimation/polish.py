@@ -30,7 +30,7 @@ one batched weighted Kabsch (:func:`~mlsemreg_ros.core.rigid.weighted_rigid_tran
 
 from __future__ import annotations
 
-from mlsemreg_ros.core import threads
+from mlsemreg_ros.core.estimation.nearest_grid import nearest_within
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -67,9 +67,7 @@ def polish_poses(
         return poses
     for radius in np.asarray(radii, dtype=np.float64).ravel():
         moved = points @ poses[:, :3, :3].transpose(0, 2, 1) + poses[:, None, :3, 3]
-        distance, nearest = target_tree.query(
-            moved.reshape(-1, 3), distance_upper_bound=radius, workers=threads.workers()
-        )
+        distance, nearest = nearest_within(target_tree, moved.reshape(-1, 3), radius)
         matched = np.isfinite(distance).reshape(len(poses), -1)
         nearest = np.where(matched.ravel(), nearest, 0).reshape(len(poses), -1)
         step = yaw_rigid_transform(moved, target_points[nearest], matched.astype(float))

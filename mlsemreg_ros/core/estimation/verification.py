@@ -55,6 +55,7 @@ import time
 
 from mlsemreg_ros.core.estimation import kernels
 from mlsemreg_ros.core.estimation.config import EstimatorConfig, VerificationConfig
+from mlsemreg_ros.core.estimation.nearest_grid import nearest_within
 from mlsemreg_ros.core.estimation.sc2pcr import count_inliers, post_refinement
 from mlsemreg_ros.core.features.kernels import use_compiled
 from mlsemreg_ros.core.matching.labels import LabelMap
@@ -168,9 +169,9 @@ def dense_scores(
     """
     Overlap and label agreement of every hypothesis on the dense scans (module docstring).
 
-    One KD-tree query for all ``N`` hypotheses: the ``n`` sampled source points are
-    transformed by each (``(N, n, 3)``) and looked up in the target tree with
-    ``distance_upper_bound = overlap_distance``.
+    One query for all ``N`` hypotheses: the ``n`` sampled source points are transformed by
+    each (``(N, n, 3)``) and their nearest target points within ``overlap_distance`` looked
+    up (core/estimation/nearest_grid.py: compiled cells, or the target tree).
 
     Returns ``(overlap (N,), label_agreement (N,))``, both in ``[0, 1]``.
     """
@@ -187,9 +188,7 @@ def dense_scores(
     points, source_labels = source.points[rows], source.labels[rows]
     weight = area_weights(points, config.range_exponent)  # (n,), sums to 1
     moved = points @ transforms[:, :3, :3].transpose(0, 2, 1) + transforms[:, None, :3, 3]
-    distance, nearest = target_tree.query(
-        moved.reshape(-1, 3), distance_upper_bound=config.overlap_distance
-    )
+    distance, nearest = nearest_within(target_tree, moved.reshape(-1, 3), config.overlap_distance)
     overlapping = np.isfinite(distance).reshape(count, -1)
     nearest = np.where(overlapping.ravel(), nearest, 0).reshape(count, -1)
     nearest_labels = target_labels[nearest]  # (N, n), meaningless where not overlapping

@@ -36,8 +36,8 @@ def warm_up() -> dict[str, float]:
     Call it once at start-up (e.g. the node before its first scan) so the first frame
     does not pay the JIT. Without numba (or with ``MLSEMREG_KERNELS=numpy``) it
     returns ``{}``. Keys: ``voxel_ms``, ``fpfh_ms`` (both FPFH variants), ``deskew_ms``
-    (constant and piecewise), ``sweep_ms`` (the sweep alignment's normal equations),
-    ``total_ms``.
+    (constant and piecewise), ``sweep_ms`` (the sweep alignment's normal equations and
+    its one-pass linearization), ``total_ms``.
     """
     if not kernels.enabled():
         return {}
@@ -75,6 +75,12 @@ def warm_up() -> dict[str, float]:
     timings['deskew_ms'] = 1e3 * (deskewed - end)
     covariances = np.broadcast_to(np.eye(3), (200, 3, 3))
     sweep_kernels.normal_equations(points, times, points, covariances, axes, 0.01, 1.0)
+    map_covariances = np.tile(np.eye(4), (200, 1, 1))[:, :3, :3]  # as the local map gives
+    terms = (axes[0], 1.0, axes[2], axes[1], axes[0])
+    cells = sweep_kernels.CellIndex(points, 1.0)
+    sweep_kernels.sweep_linearization(
+        points, times, terms, 1e-6, np.eye(4), cells, map_covariances, 1.0, 0.01, 1.0
+    )
     timings['sweep_ms'] = 1e3 * (time.perf_counter() - deskewed)
     timings['total_ms'] = 1e3 * (time.perf_counter() - start)
     return timings

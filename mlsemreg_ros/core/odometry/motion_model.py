@@ -118,6 +118,11 @@ class ConstantVelocityModel:
         """Keep ``pose`` as the last accepted one."""
         self._accepted = [*self._accepted[-1:], (pose.copy(), stamp_ns)]
 
+    @property
+    def last_accepted(self) -> tuple[np.ndarray, int] | None:
+        """Return the last accepted ``(pose, stamp_ns)``, or None before the first."""
+        return self._accepted[-1] if self._accepted else None
+
     def reset(self) -> None:
         """Forget the velocity."""
         self._accepted = []

@@ -50,7 +50,7 @@ from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, SweepMotion
 from mlsemreg_ros.core.labeling.source import LabelSource
 from mlsemreg_ros.core.odometry import sensor_scale
-from mlsemreg_ros.core.odometry.deskew_guard import guard_deskew
+from mlsemreg_ros.core.odometry.deskew_guard import DeskewCheckSchedule, guard_deskew
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
 from mlsemreg_ros.core.odometry.local_map import (
     insert_accepted,
@@ -72,6 +72,7 @@ from mlsemreg_ros.core.odometry.steps import (
     REINITIALIZATION_VARIANCE,
     step_at_pose,
 )
+from mlsemreg_ros.core.odometry.sweep_starts import retry_refused
 from mlsemreg_ros.core.odometry.tracking import Tracker
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
@@ -114,6 +115,7 @@ class Odometry:
         self._sweep_twist: tuple[SweepMotion, int] | None = None  # (twist, stamp) of a sweep
         self._last_frame_covariance: np.ndarray | None = None  # of the last accepted frame
         self.sensor_scale: sensor_scale.SensorScale | None = None  # from the first scan
+        self.deskew_checks = DeskewCheckSchedule()  # which scans the deskew check runs on
 
     @property
     def config(self) -> RegistrationConfig:
@@ -177,6 +179,7 @@ class Odometry:
         self._start_scan = None
         self._sweep_twist = None
         self._last_frame_covariance = None
+        self.deskew_checks.reset()
 
     def restart_at(self, pose: np.ndarray, covariance: np.ndarray | None = None) -> None:
         """Reset, then start the next scan at ``T_odom_current = pose`` (a set pose)."""
@@ -255,6 +258,7 @@ class Odometry:
         raw, chosen, deskew_refusal = guard_deskew(  # core/odometry/deskew_guard.py
             self, given, prediction, raw, chosen, timings
         )
+        raw, chosen = retry_refused(self, given, prediction, raw, chosen, timings)  # sweep_starts
         chosen = self._relocalize(raw, chosen, timings)  # core/odometry/recovery.py
         step = self._apply(index, stamp_ns, raw, chosen)
         step.prior_refusal = prior_refusal
@@ -365,6 +369,7 @@ class Odometry:
             self.config.covariance,
             *motion_size(relative),
             correction=correction,
+            horizon_s=(stamp_ns - self._last_accepted[1]) * 1e-9 if self._last_accepted else 0.0,
         )
         last, self._last_accepted = self._last_accepted, (pose.copy(), stamp_ns)
         self._accepted.append(self._last_accepted)

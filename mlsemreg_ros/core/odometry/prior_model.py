@@ -138,6 +138,11 @@ class PriorMotionModel:
         self._count(prior.source)
         return Prediction(pose @ prior.T, gap, (sigma_t, sigma_r))
 
+    @property
+    def last_accepted(self) -> tuple[np.ndarray, int] | None:
+        """Return the last accepted ``(pose, stamp_ns)``, or None before the first."""
+        return self._cv.last_accepted
+
     def update(self, pose: np.ndarray, stamp_ns: int) -> None:
         """Take an accepted pose: learn the biases and the wheel scale from the last interval."""
         self._cv.update(pose, stamp_ns)

@@ -35,7 +35,7 @@ from collections.abc import Callable
 import time
 from typing import Any, TYPE_CHECKING
 
-from mlsemreg_ros.core.alignment.sweep_alignment import align_sweep, MapGaussians, sweep_subset
+from mlsemreg_ros.core.alignment.sweep_alignment import MapGaussians, sweep_subset
 from mlsemreg_ros.core.features.deskew import sweep_motion, SweepMotion
 from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
@@ -44,6 +44,7 @@ from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
 from mlsemreg_ros.core.odometry.second_look import second_look
 from mlsemreg_ros.core.odometry.steps import Decision
+from mlsemreg_ros.core.odometry.sweep_starts import align_from_starts, implied_twist
 from mlsemreg_ros.core.odometry.trust import Candidate, InlierHistory, Trust
 from mlsemreg_ros.core.results import PreparedScan
 import numpy as np
@@ -178,7 +179,8 @@ class Tracker:
             start, raw, chosen.pose, stamp_ns, keyframe, preprocessor, motion_model, cfg
         )
         tic = time.perf_counter()
-        raw, pose, note, sweep_twist = self.align_sweep(raw, pose, preprocessor, cfg)
+        implied = implied_twist(motion_model, pose, stamp_ns)  # core/odometry/sweep_starts.py
+        raw, pose, note, sweep_twist = self.align_sweep(raw, pose, preprocessor, cfg, implied)
         self.trust.motion_bound.accepted(pose)  # the prediction's error (motion_bound.py)
         chosen.timings_ms['sweep_alignment_ms'] = 1e3 * (time.perf_counter() - tic)
         if note:
@@ -260,9 +262,13 @@ class Tracker:
         pose: np.ndarray,
         preprocessor: Preprocessor,
         cfg: RegistrationConfig,
+        implied: SweepMotion | None = None,
     ) -> tuple[PreprocessedScan, np.ndarray, str, SweepMotion | None]:
         """
         Estimate the motion within the sweep from the sweep itself (no gyro), if it bends it.
+
+        ``implied``: the twist from the last accepted pose to ``pose``, a second start when
+        it bends the sweep differently from the deskew's (``core/odometry/sweep_starts.py``).
 
         A scan deskewed by a constant twist from the poses is aligned to the local map with
         its sweep twist free (``core/alignment/sweep_alignment.py``). When the estimated
@@ -288,8 +294,8 @@ class Tracker:
             if moving is not None and len(moving) == len(points):
                 points, times = points[~moving], times[~moving]
         points, times = sweep_subset(points, times, cfg.sweep_alignment.points)
-        result = align_sweep(
-            points, times, MapGaussians(*gaussians), pose, motion, cfg.sweep_alignment
+        result = align_from_starts(
+            points, times, MapGaussians(*gaussians), pose, motion, implied, cfg.sweep_alignment
         )
         finite = np.all(np.isfinite(result.T_target_source)) and np.all(
             np.isfinite(np.concatenate([result.motion.omega, result.motion.velocity]))

@@ -18,11 +18,13 @@ After the refused path the pool holds every candidate found. Each is measured by
 overlap where both scans can see (core/estimation/covisibility.py): the right pose of a
 60 m dev pair puts 0.97-1.00 of the checkable surface on the other scan, the best wrong
 candidates 0.73-0.92 and the zero motion 0.45-0.60 (docs/hard_pairs.md). The candidate with
-the highest covisible overlap, at least ``covisibility.min_overlap`` with
-``covisibility.min_checked`` of its surface checkable, becomes the pose; and for the
-confidence rule its overlap is then enough (``confidence.min_overlap`` applies to the
-share of the whole scan, which a right pose 60 m away cannot reach). Every other rule
-still applies.
+the highest covisible overlap (within ``covisibility.min_gain``, the best verification
+score first; the current pose kept if it is among them, and never replaced by one with less
+evidence: :func:`~mlsemreg_ros.core.estimation.covisibility.covisible_choice`), at least
+``covisibility.min_overlap`` with ``covisibility.min_checked`` of its surface checkable,
+becomes the pose; and for the confidence rule its overlap is then enough
+(``confidence.min_overlap`` applies to the share of the whole scan, which a right pose 60 m
+away cannot reach). Every other rule still applies.
 """
 
 from __future__ import annotations
@@ -30,7 +32,11 @@ from __future__ import annotations
 import dataclasses
 
 from mlsemreg_ros.core.estimation import confidence
-from mlsemreg_ros.core.estimation.covisibility import mutual_covisible_overlap, RangeImage
+from mlsemreg_ros.core.estimation.covisibility import (
+    covisible_choice,
+    mutual_covisible_overlap,
+    RangeImage,
+)
 from mlsemreg_ros.core.estimation.verification import area_weights
 from mlsemreg_ros.core.results import PreparedScan, VerificationResult
 from mlsemreg_ros.core.stages.confidence import score_current
@@ -64,14 +70,23 @@ class CovisibilityStage:
             verification.overlap_distance,
             covis.margin,
         )
-        eligible = np.where(checked >= covis.min_checked, overlap, -1.0)
-        best = int(np.argmax(eligible))
-        context.diagnostics.update(
-            covisible_overlap=float(overlap[best]),
-            covisible_checked=float(checked[best]),
-            covisible_switched=False,
+        pool = context.pool
+        best = covisible_choice(
+            overlap,
+            checked,
+            np.array([h.num_inliers for h in pool.hypotheses]),
+            pool.scores(),
+            context.chosen,
+            covis.min_checked,
+            covis.min_gain,
         )
-        if eligible[best] < covis.min_overlap:
+        context.diagnostics['covisible_switched'] = False
+        if best < 0:
+            return None
+        context.diagnostics.update(
+            covisible_overlap=float(overlap[best]), covisible_checked=float(checked[best])
+        )
+        if overlap[best] < covis.min_overlap:
             return None
         if best != context.chosen:
             context.diagnostics['covisible_switched'] = True

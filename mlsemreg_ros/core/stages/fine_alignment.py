@@ -15,7 +15,8 @@
 Stage 7, the fine alignment of the pair: GICP of the source scan onto the target scan.
 
 From the chosen pose, with ``fine.pair_method`` (core/alignment/alignment.py). A refused
-pose is refined too (it is the best one found; the result stays refused). The alignment
+pose is refined too (it is the best one found; the result stays refused), with the source
+downsampled as in the polishing (``fine.refused_downsampled``). The alignment
 must stay within the correction bounds (core/alignment/fine_alignment.py), or the coarse
 pose was not right to those bounds and the pose is refused; a refinement refused only by
 its bounds is kept when it holds the dense score (at 40-60 m the true overlap stays under
@@ -62,8 +63,10 @@ class FineAlignmentStage:
             context.target,
             context.transform,
         )
+        # a refused pose stays refused: its source cloud may be the downsampled one
+        downsampled = bool(context.refusal) and cfg.fine.refused_downsampled
         alignment = align_pair(
-            alignment_cloud(source, cfg.fine, pair=True),
+            alignment_cloud(source, cfg.fine, pair=not downsampled),
             alignment_cloud(target, cfg.fine, pair=True),
             coarse,
             cfg.fine,
