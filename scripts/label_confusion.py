@@ -51,6 +51,22 @@ CLASSES = {
 BANDS = (0.0, 10.0, 20.0, 35.0, 80.0)
 
 
+def confusion_by_band(points: np.ndarray, truth: np.ndarray, ours: np.ndarray) -> np.ndarray:
+    """
+    Counts (bands, C, C) of (truth, ours) pairs per range band of :data:`BANDS`.
+
+    ``truth`` and ``ours`` (N,) are collapsed ids (keys of :data:`CLASSES`, anything else
+    counts as unlabeled); rows and columns follow the order of :data:`CLASSES`.
+    """
+    lut = np.full(256, list(CLASSES).index(0), dtype=np.int64)
+    for i, c in enumerate(CLASSES):
+        lut[c] = i
+    band = np.digitize(np.linalg.norm(points[:, :2], axis=1), BANDS[1:-1])
+    out = np.zeros((len(BANDS) - 1, len(CLASSES), len(CLASSES)))
+    np.add.at(out, (band, lut[np.clip(truth, 0, 255)], lut[np.clip(ours, 0, 255)]), 1)
+    return out
+
+
 def main() -> None:
     """Print the confusion, precision and per-band recall over the pair files' scans."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
@@ -61,17 +77,13 @@ def main() -> None:
     config = RegistrationConfig().replace({'label_source': 'geometric', **overrides})
     source = LabelSource()
     ids = list(CLASSES)
-    index = {c: i for i, c in enumerate(ids)}
     confusion = np.zeros((len(BANDS) - 1, len(ids), len(ids)))
     for file in sorted(args.pairs.glob('*.npz')):
         pair = load_pair(file)
         for points, field in ((pair.pts_src, pair.label_src), (pair.pts_dst, pair.label_dst)):
             truth = collapse(np.asarray(field))
             ours = collapse(geometric_both(source, config, points)[0])
-            band = np.digitize(np.linalg.norm(points[:, :2], axis=1), BANDS[1:-1])
-            t = np.array([index[v] for v in truth])
-            o = np.array([index[v] for v in ours])
-            np.add.at(confusion, (band, t, o), 1)
+            confusion += confusion_by_band(points, truth, ours)
     total = confusion.sum(axis=0)
     names = [CLASSES[c] for c in ids]
     print('truth \\ ours  ' + ' '.join(f'{n:>10s}' for n in names) + '   points')
