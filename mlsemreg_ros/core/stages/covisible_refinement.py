@@ -56,7 +56,8 @@ def refine_where_both_see(
         or 'covisible_overlap' not in context.diagnostics
     ):
         return None
-    source = alignment_cloud(context.source, cfg.fine, pair=True)
+    # the source cloud of the usual refinement of a refused pose (fine.refused_downsampled)
+    source = alignment_cloud(context.source, cfg.fine, pair=not cfg.fine.refused_downsampled)
     target = alignment_cloud(context.target, cfg.fine, pair=True)
     near = dataclasses.replace(cfg.fine, max_correspondence_distance=covis.refine_distance)
     tries = [
