@@ -20,8 +20,10 @@ downsampled as in the polishing (``fine.refused_downsampled``). The alignment
 must stay within the correction bounds (core/alignment/fine_alignment.py), or the coarse
 pose was not right to those bounds and the pose is refused; a refinement refused only by
 its bounds is kept when it holds the dense score (at 40-60 m the true overlap stays under
-``odometry.min_inlier_fraction``; docs/hard_pairs.md). Last, the localizability of the
-alignment (``confidence.degeneracy``).
+``odometry.min_inlier_fraction``; docs/hard_pairs.md); a refused pose chosen where both
+scans see is refined at two distances and judged by that overlap instead
+(core/stages/covisible_refinement.py). Last, the localizability of the alignment
+(``confidence.degeneracy``).
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ from mlsemreg_ros.core.alignment.fine_alignment import (
 from mlsemreg_ros.core.estimation import confidence
 from mlsemreg_ros.core.estimation.config import ConfidenceConfig
 from mlsemreg_ros.core.stages.context import RegistrationContext
+from mlsemreg_ros.core.stages.covisible_refinement import refine_where_both_see
 import numpy as np
 
 
@@ -72,6 +75,8 @@ class FineAlignmentStage:
             cfg.fine,
             cfg.fine.pair_method,
         )
+        covisible = refine_where_both_see(context, coarse, alignment)  # refused 60 m poses
+        alignment = covisible or alignment
         bounds = RefinementBounds.of(cfg.odometry)
         refused = refinement_refusal(alignment, bounds)
         context.diagnostics.update(
@@ -81,8 +86,11 @@ class FineAlignmentStage:
         )
         # an accepted pose the refinement moved beyond the correction bounds is refused
         context.doubt(correction_refusal(alignment, bounds))
-        if refused and context.scoring.refused_path().refinement_holds(
-            alignment.T_target_source, coarse, source, target
+        if refused and (
+            covisible
+            or context.scoring.refused_path().refinement_holds(
+                alignment.T_target_source, coarse, source, target
+            )
         ):
             context.diagnostics['fine_refused_kept'] = True
             refused = ''
