@@ -369,6 +369,7 @@ class Odometry:
             self.config.covariance,
             *motion_size(relative),
             correction=correction,
+            horizon_s=(stamp_ns - self._last_accepted[1]) * 1e-9 if self._last_accepted else 0.0,
         )
         last, self._last_accepted = self._last_accepted, (pose.copy(), stamp_ns)
         self._accepted.append(self._last_accepted)
