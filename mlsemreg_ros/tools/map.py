@@ -359,21 +359,6 @@ def count_revisits(gt: Any, map_config: Any) -> int:
     return count
 
 
-def _write_query(
-    path: Path, points: Any, labels: Any, pose: Any, stamp_ns: int, dtype: Any = 'float32'
-) -> None:
-    import numpy as np
-
-    extra = {} if pose is None else {'T_map_scan': np.asarray(pose, dtype=np.float64)}
-    np.savez_compressed(
-        path,
-        points=np.asarray(points, dtype=dtype),
-        labels=np.asarray(labels).astype(np.uint32),
-        stamp_ns=np.int64(stamp_ns),
-        **extra,
-    )
-
-
 @app.command('queries', help=QUERIES_HELP)
 def queries(
     bag: Annotated[
@@ -386,6 +371,7 @@ def queries(
 ) -> int:
     """Write every K-th scan of a bag as a query file."""
     from mlsemreg_ros.datasets.factory import open_scan_source
+    from mlsemreg_ros.datasets.query_files import write_query
     from mlsemreg_ros.datasets.source import SourceError
     from mlsemreg_ros.evaluation.tables import print_text
 
@@ -400,7 +386,7 @@ def queries(
         for scan in source.scans():
             if scan.index < start or (scan.index - start) % every or scan.labels is None:
                 continue
-            _write_query(
+            write_query(
                 out / f'{scan.index:06d}.npz', scan.xyz, scan.labels, scan.pose, scan.stamp_ns
             )
             written += 1
@@ -461,133 +447,32 @@ def sim_queries(
 ) -> int:
     """Write relocalization queries from a second simulated drive."""
     from mlsemreg_ros.evaluation.tables import print_text
-    from mlsemreg_ros.simulation.revisit import other_drive, render_queries, reverse_drive
-    from mlsemreg_ros.simulation.sequence import SimulationConfig
-    import numpy as np
-    from scipy.spatial import cKDTree
+    from mlsemreg_ros.simulation.revisit_queries import SimQueries, write_sim_queries
 
+    request = SimQueries(
+        seed=seed,
+        frames=frames,
+        drive=drive,
+        every=every,
+        lane_change=lane_change,
+        start_offset=start_offset,
+        route_seed=route_seed,
+        route_frames=route_frames,
+        min_distance=min_distance,
+        noise_seed=noise_seed,
+        realism=realism,
+        deskew=deskew,
+    )
     replace_output(out, force)
-    if realism == 'field':
-        registration = None
-        if deskew == 'odometry':
-            from mlsemreg_ros.core.config import RegistrationConfig
-            from mlsemreg_ros.core.pipeline import Registration
+    registration = None
+    if realism == 'field' and deskew == 'odometry':  # the odometry deskews the sweeps
+        from mlsemreg_ros.core.config import RegistrationConfig
+        from mlsemreg_ros.core.pipeline import Registration
 
-            (core,) = settings((RegistrationConfig,), config, overrides)
-            registration = Registration(core)
-        written, note = _field_queries(
-            out,
-            seed,
-            frames,
-            drive,
-            every,
-            lane_change,
-            start_offset,
-            min_distance,
-            noise_seed,
-            deskew,
-            registration,
-        )
-        print_text(
-            f'wrote {written} queries ({drive} field drive, deskew {deskew}{note}) to {out}'
-        )
-        return 0
-    clean = SimulationConfig(seed=seed, frames=frames)
-    if drive == 'reverse':
-        sim, world_poses = reverse_drive(clean, lane_change, start_offset, noise_seed)
-        indices = np.arange(0, len(world_poses), every)
-    else:
-        sim, world_poses = other_drive(clean, route_seed, route_frames)
-        mapped = sim.world_poses[:, :2, 3]
-        distance = cKDTree(mapped).query(world_poses[:, :2, 3])[0]
-        indices = np.arange(0, len(world_poses), every)
-        indices = indices[distance[indices] >= min_distance]
-    out.mkdir(parents=True)
-    for query in render_queries(sim, world_poses, indices, noise_seed):
-        _write_query(
-            out / f'{query.index:06d}.npz', query.points, query.labels, query.T_map_scan, 0
-        )
-    print_text(f'wrote {len(indices)} queries ({drive} drive) to {out}')
+        (core,) = settings((RegistrationConfig,), config, overrides)
+        registration = Registration(core)
+    print_text(write_sim_queries(out, request, registration))
     return 0
-
-
-def _field_queries(
-    out: Path,
-    seed: int,
-    frames: int,
-    drive: str,
-    every: int,
-    lane_change: float,
-    start_offset: float,
-    min_distance: float,
-    noise_seed: int,
-    deskew: str,
-    registration: Any = None,
-) -> tuple[int, str]:
-    """
-    Write the queries of a second field-mode drive (simulation/field_revisit.py).
-
-    Returns the number written and a note on the sweeps skipped (``--deskew odometry``).
-    """
-    from mlsemreg_ros.simulation.field import FieldConfig
-    from mlsemreg_ros.simulation.field_odometry_queries import (
-        odometry_queries,
-        OdometryQueryCount,
-    )
-    from mlsemreg_ros.simulation.field_revisit import (
-        field_other_drive,
-        field_other_sweeps,
-        field_reverse_drive,
-        field_reverse_sweeps,
-        render_field_queries,
-        render_other_queries,
-    )
-    import numpy as np
-    from scipy.spatial import cKDTree
-
-    config = FieldConfig(seed=seed, frames=frames)
-    if drive == 'reverse':
-        sim, reverse, starts = field_reverse_drive(config, lane_change, start_offset, noise_seed)
-        indices = np.arange(0, len(starts), every)
-    else:
-        sim, other = field_other_drive(config)
-        distance = cKDTree(sim.world_poses[:, :2, 3]).query(other.world_poses[:, :2, 3])[0]
-        indices = np.arange(0, len(other), every)
-        indices = indices[distance[indices] >= min_distance]
-    count = OdometryQueryCount()
-    if deskew == 'odometry':  # every sweep up to the last query goes through the odometry
-        last = int(indices[-1]) + 1 if len(indices) else 0
-        sweeps = (
-            field_reverse_sweeps(sim, reverse, starts, last, noise_seed)
-            if drive == 'reverse'
-            else field_other_sweeps(sim, other, last)
-        )
-        queries = odometry_queries(sweeps, {int(i) for i in indices}, registration, count)
-    elif drive == 'reverse':
-        queries = render_field_queries(sim, reverse, starts, indices, noise_seed, deskew)
-    else:
-        queries = render_other_queries(sim, other, indices, deskew)
-    out.mkdir(parents=True)
-    written = 0
-    dtype = 'float64' if deskew == 'odometry' else 'float32'  # the odometry's points, exactly
-    for query in queries:
-        _write_query(
-            out / f'{query.index:06d}.npz',
-            query.points,
-            query.labels,
-            query.T_map_scan,
-            0,
-            dtype,
-        )
-        written += 1
-    note = ''
-    if deskew == 'odometry':
-        note = (
-            f': {count.sweeps} sweeps through the odometry, {count.accepted} accepted; of '
-            f'{count.wanted} queries, {count.rejected} rejected and {count.skewed} not '
-            'deskewed by it, skipped'
-        )
-    return written, note
 
 
 @app.command(
@@ -629,6 +514,7 @@ def write_pair_chain(
     """Even frames as map keyframes (at their chained poses), odd frames as queries."""
     from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
     from mlsemreg_ros.core.maps.map_io import save_map
+    from mlsemreg_ros.datasets.query_files import write_query
 
     store = KeyframeStore(config.replace({'map.max_keyframes': 10**6}), label_map)
     for frame in frames[::2]:
@@ -637,7 +523,7 @@ def write_pair_chain(
     out_queries.mkdir(parents=True)
     for number, frame in enumerate(frames):
         if number % 2:
-            _write_query(
+            write_query(
                 out_queries / f'{number:06d}.npz', frame.points, frame.labels, frame.T_0_frame, 0
             )
 
