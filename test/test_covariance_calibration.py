@@ -28,8 +28,10 @@ from mlsemreg_ros.core.alignment.covariance import (
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry import Odometry
 from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.datasets.pairs import list_pairs, Pair, save_pair
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 from mlsemreg_ros.evaluation.covariance_calibration import (
+    chain_scans,
     CovarianceSample,
     fit_calibration,
     load_samples,
@@ -37,6 +39,7 @@ from mlsemreg_ros.evaluation.covariance_calibration import (
     nees_summary,
     nees_values,
     save_samples,
+    stream_samples,
 )
 import numpy as np
 import pytest
@@ -113,16 +116,69 @@ def test_errors_drawn_from_the_true_covariance_have_a_chi_square_nees(seed: int)
             'per_metre_rotation': (0.0,),
             'per_degree_translation': (0.0,),
             'per_degree_rotation': (0.0,),
+            'per_correction_translation': (0.0,),
+            'per_correction_rotation': (0.0,),
+            'correction_free_translation': (0.0,),
+            'correction_free_rotation': (0.0,),
+            'correction_sweep': (0.1,),
         },
     )
     assert scale == 20.0 and cfg.floor_translation == 0.0
 
 
 def test_samples_survive_a_round_trip(tmp_path) -> None:
-    samples = [CovarianceSample(np.arange(6.0), np.eye(6), 3.0, 4.0)]
+    samples = [CovarianceSample(np.arange(6.0), np.eye(6), 3.0, 4.0, 0.5, 2.0, 1.0)]
     save_samples(tmp_path / 's.npz', samples)
     (back,) = load_samples(tmp_path / 's.npz')
     assert np.array_equal(back.error, np.arange(6.0)) and (back.distance, back.turn_deg) == (3, 4)
+    assert (back.correction_m, back.correction_deg, back.gap_s) == (0.5, 2.0, 1.0)
+
+
+def test_a_correction_counts_by_the_share_of_it_within_one_sweep() -> None:
+    """3 m off after 1 s bends a 0.1 s sweep as 0.3 m off after 0.1 s; below the free part: 0."""
+    cfg = replace(
+        OFF,
+        per_correction_translation=0.75,
+        per_correction_rotation=0.1,
+        correction_free_translation=0.1,
+        correction_free_rotation=0.5,
+        correction_sweep=0.1,
+    )
+    zero = np.zeros((6, 6))
+    stride_10 = calibrated_covariance(zero, 1.0, cfg, correction=(3.0, 20.0), horizon_s=1.0)
+    stride_1 = calibrated_covariance(zero, 1.0, cfg, correction=(0.3, 2.0), horizon_s=0.1)
+    sigma_t, sigma_r = 0.75 * (0.3 - 0.1), np.radians(0.1 * (2.0 - 0.5))
+    assert np.allclose(stride_10, stride_1)
+    assert np.allclose(np.diag(stride_1), [sigma_t**2] * 3 + [sigma_r**2] * 3)
+    # a horizon shorter than the sweep, or unknown (0), counts the correction whole
+    assert np.allclose(
+        calibrated_covariance(zero, 1.0, cfg, correction=(0.3, 2.0), horizon_s=0.05), stride_1
+    )
+    assert np.allclose(calibrated_covariance(zero, 1.0, cfg, correction=(0.3, 2.0)), stride_1)
+    small = calibrated_covariance(zero, 1.0, cfg, correction=(0.9, 4.0), horizon_s=1.0)
+    assert np.allclose(small, 0.0)  # 0.09 m and 0.4 deg within a sweep: inside the free part
+    samples = [CovarianceSample(np.full(6, 0.01), np.eye(6) * 1e-6, 0, 0, 3.0, 20.0, 1.0)]
+    assert nees_values(samples, 1.0, cfg)[0] < nees_values(samples, 1.0, OFF)[0] / 10
+
+
+def test_a_pair_chain_streams_into_samples_with_its_corrections(tmp_path) -> None:
+    """Four scans of a street 1.5 m apart as chained pair files, streamed 2 s apart."""
+    world, labels = street_scene(seed=3)
+    poses = [motion(0.0, (1.5 * k, 0.0, 0.0)) for k in range(4)]
+    scans = [scan_at(world, labels, p, seed=20 + k, max_points=15000) for k, p in enumerate(poses)]
+    for k in range(3):
+        (src, label_src), (dst, label_dst) = scans[k], scans[k + 1]
+        T_dst_src = np.linalg.solve(poses[k + 1], poses[k])
+        pair = Pair(f'{k:06d}', src, label_src, dst, label_dst, T_dst_src)
+        save_pair(tmp_path / f'{k:06d}.npz', pair)
+    frames = chain_scans(list_pairs(tmp_path))
+    assert [f.stamp_ns for f in frames] == [0, 2_000_000_000, 4_000_000_000, 6_000_000_000]
+    samples = stream_samples(frames, RegistrationConfig())
+    assert len(samples) == 3
+    assert all(s.gap_s == pytest.approx(2.0) for s in samples)
+    assert all(np.linalg.norm(s.error[:3]) < 0.1 for s in samples)
+    assert samples[0].correction_m == 0.0  # the second scan has no prediction yet
+    assert all(np.isfinite(s.correction_m) for s in samples[1:])
 
 
 def test_the_odometry_publishes_the_calibrated_covariance() -> None:

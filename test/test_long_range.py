@@ -215,8 +215,13 @@ def test_covisible_overlap_of_a_far_pose():
 
 def _choose(overlap, checked, inliers, scores, current, min_gain=0.03):
     return covisible_choice(
-        np.array(overlap), np.array(checked), np.array(inliers), np.array(scores),
-        current, 0.03, min_gain,
+        np.array(overlap),
+        np.array(checked),
+        np.array(inliers),
+        np.array(scores),
+        current,
+        0.03,
+        min_gain,
     )
 
 
@@ -236,8 +241,8 @@ def test_covisible_choice_keeps_the_current_pose_within_the_gain():
     """Variants of one pose differ by 0.01-0.02: the current one stays among them."""
     kept = _choose([0.975, 0.986, 0.98], [0.05, 0.05, 0.05], [21, 20, 19], [0.17, 0.16, 0.17], 0)
     assert kept == 0
-    # a wrong current pose (0.81) gives way; among the contenders the best score wins
-    assert _choose([0.81, 0.975, 0.96], [0.18, 0.11, 0.1], [53, 6, 7], [0.13, 0.06, 0.07], 0) == 2
+    # a wrong current pose (0.81) gives way to the best covisible overlap
+    assert _choose([0.81, 0.975, 0.96], [0.18, 0.11, 0.1], [53, 6, 7], [0.13, 0.06, 0.07], 0) == 1
     # too little surface checked: not eligible at all
     assert _choose([1.0, 0.5], [0.002, 0.2], [5, 40], [0.01, 0.2], 1) == 1
     assert _choose([1.0], [0.002], [5], [0.01], 0) == -1

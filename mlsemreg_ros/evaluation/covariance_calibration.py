@@ -51,6 +51,9 @@ class CovarianceSample:
     hessian_covariance: np.ndarray
     distance: float = 0.0  # m, the motion the covariance describes (keyframe to scan)
     turn_deg: float = 0.0  # deg, the rotation angle of that motion
+    correction_m: float = 0.0  # m, the accepted pose from the motion model's prediction
+    correction_deg: float = 0.0  # deg, the rotation between them
+    gap_s: float = 0.0  # s, from the last accepted scan (the prediction's horizon); 0: none
 
 
 def pose_error(T_estimate: np.ndarray, T_truth: np.ndarray) -> np.ndarray:
@@ -101,12 +104,14 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
 
     estimator = OdometryEstimator(Odometry(Registration(uncalibrated(config))))
     truth: dict[int, np.ndarray] = {}
-    samples = []
+    samples, last_accepted_ns = [], None
     for scan in scans:
         if scan.pose is not None:
             truth[scan.index] = np.asarray(scan.pose)
         estimate = estimator.step(scan)
-        keyframe = estimate.keyframe_index
+        keyframe, previous_ns = estimate.keyframe_index, last_accepted_ns
+        if estimate.accepted:
+            last_accepted_ns = scan.stamp_ns
         if (
             not estimate.accepted
             or estimate.relative is None
@@ -118,8 +123,22 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
         T_truth = relative_transform(truth[keyframe], truth[scan.index])
         error = pose_error(estimate.relative, T_truth)
         size = motion_size(estimate.relative)
-        samples.append(CovarianceSample(error, estimate.frame_covariance, *size))
+        correction = prediction_correction(estimator.last_step)
+        gap_s = 0.0 if previous_ns is None else (scan.stamp_ns - previous_ns) * 1e-9
+        samples.append(
+            CovarianceSample(error, estimate.frame_covariance, *size, *correction, gap_s)
+        )
     return samples
+
+
+def prediction_correction(step: Any) -> tuple[float, float]:
+    """Distance (m) and angle (deg) of an accepted step's pose from its prediction (or 0, 0)."""
+    from mlsemreg_ros.core.rigid import invert_transform
+
+    predicted = [c.T_initial for c in getattr(step, 'candidates', []) if c.name == 'prediction']
+    if not predicted or step.pose is None:
+        return 0.0, 0.0
+    return motion_size(invert_transform(predicted[0]) @ step.pose)
 
 
 def nees_values(
@@ -129,7 +148,13 @@ def nees_values(
     values = np.full(len(samples), np.nan)
     for index, sample in enumerate(samples):
         covariance = calibrated_covariance(
-            sample.hessian_covariance, scale, cfg, sample.distance, sample.turn_deg
+            sample.hessian_covariance,
+            scale,
+            cfg,
+            sample.distance,
+            sample.turn_deg,
+            correction=(sample.correction_m, sample.correction_deg),
+            horizon_s=sample.gap_s,
         )
         try:
             values[index] = float(sample.error @ np.linalg.solve(covariance, sample.error))
@@ -143,17 +168,33 @@ def _batch_nees(
     covariances: np.ndarray,
     distances: np.ndarray,
     turns: np.ndarray,
+    corrections: np.ndarray,
     scale: float,
     cfg: CovarianceConfig,
 ) -> np.ndarray:
-    """:func:`nees_values` for stacked samples without degenerate inflation (the fit)."""
+    """
+    :func:`nees_values` for stacked samples without degenerate inflation (the fit).
+
+    ``corrections``: (K, 3) of the correction (m, deg) and the prediction's horizon (s).
+    """
+    horizon = corrections[:, 2]
+    share = np.ones_like(horizon)
+    if cfg.correction_sweep > 0:
+        timed = horizon > 0
+        share[timed] = np.minimum(1.0, cfg.correction_sweep / horizon[timed])
+    moved = np.maximum(share * corrections[:, 0] - cfg.correction_free_translation, 0.0)
+    turned = np.maximum(share * corrections[:, 1] - cfg.correction_free_rotation, 0.0)
     sigma_t = (
         cfg.floor_translation
         + cfg.per_metre_translation * distances
         + cfg.per_degree_translation * turns
+        + cfg.per_correction_translation * moved
     )
     sigma_r = np.radians(
-        cfg.floor_rotation + cfg.per_metre_rotation * distances + cfg.per_degree_rotation * turns
+        cfg.floor_rotation
+        + cfg.per_metre_rotation * distances
+        + cfg.per_degree_rotation * turns
+        + cfg.per_correction_rotation * turned
     )
     floor = np.zeros_like(covariances)
     floor[:, [0, 1, 2], [0, 1, 2]] = (sigma_t**2)[:, None]
@@ -210,6 +251,9 @@ def fit_calibration(
             np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
             np.array([s.distance for s in samples], dtype=np.float64),
             np.array([s.turn_deg for s in samples], dtype=np.float64),
+            np.array(
+                [(s.correction_m, s.correction_deg, s.gap_s) for s in samples], dtype=np.float64
+            ).reshape(-1, 3),
         )
         for samples in datasets.values()
         if samples
@@ -232,13 +276,18 @@ def fit_calibration(
 
 #: The values :func:`fit_calibration` tries by default.
 FIT_GRID: dict[str, tuple[float, ...]] = {
-    'scale': (1.0, 3.0, 7.0, 15.0),
-    'floor_translation': (0.0, 0.005, 0.01, 0.02, 0.03),
-    'floor_rotation': (0.0, 0.02, 0.05, 0.1),
-    'per_metre_translation': (0.0, 0.002, 0.004, 0.006),
-    'per_metre_rotation': (0.0, 0.01, 0.02),
-    'per_degree_translation': (0.0, 0.02, 0.05, 0.1, 0.2),
-    'per_degree_rotation': (0.0, 0.05, 0.1, 0.2, 0.4),
+    'scale': (2.0, 3.0, 5.0),
+    'floor_translation': (0.005, 0.01, 0.015),
+    'floor_rotation': (0.0, 0.02),
+    'per_metre_translation': (0.0, 0.001, 0.002),
+    'per_metre_rotation': (0.0,),
+    'per_degree_translation': (0.0, 0.002, 0.004),
+    'per_degree_rotation': (0.05, 0.1),
+    'per_correction_translation': (0.0, 0.5, 0.75, 1.0),
+    'per_correction_rotation': (0.0, 0.1, 0.2),
+    'correction_free_translation': (0.1, 0.2),
+    'correction_free_rotation': (0.5, 1.0),
+    'correction_sweep': (0.1,),
 }
 
 
@@ -254,6 +303,7 @@ def chain_scans(pair_files: list[Any], period_s: float = 2.0) -> list[Any]:
             labels=frame.labels,
             stamp_ns=round(index * period_s * 1e9),
             point_times=None,
+            intensity=None,
             pose=frame.T_0_frame,
             index=index,
         )
@@ -269,12 +319,22 @@ def save_samples(path: Any, samples: list[CovarianceSample]) -> None:
         covariances=np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
         distances=np.array([s.distance for s in samples], dtype=np.float64),
         turns_deg=np.array([s.turn_deg for s in samples], dtype=np.float64),
+        corrections=np.array(
+            [(s.correction_m, s.correction_deg, s.gap_s) for s in samples], dtype=np.float64
+        ).reshape(-1, 3),
     )
 
 
 def load_samples(path: Any) -> list[CovarianceSample]:
     """Read samples written by :func:`save_samples`."""
     with np.load(path) as data:
-        turns = data['turns_deg'] if 'turns_deg' in data.files else np.zeros(len(data['errors']))
-        rows = zip(data['errors'], data['covariances'], data['distances'], turns, strict=True)
-        return [CovarianceSample(e, c, float(d), float(a)) for e, c, d, a in rows]
+        count = len(data['errors'])
+        turns = data['turns_deg'] if 'turns_deg' in data.files else np.zeros(count)
+        more = data['corrections'] if 'corrections' in data.files else np.zeros((count, 3))
+        rows = zip(
+            data['errors'], data['covariances'], data['distances'], turns, more, strict=True
+        )
+        return [
+            CovarianceSample(e, c, float(d), float(a), *(float(x) for x in m))
+            for e, c, d, a, m in rows
+        ]

@@ -54,6 +54,7 @@ class OdometryEstimator:
         self.odometry = odometry
         self._bag_index: list[int] = []  # sequence index by odometry frame counter
         self.deskewed_scans = 0  # scans the odometry motion-compensated
+        self.last_step: Any = None  # the odometry's last OdometryStep (candidates, pose)
 
     def step(self, scan: Scan) -> FrameEstimate:
         """Process one scan with the odometry."""
@@ -66,6 +67,7 @@ class OdometryEstimator:
             intensity=scan.intensity,
         )
         self.deskewed_scans += int(step.deskewed)
+        self.last_step = step
         self._bag_index.append(scan.index)
         result = step.result
         if result is None and step.relative is not None:  # tracked by the prediction alone

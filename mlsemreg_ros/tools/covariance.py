@@ -19,7 +19,8 @@ Data sets: the global registrations of pair files (``--pairs``), the pair chain 
 through the odometry as scans 2 s apart (``--chain``), and bags of drives at strides
 (``--drive D --stride S``). "Before" is the Hessian covariance times 7 (the scale before
 the ``covariance`` section); "after" is the configuration's calibration. ``--fit`` grid
-searches the scale and the floors (docs/covariance.md). ``--samples DIR`` keeps the
+searches the scale, the floors and the correction terms, without the data sets named by
+``--hold-out`` (docs/covariance.md). ``--samples DIR`` keeps the
 samples, so a second run (another ``--set``, ``--fit``) does not register again.
 """
 
@@ -54,6 +55,10 @@ def covariance_nees(
         Path | None, typer.Option(help='folder to keep the samples in (reused when present)')
     ] = None,
     fit: Annotated[bool, typer.Option(help='grid search the calibration')] = False,
+    hold_out: Annotated[
+        list[str] | None,
+        typer.Option(help='data sets whose name contains this are left out of --fit (repeatable)'),
+    ] = None,
     config: ConfigOption = None,
     overrides: SetOption = None,
     json_path: JsonOption = None,
@@ -100,9 +105,10 @@ def covariance_nees(
         before = cc.nees_summary(cc.nees_values(data, SCALE_BEFORE, no_calibration()))
         after = cc.nees_summary(cc.nees_values(data, scale, calibration))
         report['datasets'][name] = {'before': before, 'after': after}
+        held = any(part in name for part in hold_out or [])
         rows.append(
             [
-                name,
+                f'{name} (held out)' if held else name,
                 str(after['samples']),
                 f'{before["nees_mean"]:.1f}',
                 f'{before["inside_95_pct"]:.0f}',
@@ -126,18 +132,22 @@ def covariance_nees(
             left_columns=1,
         )
     )
-    if fit and datasets:
-        best_scale, best, cost = cc.fit_calibration(datasets)
-        report['fit'] = {'scale': best_scale, 'covariance': vars(best), 'cost': cost}
-        print_text(
-            f'fit: odometry.covariance_scale={best_scale:g} '
-            f'covariance.floor_translation={best.floor_translation:g} '
-            f'covariance.floor_rotation={best.floor_rotation:g} '
-            f'covariance.per_metre_translation={best.per_metre_translation:g} '
-            f'covariance.per_metre_rotation={best.per_metre_rotation:g} '
-            f'covariance.per_degree_translation={best.per_degree_translation:g} '
-            f'covariance.per_degree_rotation={best.per_degree_rotation:g} (cost {cost:.3f})'
-        )
+    fitted = {
+        name: data
+        for name, data in datasets.items()
+        if not any(part in name for part in hold_out or [])
+    }
+    if fit and fitted:
+        best_scale, best, cost = cc.fit_calibration(fitted)
+        report['fit'] = {
+            'scale': best_scale,
+            'covariance': vars(best),
+            'cost': cost,
+            'held_out': sorted(set(datasets) - set(fitted)),
+        }
+        grid = [name for name in cc.FIT_GRID if name != 'scale']
+        values = ' '.join(f'covariance.{name}={getattr(best, name):g}' for name in grid)
+        print_text(f'fit: odometry.covariance_scale={best_scale:g} {values} (cost {cost:.3f})')
     if json_path is not None:
         json_path.write_text(json.dumps(report, indent=2, default=float) + '\n')
     return 0

@@ -33,7 +33,12 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   ``d`` the distance and ``a`` the angle (deg) of the motion the covariance describes (the
   odometry: from the keyframe to the scan; a pair: between the scans): the errors no
   Hessian sees (deskew, timing, labels, the keyframe's and the local map's own drift),
-  which grow with the distance and in turns.
+  which grow with the distance and in turns;
+- plus ``covariance.per_correction_translation * max(k * c - correction_free_translation,
+  0)`` (and the rotation likewise), ``c`` the distance of the accepted pose from the motion
+  model's prediction and ``k = min(1, correction_sweep / horizon)`` the share of it that
+  fell within one sweep (``horizon``: the time since the last accepted scan): the
+  prediction deskewed the scan, and a velocity it got wrong bends the sweep.
 
 The odometry applies it to every accepted scan's frame covariance
 (``core/odometry/odometry.py``), so the pose covariance, the twist covariance and the
@@ -83,7 +88,7 @@ class CovarianceConfig:
         high=100.0,
     )
     per_degree_translation: float = param(
-        0.0,
+        0.002,
         'Standard deviation added to every translation axis per degree the motion turned '
         '(deskew and timing errors grow in turns).',
         unit='m/deg',
@@ -91,45 +96,56 @@ class CovarianceConfig:
         high=10.0,
     )
     per_degree_rotation: float = param(
-        0.1,
+        0.05,
         'Standard deviation added to every rotation axis per degree the motion turned.',
         unit='deg/deg',
         low=0.0,
         high=10.0,
     )
     per_correction_translation: float = param(
-        0.0,
+        0.75,
         'Standard deviation added to every translation axis per metre that the accepted pose '
-        "lies beyond correction_free_translation from the motion model's prediction: the "
-        'scan was deskewed by that prediction, so a turn the prediction missed bends it '
-        '(field seed 0: scans 0.55-0.73 m from their prediction were 18-21 cm off). 0: off '
-        '(docs/covariance.md).',
+        "lies from the motion model's prediction (times the sweep share, correction_sweep) "
+        'beyond correction_free_translation: the scan was deskewed by that prediction, so a '
+        'turn the prediction missed bends it (field drives at stride 1: scans 0.2-0.55 m '
+        'from their prediction were 16-27 cm off). 0: off (docs/covariance.md).',
         unit='m/m',
         low=0.0,
         high=10.0,
     )
     per_correction_rotation: float = param(
-        0.0,
+        0.1,
         'Standard deviation added to every rotation axis per degree that the accepted pose '
-        'turned beyond correction_free_rotation from the prediction. 0: off.',
+        'turned from the prediction (times the sweep share) beyond correction_free_rotation. '
+        '0: off.',
         unit='deg/deg',
         low=0.0,
         high=10.0,
     )
     correction_free_translation: float = param(
-        0.2,
-        'The part of the distance from the prediction that adds nothing '
-        '(per_correction_translation).',
+        0.1,
+        'The part of the distance from the prediction (times the sweep share) that adds '
+        'nothing (per_correction_translation).',
         unit='m',
         low=0.0,
         high=100.0,
     )
     correction_free_rotation: float = param(
-        1.0,
+        0.5,
         'The part of the turn from the prediction that adds nothing (per_correction_rotation).',
         unit='deg',
         low=0.0,
         high=180.0,
+    )
+    correction_sweep: float = param(
+        0.1,
+        "The sweep time over which the prediction's velocity error bends the scan: the "
+        'correction counts times min(1, correction_sweep / horizon), the horizon being the '
+        'time since the last accepted scan (a prediction 3 m off after 1 s bends a sweep as '
+        'much as one 0.3 m off after 0.1 s). 0: the correction counts whole.',
+        unit='s',
+        low=0.0,
+        high=10.0,
     )
     degenerate_ratio: float = param(
         100.0,
@@ -184,6 +200,7 @@ def calibrated_covariance(
     distance: float = 0.0,
     turn_deg: float = 0.0,
     correction: tuple[float, float] = (0.0, 0.0),
+    horizon_s: float = 0.0,
 ) -> np.ndarray:
     """
     Return ``s * C_H + D + floor(d)`` (module docstring) of a covariance (6, 6), ROS order.
@@ -191,10 +208,12 @@ def calibrated_covariance(
     ``hessian_covariance``: ``inv(H) * 2E / (n - 6)`` (``scale`` 1) in either axes: the
     floor is isotropic and the inflation follows the eigen-directions, so the result
     rotates with the input. ``correction``: the distance (m) and angle (deg) between the
-    accepted pose and the motion model's prediction (the ``per_correction_*`` terms).
+    accepted pose and the motion model's prediction (the ``per_correction_*`` terms);
+    ``horizon_s``: the time the prediction spanned, from the last accepted scan (0: unknown,
+    the correction counts whole).
     """
     scaled = np.asarray(hessian_covariance, dtype=np.float64) * scale
-    moved_m, turned_deg = correction
+    moved_m, turned_deg = np.multiply(correction, sweep_share(horizon_s, cfg))
     sigma_t = (
         cfg.floor_translation
         + cfg.per_metre_translation * distance
@@ -210,6 +229,13 @@ def calibrated_covariance(
     floor = np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
     covariance = scaled + degenerate_inflation(scaled, cfg) + floor
     return 0.5 * (covariance + covariance.T)
+
+
+def sweep_share(horizon_s: float, cfg: CovarianceConfig) -> float:
+    """Return ``min(1, correction_sweep / horizon)``: the share of a correction in the sweep."""
+    if horizon_s <= 0.0 or cfg.correction_sweep <= 0.0:
+        return 1.0
+    return min(1.0, cfg.correction_sweep / horizon_s)
 
 
 def motion_size(motion: np.ndarray) -> tuple[float, float]:

@@ -68,6 +68,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
+from mlsemreg_ros.core.estimation.chance import required_inliers
 from mlsemreg_ros.core.estimation.config import ConfidenceConfig
 from mlsemreg_ros.core.estimation.label_model import label_refusal
 import numpy as np
@@ -98,6 +99,8 @@ class Evidence:
     label_information: float = float('nan')
     #: what the labels give against themselves (label_model.information_ceiling); NaN: unknown
     information_ceiling: float = float('nan')
+    #: largest consensus the estimator won on re-paired correspondences (chance.py); NaN: none
+    chance_inliers: float = float('nan')
 
     @property
     def inlier_ratio(self) -> float:
@@ -195,9 +198,20 @@ def labels_clean_enough(evidence: Evidence, config: ConfidenceConfig) -> bool:
 def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> str:
     """Why the evidence is not enough ('' when the registration is accepted)."""
     reasons = []
-    if evidence.num_inliers < min_inliers:
-        reasons.append(f'{evidence.num_inliers} inliers < estimator.min_inliers={min_inliers}')
-    if evidence.inlier_ratio < config.min_inlier_ratio:
+    required = required_inliers(evidence.chance_inliers, config, min_inliers)
+    by_chance = config.count_rule == 'chance' and np.isfinite(evidence.chance_inliers)
+    if evidence.num_inliers < required:
+        if by_chance:
+            reasons.append(
+                f'{evidence.num_inliers} inliers < {required:g}: confidence.chance_margin='
+                f'{config.chance_margin:g} x {evidence.chance_inliers:g} won by chance '
+                f'(confidence.chance_floor={config.chance_floor})'
+            )
+        else:
+            reasons.append(
+                f'{evidence.num_inliers} inliers < estimator.min_inliers={min_inliers}'
+            )
+    if not by_chance and evidence.inlier_ratio < config.min_inlier_ratio:  # chance: replaced
         reasons.append(
             f'inlier ratio {evidence.inlier_ratio:.4f} < '
             f'confidence.min_inlier_ratio={config.min_inlier_ratio:g}'

@@ -634,3 +634,39 @@ class ConfidenceConfig:
         low=0.0,
         high=1e9,
     )
+    count_rule: str = param(
+        'fixed',
+        'The sparse count a pose needs: fixed (estimator.min_inliers and min_inlier_ratio) '
+        'or chance (more than chance_margin times the consensus the estimator wins on '
+        'randomly re-paired correspondences of the same pair, and chance_floor, in place of '
+        'both; core/estimation/chance.py, docs/confidence.md#acceptance-by-evidence).',
+        choices=('fixed', 'chance'),
+    )
+    chance_shuffles: int = param(
+        0,
+        'Random re-pairings of the correspondences the estimator runs on to measure the '
+        'chance consensus (0: not measured; count_rule chance then falls back to '
+        'estimator.min_inliers). Each costs one estimator run.',
+        low=0,
+        high=100,
+    )
+    chance_margin: float = param(
+        3.0,
+        'count_rule chance: a pose needs more than this many times the largest chance '
+        'consensus (wrong and unrelated KITTI dev pairs won at most 2.7 times it).',
+        low=1.0,
+        high=100.0,
+    )
+    chance_floor: int = param(
+        10,
+        'count_rule chance: a pose needs at least this many inliers whatever the chance.',
+        low=3,
+        high=100000,
+    )
+    chance_max_inliers: int = param(
+        200,
+        'The chance consensus is measured only for poses with fewer inliers than this (a '
+        'stronger consensus passes the count).',
+        low=1,
+        high=1000000,
+    )

@@ -110,14 +110,24 @@ class CovisibilityConfig:
         low=0.0,
         high=1.0,
     )
+    refine_distance: float = param(
+        0.5,
+        'A refused pose chosen where both scans see (the covisible choice) is also refined '
+        'with this GICP correspondence distance, from the coarse pose and from the usual '
+        'fine alignment; the refinement with the best covisible overlap is kept. Two scans '
+        '60 m apart share a thin lens of space, and one distance does not suit every pair '
+        '(0: off).',
+        unit='m',
+        low=0.0,
+        high=20.0,
+    )
     min_gain: float = param(
         0.03,
         'The covisible choice keeps the current pose unless another candidate beats its '
-        'covisible overlap by more than this; among the candidates within this of the best, '
-        'the best verification score wins, and a candidate with no more sparse inliers, '
-        'score, covisible overlap and checked surface than the current pose never replaces '
-        'it (right 60 m poses measure 0.96-1.00 with a spread of 0.01-0.02 between '
-        'variants of the same pose).',
+        'covisible overlap by more than this, and a candidate with no more sparse inliers, '
+        'score and surface on the other scan, and no less seen through, than the current '
+        'pose never replaces it (right 60 m poses measure 0.96-1.00, with a spread of '
+        '0.01-0.02 between variants of the same pose).',
         low=0.0,
         high=1.0,
     )
@@ -239,7 +249,7 @@ def covisible_choice(
       ``inliers``, ``scores``: their sparse inliers and verification scores.
     - Only candidates with ``checked >= min_checked`` are eligible (-1: none is).
     - The *contenders* reach the best eligible overlap within ``min_gain``. The current
-      candidate stays if it is one; else the contender with the best verification score.
+      candidate stays if it is one; else the best overlap is chosen.
       On a mirrored street the right BEV pose (covisible overlap 1.00 of 0.86 of its surface
       checked) was once replaced by a pose 180 deg off with 1.00 of 0.11 checked, 0 inliers
       and an eighth of the score: a tie, which now keeps the current pose.
@@ -255,7 +265,7 @@ def covisible_choice(
     contenders = eligible & (overlap >= best - min_gain)
     if current is not None and current >= 0 and contenders[current]:
         return current
-    pick = int(np.argmax(np.where(contenders, scores, -np.inf)))
+    pick = int(np.argmax(np.where(eligible, overlap, -np.inf)))
     if current is None or current < 0:
         return pick
     evidence = np.array(

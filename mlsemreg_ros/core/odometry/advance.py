@@ -64,6 +64,9 @@ def accept_scan(
         odometry.config.covariance,
         *motion_size(relative),
         correction=correction,
+        horizon_s=(
+            (stamp_ns - odometry._last_accepted[1]) * 1e-9 if odometry._last_accepted else 0.0
+        ),
     )
     last, odometry._last_accepted = odometry._last_accepted, (pose.copy(), stamp_ns)
     odometry._accepted.append(odometry._last_accepted)

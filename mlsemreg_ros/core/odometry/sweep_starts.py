@@ -72,7 +72,7 @@ def fit_cost(
     deskewed = deskew(points, times, result.motion)
     T = result.T_target_source
     world = deskewed @ T[:3, :3].T + T[:3, 3]
-    index, sq = gaussians.nearest(world)
+    index, sq = gaussians.nearest(world, max_distance)  # exact within max_distance
     cost = np.ones(len(world))
     near = sq < max_distance**2
     if np.any(near):

@@ -24,9 +24,10 @@ adds (the BEV search, the refused path): the loop of ``Registration.register`` c
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 
-from mlsemreg_ros.core.estimation import confidence
+from mlsemreg_ros.core.estimation import chance, confidence
 from mlsemreg_ros.core.estimation.candidates import CandidatePool
 from mlsemreg_ros.core.results import VerificationResult
 from mlsemreg_ros.core.stages.context import RegistrationContext
@@ -75,9 +76,26 @@ def _judge(context: RegistrationContext) -> None:
     """Set the evidence of the current transform and the confidence rule's refusal."""
     cfg = context.config
     score_current(context)
+    if chance.wanted(context.evidence.num_inliers, cfg.confidence):  # core/estimation/chance.py
+        context.evidence = dataclasses.replace(context.evidence, chance_inliers=_chance(context))
     context.refusal = confidence.refusal(
         context.evidence, cfg.confidence, cfg.estimator.min_inliers
     )
+
+
+def _chance(context: RegistrationContext) -> float:
+    """Return the pair's largest chance consensus, measured once per registration."""
+    key = 'confidence_chance_draws'
+    if key not in context.diagnostics:
+        draws = chance.chance_consensus(
+            context.source_points,
+            context.target_points,
+            context.config.estimator,
+            context.config.confidence.chance_shuffles,
+        )
+        context.diagnostics[key] = ' '.join(str(int(d)) for d in draws)
+    draws = context.diagnostics[key].split()
+    return float(max(int(d) for d in draws)) if draws else float('nan')
 
 
 def score_current(context: RegistrationContext) -> None:

@@ -18,9 +18,9 @@ After the refused path the pool holds every candidate found. Each is measured by
 overlap where both scans can see (core/estimation/covisibility.py): the right pose of a
 60 m dev pair puts 0.97-1.00 of the checkable surface on the other scan, the best wrong
 candidates 0.73-0.92 and the zero motion 0.45-0.60 (docs/hard_pairs.md). The candidate with
-the highest covisible overlap (within ``covisibility.min_gain``, the best verification
-score first; the current pose kept if it is among them, and never replaced by one with less
-evidence: :func:`~mlsemreg_ros.core.estimation.covisibility.covisible_choice`), at least
+the highest covisible overlap (the current pose kept if it is within
+``covisibility.min_gain`` of it, and never replaced by one with less evidence:
+:func:`~mlsemreg_ros.core.estimation.covisibility.covisible_choice`), at least
 ``covisibility.min_overlap`` with ``covisibility.min_checked`` of its surface checkable,
 becomes the pose; and for the confidence rule its overlap is then enough
 (``confidence.min_overlap`` applies to the share of the whole scan, which a right pose 60 m
@@ -65,8 +65,8 @@ class CovisibilityStage:
         transforms = context.pool.transforms()
         overlap, checked = mutual_covisible_overlap(
             transforms,
-            _side(context.source, covis.bin_deg, verification),
-            _side(context.target, covis.bin_deg, verification),
+            covisible_side(context.source, covis.bin_deg, verification),
+            covisible_side(context.target, covis.bin_deg, verification),
             verification.overlap_distance,
             covis.margin,
         )
@@ -106,7 +106,7 @@ class CovisibilityStage:
         return None
 
 
-def _side(
+def covisible_side(
     scan: PreparedScan, bin_deg: float, verification: object
 ) -> tuple[np.ndarray, np.ndarray, object, RangeImage]:
     """Return the sampled points, their weights, the KD-tree and the range image of ``scan``."""

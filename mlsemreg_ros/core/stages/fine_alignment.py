@@ -15,12 +15,15 @@
 Stage 7, the fine alignment of the pair: GICP of the source scan onto the target scan.
 
 From the chosen pose, with ``fine.pair_method`` (core/alignment/alignment.py). A refused
-pose is refined too (it is the best one found; the result stays refused). The alignment
+pose is refined too (it is the best one found; the result stays refused), with the source
+downsampled as in the polishing (``fine.refused_downsampled``). The alignment
 must stay within the correction bounds (core/alignment/fine_alignment.py), or the coarse
 pose was not right to those bounds and the pose is refused; a refinement refused only by
 its bounds is kept when it holds the dense score (at 40-60 m the true overlap stays under
-``odometry.min_inlier_fraction``; docs/hard_pairs.md). Last, the localizability of the
-alignment (``confidence.degeneracy``).
+``odometry.min_inlier_fraction``; docs/hard_pairs.md); a refused pose chosen where both
+scans see is refined at two distances and judged by that overlap instead
+(core/stages/covisible_refinement.py). Last, the localizability of the alignment
+(``confidence.degeneracy``).
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from mlsemreg_ros.core.alignment.fine_alignment import (
 from mlsemreg_ros.core.estimation import confidence
 from mlsemreg_ros.core.estimation.config import ConfidenceConfig
 from mlsemreg_ros.core.stages.context import RegistrationContext
+from mlsemreg_ros.core.stages.covisible_refinement import refine_where_both_see
 import numpy as np
 
 
@@ -62,13 +66,17 @@ class FineAlignmentStage:
             context.target,
             context.transform,
         )
+        # a refused pose stays refused: its source cloud may be the downsampled one
+        downsampled = bool(context.refusal) and cfg.fine.refused_downsampled
         alignment = align_pair(
-            alignment_cloud(source, cfg.fine, pair=True),
+            alignment_cloud(source, cfg.fine, pair=not downsampled),
             alignment_cloud(target, cfg.fine, pair=True),
             coarse,
             cfg.fine,
             cfg.fine.pair_method,
         )
+        covisible = refine_where_both_see(context, coarse, alignment)  # refused 60 m poses
+        alignment = covisible or alignment
         bounds = RefinementBounds.of(cfg.odometry)
         refused = refinement_refusal(alignment, bounds)
         context.diagnostics.update(
@@ -78,8 +86,11 @@ class FineAlignmentStage:
         )
         # an accepted pose the refinement moved beyond the correction bounds is refused
         context.doubt(correction_refusal(alignment, bounds))
-        if refused and context.scoring.refused_path().refinement_holds(
-            alignment.T_target_source, coarse, source, target
+        if refused and (
+            covisible
+            or context.scoring.refused_path().refinement_holds(
+                alignment.T_target_source, coarse, source, target
+            )
         ):
             context.diagnostics['fine_refused_kept'] = True
             refused = ''

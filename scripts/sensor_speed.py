@@ -1,0 +1,142 @@
+#!/usr/bin/env python3
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+"""
+Where the odometry's time goes per scan, against KISS-ICP's on the same scans.
+
+Both run in this process, scan by scan (ours, then KISS-ICP on the same scan), with the
+threads the command line gives both (``--threads 1``: our ``threads=1`` and KISS-ICP's
+``max_num_threads=1``; set ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1`` too). For each scan
+it takes the CPU time (``time.process_time``) and the wall time of each; the step times of
+ours come from wrapping the odometry's steps (CPU time, nested steps indented). A loaded
+machine inflates both sides; the ratio of the medians is the figure (docs/sensors.md). Usage::
+
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 PYTHONPATH=$PWD nice -n 5 \\
+        .venv/bin/python scripts/sensor_speed.py BAG [--frames 120] [--threads 1] \\
+        [--no-kiss] [--set KEY=VALUE ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import defaultdict
+from collections.abc import Callable
+import functools
+import time
+from typing import Any
+
+import numpy as np
+
+#: The wrapped steps: (module, owner, attribute, label). Indented labels are nested steps.
+STEPS = (
+    ('mlsemreg_ros.core.odometry.preprocess', 'Preprocessor', 'sweep', 'preprocess'),
+    ('mlsemreg_ros.core.odometry.preprocess', 'Preprocessor', 'deskew', '  deskew'),
+    ('mlsemreg_ros.core.pipeline', 'Registration', 'prepare', '  prepare'),
+    ('mlsemreg_ros.core.features.features', None, 'voxel_downsample', '    voxelize 0.3 m'),
+    ('mlsemreg_ros.core.odometry.tracking', 'Tracker', 'estimate', 'track or register'),
+    ('mlsemreg_ros.core.alignment.alignment', 'AlignmentCloud', 'build', '  alignment cloud'),
+    ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'align', '  map alignment (vgicp)'),
+    ('mlsemreg_ros.core.odometry.tracking', 'Tracker', 'align_sweep', 'sweep alignment'),
+    ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'gaussians', "  map's Gaussians"),
+    ('mlsemreg_ros.core.alignment.sweep_alignment', None, 'linearization', '  Gauss-Newton'),
+    ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'insert', 'map insertion'),
+    ('mlsemreg_ros.core.odometry.local_map', None, 'keyframe_refusal', 'keyframe policy'),
+)
+
+
+def wrap_steps(totals: dict[str, float], calls: dict[str, int]) -> None:
+    """Wrap each step of :data:`STEPS` to add its CPU time to ``totals``."""
+    import importlib
+
+    for module_name, owner_name, attribute, label in STEPS:
+        module = importlib.import_module(module_name)
+        owner = getattr(module, owner_name) if owner_name else module
+        original = getattr(owner, attribute)
+
+        def timed(*args: Any, _f: Callable = original, _label: str = label, **kwargs: Any) -> Any:
+            tic = time.process_time()
+            try:
+                return _f(*args, **kwargs)
+            finally:
+                totals[_label] += time.process_time() - tic
+                calls[_label] += 1
+
+        setattr(owner, attribute, functools.wraps(original)(timed))
+
+
+def main() -> int:
+    """Replay the scans through both and print the medians and our steps."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
+    parser.add_argument('bag')
+    parser.add_argument('--frames', type=int, default=120)
+    parser.add_argument('--threads', type=int, default=1, help='both sides (0: all cores)')
+    parser.add_argument('--no-kiss', action='store_true', help='ours alone')
+    parser.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE')
+    args = parser.parse_args()
+    totals: dict[str, float] = defaultdict(float)
+    calls: dict[str, int] = defaultdict(int)
+    wrap_steps(totals, calls)
+
+    from mlsemreg_ros.core.config import load_settings, RegistrationConfig
+    from mlsemreg_ros.core.odometry import Odometry
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.datasets.factory import open_scan_source
+    from mlsemreg_ros.evaluation.estimators import KissIcpEstimator, OdometryEstimator
+
+    (core,) = load_settings((RegistrationConfig,), None, [f'threads={args.threads}', *args.set])
+    source = open_scan_source(args.bag)
+    try:
+        scans = list(source.scans(1, args.frames))
+    finally:
+        source.close()
+    ours = OdometryEstimator(Odometry(Registration(core)))
+    kiss = None if args.no_kiss else KissIcpEstimator()
+    if kiss is not None and args.threads > 0:
+        from kiss_icp.kiss_icp import KissICP
+
+        config = kiss.odometry.config
+        config.registration.max_num_threads = args.threads
+        kiss.odometry = KissICP(config)
+    rows, modes = [], defaultdict(int)
+    for k, scan in enumerate(scans):
+        if k == 1:  # the first scan starts the odometry (and loads the kernels)
+            totals.clear()
+            calls.clear()
+        cpu, wall = time.process_time(), time.perf_counter()
+        estimate = ours.step(scan)
+        row = [time.process_time() - cpu, time.perf_counter() - wall]
+        modes[estimate.source or estimate.mode] += 1
+        if kiss is not None:
+            cpu, wall = time.process_time(), time.perf_counter()
+            kiss.step(scan)
+            row += [time.process_time() - cpu, time.perf_counter() - wall]
+        rows.append(row)
+    times = 1e3 * np.median(np.array(rows[1:]), axis=0)
+    print(f'{args.bag}: {len(scans)} scans, {np.mean([len(s.xyz) for s in scans]):.0f} points')
+    print(f'ours: CPU {times[0]:.1f} ms, wall {times[1]:.1f} ms (medians); {dict(modes)}')
+    if kiss is not None:
+        print(f'KISS-ICP: CPU {times[2]:.1f} ms, wall {times[3]:.1f} ms')
+        cpu_ratio, wall_ratio = times[0] / times[2], times[1] / times[3]
+        print(f'ratio of the medians: CPU {cpu_ratio:.2f}x, wall {wall_ratio:.2f}x')
+    scans_timed = max(len(scans) - 1, 1)
+    print('our steps, CPU ms per scan (mean) and calls per scan:')
+    for _, _, _, label in STEPS:
+        if calls[label]:
+            mean = 1e3 * totals[label] / scans_timed
+            print(f'  {label:28s} {mean:7.2f}  {calls[label] / scans_timed:.2f}')
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
