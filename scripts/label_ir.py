@@ -33,7 +33,8 @@ the true pose (IR, %), the inliers and the correspondences, for the labels
 Usage (docs/labels.md)::
 
     PYTHONPATH=$PWD .venv/bin/python scripts/label_ir.py PAIR_DIR [--descriptor gedi] \\
-        [--reverse] [--labels field,collapse,geometric,top2,union,none]
+        [--reverse] [--labels field,collapse,geometric,top2,union,none] \\
+        [--set geometric_labels.vehicle_max_length=6.5]
 """
 
 from __future__ import annotations
@@ -87,9 +88,11 @@ def main() -> None:
     parser.add_argument('--descriptor', choices=('fpfh', 'gedi'), default='fpfh')
     parser.add_argument('--reverse', action='store_true', help='register dst onto src')
     parser.add_argument('--labels', default=','.join(VARIANTS))
+    parser.add_argument('--set', action='append', default=[], help='KEY=VALUE override')
     args = parser.parse_args()
     variants = args.labels.split(',')
-    config = RegistrationConfig().replace({'label_source': 'geometric'})
+    overrides = dict(item.split('=', 1) for item in args.set)
+    config = RegistrationConfig().replace({'label_source': 'geometric', **overrides})
     registration = Registration(config)
     source = LabelSource(registration.label_map)
     threshold = EvaluationSettings().evaluation.inlier_threshold

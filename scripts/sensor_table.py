@@ -79,9 +79,14 @@ def drive(root: Path, sensor: str, seed: int, frames: int) -> Path:
     return path
 
 
-def evaluate(bag: Path, out: Path, stride: int, labels: str, kiss: bool) -> dict[str, Any]:
+def evaluate(
+    bag: Path, out: Path, stride: int, labels: str, kiss: bool, run: bool = True
+) -> dict[str, Any]:
     """Run eval-bag once (unless its results exist); return ours and KISS-ICP's figures."""
-    if not (out / 'summary.json').exists() or (kiss and not (out / 'kiss-icp').exists()):
+    done = (out / 'summary.json').exists() and (not kiss or (out / 'kiss-icp').exists())
+    if not done and not run:
+        return {'error': ['not run']}
+    if not done:
         command = [
             *mlsemreg(),
             'eval-bag',
@@ -128,8 +133,10 @@ def table(results: dict[str, Any], labels: list[str]) -> tuple[list[str], list[s
     for key, cell in results.items():
         sensor, seed, stride = key.split('/')
         runs = [cell.get(name, {}) for name in labels]
+        if all('error' in run for run in runs):
+            continue  # not run (--report)
         if any('error' in run for run in runs):
-            missed.append(f'{key}: error {[run.get("error") for run in runs]}')
+            missed.append(f'{key}: incomplete {[run.get("error") for run in runs]}')
         ours = [run.get('ours', {}) for run in runs]
         kiss = runs[0].get('kiss', {})
         rr = [_pct(o.get('rr')) for o in ours]
@@ -143,7 +150,7 @@ def table(results: dict[str, Any], labels: list[str]) -> tuple[list[str], list[s
             f'| {sensor} | {seed} | {stride} | ' + ' | '.join(rr) + f' | {_pct(kiss.get("rr"))} '
             f'| {wrong} / {kiss.get("wrong", "-")} | {p50} |'
         )
-        if 'geometric' in labels:
+        if 'geometric' in labels and 'error' not in runs[labels.index('geometric')]:
             geometric = ours[labels.index('geometric')].get('rr')
             if geometric is None or geometric < MIN_RR_GEOMETRIC:
                 missed.append(f'{key}: RR geometric {_pct(geometric)} < {MIN_RR_GEOMETRIC:g} %')
@@ -171,17 +178,21 @@ def main() -> int:
     parser.add_argument('--labels', nargs='+', default=['field', 'geometric', 'none'])
     parser.add_argument('--frames', type=int, default=120)
     parser.add_argument('--markdown', type=Path, help='also write the table here')
+    parser.add_argument(
+        '--report', action='store_true', help='only tabulate the runs that exist (run none)'
+    )
     args = parser.parse_args()
     results: dict[str, Any] = {}
     for sensor in args.sensors:
         for seed in args.seeds:
-            bag = drive(args.root, sensor, seed, args.frames)
+            path = args.root / 'drives' / f'field{seed}_{sensor}_{args.frames}'
+            bag = path if args.report else drive(args.root, sensor, seed, args.frames)
             for stride in args.strides:
                 cell = results.setdefault(f'{sensor}/{seed}/{stride}', {})
                 for k, labels in enumerate(args.labels):
                     name = f'{sensor}_s{seed}_f{args.frames}_x{stride}_{labels}'
                     out = args.root / 'runs' / name
-                    cell[labels] = evaluate(bag, out, stride, labels, kiss=k == 0)
+                    cell[labels] = evaluate(bag, out, stride, labels, k == 0, not args.report)
                     print(name, json.dumps(cell[labels]), flush=True)
     lines, missed = table(results, args.labels)
     text = '\n'.join(lines) + '\n\nMissed:\n' + '\n'.join(f'- {m}' for m in missed or ['none'])

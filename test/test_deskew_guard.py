@@ -27,7 +27,11 @@ from pathlib import Path
 
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry import Odometry
-from mlsemreg_ros.core.odometry.deskew_guard import deskew_refusal, DeskewCheckSchedule
+from mlsemreg_ros.core.odometry.deskew_guard import (
+    deskew_refusal,
+    DeskewCheckSchedule,
+    FIRST_CHECKS,
+)
 from mlsemreg_ros.core.pipeline import Registration
 import numpy as np
 import pytest
@@ -56,24 +60,24 @@ def _checked(schedule: DeskewCheckSchedule, times: np.ndarray, interval: int, ke
     return due
 
 
-def test_the_check_runs_on_every_scan_until_it_kept_the_deskew_interval_times() -> None:
+def test_the_check_runs_on_every_scan_until_three_kept_the_deskew_then_every_interval() -> None:
+    assert FIRST_CHECKS == 3
     sweep = np.linspace(0.0, 0.1, 100)  # a 0.1 s sweep
     schedule = DeskewCheckSchedule()
-    due = [_checked(schedule, sweep, 3, kept=True) for _ in range(12)]
-    assert due == [True] * 3 + [False, False, True] * 3  # then every 3rd scan
+    due = [_checked(schedule, sweep, 4, kept=True) for _ in range(11)]
+    assert due == [True] * 3 + [False, False, False, True] * 2  # then every 4th scan
     assert all(_checked(DeskewCheckSchedule(), sweep, 1, kept=True) for _ in range(5))
     # a check that refuses the deskew: every scan again until 3 in a row kept it
-    assert not _checked(schedule, sweep, 3, kept=True)
-    assert not _checked(schedule, sweep, 3, kept=True)
-    assert _checked(schedule, sweep, 3, kept=False)
-    again = [_checked(schedule, sweep, 3, kept=True) for _ in range(6)]
-    assert again == [True] * 3 + [False, False, True]
+    assert [_checked(schedule, sweep, 4, kept=True) for _ in range(3)] == [False] * 3
+    assert _checked(schedule, sweep, 4, kept=False)
+    again = [_checked(schedule, sweep, 4, kept=True) for _ in range(7)]
+    assert again == [True] * 3 + [False, False, False, True]
     # a time field whose span moves by more than a fifth is checked at once
-    assert _checked(schedule, 2.0 * sweep, 3, kept=True)
-    assert not _checked(schedule, 2.1 * sweep, 3, kept=True)  # 5 %: not a change
-    assert _checked(schedule, None, 3, kept=True)  # no finite times: checked
+    assert _checked(schedule, 2.0 * sweep, 4, kept=True)
+    assert not _checked(schedule, 2.1 * sweep, 4, kept=True)  # 5 %: not a change
+    assert _checked(schedule, None, 4, kept=True)  # no finite times: checked
     schedule.reset()  # an odometry reset: every scan again
-    assert [_checked(schedule, sweep, 3, kept=True) for _ in range(4)] == [True] * 3 + [False]
+    assert [_checked(schedule, sweep, 4, kept=True) for _ in range(4)] == [True] * 3 + [False]
 
 
 def _moved_scan_with_a_counter_for_times(check: bool) -> tuple[object, np.ndarray]:

@@ -99,6 +99,31 @@ def test_poorer_labels_switch_to_the_information_rule_and_weigh_the_score() -> N
     assert quality.LabelQuality(0.9, 0.95, 0.9, 'field', False).config(config) is config
 
 
+def test_geometric_ground_gets_the_wider_tilt_check_whatever_the_weight() -> None:
+    config = RegistrationConfig()
+    wide = config.geometric_labels.tilt_tolerance
+    assert wide > config.levelling.tolerance
+    for weight in (0.5, 0.9):  # poorer and full weight
+        judged = quality.LabelQuality(weight, 0.95, 0.9, 'geometric', False).config(config)
+        assert judged.levelling.tolerance == wide
+        assert judged.levelling.enabled
+    # below OBJECTS_MIN_WEIGHT the ground levels nothing, geometric or not
+    assert (
+        not quality.LabelQuality(0.3, 0.7, 0.3, 'geometric', False)
+        .config(config)
+        .levelling.enabled
+    )
+    # the network's labels and unlabeled pairs keep levelling.tolerance
+    field = quality.LabelQuality(0.5, 0.9, 0.9, 'field', False).config(config)
+    assert field.levelling.tolerance == config.levelling.tolerance
+    chance = quality.LabelQuality(0.0, 0.5, 0.05, 'geometric', True).config(config)
+    assert chance is config
+    # a larger levelling.tolerance wins
+    strict = config.replace({'levelling.tolerance': wide + 3.0})
+    judged = quality.LabelQuality(0.5, 0.95, 0.9, 'geometric', False).config(strict)
+    assert judged.levelling.tolerance == wide + 3.0
+
+
 def test_widened_correspondences_are_the_union_without_duplicates() -> None:
     semantic = Correspondences(np.array([0, 1, 2]), np.array([5, 6, 7]), np.ones(3, np.float32))
     plain = Correspondences(np.array([1, 3]), np.array([6, 8]), np.zeros(2, np.float32))

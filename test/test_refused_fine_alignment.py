@@ -52,7 +52,12 @@ def test_a_refused_pose_is_refined_on_the_downsampled_source(downsampled):
         pytest.skip('dev pair 000007 not present')
     # the one 20 m dev pair the confidence rule refuses (its labels disagree)
     config, source, result, metrics = _register(
-        paths[0], **{'fine.refused_downsampled': downsampled, 'bev_search.polish_fine': 0}
+        paths[0],
+        **{
+            'fine.refused_downsampled': downsampled,
+            'bev_search.polish_fine': 0,  # the polishing's alignments: downsampled anyway
+            'covisibility.refine_distance': 0.0,  # the covisible refinement's: full source
+        },
     )
     fine = config.fine
     pair_key, downsampled_key = (0.0, fine.pair_num_neighbors), (
@@ -60,7 +65,7 @@ def test_a_refused_pose_is_refined_on_the_downsampled_source(downsampled):
         fine.num_neighbors,
     )
     assert not result.success and result.alignment is not None
-    # without the polishing's fine alignment only the pair's fine alignment builds clouds
+    # only the pair's fine alignment builds clouds here
     assert (downsampled_key in source.alignment_clouds) == downsampled
     assert (pair_key in source.alignment_clouds) == (not downsampled)
     assert metrics.success  # the refused pose is still the right one: RE 0.1-0.2 deg

@@ -81,12 +81,12 @@ class PreprocessConfig:
         'sweep_alignment.mode is off. Costs one fine alignment per such scan.',
     )
     deskew_check_interval: int = param(
-        10,
-        'The time field belongs to the driver: once this many checks in a row kept the '
-        'deskew (preprocess.deskew_check), only every this-many-th deskewed scan is checked, '
-        'and every scan again after a reset, after a check that refused the deskew, and when '
-        'the span of the time field changes by more than a fifth (1: every scan; at stride 1 '
-        'with an IMU, checking every scan took 47 % of the CPU time of the odometry).',
+        50,
+        'The time field belongs to the driver: once 3 checks in a row kept the deskew '
+        '(preprocess.deskew_check), only every this-many-th deskewed scan is checked, and '
+        'every scan again after a reset, after a check that refused the deskew, and when the '
+        'span of the time field changes by more than a fifth (1: every scan; at stride 1 with '
+        'an IMU, checking every scan took 47 % of the CPU time of the odometry).',
         low=1,
         high=1000,
     )

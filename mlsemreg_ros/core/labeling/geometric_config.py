@@ -99,6 +99,16 @@ class GeometricLabelsConfig:
         low=0.0,
         high=1.0,
     )
+    tilt_tolerance: float = param(
+        9.0,
+        'Tilt a pose may keep against the two ground fits when the ground comes from the '
+        'geometric labeler (its ground holds slopes and sidewalks: the fits of the dev '
+        "pairs are up to 6.3 deg apart at the true pose, with the network's road labels, 2.9); "
+        'levelling.tolerance when larger (docs/labels.md).',
+        unit='deg',
+        low=0.0,
+        high=45.0,
+    )
     vehicle_max_length: float = param(
         6.5,
         'Longest footprint side of a compact cluster above the ground that is a vehicle.',

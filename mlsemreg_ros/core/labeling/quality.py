@@ -42,6 +42,8 @@ flipped or confused. Before a pair is matched its labels are judged (docs/labels
   overlap alone, as without labels), the contradiction check is off, and below
   ``OBJECTS_MIN_WEIGHT`` the distinctive objects decide nothing and the ground fitted to
   the labels levels nothing (``levelling.enabled`` off for the pair);
+- the geometric labeler's ground holds slopes and sidewalks, so its pairs' tilt check
+  allows ``geometric_labels.tilt_tolerance`` (whatever their weight);
 - the labels keep a veto by likelihood rather than raw agreement
   (``confidence.label_rule: information``): the pose's label co-occurrence must agree
   beyond chance by at least ``confidence.min_relative_information`` of what the labels
@@ -86,16 +88,22 @@ class LabelQuality:
 
     def config(self, config: Any) -> Any:
         """``config`` with the semantic evidence weighed by :attr:`weight` (itself at >= 0.75)."""
+        sections = {}
+        if self.source == 'geometric' and not self.unlabeled:
+            # its ground holds slopes and sidewalks: a wider tilt check (docs/labels.md)
+            tolerance = max(config.levelling.tolerance, config.geometric_labels.tilt_tolerance)
+            sections['levelling'] = replace(config.levelling, tolerance=tolerance)
         if self.unlabeled or self.weight >= FULL_WEIGHT:
-            return config
+            return replace(config, **sections) if sections else config
         conf, ver = config.confidence, config.verification
         changes = {'label_rule': 'information', 'contradicting_objects': 0}
-        sections = {}
         if self.weight < OBJECTS_MIN_WEIGHT:
             changes['min_distinctive_ceiling'] = 1.0  # objects decide only when spotless
             # nor does a ground fitted to their road labels (30 % flips: a right pose of dev
             # pair 000012 refused as 7.4 deg off the flipped ground)
-            sections['levelling'] = replace(config.levelling, enabled=False)
+            sections['levelling'] = replace(
+                sections.get('levelling', config.levelling), enabled=False
+            )
         weighed = ver.label_weight * math.sqrt(self.weight)
         return replace(
             config,
