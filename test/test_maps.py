@@ -458,7 +458,7 @@ def test_a_timed_scan_the_odometry_left_skewed_is_not_mapped_or_relocalized() ->
 def test_a_ground_truth_map_deskews_every_scan_with_its_true_motion() -> None:
     """Deskew each scan by its own sweep's motion; the last one by the motion before it."""
     from mlsemreg_ros.datasets.source import Scan
-    from mlsemreg_ros.tools.map import _deskewed_by_truth
+    from mlsemreg_ros.evaluation.map_build import deskewed_by_truth
 
     config = RegistrationConfig()
     points, times = np.array([[10.0, 0.0, 0.0], [0.0, 5.0, 0.0]]), np.array([0.1, 0.0])
@@ -476,12 +476,12 @@ def test_a_ground_truth_map_deskews_every_scan_with_its_true_motion() -> None:
         )
         for k in range(3)
     ]
-    out = list(_deskewed_by_truth(iter(scans), config))
+    out = list(deskewed_by_truth(iter(scans), config))
     assert [scan.index for scan in out] == [0, 1, 2]
     # a point seen 0.1 s after the stamp, 1 m (0.5 m for the last scan) further on
     for scan, moved in zip(out, (1.0, 0.5, 0.5), strict=True):
         assert np.allclose(scan.xyz, [[10.0 + moved, 0.0, 0.0], [0.0, 5.0, 0.0]], atol=1e-9)
-    off = list(_deskewed_by_truth(iter(scans), config.replace({'preprocess.deskew': 'off'})))
+    off = list(deskewed_by_truth(iter(scans), config.replace({'preprocess.deskew': 'off'})))
     assert all(np.array_equal(scan.xyz, points) for scan in off)
 
 
@@ -524,7 +524,7 @@ def test_map_build_hands_the_point_times_to_the_odometry(monkeypatch) -> None:
     from types import SimpleNamespace
 
     from mlsemreg_ros.core.odometry import Odometry
-    from mlsemreg_ros.tools.map import build_map
+    from mlsemreg_ros.evaluation.map_build import build_map
 
     rng = np.random.default_rng(0)
     scans = [

@@ -100,6 +100,28 @@ JsonOption = Annotated[
     ),
 ]
 ForceOption = Annotated[bool, typer.Option('--force', help='replace OUT if it exists')]
+
+
+def replay_options(scope: str = '') -> tuple[Any, Any]:
+    """
+    Return ``--stride`` and ``--max-frames`` of a bag replay (evaluation/replay.py).
+
+    One declaration for every command that replays a bag (eval-bag, tune); ``scope``
+    prefixes their help (``'bag: '`` where the command also takes other data).
+    """
+    stride = Annotated[
+        int,
+        typer.Option(min=1, help=f'{scope}register scan k against k - S', rich_help_panel=DATA),
+    ]
+    max_frames = Annotated[
+        int | None,
+        typer.Option(
+            min=1, help=f'{scope}stop after this many (strided) scans', rich_help_panel=DATA
+        ),
+    ]
+    return stride, max_frames
+
+
 #: The bag layout of the bag writers (simulate, kitti-to-bag).
 TOPICS = 'Topics and frames'
 StorageOption = Annotated[Literal['mcap', 'sqlite3'], typer.Option(help='rosbag2 storage plugin')]

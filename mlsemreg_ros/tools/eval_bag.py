@@ -39,6 +39,7 @@ from mlsemreg_ros.tools.common import (
     LabelsOption,
     OUTPUT,
     QuietOption,
+    replay_options,
     SetOption,
     settings,
     with_labels,
@@ -107,13 +108,7 @@ GtCalibOption = Annotated[
         rich_help_panel=DATA,
     ),
 ]
-StrideOption = Annotated[
-    int, typer.Option(min=1, help='register scan k against k - S', rich_help_panel=DATA)
-]
-MaxFramesOption = Annotated[
-    int | None,
-    typer.Option(min=1, help='stop after this many (strided) scans', rich_help_panel=DATA),
-]
+StrideOption, MaxFramesOption = replay_options()  # shared with tune
 PlotFrameOption = Annotated[
     int | None,
     typer.Option(

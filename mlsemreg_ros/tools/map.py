@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-import sys
 from typing import Annotated, Any, Literal
 
 from mlsemreg_ros.evaluation.peer_runs import LoopPeer
@@ -116,6 +115,7 @@ def build(
     from mlsemreg_ros.datasets.factory import open_scan_source
     from mlsemreg_ros.datasets.source import SourceError
     from mlsemreg_ros.evaluation import peer_runs
+    from mlsemreg_ros.evaluation.map_build import build_map, compare_loops, summary_lines
     from mlsemreg_ros.evaluation.tables import print_text
 
     peers = [str(peer) for peer in baseline or []]
@@ -148,230 +148,15 @@ def build(
     except MapError as error:
         raise CommandError(str(error)) from None
     summary = built['summary']
-    print_text(
-        f'wrote {summary["keyframes"]} keyframes ({summary["memory_mb"]:.1f} MB, '
-        f'{summary["bytes_per_keyframe"] / 1e3:.0f} kB each) from {summary["scans"]} scans '
-        f'to {out}; poses: {poses}'
-    )
-    if poses == 'odometry':
-        print_text(
-            f'odometry: {summary["accepted"]}/{summary["scans"]} scans accepted; loops '
-            f'closed: {summary["loops"]} (tried on {summary["loop_trials"]} keyframes)'
-        )
-    if 'ate_m' in summary:
-        print_text(
-            f'ATE of the keyframes: {summary["ate_m"]:.3f} m with the loop closures, '
-            f'{summary["ate_odometry_m"]:.3f} m without; loops on revisits: '
-            f'{summary["loops_true"]} right, {summary["loops_wrong"]} wrong, of '
-            f'{summary["revisits"]} keyframes that revisit a place'
-        )
+    for line in summary_lines(summary, out, poses):
+        print_text(line)
     if peers:
-        summary['baselines'] = _compare_loops(
+        summary['baselines'] = compare_loops(
             bag, peers, max_frames, core, summary, seconds, peer_local_map
         )
     if json_path is not None:
         json_path.write_text(json.dumps(summary, indent=2) + '\n')
     return 0
-
-
-def _compare_loops(
-    bag: Path,
-    peers: list[str],
-    max_frames: int | None,
-    core: Any,
-    ours: dict,
-    seconds: float,
-    split_m: float,
-) -> dict[str, Any]:
-    """Run the loop peers on the bag's scans; print the loops of all side by side."""
-    from mlsemreg_ros.datasets.factory import open_scan_source
-    from mlsemreg_ros.evaluation.loop_peers import loop_table, ours_loop_summary, run_loop_peers
-    from mlsemreg_ros.evaluation.tables import print_table
-
-    results = run_loop_peers(lambda: open_scan_source(bag), peers, max_frames, core.map, split_m)
-    mine = ours_loop_summary(ours, seconds)
-    print_table(loop_table([mine, *results.values()]))
-    return {'ours': mine, **results}
-
-
-def build_map(
-    source: Any,
-    config: Any,
-    poses: str,
-    max_frames: int | None = None,
-    progress: bool = False,
-) -> dict[str, Any]:
-    """Map a scan source; returns the mapper and a summary (keyframes, loops, ATE)."""
-    from mlsemreg_ros.core.labeling.source import LabelSource
-    from mlsemreg_ros.core.maps.localization import awaits_deskew
-    from mlsemreg_ros.core.maps.mapping import Mapper
-    from mlsemreg_ros.core.odometry import Odometry
-    from mlsemreg_ros.core.pipeline import Registration
-    from mlsemreg_ros.evaluation.trajectory import ate_rmse
-    import numpy as np
-    from tqdm import tqdm
-
-    registration = Registration(config)
-    mapper = Mapper(registration)
-    if poses == 'ground-truth':
-        mapper.store.config = config.replace({'map.loop_closure': False})
-    odometry = Odometry(registration) if poses == 'odometry' else None
-    truth: dict[int, np.ndarray] = {}  # keyframe id -> ground truth
-    scans = accepted = trials = 0
-    total = len(source) if max_frames is None else min(len(source), max_frames)
-    labeled = (
-        scan
-        for scan in tqdm(
-            source.scans(max_frames=max_frames),
-            total=total,
-            desc='map',
-            unit='scan',
-            file=sys.stderr,
-            disable=not progress,
-        )
-        if scan.labels is not None or config.label_source != 'field'
-    )
-    label_source = LabelSource(registration.label_map)  # --labels (label_source)
-    if odometry is None:  # ground truth: only the posed scans, deskewed by the truth
-        labeled = _deskewed_by_truth((scan for scan in labeled if scan.pose is not None), config)
-    for scan in labeled:
-        scans += 1
-        if odometry is None:
-            labels = label_source(scan.xyz, scan.labels, config).labels
-            step = mapper.add(scan.xyz, labels, scan.pose, scan.stamp_ns)
-        else:
-            moved = odometry.process(
-                scan.xyz, scan.labels, scan.stamp_ns, point_times=scan.point_times
-            )
-            if not moved.accepted:
-                continue
-            accepted += 1
-            if awaits_deskew(moved, scan.point_times, config):
-                continue  # the odometry's first scans: skewed, no keyframe of them
-            step = mapper.add(
-                scan.xyz, scan.labels, moved.pose, scan.stamp_ns, prepared=moved.prepared
-            )
-        trials += bool(step.tried)
-        if step.keyframe is not None and scan.pose is not None:
-            truth[step.keyframe.keyframe_id] = np.asarray(scan.pose)
-    store = mapper.store
-    summary: dict[str, Any] = {
-        'scans': scans,
-        'accepted': accepted if odometry is not None else scans,
-        'keyframes': len(store),
-        'memory_mb': store.memory_bytes / 1e6,
-        'bytes_per_keyframe': store.memory_bytes / max(len(store), 1),
-        'loops': len(mapper.loops),
-        'loop_trials': trials,
-    }
-    ids = [i for i in store.ids if i in truth]
-    if odometry is not None and len(ids) >= 2:
-        gt = np.stack([truth[i] for i in ids])
-        odom = mapper.keyframe_odometry()
-        summary['ate_m'] = ate_rmse(np.stack([store[i].T_map_keyframe for i in ids]), gt)
-        summary['ate_odometry_m'] = ate_rmse(np.stack([odom[i] for i in ids]), gt)
-        loops = [_loop_edge(loop, truth, store) for loop in mapper.loops]
-        right = sum(edge['right'] for edge in loops)
-        wrong = len(loops) - right
-        summary['loop_edges'] = loops
-        summary['loops_refused'] = [_loop_edge(loop, truth, store) for loop in mapper.refused]
-        summary['loops_true'], summary['loops_wrong'] = right, wrong
-        summary['revisits'] = int(count_revisits(gt, config.map))
-    return {'mapper': mapper, 'summary': summary}
-
-
-def _deskewed_by_truth(scans: Any, config: Any) -> Any:
-    """
-    Yield the posed scans with their points deskewed to their stamps by the true motion.
-
-    A map with ground-truth poses gets the motion compensation that the odometry gives
-    its keyframes (``preprocess.deskew``, ``core/features/deskew.py``), with the true
-    motion: the constant twist from the scan's pose to the next scan's (its own sweep);
-    the last scan takes the twist from the one before. Scans without point times stay as
-    they are.
-    """
-    from dataclasses import replace
-
-    from mlsemreg_ros.core.features.deskew import deskew, sweep_motion
-
-    def moved(scan: Any, a: Any, b: Any) -> Any:
-        if config.preprocess.deskew == 'off' or scan.point_times is None:
-            return scan
-        motion = sweep_motion(a.pose, a.stamp_ns, b.pose, b.stamp_ns)
-        if motion is None:
-            return scan
-        return replace(scan, xyz=deskew(scan.xyz, scan.point_times, motion))
-
-    before = held = None
-    for scan in scans:
-        if held is not None:
-            yield moved(held, held, scan)  # the motion over its own sweep, to the next stamp
-        before, held = held, scan
-    if held is not None:  # the last scan: the motion from the one before (none: as it is)
-        yield held if before is None else moved(held, before, held)
-
-
-def _loop_edge(loop: Any, truth: dict[int, Any], store: Any) -> dict[str, Any]:
-    """Return a loop edge against the ground truth: its error, whether it is right, its check."""
-    from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg
-    from mlsemreg_ros.evaluation.loop_peers import is_right
-    import numpy as np
-
-    true_motion = invert_transform(truth[loop.match]) @ truth[loop.current]
-    error = invert_transform(true_motion) @ loop.T_match_current
-    te, re = float(np.linalg.norm(error[:3, 3])), rotation_angle_deg(error)
-    edge = {
-        'current': int(loop.current),
-        'match': int(loop.match),
-        'current_stamp_ns': int(store[loop.current].stamp_ns),
-        'match_stamp_ns': int(store[loop.match].stamp_ns),
-        'distance_m': float(np.linalg.norm(true_motion[:3, 3])),
-        'te_m': te,
-        're_deg': re,
-        'right': is_right(te, re),
-        'T_match_current': np.asarray(loop.T_match_current).tolist(),
-    }
-    if loop.check is not None:
-        coarse = invert_transform(true_motion) @ loop.check.T_registration
-        edge['refinement'] = {
-            'registration_te_m': float(np.linalg.norm(coarse[:3, 3])),
-            'registration_re_deg': rotation_angle_deg(coarse),
-            'correction_m': loop.check.correction_m,
-            'correction_deg': loop.check.correction_deg,
-            'inlier_fraction': loop.check.inlier_fraction,
-            'submap_keyframes': loop.check.submap_keyframes,
-            'reason': loop.check.reason,
-        }
-    return edge
-
-
-def count_revisits(gt: Any, map_config: Any) -> int:
-    """Keyframes within 5 m of a keyframe left ``map.loop_min_travel`` metres of travel ago."""
-    import numpy as np
-
-    positions = gt[:, :3, 3]
-    travel = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
-    count = 0
-    for i in range(len(positions)):
-        earlier = travel[i] - travel[:i] >= map_config.loop_min_travel
-        near = np.linalg.norm(positions[:i] - positions[i], axis=1) <= 5.0
-        count += bool(np.any(earlier & near))
-    return count
-
-
-def _write_query(
-    path: Path, points: Any, labels: Any, pose: Any, stamp_ns: int, dtype: Any = 'float32'
-) -> None:
-    import numpy as np
-
-    extra = {} if pose is None else {'T_map_scan': np.asarray(pose, dtype=np.float64)}
-    np.savez_compressed(
-        path,
-        points=np.asarray(points, dtype=dtype),
-        labels=np.asarray(labels).astype(np.uint32),
-        stamp_ns=np.int64(stamp_ns),
-        **extra,
-    )
 
 
 @app.command('queries', help=QUERIES_HELP)
@@ -386,6 +171,7 @@ def queries(
 ) -> int:
     """Write every K-th scan of a bag as a query file."""
     from mlsemreg_ros.datasets.factory import open_scan_source
+    from mlsemreg_ros.datasets.query_files import write_query
     from mlsemreg_ros.datasets.source import SourceError
     from mlsemreg_ros.evaluation.tables import print_text
 
@@ -400,7 +186,7 @@ def queries(
         for scan in source.scans():
             if scan.index < start or (scan.index - start) % every or scan.labels is None:
                 continue
-            _write_query(
+            write_query(
                 out / f'{scan.index:06d}.npz', scan.xyz, scan.labels, scan.pose, scan.stamp_ns
             )
             written += 1
@@ -461,133 +247,32 @@ def sim_queries(
 ) -> int:
     """Write relocalization queries from a second simulated drive."""
     from mlsemreg_ros.evaluation.tables import print_text
-    from mlsemreg_ros.simulation.revisit import other_drive, render_queries, reverse_drive
-    from mlsemreg_ros.simulation.sequence import SimulationConfig
-    import numpy as np
-    from scipy.spatial import cKDTree
+    from mlsemreg_ros.simulation.revisit_queries import SimQueries, write_sim_queries
 
+    request = SimQueries(
+        seed=seed,
+        frames=frames,
+        drive=drive,
+        every=every,
+        lane_change=lane_change,
+        start_offset=start_offset,
+        route_seed=route_seed,
+        route_frames=route_frames,
+        min_distance=min_distance,
+        noise_seed=noise_seed,
+        realism=realism,
+        deskew=deskew,
+    )
     replace_output(out, force)
-    if realism == 'field':
-        registration = None
-        if deskew == 'odometry':
-            from mlsemreg_ros.core.config import RegistrationConfig
-            from mlsemreg_ros.core.pipeline import Registration
+    registration = None
+    if realism == 'field' and deskew == 'odometry':  # the odometry deskews the sweeps
+        from mlsemreg_ros.core.config import RegistrationConfig
+        from mlsemreg_ros.core.pipeline import Registration
 
-            (core,) = settings((RegistrationConfig,), config, overrides)
-            registration = Registration(core)
-        written, note = _field_queries(
-            out,
-            seed,
-            frames,
-            drive,
-            every,
-            lane_change,
-            start_offset,
-            min_distance,
-            noise_seed,
-            deskew,
-            registration,
-        )
-        print_text(
-            f'wrote {written} queries ({drive} field drive, deskew {deskew}{note}) to {out}'
-        )
-        return 0
-    clean = SimulationConfig(seed=seed, frames=frames)
-    if drive == 'reverse':
-        sim, world_poses = reverse_drive(clean, lane_change, start_offset, noise_seed)
-        indices = np.arange(0, len(world_poses), every)
-    else:
-        sim, world_poses = other_drive(clean, route_seed, route_frames)
-        mapped = sim.world_poses[:, :2, 3]
-        distance = cKDTree(mapped).query(world_poses[:, :2, 3])[0]
-        indices = np.arange(0, len(world_poses), every)
-        indices = indices[distance[indices] >= min_distance]
-    out.mkdir(parents=True)
-    for query in render_queries(sim, world_poses, indices, noise_seed):
-        _write_query(
-            out / f'{query.index:06d}.npz', query.points, query.labels, query.T_map_scan, 0
-        )
-    print_text(f'wrote {len(indices)} queries ({drive} drive) to {out}')
+        (core,) = settings((RegistrationConfig,), config, overrides)
+        registration = Registration(core)
+    print_text(write_sim_queries(out, request, registration))
     return 0
-
-
-def _field_queries(
-    out: Path,
-    seed: int,
-    frames: int,
-    drive: str,
-    every: int,
-    lane_change: float,
-    start_offset: float,
-    min_distance: float,
-    noise_seed: int,
-    deskew: str,
-    registration: Any = None,
-) -> tuple[int, str]:
-    """
-    Write the queries of a second field-mode drive (simulation/field_revisit.py).
-
-    Returns the number written and a note on the sweeps skipped (``--deskew odometry``).
-    """
-    from mlsemreg_ros.simulation.field import FieldConfig
-    from mlsemreg_ros.simulation.field_odometry_queries import (
-        odometry_queries,
-        OdometryQueryCount,
-    )
-    from mlsemreg_ros.simulation.field_revisit import (
-        field_other_drive,
-        field_other_sweeps,
-        field_reverse_drive,
-        field_reverse_sweeps,
-        render_field_queries,
-        render_other_queries,
-    )
-    import numpy as np
-    from scipy.spatial import cKDTree
-
-    config = FieldConfig(seed=seed, frames=frames)
-    if drive == 'reverse':
-        sim, reverse, starts = field_reverse_drive(config, lane_change, start_offset, noise_seed)
-        indices = np.arange(0, len(starts), every)
-    else:
-        sim, other = field_other_drive(config)
-        distance = cKDTree(sim.world_poses[:, :2, 3]).query(other.world_poses[:, :2, 3])[0]
-        indices = np.arange(0, len(other), every)
-        indices = indices[distance[indices] >= min_distance]
-    count = OdometryQueryCount()
-    if deskew == 'odometry':  # every sweep up to the last query goes through the odometry
-        last = int(indices[-1]) + 1 if len(indices) else 0
-        sweeps = (
-            field_reverse_sweeps(sim, reverse, starts, last, noise_seed)
-            if drive == 'reverse'
-            else field_other_sweeps(sim, other, last)
-        )
-        queries = odometry_queries(sweeps, {int(i) for i in indices}, registration, count)
-    elif drive == 'reverse':
-        queries = render_field_queries(sim, reverse, starts, indices, noise_seed, deskew)
-    else:
-        queries = render_other_queries(sim, other, indices, deskew)
-    out.mkdir(parents=True)
-    written = 0
-    dtype = 'float64' if deskew == 'odometry' else 'float32'  # the odometry's points, exactly
-    for query in queries:
-        _write_query(
-            out / f'{query.index:06d}.npz',
-            query.points,
-            query.labels,
-            query.T_map_scan,
-            0,
-            dtype,
-        )
-        written += 1
-    note = ''
-    if deskew == 'odometry':
-        note = (
-            f': {count.sweeps} sweeps through the odometry, {count.accepted} accepted; of '
-            f'{count.wanted} queries, {count.rejected} rejected and {count.skewed} not '
-            'deskewed by it, skipped'
-        )
-    return written, note
 
 
 @app.command(
@@ -629,6 +314,7 @@ def write_pair_chain(
     """Even frames as map keyframes (at their chained poses), odd frames as queries."""
     from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
     from mlsemreg_ros.core.maps.map_io import save_map
+    from mlsemreg_ros.datasets.query_files import write_query
 
     store = KeyframeStore(config.replace({'map.max_keyframes': 10**6}), label_map)
     for frame in frames[::2]:
@@ -637,7 +323,7 @@ def write_pair_chain(
     out_queries.mkdir(parents=True)
     for number, frame in enumerate(frames):
         if number % 2:
-            _write_query(
+            write_query(
                 out_queries / f'{number:06d}.npz', frame.points, frame.labels, frame.T_0_frame, 0
             )
 

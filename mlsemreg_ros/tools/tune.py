@@ -35,6 +35,7 @@ from mlsemreg_ros.tools.common import (
     OUTPUT,
     PARAMETERS,
     QuietOption,
+    replay_options,
     SetOption,
     settings,
     with_labels,
@@ -66,13 +67,7 @@ DescriptorOption = Annotated[
     Literal['gedi', 'fpfh'],
     typer.Option(help='pairs: as eval-pairs --descriptor', rich_help_panel=DATA),
 ]
-StrideOption = Annotated[
-    int, typer.Option(min=1, help='bag: register scan k against k - S', rich_help_panel=DATA)
-]
-MaxFramesOption = Annotated[
-    int | None,
-    typer.Option(min=1, help='bag: stop after this many scans', rich_help_panel=DATA),
-]
+StrideOption, MaxFramesOption = replay_options('bag: ')  # shared with eval-bag
 TrialsOption = Annotated[
     int | None,
     typer.Option(

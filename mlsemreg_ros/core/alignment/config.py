@@ -99,10 +99,12 @@ class FineAlignmentConfig:
     )
     max_iterations: int = param(20, 'Maximum Gauss-Newton iterations.', low=1, high=1000)
     refused_downsampled: bool = param(
-        True,
+        False,
         'Pairs: a pose the confidence rule still refuses is refined with the source scan '
         'downsampled to fine.downsampling_resolution, as the polishing of refused candidates '
-        'does (a third of the time; the pose stays refused; docs/long_range.md).',
+        'does (a third of its GICP time; the pose stays refused). Off: with the covisible '
+        'refinement (covisibility.refine_distance) it lost a right 60 m pose '
+        '(docs/hard_pairs.md).',
     )
     rotation_epsilon: float = param(
         0.01,

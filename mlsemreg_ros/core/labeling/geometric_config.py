@@ -103,7 +103,7 @@ class GeometricLabelsConfig:
         9.0,
         'Tilt a pose may keep against the two ground fits when the ground comes from the '
         'geometric labeler (its ground holds slopes and sidewalks: the fits of the dev '
-        'pairs are up to 6.3 deg apart at the true pose, the network road labels\' 2.9); '
+        "pairs are up to 6.3 deg apart at the true pose, with the network's road labels, 2.9); "
         'levelling.tolerance when larger (docs/labels.md).',
         unit='deg',
         low=0.0,

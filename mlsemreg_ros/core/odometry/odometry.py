@@ -24,12 +24,16 @@ to each once, in order::
     preprocess         the labels (core/labeling/source.py), then preprocess.py: deskewed by
                        the motion within the sweep, moving objects, lazily prepared
     track or register  tracking.py: the prediction refined against the map and tracked when
-    and decide         trusted (trust.py), else registered onto the keyframe and decided
-                       (decision.py); a prior that disagrees: again without it (prior_guard.py)
-    align the sweep    tracking.py: the start's deskew; no gyro: the sweep's own twist
-                       (core/alignment/sweep_alignment.py)
-    insert             local_map.py: the aligned scan joins the map; the keyframe policy
-    step               steps.py: OdometryStep, covariance and twist
+                       trusted (trust.py), else registered onto the keyframe and decided
+                       (decision.py)
+    decide             review.py: a prior or a deskew that hurt: again without it
+                       (prior_guard.py, deskew_guard.py); refused: other sweep starts
+                       (sweep_starts.py); too many rejections: relocalization (failures.py)
+    align the sweep    advance.py, accepted: tracking.py aligns the start's deskew; no gyro:
+                       the sweep's own twist (core/alignment/sweep_alignment.py)
+    insert             advance.py: the aligned scan joins the map, the keyframe policy
+                       (local_map.py); the step, its covariance and twist (steps.py)
+    rejected           failures.py: the predicted pose; re-initialise after too many
 
 A scan is tracked by the refined prediction alone when the trust rules allow it
 (``odometry.global_registration: on_demand``), else registered globally. Never a silent
@@ -45,42 +49,26 @@ from collections import deque
 import time
 from typing import Any
 
-from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, motion_size
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, SweepMotion
 from mlsemreg_ros.core.labeling.source import LabelSource
 from mlsemreg_ros.core.odometry import sensor_scale
-from mlsemreg_ros.core.odometry.deskew_guard import DeskewCheckSchedule, guard_deskew
+from mlsemreg_ros.core.odometry.advance import accept_scan, start_keyframe
+from mlsemreg_ros.core.odometry.deskew_guard import DeskewCheckSchedule
+from mlsemreg_ros.core.odometry.failures import rejected
 from mlsemreg_ros.core.odometry.global_registration import GlobalRegistration
-from mlsemreg_ros.core.odometry.local_map import (
-    insert_accepted,
-    Keyframe,
-    keyframe_refusal,
-    LocalMap,
-    make_map,
-)
+from mlsemreg_ros.core.odometry.local_map import Keyframe, keyframe_refusal, LocalMap, make_map
 from mlsemreg_ros.core.odometry.motion_model import make_motion_model, Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
-from mlsemreg_ros.core.odometry.prior_guard import guard_prior
 from mlsemreg_ros.core.odometry.prior_model import motion_model_name
+from mlsemreg_ros.core.odometry.reconfigure import reconfigure
 from mlsemreg_ros.core.odometry.recovery import PastKeyframes
-from mlsemreg_ros.core.odometry.steps import (
-    accepted_step,
-    Decision,
-    OdometryStep,
-    prediction_covariance,
-    REINITIALIZATION_VARIANCE,
-    step_at_pose,
-)
-from mlsemreg_ros.core.odometry.sweep_starts import retry_refused
+from mlsemreg_ros.core.odometry.review import review
+from mlsemreg_ros.core.odometry.steps import Decision, OdometryStep, step_at_pose
 from mlsemreg_ros.core.odometry.tracking import Tracker
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
-from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
-
-#: Sections whose change makes the cached keyframe be prepared again.
-_PREPARE_SECTIONS = ('semantic', 'features', 'keypoints', 'moving_objects')
 
 
 class Odometry:
@@ -136,31 +124,7 @@ class Odometry:
         alignment cloud only when ``fine`` changed; the local map is cleared when its
         structure (method, voxel size) changed.
         """
-        config = sensor_scale.apply(config, self.sensor_scale)  # a sparse sensor's values
-        self.preprocessor.check(config)
-        old = self.registration.config
-        self.registration.config = config
-        if self.keyframe is not None:
-            if any(getattr(old, s) != getattr(config, s) for s in _PREPARE_SECTIONS):
-                keyframe = self.keyframe
-                keyframe.prepared = self.registration.prepare(
-                    keyframe.points, keyframe.labels, lazy=True
-                )
-                self.preprocessor.exclude_moving(
-                    keyframe.prepared, keyframe.points, keyframe.labels
-                )
-            elif old.fine != config.fine:
-                self.keyframe.prepared.alignment_clouds.clear()  # rebuilt when needed
-        self.past_keyframes.resize(config.keyframe.relocalization_keyframes)
-        if self.map.reconfigure(config.fine, config.local_map) and self.keyframe:
-            self.map.insert_scan(self.keyframe.prepared, self.keyframe.pose)  # from the keyframe
-        if old.motion_prior != config.motion_prior:  # core/odometry/prior_model.py
-            if motion_model_name(old) != motion_model_name(config):
-                self.motion_model = make_motion_model(config, motion_model_name(config))
-                if self._last_accepted is not None:
-                    self.motion_model.update(*self._last_accepted)
-            elif hasattr(self.motion_model, 'cfg'):
-                self.motion_model.cfg = config.motion_prior
+        reconfigure(self, config)  # core/odometry/reconfigure.py
 
     def reset(self) -> None:
         """Drop the keyframe and the map; the next scan restarts the odometry at identity."""
@@ -252,20 +216,16 @@ class Odometry:
             raw.scan, prediction, self.keyframe, self.global_registration, self.config, timings
         )
         given = (points, labels, point_times, stamp_ns)
-        raw, chosen, prior_refusal = guard_prior(  # core/odometry/prior_guard.py
+        raw, chosen, prior_refusal, deskew_refusal = review(  # prior, deskew, relocalization
             self, given, prediction, raw, chosen, timings
         )
-        raw, chosen, deskew_refusal = guard_deskew(  # core/odometry/deskew_guard.py
-            self, given, prediction, raw, chosen, timings
-        )
-        raw, chosen = retry_refused(self, given, prediction, raw, chosen, timings)  # sweep_starts
-        chosen = self._relocalize(raw, chosen, timings)  # core/odometry/recovery.py
         step = self._apply(index, stamp_ns, raw, chosen)
         step.prior_refusal = prior_refusal
         step.deskew_refusal = deskew_refusal
-        if not step.accepted:
-            self._predict_rejected(step, prediction)
-        self._count_failure(step, raw)
+        if step.accepted:
+            self._failures = 0
+        else:  # core/odometry/failures.py: its prediction; re-initialise after too many
+            rejected(self, step, prediction, raw)
         registered = chosen.result.timings_ms if chosen.result is not None else {}
         step.timings_ms = {
             **_prepare_timings(raw.scan),
@@ -274,21 +234,6 @@ class Odometry:
             **step.timings_ms,
         }
         return self._finish(step, start, raw)
-
-    def _predict_rejected(self, step: OdometryStep, prediction: Prediction | None) -> None:
-        """Put the motion model's pose at a rejected scan's stamp, with its covariance, on it."""
-        if prediction is None and self.keyframe is not None:  # constant_velocity off
-            prediction = self.motion_model.predict(step.stamp_ns)
-        if prediction is None or self._last_accepted is None:
-            return
-        step.predicted_pose = prediction.T_odom_current.copy()
-        step.predicted_covariance = prediction_covariance(
-            self.covariance,
-            self._last_accepted[0],
-            prediction.T_odom_current,
-            self._last_frame_covariance,
-            prediction.stamp_gap,
-        )
 
     def _prediction(self, stamp_ns: int) -> Prediction | None:
         """Return the motion model's prediction at ``stamp_ns`` if the odometry uses one."""
@@ -323,7 +268,7 @@ class Odometry:
             return self._rejected(
                 index, stamp_ns, current, reason, timings=_prepare_timings(current)
             )
-        self._start(index, stamp_ns, raw, self.pose)
+        start_keyframe(self, index, stamp_ns, raw, self.pose)  # core/odometry/advance.py
         step = self._rejected(
             index, stamp_ns, current, '; '.join(notes), timings=_prepare_timings(current)
         )
@@ -339,56 +284,8 @@ class Odometry:
                 index, stamp_ns, raw.scan, chosen.reason, chosen.result, chosen.relative
             )
         else:
-            step = self._accept(index, stamp_ns, raw, chosen)
+            step = accept_scan(self, index, stamp_ns, raw, chosen)  # core/odometry/advance.py
         step.candidates, step.timings_ms = chosen.candidates, chosen.timings_ms
-        return step
-
-    def _accept(
-        self, index: int, stamp_ns: int, raw: PreprocessedScan, chosen: Decision
-    ) -> OdometryStep:
-        """Align the sweep, move the pose, feed the map, move the keyframe; the step."""
-        keyframe, start, self._start_scan = self.keyframe, self._start_scan, None
-        raw, pose, sweep_twist = self.tracker.align_accepted(
-            chosen,
-            raw,
-            start,
-            stamp_ns,
-            keyframe,
-            self.preprocessor,
-            self.motion_model,
-            self.config,
-        )
-        if sweep_twist is not None:
-            self._sweep_twist = (sweep_twist, stamp_ns)
-        current, relative = raw.scan, invert_transform(keyframe.pose) @ pose
-        predicted = [c.T_initial for c in chosen.candidates if c.name == 'prediction']
-        correction = motion_size(invert_transform(predicted[0]) @ pose) if predicted else (0, 0)
-        chosen.frame_covariance = calibrated_covariance(  # docs/covariance.md
-            chosen.frame_covariance,
-            1.0,
-            self.config.covariance,
-            *motion_size(relative),
-            correction=correction,
-            horizon_s=(stamp_ns - self._last_accepted[1]) * 1e-9 if self._last_accepted else 0.0,
-        )
-        last, self._last_accepted = self._last_accepted, (pose.copy(), stamp_ns)
-        self._accepted.append(self._last_accepted)
-        self.pose = pose.copy()
-        self.motion_model.update(pose, stamp_ns)
-        learn_labels = getattr(self.registration, 'learn_labels', None)  # stand-ins lack it
-        if learn_labels is not None:
-            learn_labels(relative, current, keyframe.prepared)  # confidence.label_model adaptive
-        self.keyframe, voxels = insert_accepted(
-            self.map, self.config, keyframe, relative, index, stamp_ns, raw, pose
-        )
-        step = accepted_step(
-            index, stamp_ns, pose, relative, chosen, raw, keyframe, last, self.covariance, voxels
-        )
-        self.covariance = step.covariance.copy()
-        self._last_frame_covariance = chosen.frame_covariance
-        step.new_keyframe = self.keyframe is not keyframe
-        if step.new_keyframe:
-            self.past_keyframes.remember(keyframe)
         return step
 
     def _rejected(
@@ -406,73 +303,13 @@ class Odometry:
             index, stamp_ns, self, current, reason, result, relative, timings, len(self.map)
         )
 
-    def _start(self, index: int, stamp_ns: int, raw: PreprocessedScan, pose: np.ndarray) -> None:
-        """Make ``raw`` the keyframe at ``pose`` and the first scan of a new map."""
-        self.keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, raw.scan, pose.copy())
-        self.past_keyframes.clear()  # their map is gone
-        self.map.clear()
-        self.map.insert_scan(raw.scan, pose)
-        self.motion_model.reset()
-        self.motion_model.update(pose, stamp_ns)
-        self._last_accepted = (pose.copy(), stamp_ns)
-        self._accepted.clear()
-        self._accepted.append(self._last_accepted)
-        self.tracker.restart()
-        self._failures = 0
-        self._start_scan = (raw, pose.copy(), stamp_ns)
-        self._sweep_twist = None
-
-    def _relocalize(
-        self, raw: PreprocessedScan, chosen: Decision, timings: dict[str, float]
-    ) -> Decision:
-        """
-        Relocalize onto the past keyframes at the ``keyframe.max_failures``-th rejection in a row.
-
-        The scan is registered onto the keyframes the odometry left behind and refined
-        against the local map (``core/odometry/recovery.py``); the decision stays rejected
-        (and :meth:`_count_failure` re-initialises) when none gives a trusted pose.
-        """
-        limit = self.config.keyframe.max_failures
-        if chosen.pose is not None or not limit or self._failures + 1 < limit:
-            return chosen
-        if self.config.fine.method == 'off':
-            return chosen
-        found, said = self.past_keyframes.relocalize(
-            raw.scan, self.tracker, self.global_registration, self.config, timings
-        )
-        if found is None:
-            chosen.reason = f'{chosen.reason}; relocalization failed ({said})'
-            return chosen
-        found.reason = f'{limit} frames rejected in a row ({chosen.reason}): {found.reason}'
-        found.timings_ms = {**chosen.timings_ms, **found.timings_ms}
-        return found
-
-    def _count_failure(self, step: OdometryStep, raw: PreprocessedScan) -> None:
-        """After ``keyframe.max_failures`` rejections in a row, re-initialise on this scan."""
-        if step.accepted:
-            self._failures = 0
-            return
-        self._failures += 1
-        limit = self.config.keyframe.max_failures
-        if not limit or self._failures < limit or self.keyframe_refusal(raw.scan):
-            return
-        self._start(step.index, step.stamp_ns, raw, self.pose)
-        self.covariance = self.covariance + np.eye(6) * REINITIALIZATION_VARIANCE
-        step.covariance = self.covariance.copy()  # the jump is flagged
-        step.new_keyframe, step.source = True, 'reinitialized'
-        step.keyframe_index, step.map_voxels = step.index, len(self.map)
-        step.reason += (
-            f'; {limit} frames rejected in a row: re-initialised on this scan at '
-            'the last accepted pose (the motion since is unknown)'
-        )
-
     @staticmethod
     def _finish(
         step: OdometryStep, start: float, raw: PreprocessedScan | None = None
     ) -> OdometryStep:
         if raw is not None:
             step.deskewed = raw.deskewed
-            if step.points is None:  # _accept set the scan it aligned (perhaps redone)
+            if step.points is None:  # accept_scan set the scan it aligned (perhaps redone)
                 step.points, step.labels = raw.points, raw.labels
             if raw.deskew_note:
                 step.reason = '; '.join(r for r in (step.reason, raw.deskew_note) if r)

@@ -16,7 +16,7 @@ Stage 7, the fine alignment of the pair: GICP of the source scan onto the target
 
 From the chosen pose, with ``fine.pair_method`` (core/alignment/alignment.py). A refused
 pose is refined too (it is the best one found; the result stays refused), with the source
-downsampled as in the polishing (``fine.refused_downsampled``). The alignment
+downsampled as in the polishing if ``fine.refused_downsampled``. The alignment
 must stay within the correction bounds (core/alignment/fine_alignment.py), or the coarse
 pose was not right to those bounds and the pose is refused; a refinement refused only by
 its bounds is kept when it holds the dense score (at 40-60 m the true overlap stays under

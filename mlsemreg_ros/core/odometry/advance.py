@@ -1,0 +1,108 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+
+"""
+The odometry's state moves: start on a keyframe, or accept a decided scan.
+
+:func:`accept` aligns the sweep (tracking.py), moves the pose and the motion model,
+calibrates the frame's covariance (docs/covariance.md), inserts the scan into the local map
+and moves the keyframe (local_map.py), and returns the step (steps.py). :func:`start`
+makes a scan the keyframe and the first scan of a new map (the first scan, a
+re-initialisation).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, motion_size
+from mlsemreg_ros.core.odometry.local_map import insert_accepted, Keyframe
+from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
+from mlsemreg_ros.core.odometry.steps import accepted_step, Decision, OdometryStep
+from mlsemreg_ros.core.rigid import invert_transform
+import numpy as np
+
+if TYPE_CHECKING:
+    from mlsemreg_ros.core.odometry.odometry import Odometry
+
+
+def accept_scan(
+    odometry: Odometry, index: int, stamp_ns: int, raw: PreprocessedScan, chosen: Decision
+) -> OdometryStep:
+    """Align the sweep, move the pose, feed the map, move the keyframe; the step."""
+    keyframe, start, odometry._start_scan = odometry.keyframe, odometry._start_scan, None
+    raw, pose, sweep_twist = odometry.tracker.align_accepted(
+        chosen,
+        raw,
+        start,
+        stamp_ns,
+        keyframe,
+        odometry.preprocessor,
+        odometry.motion_model,
+        odometry.config,
+    )
+    if sweep_twist is not None:
+        odometry._sweep_twist = (sweep_twist, stamp_ns)
+    current, relative = raw.scan, invert_transform(keyframe.pose) @ pose
+    predicted = [c.T_initial for c in chosen.candidates if c.name == 'prediction']
+    correction = motion_size(invert_transform(predicted[0]) @ pose) if predicted else (0, 0)
+    chosen.frame_covariance = calibrated_covariance(  # docs/covariance.md
+        chosen.frame_covariance,
+        1.0,
+        odometry.config.covariance,
+        *motion_size(relative),
+        correction=correction,
+        horizon_s=(
+            (stamp_ns - odometry._last_accepted[1]) * 1e-9 if odometry._last_accepted else 0.0
+        ),
+    )
+    last, odometry._last_accepted = odometry._last_accepted, (pose.copy(), stamp_ns)
+    odometry._accepted.append(odometry._last_accepted)
+    odometry.pose = pose.copy()
+    odometry.motion_model.update(pose, stamp_ns)
+    learn_labels = getattr(odometry.registration, 'learn_labels', None)  # stand-ins lack it
+    if learn_labels is not None:
+        learn_labels(relative, current, keyframe.prepared)  # confidence.label_model adaptive
+    odometry.keyframe, voxels = insert_accepted(
+        odometry.map, odometry.config, keyframe, relative, index, stamp_ns, raw, pose
+    )
+    step = accepted_step(
+        index, stamp_ns, pose, relative, chosen, raw, keyframe, last, odometry.covariance, voxels
+    )
+    odometry.covariance = step.covariance.copy()
+    odometry._last_frame_covariance = chosen.frame_covariance
+    step.new_keyframe = odometry.keyframe is not keyframe
+    if step.new_keyframe:
+        odometry.past_keyframes.remember(keyframe)
+    return step
+
+
+def start_keyframe(
+    odometry: Odometry, index: int, stamp_ns: int, raw: PreprocessedScan, pose: np.ndarray
+) -> None:
+    """Make ``raw`` the keyframe at ``pose`` and the first scan of a new map."""
+    odometry.keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, raw.scan, pose.copy())
+    odometry.past_keyframes.clear()  # their map is gone
+    odometry.map.clear()
+    odometry.map.insert_scan(raw.scan, pose)
+    odometry.motion_model.reset()
+    odometry.motion_model.update(pose, stamp_ns)
+    odometry._last_accepted = (pose.copy(), stamp_ns)
+    odometry._accepted.clear()
+    odometry._accepted.append(odometry._last_accepted)
+    odometry.tracker.restart()
+    odometry._failures = 0
+    odometry._start_scan = (raw, pose.copy(), stamp_ns)
+    odometry._sweep_twist = None

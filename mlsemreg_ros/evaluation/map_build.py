@@ -1,0 +1,238 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+A keyframe map built from a scan source (``mlsemreg map build``, docs/maps.md).
+
+:func:`build_map` runs the odometry (with loop closures) or takes the ground-truth poses
+(deskewed by the true motion, :func:`deskewed_by_truth`), adds the keyframes to a
+:class:`~mlsemreg_ros.core.maps.mapping.Mapper` and summarises the map: keyframes, memory,
+loops and, with ground truth, the ATE with and without the loop closures and each loop
+edge's error (:func:`loop_edge`) against the keyframes that revisit a place
+(:func:`count_revisits`). :func:`compare_loops` runs the loop-closure peers on the same scans;
+:func:`summary_lines` says what was built.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+import sys
+from typing import Any
+
+
+def compare_loops(
+    bag: Path,
+    peers: list[str],
+    max_frames: int | None,
+    core: Any,
+    ours: dict,
+    seconds: float,
+    split_m: float,
+) -> dict[str, Any]:
+    """Run the loop peers on the bag's scans; print the loops of all side by side."""
+    from mlsemreg_ros.datasets.factory import open_scan_source
+    from mlsemreg_ros.evaluation.loop_peers import loop_table, ours_loop_summary, run_loop_peers
+    from mlsemreg_ros.evaluation.tables import print_table
+
+    results = run_loop_peers(lambda: open_scan_source(bag), peers, max_frames, core.map, split_m)
+    mine = ours_loop_summary(ours, seconds)
+    print_table(loop_table([mine, *results.values()]))
+    return {'ours': mine, **results}
+
+
+def summary_lines(summary: dict[str, Any], out: Path, poses: str) -> list[str]:
+    """Return what ``mlsemreg map build`` prints about the map it wrote to ``out``."""
+    lines = [
+        f'wrote {summary["keyframes"]} keyframes ({summary["memory_mb"]:.1f} MB, '
+        f'{summary["bytes_per_keyframe"] / 1e3:.0f} kB each) from {summary["scans"]} scans '
+        f'to {out}; poses: {poses}'
+    ]
+    if poses == 'odometry':
+        lines.append(
+            f'odometry: {summary["accepted"]}/{summary["scans"]} scans accepted; loops '
+            f'closed: {summary["loops"]} (tried on {summary["loop_trials"]} keyframes)'
+        )
+    if 'ate_m' in summary:
+        lines.append(
+            f'ATE of the keyframes: {summary["ate_m"]:.3f} m with the loop closures, '
+            f'{summary["ate_odometry_m"]:.3f} m without; loops on revisits: '
+            f'{summary["loops_true"]} right, {summary["loops_wrong"]} wrong, of '
+            f'{summary["revisits"]} keyframes that revisit a place'
+        )
+    return lines
+
+
+def build_map(
+    source: Any,
+    config: Any,
+    poses: str,
+    max_frames: int | None = None,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Map a scan source; returns the mapper and a summary (keyframes, loops, ATE)."""
+    from mlsemreg_ros.core.labeling.source import LabelSource
+    from mlsemreg_ros.core.maps.localization import awaits_deskew
+    from mlsemreg_ros.core.maps.mapping import Mapper
+    from mlsemreg_ros.core.odometry import Odometry
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.evaluation.trajectory import ate_rmse
+    import numpy as np
+    from tqdm import tqdm
+
+    registration = Registration(config)
+    mapper = Mapper(registration)
+    if poses == 'ground-truth':
+        mapper.store.config = config.replace({'map.loop_closure': False})
+    odometry = Odometry(registration) if poses == 'odometry' else None
+    truth: dict[int, np.ndarray] = {}  # keyframe id -> ground truth
+    scans = accepted = trials = 0
+    total = len(source) if max_frames is None else min(len(source), max_frames)
+    labeled = (
+        scan
+        for scan in tqdm(
+            source.scans(max_frames=max_frames),
+            total=total,
+            desc='map',
+            unit='scan',
+            file=sys.stderr,
+            disable=not progress,
+        )
+        if scan.labels is not None or config.label_source != 'field'
+    )
+    label_source = LabelSource(registration.label_map)  # --labels (label_source)
+    if odometry is None:  # ground truth: only the posed scans, deskewed by the truth
+        labeled = deskewed_by_truth((scan for scan in labeled if scan.pose is not None), config)
+    for scan in labeled:
+        scans += 1
+        if odometry is None:
+            labels = label_source(scan.xyz, scan.labels, config).labels
+            step = mapper.add(scan.xyz, labels, scan.pose, scan.stamp_ns)
+        else:
+            moved = odometry.process(
+                scan.xyz, scan.labels, scan.stamp_ns, point_times=scan.point_times
+            )
+            if not moved.accepted:
+                continue
+            accepted += 1
+            if awaits_deskew(moved, scan.point_times, config):
+                continue  # the odometry's first scans: skewed, no keyframe of them
+            step = mapper.add(
+                scan.xyz, scan.labels, moved.pose, scan.stamp_ns, prepared=moved.prepared
+            )
+        trials += bool(step.tried)
+        if step.keyframe is not None and scan.pose is not None:
+            truth[step.keyframe.keyframe_id] = np.asarray(scan.pose)
+    store = mapper.store
+    summary: dict[str, Any] = {
+        'scans': scans,
+        'accepted': accepted if odometry is not None else scans,
+        'keyframes': len(store),
+        'memory_mb': store.memory_bytes / 1e6,
+        'bytes_per_keyframe': store.memory_bytes / max(len(store), 1),
+        'loops': len(mapper.loops),
+        'loop_trials': trials,
+    }
+    ids = [i for i in store.ids if i in truth]
+    if odometry is not None and len(ids) >= 2:
+        gt = np.stack([truth[i] for i in ids])
+        odom = mapper.keyframe_odometry()
+        summary['ate_m'] = ate_rmse(np.stack([store[i].T_map_keyframe for i in ids]), gt)
+        summary['ate_odometry_m'] = ate_rmse(np.stack([odom[i] for i in ids]), gt)
+        loops = [loop_edge(loop, truth, store) for loop in mapper.loops]
+        right = sum(edge['right'] for edge in loops)
+        wrong = len(loops) - right
+        summary['loop_edges'] = loops
+        summary['loops_refused'] = [loop_edge(loop, truth, store) for loop in mapper.refused]
+        summary['loops_true'], summary['loops_wrong'] = right, wrong
+        summary['revisits'] = int(count_revisits(gt, config.map))
+    return {'mapper': mapper, 'summary': summary}
+
+
+def deskewed_by_truth(scans: Any, config: Any) -> Any:
+    """
+    Yield the posed scans with their points deskewed to their stamps by the true motion.
+
+    A map with ground-truth poses gets the motion compensation that the odometry gives
+    its keyframes (``preprocess.deskew``, ``core/features/deskew.py``), with the true
+    motion: the constant twist from the scan's pose to the next scan's (its own sweep);
+    the last scan takes the twist from the one before. Scans without point times stay as
+    they are.
+    """
+    from dataclasses import replace
+
+    from mlsemreg_ros.core.features.deskew import deskew, sweep_motion
+
+    def moved(scan: Any, a: Any, b: Any) -> Any:
+        if config.preprocess.deskew == 'off' or scan.point_times is None:
+            return scan
+        motion = sweep_motion(a.pose, a.stamp_ns, b.pose, b.stamp_ns)
+        if motion is None:
+            return scan
+        return replace(scan, xyz=deskew(scan.xyz, scan.point_times, motion))
+
+    before = held = None
+    for scan in scans:
+        if held is not None:
+            yield moved(held, held, scan)  # the motion over its own sweep, to the next stamp
+        before, held = held, scan
+    if held is not None:  # the last scan: the motion from the one before (none: as it is)
+        yield held if before is None else moved(held, before, held)
+
+
+def loop_edge(loop: Any, truth: dict[int, Any], store: Any) -> dict[str, Any]:
+    """Return a loop edge against the ground truth: its error, whether it is right, its check."""
+    from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg
+    from mlsemreg_ros.evaluation.loop_peers import is_right
+    import numpy as np
+
+    true_motion = invert_transform(truth[loop.match]) @ truth[loop.current]
+    error = invert_transform(true_motion) @ loop.T_match_current
+    te, re = float(np.linalg.norm(error[:3, 3])), rotation_angle_deg(error)
+    edge = {
+        'current': int(loop.current),
+        'match': int(loop.match),
+        'current_stamp_ns': int(store[loop.current].stamp_ns),
+        'match_stamp_ns': int(store[loop.match].stamp_ns),
+        'distance_m': float(np.linalg.norm(true_motion[:3, 3])),
+        'te_m': te,
+        're_deg': re,
+        'right': is_right(te, re),
+        'T_match_current': np.asarray(loop.T_match_current).tolist(),
+    }
+    if loop.check is not None:
+        coarse = invert_transform(true_motion) @ loop.check.T_registration
+        edge['refinement'] = {
+            'registration_te_m': float(np.linalg.norm(coarse[:3, 3])),
+            'registration_re_deg': rotation_angle_deg(coarse),
+            'correction_m': loop.check.correction_m,
+            'correction_deg': loop.check.correction_deg,
+            'inlier_fraction': loop.check.inlier_fraction,
+            'submap_keyframes': loop.check.submap_keyframes,
+            'reason': loop.check.reason,
+        }
+    return edge
+
+
+def count_revisits(gt: Any, map_config: Any) -> int:
+    """Keyframes within 5 m of a keyframe left ``map.loop_min_travel`` metres of travel ago."""
+    import numpy as np
+
+    positions = gt[:, :3, 3]
+    travel = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
+    count = 0
+    for i in range(len(positions)):
+        earlier = travel[i] - travel[:i] >= map_config.loop_min_travel
+        near = np.linalg.norm(positions[:i] - positions[i], axis=1) <= 5.0
+        count += bool(np.any(earlier & near))
+    return count
