@@ -60,9 +60,12 @@ def test_a_refused_pose_is_refined_on_the_downsampled_source(downsampled):
         },
     )
     fine = config.fine
-    pair_key, downsampled_key = (0.0, fine.pair_num_neighbors), (
-        fine.downsampling_resolution,
-        fine.num_neighbors,
+    pair_key, downsampled_key = (
+        (0.0, fine.pair_num_neighbors),
+        (
+            fine.downsampling_resolution,
+            fine.num_neighbors,
+        ),
     )
     assert not result.success and result.alignment is not None
     # only the pair's fine alignment builds clouds here

@@ -208,9 +208,7 @@ def refusal(evidence: Evidence, config: ConfidenceConfig, min_inliers: int) -> s
                 f'(confidence.chance_floor={config.chance_floor})'
             )
         else:
-            reasons.append(
-                f'{evidence.num_inliers} inliers < estimator.min_inliers={min_inliers}'
-            )
+            reasons.append(f'{evidence.num_inliers} inliers < estimator.min_inliers={min_inliers}')
     if not by_chance and evidence.inlier_ratio < config.min_inlier_ratio:  # chance: replaced
         reasons.append(
             f'inlier ratio {evidence.inlier_ratio:.4f} < '

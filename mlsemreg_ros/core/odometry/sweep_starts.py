@@ -118,9 +118,7 @@ def align_from_starts(
     second = align_sweep(points, times, gaussians, pose, implied, config)
     if not np.all(np.isfinite(second.T_target_source)):
         return first
-    costs = [
-        fit_cost(points, times, gaussians, r, config.max_distance) for r in (first, second)
-    ]
+    costs = [fit_cost(points, times, gaussians, r, config.max_distance) for r in (first, second)]
     if not costs[1] < (1.0 - SECOND_START_GAIN) * costs[0]:
         return first
     return replace(second, change_m=bend_m(points, times, second.motion, motion))
@@ -172,9 +170,7 @@ def retry_refused(
     if not refused or not np.all(np.isfinite(refused[-1].alignment.T_target_source)):
         return raw, chosen
     points, labels, point_times, stamp_ns = scan
-    implied = implied_twist(
-        odometry.motion_model, refused[-1].alignment.T_target_source, stamp_ns
-    )
+    implied = implied_twist(odometry.motion_model, refused[-1].alignment.T_target_source, stamp_ns)
     if implied is None:
         return raw, chosen
     sample, times = sweep_subset(
