@@ -15,6 +15,7 @@
 
 import os
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -33,3 +34,33 @@ def dev_pair_files() -> list[Path]:
             'to their folder); the generated-scene tests cover this code without them'
         )
     return files
+
+
+def register_dev_pair(pair: Any, descriptor: str = 'gedi', **flat: Any) -> tuple[Any, ...]:
+    """
+    Register a loaded pair (``datasets.pairs.PairData``) as stored, no voxelizing.
+
+    ``descriptor``: 'gedi' uses the stored descriptors, 'fpfh' computes them; ``flat``:
+    parameter overrides (``'section.key': value``). Returns the registration, the prepared
+    source, the result and its metrics under ``trans_gt``.
+    """
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.metrics import evaluate_pair
+    from mlsemreg_ros.core.pipeline import Registration
+
+    registration = Registration(RegistrationConfig().replace(flat))
+    src_desc, dst_desc = pair.descriptors(descriptor) if descriptor != 'fpfh' else (None, None)
+    source, target = registration.prepare_scans(
+        *(
+            {'points': p, 'labels': lab, 'keypoints': k, 'descriptors': d, 'voxelize': False}
+            for p, lab, k, d in (
+                (pair.pts_src, pair.label_src, pair.kpts_src, src_desc),
+                (pair.pts_dst, pair.label_dst, pair.kpts_dst, dst_desc),
+            )
+        )
+    )
+    result = registration.register(source, target)
+    metrics = evaluate_pair(
+        result.transform, result.source_points, result.target_points, pair.trans_gt
+    )
+    return registration, source, result, metrics

@@ -19,10 +19,7 @@ reversed. Its coarse pose (2.7 deg, 1.3 m off) refined with the usual GICP ends 
 outside the 0.6 m bound; with the covisible choice among refinements it ends within it.
 """
 
-from dev_pairs import dev_pair_files
-from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.metrics import evaluate_pair
-from mlsemreg_ros.core.pipeline import Registration
+from dev_pairs import dev_pair_files, register_dev_pair
 from mlsemreg_ros.datasets.pairs import compose_chain, load_pair, reversed_pair
 import pytest
 
@@ -39,28 +36,7 @@ def pair_60_m_reversed():
 
 
 def _register(pair, **flat):
-    registration = Registration(RegistrationConfig().replace(flat))
-    src_desc, dst_desc = pair.descriptors('gedi')
-    source, target = registration.prepare_scans(
-        {
-            'points': pair.pts_src,
-            'labels': pair.label_src,
-            'keypoints': pair.kpts_src,
-            'descriptors': src_desc,
-            'voxelize': False,
-        },
-        {
-            'points': pair.pts_dst,
-            'labels': pair.label_dst,
-            'keypoints': pair.kpts_dst,
-            'descriptors': dst_desc,
-            'voxelize': False,
-        },
-    )
-    result = registration.register(source, target)
-    metrics = evaluate_pair(
-        result.transform, result.source_points, result.target_points, pair.trans_gt
-    )
+    _, _, result, metrics = register_dev_pair(pair, **flat)
     return result, metrics
 
 

@@ -23,10 +23,7 @@ correspondences, a slide along the street has ~100): the estimator's pose is ref
 the BEV search of the scans finds the truth.
 """
 
-from dev_pairs import dev_pair_files
-from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.metrics import evaluate_pair
-from mlsemreg_ros.core.pipeline import Registration
+from dev_pairs import dev_pair_files, register_dev_pair
 from mlsemreg_ros.datasets.pairs import load_pair
 import pytest
 
@@ -34,30 +31,8 @@ pytestmark = pytest.mark.slow  # the real KITTI dev pairs at 5000 keypoints
 
 
 def _register(path, verification: bool, descriptor: str = 'fpfh', **flat):
-    config = RegistrationConfig().replace({'verification.enabled': verification, **flat})
-    registration = Registration(config)
-    pair = load_pair(path)
-    src_desc, dst_desc = pair.descriptors(descriptor) if descriptor != 'fpfh' else (None, None)
-    source, target = registration.prepare_scans(
-        {
-            'points': pair.pts_src,
-            'labels': pair.label_src,
-            'keypoints': pair.kpts_src,
-            'descriptors': src_desc,
-            'voxelize': False,
-        },
-        {
-            'points': pair.pts_dst,
-            'labels': pair.label_dst,
-            'keypoints': pair.kpts_dst,
-            'descriptors': dst_desc,
-            'voxelize': False,
-        },
-    )
-    result = registration.register(source, target)
-    metrics = evaluate_pair(
-        result.transform, result.source_points, result.target_points, pair.trans_gt
-    )
+    flat = {'verification.enabled': verification, **flat}
+    _, _, result, metrics = register_dev_pair(load_pair(path), descriptor, **flat)
     return result, metrics
 
 

@@ -16,33 +16,14 @@
 
 from __future__ import annotations
 
-from dev_pairs import dev_pair_files
-from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.metrics import evaluate_pair
-from mlsemreg_ros.core.pipeline import Registration
+from dev_pairs import dev_pair_files, register_dev_pair
 from mlsemreg_ros.datasets.pairs import load_pair
 import pytest
 
 
 def _register(path, **flat):
-    config = RegistrationConfig().replace(flat)
-    registration = Registration(config)
-    pair = load_pair(path)
-    src_desc, dst_desc = pair.descriptors('gedi')
-    source, target = registration.prepare_scans(
-        *(
-            {'points': p, 'labels': lab, 'keypoints': k, 'descriptors': d, 'voxelize': False}
-            for p, lab, k, d in (
-                (pair.pts_src, pair.label_src, pair.kpts_src, src_desc),
-                (pair.pts_dst, pair.label_dst, pair.kpts_dst, dst_desc),
-            )
-        )
-    )
-    result = registration.register(source, target)
-    metrics = evaluate_pair(
-        result.transform, result.source_points, result.target_points, pair.trans_gt
-    )
-    return config, source, result, metrics
+    registration, source, result, metrics = register_dev_pair(load_pair(path), **flat)
+    return registration.config, source, result, metrics
 
 
 @pytest.mark.parametrize('downsampled', [True, False])
