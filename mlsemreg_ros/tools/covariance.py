@@ -26,7 +26,6 @@ samples, so a second run (another ``--set``, ``--fit``) does not register again.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
@@ -69,6 +68,7 @@ def covariance_nees(
     from mlsemreg_ros.datasets.factory import open_scan_source
     from mlsemreg_ros.datasets.pairs import list_pairs
     from mlsemreg_ros.evaluation import covariance_calibration as cc
+    from mlsemreg_ros.evaluation.reports import write_json
     from mlsemreg_ros.evaluation.tables import print_table, print_text, ResultTable
 
     (core,) = settings((RegistrationConfig,), config, overrides)
@@ -149,5 +149,5 @@ def covariance_nees(
         values = ' '.join(f'covariance.{name}={getattr(best, name):g}' for name in grid)
         print_text(f'fit: odometry.covariance_scale={best_scale:g} {values} (cost {cost:.3f})')
     if json_path is not None:
-        json_path.write_text(json.dumps(report, indent=2, default=float) + '\n')
+        write_json(json_path, report)
     return 0

@@ -31,7 +31,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -116,6 +115,7 @@ def build(
     from mlsemreg_ros.datasets.source import SourceError
     from mlsemreg_ros.evaluation import peer_runs
     from mlsemreg_ros.evaluation.map_build import build_map, compare_loops, summary_lines
+    from mlsemreg_ros.evaluation.reports import write_json
     from mlsemreg_ros.evaluation.tables import print_text
 
     peers = [str(peer) for peer in baseline or []]
@@ -155,7 +155,7 @@ def build(
             bag, peers, max_frames, core, summary, seconds, peer_local_map
         )
     if json_path is not None:
-        json_path.write_text(json.dumps(summary, indent=2) + '\n')
+        write_json(json_path, summary)
     return 0
 
 

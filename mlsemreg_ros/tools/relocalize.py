@@ -22,7 +22,6 @@ command line (docs/maps.md).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
@@ -80,6 +79,7 @@ def relocalize(
         relocalize_queries,
         RelocalizeOptions,
     )
+    from mlsemreg_ros.evaluation.reports import write_json
 
     peers = tuple(str(peer) for peer in baseline or [])
     try:
@@ -97,7 +97,7 @@ def relocalize(
         raise CommandError(str(error)) from None
     print_relocalization(report)
     if json_path is not None:
-        json_path.write_text(json.dumps(report.as_dict(), indent=2) + '\n')
+        write_json(json_path, report.as_dict())
     return 0
 
 
