@@ -178,6 +178,16 @@ def options_from(context: typer.Context, kind: type[OptionsT], **values: Any) ->
     return kind(**{**given, **values})
 
 
+def require_peers(names: Sequence[str]) -> None:
+    """Stop with exit 2 and the install line when a ``--baseline`` peer is not installed."""
+    from mlsemreg_ros.evaluation import peer_runs
+
+    try:
+        peer_runs.require_peers(list(names))
+    except peer_runs.PeerUnavailable as error:
+        raise CommandError(str(error), 2) from None
+
+
 def replace_output(path: Path, force: bool) -> None:
     """Make room for a new output folder; exit 2 if it exists without ``force``."""
     if path.exists():

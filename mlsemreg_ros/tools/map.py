@@ -44,6 +44,7 @@ from mlsemreg_ros.tools.common import (
     options_from,
     QuietOption,
     replace_output,
+    require_peers,
     SetOption,
     settings,
     with_labels,
@@ -116,17 +117,13 @@ def build(
 ) -> int:
     """Build a map folder from a bag."""
     from mlsemreg_ros.core.config import RegistrationConfig
-    from mlsemreg_ros.evaluation import peer_runs
     from mlsemreg_ros.evaluation.map_build import build_map_folder, MapBuildError, MapBuildOptions
     from mlsemreg_ros.evaluation.reports import write_json
 
     peers = tuple(str(peer) for peer in baseline or [])
     if peers and poses != 'odometry':
         raise CommandError('--baseline compares loop closures: it needs --poses odometry', 2)
-    try:
-        peer_runs.require_peers(list(peers))
-    except peer_runs.PeerUnavailable as error:
-        raise CommandError(str(error), 2) from None
+    require_peers(peers)
     (core,) = settings((RegistrationConfig,), config, with_labels(overrides, labels))
     replace_output(out, force)
     options = MapBuildOptions(poses, max_frames, frame_id, peers, peer_local_map, not quiet)
