@@ -32,6 +32,7 @@ from mlsemreg_ros.tools.common import (
     ConfigOption,
     JsonOption,
     LabelsOption,
+    require_peers,
     SetOption,
     with_labels,
 )
@@ -72,7 +73,6 @@ def relocalize(
     """Relocalize the queries against the map and print the recall (alias mlsemreg-relocalize)."""
     from mlsemreg_ros.core.config import ConfigError
     from mlsemreg_ros.core.maps.map_io import MapError
-    from mlsemreg_ros.evaluation import peer_runs
     from mlsemreg_ros.evaluation.relocalization import (
         print_relocalization,
         QueryError,
@@ -82,10 +82,7 @@ def relocalize(
     from mlsemreg_ros.evaluation.reports import write_json
 
     peers = tuple(str(peer) for peer in baseline or [])
-    try:
-        peer_runs.require_peers(list(peers))
-    except peer_runs.PeerUnavailable as error:
-        raise CommandError(str(error), 2) from None
+    require_peers(peers)
     options = RelocalizeOptions(max_queries, duplicate, peers)
     try:
         report = relocalize_queries(
