@@ -180,6 +180,16 @@ class MotionPriorConfig:
         low=0.0,
         high=180.0,
     )
+    gyro_rescue: float = param(
+        2.0,
+        'A scan rejected with no prediction (the second after a start: the IMU prior has no '
+        'velocity yet) is accepted from its refused global pose when that pose and its map '
+        'refinement are within this of the gyro rotation over the interval and the map trusts '
+        'the refinement (core/odometry/gyro_rescue.py; 0: off).',
+        unit='deg',
+        low=0.0,
+        high=30.0,
+    )
     max_sample_gap: float = param(
         0.5,
         'A prior whose messages leave a hole longer than this within the interval (lost '

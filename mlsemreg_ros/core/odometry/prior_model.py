@@ -193,6 +193,23 @@ class PriorMotionModel:
         at_stamp = rotations[int(np.searchsorted(nodes, stamp_ns))]
         return (nodes - stamp_ns) * 1e-9, np.einsum('ji,njk->nik', at_stamp, rotations)
 
+    def gyro_rotation(self, stamp_ns: int) -> np.ndarray | None:
+        """
+        Return the gyro's rotation (3, 3) from the last accepted scan to ``stamp_ns``.
+
+        ``R_last_current``, bias removed; None without an IMU covering the interval. Unlike
+        the IMU prior it needs no velocity: it is there for the second scan after a start.
+        """
+        if self.cfg.source not in ('imu', 'auto') or not self._accepted:
+            return None
+        t0 = self._accepted[-1][1]
+        if not 0.0 < (stamp_ns - t0) * 1e-9 <= self.cfg.max_span:
+            return None
+        with self._lock:
+            if not self._imu.covers(t0, stamp_ns, self._slack(), self._gap()):
+                return None
+            return np.asarray(self._segment(t0, stamp_ns).rotation, dtype=np.float64).copy()
+
     # -- the prior -----------------------------------------------------------------
     def relative_prior(self, stamp_ns: int) -> RelativePrior | None:
         """Return the prior from the last accepted pose to ``stamp_ns`` (None: not covered)."""
