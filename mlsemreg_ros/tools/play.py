@@ -54,11 +54,23 @@ def play(
     ] = 0.0,
     wait_for_subscribers: Annotated[
         int,
-        typer.Option(metavar='N', min=0, help='hold playback until every topic has N subscribers'),
+        typer.Option(
+            metavar='N',
+            min=0,
+            help='hold playback until the waited topics (--wait-topic; default: the clouds) '
+            'have N subscribers, and every other topic someone subscribes is matched',
+        ),
     ] = 0,
     wait_timeout: Annotated[
         float, typer.Option(min=0.0, help='seconds to wait for subscribers')
     ] = 30.0,
+    wait_topic: Annotated[
+        list[str] | None,
+        typer.Option(
+            help='a topic --wait-for-subscribers waits for (repeatable; default: the '
+            "bag's PointCloud2 topics, or every topic without clouds)"
+        ),
+    ] = None,
     qos_depth: Annotated[
         int, typer.Option(min=1, help='history depth of the (reliable) publishers')
     ] = 1000,
@@ -94,6 +106,7 @@ def play(
         delay=delay,
         wait_for_subscribers=wait_for_subscribers,
         wait_timeout=wait_timeout,
+        wait_topics=wait_topic,
         qos_depth=qos_depth,
         quiet=quiet,
         pace_topic=pace_topic,
