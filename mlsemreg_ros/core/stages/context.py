@@ -80,6 +80,9 @@ class RegistrationContext:
     ground_fits: tuple[GroundFit | None, GroundFit | None] | None = None
     # label quality
     label_quality: LabelQuality | None = None  # the pair's labels judged (None: not judged)
+    #: poorer labels: the unlabeled attempt, accepted but not strong enough to be taken
+    #: first; the labelled path falls back to it when it refuses (core/stages/label_quality.py)
+    unlabeled_attempt: RegistrationContext | None = None
     # matching
     correspondences: Correspondences | None = None
     source_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3)
