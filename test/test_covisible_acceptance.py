@@ -102,7 +102,7 @@ def test_best_rivals_leave_out_the_pose_itself_and_unchecked_candidates():
 
 
 def facade_street(seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """The poles' street with facades of 4-12 m, gaps of 2-6 m and setbacks of 8.5-12 m."""
+    """Return the poles' street with facades of 4-12 m, gaps of 2-6 m, setbacks of 8.5-12 m."""
     world, labels = long_street()
     rng = np.random.default_rng(seed)
     parts, names = [world], [labels]
@@ -125,7 +125,7 @@ def facade_street(seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
 
 
 def straight_street() -> tuple[np.ndarray, np.ndarray]:
-    """The poles' street between two straight walls 110 m long."""
+    """Return the poles' street between two straight walls 110 m long."""
     world, labels = long_street()
     rng = np.random.default_rng(1)
     walls = [
