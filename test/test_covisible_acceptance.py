@@ -210,6 +210,14 @@ def test_the_refinement_s_move_from_the_coarse_pose_is_no_doubt_here():
     assert context.refusal == ''
 
 
+def test_the_stage_never_runs_without_the_pair_s_fine_alignment():
+    """The odometry registers with refine=False: no alignment, so nothing is accepted here."""
+    context = RegistrationContext(None, None, False, RegistrationConfig(), None)
+    context.refusal, context.covisible_pool = REFUSED, (np.ones(1), np.ones(1))
+    context.transform = np.eye(4)
+    assert not CovisibleAcceptanceStage().wanted(context)
+
+
 def test_the_stage_is_off_at_zero():
     config = RegistrationConfig()
     config.covisibility.accept_overlap = 0.0
