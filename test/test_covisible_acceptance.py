@@ -162,13 +162,13 @@ def judged(world, labels, chosen_offset: np.ndarray, pool_offsets: list[np.ndarr
 def test_the_right_60_m_pose_is_accepted_where_both_scans_see():
     """Facades with gaps: the truth fits the free space, its slides and a turn do not."""
     world, labels = facade_street()
-    turned, slid = pose(0, 0, 0, 30.0), pose(4.0, 0, 0, 0)
+    turned, slid = pose(0, 0, 0, 30.0), pose(6.0, 0, 0, 0)
     context = judged(world, labels, np.eye(4), [pose(0.3, 0, 0, 0.5), turned, slid])
     diagnostics = context.diagnostics
     assert context.refusal == '', diagnostics
     assert diagnostics['covisible_accepted']
     assert diagnostics['covisible_accept_overlap'] >= 0.97
-    assert diagnostics['covisible_accept_rival_overlap'] <= 0.96  # the 4 m slide
+    assert diagnostics['covisible_accept_rival_overlap'] <= 0.95  # the 6 m slide
     assert context.message.startswith('accepted where both scans see')
 
 
