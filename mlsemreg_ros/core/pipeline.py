@@ -48,6 +48,7 @@ from mlsemreg_ros.core.stages.bev_search import BevSearchStage
 from mlsemreg_ros.core.stages.confidence import ConfidenceStage, consider
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
 from mlsemreg_ros.core.stages.covisibility import CovisibilityStage
+from mlsemreg_ros.core.stages.covisible_acceptance import CovisibleAcceptanceStage
 from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.far_search import FarSearchStage
 from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
@@ -114,6 +115,7 @@ def default_stages() -> list[Stage]:
         UnlabeledFallbackStage(),  # 6b. poorer labels, refused: the unlabeled attempt's pose
         LevelCheckStage(),  # 6c. a tilt the two ground fits do not allow is refused
         FineAlignmentStage(),  # 7. GICP of the pair from the chosen pose (refine=True)
+        CovisibleAcceptanceStage(),  # 7b. refused, refined: accepted where both scans see
         NearMissStage(),  # 8. accepted and refined: no second basin from perturbed starts
     ]
 

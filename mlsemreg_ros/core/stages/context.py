@@ -105,6 +105,8 @@ class RegistrationContext:
     # BEV search and the refused path
     searched: VerificationResult | None = None  # the BEV search's candidates
     search_reason: str = ''  # why the search ran ('' = it did not)
+    # covisibility: the pool's covisible (overlap, checked), once the covisible choice ran
+    covisible_pool: tuple[np.ndarray, np.ndarray] | None = None
     # fine alignment
     coarse: np.ndarray | None = None  # the pose before the fine alignment
     alignment: Alignment | None = None
