@@ -273,8 +273,8 @@ class SampleBuffer:
         if max_gap_ns <= 0:
             return True
         first = max(int(np.searchsorted(stamps, t0_ns, side='right')) - 1, 0)
-        last = min(int(np.searchsorted(stamps, t1_ns, side='left')), stamps.size - 1)
-        return last <= first or int(np.diff(stamps[first : last + 1]).max()) <= max_gap_ns
+        end = min(int(np.searchsorted(stamps, t1_ns, side='left')), stamps.size - 1) + 1
+        return end - first < 2 or int(np.diff(stamps[first:end]).max()) <= max_gap_ns
 
     def clear(self) -> None:
         """Drop every sample."""
