@@ -100,6 +100,7 @@ def test_the_default_stages_run_in_order_and_each_is_timed_by_the_loop(prepared)
         'full_graph',
         'polish',
         'covisibility',
+        'unlabeled_fallback',
         'level_check',
         'fine',
         'near_miss',

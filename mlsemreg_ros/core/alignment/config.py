@@ -265,6 +265,17 @@ class NearMissConfig:
         low=0.0,
         high=1.0,
     )
+    min_weak_support: float = param(
+        20.0,
+        'The odometry: a candidate accepted on its own evidence (core/odometry/second_look.py) '
+        "needs at least this many inliers' worth of information along its alignment's "
+        'weakest direction (the Hessian with rotation on the translation scale, '
+        'core/alignment/weak_direction.py; 0: not checked). A solid-state scan of a road '
+        'kept 231 map inliers with the support of 6 along it and was accepted 0.78 m off; '
+        'the right own-evidence poses measured 40-70 (docs/confidence.md).',
+        low=0.0,
+        high=10000.0,
+    )
     max_residual: float = param(
         0.0,
         'Refuse a refined pose whose mean point-to-distribution residual (squared '
