@@ -181,3 +181,40 @@ def plot_sweep(rows: list[dict[str, Any]], path: Any) -> None:
     right.legend()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def sweep_label_noise(
+    directory: Any,
+    descriptors: tuple[str, ...],
+    levels: tuple[str, ...],
+    config: Any,
+    bounds: Any,
+    noise_seed: int = 0,
+) -> dict[str, Any]:
+    """
+    Run eval-pairs on ``directory`` at every level for every descriptor; print each row.
+
+    Returns ``{'rows': [...], 'reports': {'<descriptor> <level>': report}}`` (sweep.json).
+    Raises :class:`LabelNoiseError` on a bad level before any pair runs.
+    """
+    from mlsemreg_ros.evaluation import tables
+    from mlsemreg_ros.evaluation.pairs import evaluate_directory
+
+    noises = [(level, LabelNoise.parse(level)) for level in levels]
+    rows, reports = [], {}
+    for descriptor in descriptors:
+        for level, noise in noises:
+            report = evaluate_directory(
+                directory, descriptor, config, bounds, progress=False, label_noise=noise,
+                noise_seed=noise_seed,
+            )  # fmt: skip
+            reports[f'{descriptor} {level}'] = report
+            row = sweep_row(descriptor, level, report)
+            rows.append(row)
+            right = round(row['rr_pct'] * row['pairs'] / 100)
+            tables.print_text(
+                f'{descriptor:5} {level:12} RR {row["rr_pct"]:5.1f} %  accepted '
+                f'{row["accepted_right"]}/{right} right, {row["wrong_accepted"]} wrong  '
+                f'IR {row["ir_pct"]:.2f} %'
+            )
+    return {'rows': rows, 'reports': reports}
