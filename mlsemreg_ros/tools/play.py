@@ -54,9 +54,21 @@ DelayOption = Annotated[
 ]
 WaitForSubscribersOption = Annotated[
     int,
-    typer.Option(metavar='N', min=0, help='hold playback until every topic has N subscribers'),
+    typer.Option(
+        metavar='N',
+        min=0,
+        help='hold playback until the waited topics (--wait-topic; default: the clouds) '
+        'have N subscribers, and every other topic someone subscribes is matched',
+    ),
 ]
 WaitTimeoutOption = Annotated[float, typer.Option(min=0.0, help='seconds to wait for subscribers')]
+WaitTopicOption = Annotated[
+    list[str] | None,
+    typer.Option(
+        help='a topic --wait-for-subscribers waits for (repeatable; default: the '
+        "bag's PointCloud2 topics, or every topic without clouds)"
+    ),
+]
 QosDepthOption = Annotated[
     int, typer.Option(min=1, help='history depth of the (reliable) publishers')
 ]
@@ -91,6 +103,7 @@ def play(
     delay: DelayOption = 0.0,
     wait_for_subscribers: WaitForSubscribersOption = 0,
     wait_timeout: WaitTimeoutOption = 30.0,
+    wait_topic: WaitTopicOption = None,
     qos_depth: QosDepthOption = 1000,
     pace_topic: PaceTopicOption = None,
     pace_type: PaceTypeOption = 'diagnostic_msgs/msg/DiagnosticArray',
@@ -101,7 +114,7 @@ def play(
     from mlsemreg_ros.ros.play_bag import play_bag
     from mlsemreg_ros.ros.player import PlayOptions
 
-    return play_bag(bag, options_from(context, PlayOptions))
+    return play_bag(bag, options_from(context, PlayOptions, wait_topics=wait_topic))
 
 
 def expand_topics(argv: list[str]) -> list[str]:
