@@ -174,3 +174,54 @@ def test_pace_topic_holds_playback_until_a_slow_consumer_answered(
         assert player.returncode == 0, output
     assert len(received) == N_CLOUDS, output
     assert received == sorted(received)
+
+
+def test_wait_for_subscribers_does_not_wait_for_topics_nobody_subscribes(
+    bag: tuple[Path, list[np.ndarray]], rclpy_module: Any, ros_context: Any
+) -> None:
+    """
+    A simulated bag's ground truth has no subscriber: playback starts once the clouds do.
+
+    The player used to wait for a subscriber on every topic, so it played after its timeout
+    (60 s here); now it waits for the clouds (and topics someone subscribes) only.
+    """
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+
+    path, _ = bag
+    received: list[Any] = []
+    with ros_context(DOMAIN_ID) as context:
+        node = rclpy_module.create_node('test_play_clouds_only', context=context)
+        qos = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE)
+        node.create_subscription(PointCloud2, '/test_play/points', received.append, qos)
+        executor = SingleThreadedExecutor(context=context)
+        executor.add_node(node)
+        env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID))
+        start = time.monotonic()
+        player = subprocess.Popen(
+            [
+                sys.executable,
+                '-m',
+                'mlsemreg_ros.tools.play',
+                str(path),
+                '--wait-for-subscribers',
+                '1',
+                '--wait-timeout',
+                '60',
+            ],
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+        )
+        deadline = start + 90.0
+        while time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+            if len(received) == N_CLOUDS and player.poll() is not None:
+                break
+        elapsed = time.monotonic() - start
+        output = player.communicate(timeout=30)[0].decode()
+        assert player.returncode == 0, output
+    assert len(received) == N_CLOUDS, output
+    assert 'playing anyway' not in output
+    assert elapsed < 30.0, f'{elapsed:.1f} s: the player waited for /test_play/odom\n{output}'

@@ -20,7 +20,9 @@ bytes (``Publisher.publish(bytes)``: no conversion) at the recorded rate times
 ``rate``, in recording order; ``clock`` also publishes ``/clock``
 (rosgraph_msgs/Clock) with the bag time. Publishers are reliable with a deep history
 so a subscriber that keeps up receives every message; ``wait_for_subscribers`` holds
-playback until every topic has a subscriber; ``pace_topic`` makes playback wait,
+playback until the topics someone consumes are subscribed (:meth:`Player.wait_for_subscribers`:
+the clouds, or ``wait_topics``; a simulated bag's ground truth and IMU, which a
+registration node need not subscribe, hold nothing); ``pace_topic`` makes playback wait,
 after each cloud, for one answer of a slower consumer (e.g. the registration node's
 ``/diagnostics``), so none is dropped.
 """
@@ -56,8 +58,11 @@ class PlayOptions:
     clock_rate: float = 100.0  # Hz of /clock between messages
     loop: bool = False
     delay: float = 0.0  # seconds to sleep before the first message
-    wait_for_subscribers: int = 0  # hold until every topic has this many subscribers
+    wait_for_subscribers: int = 0  # hold until the waited topics have this many subscribers
     wait_timeout: float = 30.0  # seconds, for wait_for_subscribers
+    # the topics wait_for_subscribers waits for (default: the bag's PointCloud2 topics, or
+    # every topic of a bag without clouds)
+    wait_topics: Sequence[str] | None = None
     qos_depth: int = 1000
     quiet: bool = False
     # Pacing (for consumers slower than the recording, e.g. a registration node):
@@ -175,17 +180,49 @@ class Player:
             )
         return time.monotonic() - start
 
+    def waited_topics(self) -> list[str]:
+        """Return the topics that :meth:`wait_for_subscribers` waits for."""
+        if self.options.wait_topics:
+            return [t for t in self.options.wait_topics if t in self.publishers]
+        clouds = sorted(self._paced & set(self.publishers))
+        return clouds if clouds else sorted(self.publishers)
+
     def wait_for_subscribers(self) -> bool:
-        """Block until every publisher has enough subscribers; False on timeout."""
+        """
+        Block until the waited topics have enough subscribers; False on timeout.
+
+        Waited: ``wait_topics``, or else the bag's PointCloud2 topics (every topic when it has
+        none). Any other topic that the graph shows a subscription for must be matched too,
+        so its first messages are not lost; a topic nobody subscribes (a simulated bag's
+        ground truth) holds nothing. The condition must hold twice, 0.2 s apart (discovery
+        announces a node's subscriptions one by one).
+        """
         needed = self.options.wait_for_subscribers
         if needed <= 0:
             return True
+        waited = set(self.waited_topics())
         deadline = time.monotonic() + self.options.wait_timeout
+        held_since = None
         while time.monotonic() < deadline:
-            if all(p.get_subscription_count() >= needed for p in self.publishers.values()):
-                return True
+            if self._subscribed(waited, needed):
+                held_since = time.monotonic() if held_since is None else held_since
+                if time.monotonic() - held_since >= 0.2:
+                    return True
+            else:
+                held_since = None
             time.sleep(0.05)
         return False
+
+    def _subscribed(self, waited: set[str], needed: int) -> bool:
+        """Whether the waited topics, and every topic with a known subscription, are matched."""
+        for topic, publisher in self.publishers.items():
+            matched = publisher.get_subscription_count()
+            if topic in waited:
+                if matched < needed:
+                    return False
+            elif matched < min(needed, self.node.count_subscribers(topic)):
+                return False
+        return True
 
     def _publish_clock(self, bag_ns: int) -> None:
         """Publish /clock = ``bag_ns``, never going back in time."""
@@ -242,7 +279,8 @@ class Player:
         """Wait for subscribers, delay, play (loop if asked); returns the messages published."""
         if not self.wait_for_subscribers():
             self.node.get_logger().warning(
-                f'not every topic has {self.options.wait_for_subscribers} subscriber(s) after '
+                f'not every waited topic ({", ".join(self.waited_topics())}) has '
+                f'{self.options.wait_for_subscribers} subscriber(s) after '
                 f'{self.options.wait_timeout:g} s; playing anyway'
             )
         if self.options.delay > 0:

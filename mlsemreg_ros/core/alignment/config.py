@@ -226,6 +226,12 @@ class NearMissConfig:
         low=0,
         high=1000000,
     )
+    pair_downsampled: bool = param(
+        True,
+        'Pairs: the perturbed starts are aligned with the source scan downsampled to '
+        'fine.downsampling_resolution (the refined pose and every basin are still judged '
+        'on the full scan): about a third of their GICP time (docs/hard_pairs.md).',
+    )
     offset: float = param(
         0.6,
         'Translation of each perturbed start from the refined pose.',
