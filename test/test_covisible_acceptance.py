@@ -102,7 +102,7 @@ def test_best_rivals_leave_out_the_pose_itself_and_unchecked_candidates():
 
 
 def facade_street(seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """The poles' street with facades of 4-12 m, gaps of 2-6 m and setbacks of 8.5-12 m."""
+    """Return the poles' street with facades of 4-12 m, gaps of 2-6 m, setbacks of 8.5-12 m."""
     world, labels = long_street()
     rng = np.random.default_rng(seed)
     parts, names = [world], [labels]
@@ -125,7 +125,7 @@ def facade_street(seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
 
 
 def straight_street() -> tuple[np.ndarray, np.ndarray]:
-    """The poles' street between two straight walls 110 m long."""
+    """Return the poles' street between two straight walls 110 m long."""
     world, labels = long_street()
     rng = np.random.default_rng(1)
     walls = [
@@ -162,13 +162,13 @@ def judged(world, labels, chosen_offset: np.ndarray, pool_offsets: list[np.ndarr
 def test_the_right_60_m_pose_is_accepted_where_both_scans_see():
     """Facades with gaps: the truth fits the free space, its slides and a turn do not."""
     world, labels = facade_street()
-    turned, slid = pose(0, 0, 0, 30.0), pose(4.0, 0, 0, 0)
+    turned, slid = pose(0, 0, 0, 30.0), pose(6.0, 0, 0, 0)
     context = judged(world, labels, np.eye(4), [pose(0.3, 0, 0, 0.5), turned, slid])
     diagnostics = context.diagnostics
     assert context.refusal == '', diagnostics
     assert diagnostics['covisible_accepted']
     assert diagnostics['covisible_accept_overlap'] >= 0.97
-    assert diagnostics['covisible_accept_rival_overlap'] <= 0.96  # the 4 m slide
+    assert diagnostics['covisible_accept_rival_overlap'] <= 0.95  # the 6 m slide
     assert context.message.startswith('accepted where both scans see')
 
 
@@ -208,6 +208,14 @@ def test_the_refinement_s_move_from_the_coarse_pose_is_no_doubt_here():
     assert context.doubts[0]
     CovisibleAcceptanceStage().run(context)
     assert context.refusal == ''
+
+
+def test_the_stage_never_runs_without_the_pair_s_fine_alignment():
+    """The odometry registers with refine=False: no alignment, so nothing is accepted here."""
+    context = RegistrationContext(None, None, False, RegistrationConfig(), None)
+    context.refusal, context.covisible_pool = REFUSED, (np.ones(1), np.ones(1))
+    context.transform = np.eye(4)
+    assert not CovisibleAcceptanceStage().wanted(context)
 
 
 def test_the_stage_is_off_at_zero():

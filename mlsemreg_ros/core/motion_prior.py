@@ -181,11 +181,12 @@ class MotionPriorConfig:
         high=180.0,
     )
     gyro_rescue: float = param(
-        2.0,
+        1.0,
         'A scan rejected with no prediction (the second after a start: the IMU prior has no '
-        'velocity yet) is accepted from its refused global pose when that pose is within this '
-        'of the gyro rotation over the interval, its map refinement within half of it, and the '
-        'map trusts the refinement (core/odometry/gyro_rescue.py; 0: off).',
+        'velocity yet) is accepted from its refused global pose when the map trusts that '
+        "pose's refinement and the refinement is within this of the gyro rotation over the "
+        'interval (the refused pose itself within 4 times this; core/odometry/gyro_rescue.py; '
+        '0: off).',
         unit='deg',
         low=0.0,
         high=30.0,

@@ -119,7 +119,7 @@ def verification_summary(diagnostics: dict[str, Any]) -> dict[str, Any] | None:
 
 
 def covisible_summary(diagnostics: dict[str, Any]) -> dict[str, Any]:
-    """The refused path's covisible choice, refinement and acceptance (``covisible_*``)."""
+    """Collect the refused path's covisible choice, refinement and acceptance (``covisible_*``)."""
     keys = ('chosen_origin', 'fine_refused', 'fine_refused_kept', 'level_check_refused')
     keys += ('degeneracy_ratio', 'fine_inlier_fraction', 'near_miss_refusal')
     return {k: v for k, v in diagnostics.items() if k.startswith('covisible_') or k in keys}

@@ -93,7 +93,7 @@ class CovisibleAcceptanceStage:
 
     @staticmethod
     def _measure(context: RegistrationContext, tilt: float) -> CovisibleEvidence:
-        """The pose, its slides and the pool's best distinct candidates, on more points."""
+        """Measure the pose, its slides and the pool's best distinct candidates on more points."""
         cfg = context.config
         covis, conf, check = cfg.covisibility, cfg.confidence, cfg.verification
         pose = context.transform
@@ -130,7 +130,7 @@ class CovisibleAcceptanceStage:
 
     @staticmethod
     def _doubts(context: RegistrationContext) -> list[str]:
-        """The later stages' doubts, but the refinement's move from the coarse pose."""
+        """Return the later stages' doubts, but the refinement's move from the coarse pose."""
         bounds = RefinementBounds.of(context.config.odometry)
         moved = correction_refusal(context.alignment, bounds)  # the refined pose is judged
         doubts = [doubt for doubt in context.doubts if doubt != moved]
@@ -139,7 +139,7 @@ class CovisibleAcceptanceStage:
 
     @staticmethod
     def _level_refusal(context: RegistrationContext) -> str:
-        """The level check on the refined pose ('' when levelling is off or it passes)."""
+        """Run the level check on the refined pose ('' when levelling is off or it passes)."""
         if not context.config.levelling.enabled:
             return ''
         source, target = ground_fits(context)
