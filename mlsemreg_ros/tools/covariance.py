@@ -55,6 +55,9 @@ def covariance_nees(
         Path | None, typer.Option(help='folder to keep the samples in (reused when present)')
     ] = None,
     fit: Annotated[bool, typer.Option(help='grid search the calibration')] = False,
+    continuous: Annotated[
+        bool, typer.Option(help='with --fit: a continuous search (differential evolution)')
+    ] = False,
     hold_out: Annotated[
         list[str] | None,
         typer.Option(help='data sets whose name contains this are left out of --fit (repeatable)'),
@@ -138,7 +141,8 @@ def covariance_nees(
         if not any(part in name for part in hold_out or [])
     }
     if fit and fitted:
-        best_scale, best, cost = cc.fit_calibration(fitted)
+        fitter = cc.fit_calibration_continuous if continuous else cc.fit_calibration
+        best_scale, best, cost = fitter(fitted)
         report['fit'] = {
             'scale': best_scale,
             'covariance': vars(best),
