@@ -50,6 +50,8 @@ STEPS = (
     ('mlsemreg_ros.core.odometry.tracking', 'Tracker', 'align_sweep', 'sweep alignment'),
     ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'gaussians', "  map's Gaussians"),
     ('mlsemreg_ros.core.alignment.sweep_alignment', None, 'linearization', '  Gauss-Newton'),
+    ('mlsemreg_ros.core.alignment.sweep_kernels', None, 'align_sweep', '  Gauss-Newton, compiled'),
+    ('mlsemreg_ros.core.odometry.sweep_starts', None, 'bend_m', '  second start: bend'),
     ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'insert', 'map insertion'),
     ('mlsemreg_ros.core.odometry.local_map', None, 'keyframe_refusal', 'keyframe policy'),
 )

@@ -23,6 +23,7 @@ from pathlib import Path
 from mlsemreg_ros.codec.pose_files import read_kitti_poses
 from mlsemreg_ros.codec.stamps import parse_seconds
 from mlsemreg_ros.evaluation.scoring import SUMMARY_KEYS
+from mlsemreg_ros.ros import demo_run
 from mlsemreg_ros.tools import demo, eval_bag
 import numpy as np
 import pytest
@@ -62,7 +63,7 @@ def test_demo_runs_the_node_on_a_short_drive_and_scores_it(tmp_path: Path) -> No
         assert (out / name).exists()
     assert (out / 'recorded_odometry' / 'metadata.yaml').exists()
     # The second run reuses the cached sequence.
-    bag = demo.ensure_sequence(tmp_path / 'cache', 4, 0, True)
+    bag = demo_run.ensure_sequence(tmp_path / 'cache', 4, 0, True)
     assert bag == tmp_path / 'cache' / 'sim_seed0_4f'
     # The node and the offline replay give the same poses on the same bag (one code path).
     offline = tmp_path / 'offline'

@@ -52,9 +52,11 @@ def test_the_deskew_is_refused_only_when_the_raw_scan_keeps_more_inliers() -> No
     assert deskew_refusal(None, 0.9, 0.0) == '' and deskew_refusal(0.5, None, 0.0) == ''
 
 
-def _checked(schedule: DeskewCheckSchedule, times: np.ndarray, interval: int, kept: bool) -> bool:
+def _checked(
+    schedule: DeskewCheckSchedule, times: np.ndarray, interval: int, kept: bool, slow: bool = True
+) -> bool:
     """Ask the schedule about one scan; record the check as ``kept`` if it is due."""
-    due = schedule.due(times, interval)
+    due = schedule.due(times, interval, slow)
     if due:
         schedule.checked(times, kept)
     return due
@@ -78,6 +80,21 @@ def test_the_check_runs_on_every_scan_until_three_kept_the_deskew_then_every_int
     assert _checked(schedule, None, 4, kept=True)  # no finite times: checked
     schedule.reset()  # an odometry reset: every scan again
     assert [_checked(schedule, sweep, 4, kept=True) for _ in range(4)] == [True] * 3 + [False]
+
+
+def test_a_periodic_check_waits_for_a_globally_registered_scan() -> None:
+    sweep = np.linspace(0.0, 0.1, 100)
+    schedule = DeskewCheckSchedule()
+    assert all(_checked(schedule, sweep, 4, kept=True, slow=False) for _ in range(3))
+    # due at the 4th scan, but tracked scans pass until a global one (the 6th) comes
+    due = [_checked(schedule, sweep, 4, kept=True, slow=k == 5) for k in range(8)]
+    assert due == [False, False, False, False, False, True, False, False]
+    # no global scan at all: checked after two intervals
+    due = [_checked(schedule, sweep, 4, kept=True, slow=False) for _ in range(8)]
+    assert due == [False] * 5 + [True, False, False]
+    # a refusal, a reset or a moved span still check the next (tracked) scans at once
+    assert _checked(schedule, 2.0 * sweep, 4, kept=False, slow=False)
+    assert all(_checked(schedule, 2.0 * sweep, 4, kept=True, slow=False) for _ in range(3))
 
 
 def _moved_scan_with_a_counter_for_times(check: bool) -> tuple[object, np.ndarray]:

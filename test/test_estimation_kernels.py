@@ -177,3 +177,31 @@ def test_the_search_on_the_reachable_block_is_the_full_grid_search():
     np.testing.assert_array_equal(peaks[:, 1:], np.concatenate(expected))
     best = peaks[np.argmax(peaks[:, 0])]
     assert best[1] == 17.0 and abs(best[2] - 11.0) <= 1.0 and abs(best[3] + 6.0) <= 1.0
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 10_000), extent=st.sampled_from([5.0, 60.0, 5000.0]))
+def test_the_compiled_compatibility_is_the_exact_length_consistency(seed, extent):
+    """Every pair with c_ij clear of d by 1 mm is compatible as the exact rule says."""
+    from mlsemreg_ros.core.estimation.sc2pcr import compatibility_matrix
+
+    rng = np.random.default_rng(seed)
+    src = rng.uniform(-extent, extent, (300, 3))
+    truth = _pose(30.0, (2.0, -1.0, 0.5))
+    dst = apply_transform(truth, src)
+    dst[150:] = rng.uniform(-extent, extent, (150, 3))  # outliers
+    dst[:150] += rng.normal(0.0, 0.2, (150, 3))
+    threshold = 0.6
+    compiled = compatibility_matrix(src, dst, threshold, compiled=True).toarray()
+    blocked = compatibility_matrix(src, dst, threshold, compiled=False).toarray()
+    lengths = np.abs(
+        np.linalg.norm(src[:, None] - src[None], axis=2)
+        - np.linalg.norm(dst[:, None] - dst[None], axis=2)
+    )
+    clear = np.abs(lengths - threshold) > 1e-3
+    exact = np.where(lengths < threshold, np.maximum(1.0 - (lengths / threshold) ** 2, 1e-12), 0)
+    np.fill_diagonal(exact, 1.0)
+    assert np.array_equal(compiled[clear] > 0, exact[clear] > 0)
+    assert np.abs(compiled - exact)[clear].max() < 1e-3  # c_ij to float32 rounding
+    assert np.array_equal(compiled, compiled.T)
+    assert np.array_equal(compiled[clear] > 0, blocked[clear] > 0)

@@ -139,6 +139,28 @@ def test_eval_pairs_errors_are_clear(tmp_path, capsys):
     assert "no 'gedi' descriptors" in capsys.readouterr().err
 
 
+def test_label_noise_sweep_runs_every_level_and_refuses_bad_input_first(
+    pair_dir, tmp_path, capsys
+):
+    from mlsemreg_ros.tools import label_noise_sweep
+
+    out = tmp_path / 'sweep'
+    args = [str(pair_dir), '--out', str(out), '--descriptor', 'fpfh']
+    assert label_noise_sweep.main([*args, '--level', 'none', '--level', 'flip:0.2']) == 0
+    sweep = json.loads((out / 'sweep.json').read_text())
+    assert [(r['descriptor'], r['noise']) for r in sweep['rows']] == [
+        ('fpfh', 'none'), ('fpfh', 'flip:0.2'),
+    ]  # fmt: skip
+    assert set(sweep['reports']) == {'fpfh none', 'fpfh flip:0.2'}
+    assert sweep['rows'][0]['rr_pct'] == 100.0 and (out / 'sweep.png').exists()
+    capsys.readouterr()
+    bad = tmp_path / 'bad'
+    bad_args = [str(pair_dir), '--out', str(bad), '--descriptor']
+    assert label_noise_sweep.main([*bad_args, 'fpfh', '--level', 'flip:2']) == 2
+    assert label_noise_sweep.main([*bad_args, 'shot', '--level', 'none']) == 2
+    assert 'gedi or fpfh' in capsys.readouterr().err and not bad.exists()
+
+
 def test_bench_writes_per_stage_medians(pair_dir, tmp_path, capsys):
     out = tmp_path / 'bench.json'
     path = pair_dir / '000000.npz'

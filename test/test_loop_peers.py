@@ -77,6 +77,64 @@ def test_without_ground_truth_a_peer_run_is_only_counted() -> None:
     assert summary['local_maps'] == 4 and 'right' not in summary
 
 
+def test_a_numpy_verdict_of_kiss_slam_scores_as_plain_json() -> None:
+    """KISS-SLAM's overlap test answers a numpy bool: the summary must stay plain JSON."""
+    run = _out_and_back()
+    truth = np.stack(run.truth)
+    exact = np.linalg.inv(truth[150]) @ truth[75]
+    run.proposed = [(1, 2, exact, np.bool_(True)), (0, 2, exact, np.bool_(False))]
+    summary = loop_peers.score_local_map_loops(run)
+    assert summary['closed'] == 1 and type(summary['closed']) is int
+    json.dumps(summary)  # issue 32: 'int64 is not JSON serializable' at the end of a run
+
+
+def test_every_json_of_the_cli_takes_numpy_values(tmp_path: Path) -> None:
+    from mlsemreg_ros.evaluation.reports import write_json
+
+    report = {
+        'closed': np.int64(3),
+        'good': np.bool_(True),
+        'ate': np.float64(0.5),
+        'none': np.float32('nan'),
+        'pose': np.eye(2),
+        'pair': (np.int32(1), Path('a/b')),
+        7: [np.uint8(2)],
+    }
+    path = tmp_path / 'deep' / 'report.json'
+    write_json(path, report)
+    assert json.loads(path.read_text()) == {
+        'closed': 3, 'good': True, 'ate': 0.5, 'none': None, 'pose': [[1.0, 0.0], [0.0, 1.0]],
+        'pair': [1, 'a/b'], '7': [2],
+    }  # fmt: skip
+
+
+@pytest.fixture(scope='module')
+def plain_drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp('plain_drive') / 'sim'
+    assert simulate.main([str(out), '--frames', '6', '--seed', '0', '--quiet']) == 0
+    return out
+
+
+def test_map_build_writes_its_json_with_the_peers_numpy_summaries(
+    plain_drive: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``map build --baseline ... --json``: the peers' summaries hold numpy scalars (issue 32)."""
+    from mlsemreg_ros.evaluation import map_build
+
+    def numpy_peers(*args: object) -> dict:
+        return {'kiss-slam': {'closed': np.int64(2), 'right': np.int64(1), 'ok': np.bool_(1)}}
+
+    monkeypatch.setattr(peer_runs, 'require_peers', lambda names: None)
+    monkeypatch.setattr(map_build, 'compare_loops', numpy_peers)
+    report = tmp_path / 'build.json'
+    args = ['map', 'build', str(plain_drive), str(tmp_path / 'map'), '--quiet', '--json',
+            str(report), '--baseline', 'kiss-slam', '--set', 'keypoints.count=1000']  # fmt: skip
+    assert cli.main(args) == 0
+    written = json.loads(report.read_text())
+    assert written['baselines'] == {'kiss-slam': {'closed': 2, 'right': 1, 'ok': True}}
+    assert written['scans'] == 6
+
+
 @pytest.fixture(scope='module')
 def drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
     missing = peer_runs.missing_peers(list(loop_peers.LOOP_PEERS))

@@ -247,6 +247,46 @@ def test_the_wheel_prior_is_the_interpolated_relative_pose_in_the_sensor_frame()
     assert translation < 2e-4 and rotation < 1e-3
 
 
+def test_a_wheel_stream_with_a_hole_is_not_interpolated_across_it() -> None:
+    """
+    Issue 34's unreproduced wrong pose: the last stream's messages still buffered.
+
+    The fuzz's previous case ended 20 m away and 14 deg turned; this case's wheel messages
+    until 0.8 s after the keyframe were lost. Interpolating across the 3.8 s hole put the
+    keyframe's wheel pose 4.5 m and 3 deg off the truth (a prior the guard refused, while the
+    registration it seeded was kept); now such a stream does not cover the interval.
+    """
+    previous_end = _planar(-20.5, 2.4, np.radians(14.0))
+    old = np.arange(-5.05, -2.95, 0.02)  # the previous case, standing still at its end
+    new = np.arange(0.8, 2.05, 0.02)  # this case: standing at the origin until 1 s
+    truth = _planar(-20.6, 2.6, np.radians(12.0))
+    moving = np.clip(new - 1.0, 0.0, 1.0)  # then driven to the truth at 2 s
+    poses = [previous_end] * len(old) + [
+        _planar(-20.6 * s, 2.6 * s, np.radians(12 * s)) for s in moving
+    ]
+    times = np.concatenate([old, new])
+    model = PriorMotionModel(model_config('wheel'))
+    model.add_wheel(T0_NS + np.round(times * 1e9).astype(np.int64), np.array(poses))
+    model.update(np.eye(4), T0_NS)  # the keyframe
+    assert model.relative_prior(T0_NS + 2 * 10**9) is None  # the hole: no prior
+    model.cfg.max_sample_gap = 0.0  # as before: interpolated across 3.8 s
+    prior = model.relative_prior(T0_NS + 2 * 10**9)
+    assert _errors(prior.T, truth)[0] > 2.0
+    model.cfg.max_sample_gap = 5.0  # a hole shorter than the bound is interpolated
+    assert model.relative_prior(T0_NS + 2 * 10**9) is not None
+
+
+def test_the_sample_buffer_covers_only_without_a_longer_hole() -> None:
+    buffer = SampleBuffer((1,))
+    stamps = np.array([0, 10, 20, 60, 70, 80])
+    buffer.add(stamps, np.zeros((6, 1)))
+    assert buffer.covers(5, 75, 0) and buffer.covers(5, 75, 0, max_gap_ns=40)
+    assert not buffer.covers(5, 75, 0, max_gap_ns=39)  # 20 -> 60 lies inside
+    assert buffer.covers(62, 75, 0, max_gap_ns=10)  # the hole is before the interval
+    assert buffer.covers(0, 15, 0, max_gap_ns=10)
+    assert not buffer.covers(15, 62, 0, max_gap_ns=30)  # bracketed by 10 and 70
+
+
 def test_the_wheel_scale_error_is_learned_from_the_accepted_poses() -> None:
     wheel_times = np.arange(0.0, 8.0, 0.02)
     true = _circle(wheel_times, speed=10.0, rate=0.1)

@@ -191,3 +191,13 @@ def test_better_place_is_a_rival_with_a_lower_residual() -> None:
     verdict = NearMiss('near miss', home, [same, deeper, deepest_but_poor, worse])
     assert better_place(verdict, cfg) is deeper
     assert better_place(NearMiss('near miss', home, [worse, same]), cfg) is None
+
+
+@pytest.mark.parametrize('dx', [SPACING, -SPACING])
+def test_downsampled_starts_still_refuse_the_fence_near_miss(pair, dx):
+    """``near_miss.pair_downsampled``: starts on the downsampled source find the other basin."""
+    config = RegistrationConfig().replace({'near_miss.pair_downsampled': True})
+    context = register_from(pair, shifted(dx), config)
+    assert context.doubts and 'two basins' in context.diagnostics['near_miss_refusal']
+    kept = register_from(pair, shifted(0.1), config)
+    assert not kept.doubts and error(kept.transform)[0] < 0.01

@@ -100,9 +100,11 @@ def test_the_default_stages_run_in_order_and_each_is_timed_by_the_loop(prepared)
         'full_graph',
         'polish',
         'covisibility',
+        'unlabeled_fallback',
         'level_check',
         'fine',
         'near_miss',
+        'covisible_accept',
     ]
     result = registration.register(source, target)
     assert result.success, result.message

@@ -19,7 +19,8 @@ A hand turns its sensor back: the deskew assumed the last poses' -34 deg/s, the 
 at +50 deg/s, and the rigid alignment of the bent scan landed 4 deg off. From the deskew's
 twist alone the sweep alignment stays in the wrong basin (this is how the handheld VLP-16
 drive at stride 3 published poses 8 deg off); the twist the pose implies (+40 deg/s here)
-brings it back. A car's poses agree with its deskew, and it gets no second start.
+brings it back. A car's poses agree with its deskew, and it gets no second start unless the
+twists differ by more than the pairing distance.
 """
 
 from __future__ import annotations
@@ -77,6 +78,37 @@ def test_a_car_gets_no_second_start(street, monkeypatch) -> None:  # noqa: F811
         raw, times, gaussians, T_true, truth, _yaw_rate(5.5, speed=10.1), SweepAlignmentConfig()
     )
     assert len(calls) == 1
+
+
+@pytest.mark.parametrize(('implied_deg_s', 'starts'), [(15.0, 1), (20.0, 1), (30.0, 2)])
+def test_a_second_start_only_beyond_the_pairing_distance(
+    street,  # noqa: F811
+    monkeypatch,
+    implied_deg_s,
+    starts,
+) -> None:
+    # a car's implied yaw rate, off by 10-15 deg/s of pose noise, bends the sweep by
+    # 0.6-0.9 m (over min_change, within max_distance): no second start; 30 deg/s: 1.5 m
+    world, gaussians = street
+    truth = _yaw_rate(5.0, speed=10.0)
+    T_true = _pose(2.0, 0.5, 10.0)
+    raw, times = _sweep(world, T_true, truth)
+    config = SweepAlignmentConfig()
+    implied = _yaw_rate(implied_deg_s, speed=10.0)
+    bend = sweep_starts.bend_m(raw, times, implied, truth)
+    assert config.min_change < bend
+    assert (bend > config.max_distance) == (starts == 2)
+    assert sweep_starts.second_start_bend(config) == config.max_distance
+    calls = []
+    original = sweep_alignment.align_sweep
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(sweep_starts, 'align_sweep', counted)
+    sweep_starts.align_from_starts(raw, times, gaussians, T_true, truth, implied, config)
+    assert len(calls) == starts
 
 
 def test_the_implied_twist_is_the_motion_since_the_last_accepted_pose() -> None:

@@ -180,6 +180,26 @@ class MotionPriorConfig:
         low=0.0,
         high=180.0,
     )
+    gyro_rescue: float = param(
+        1.0,
+        'A scan rejected with no prediction (the second after a start: the IMU prior has no '
+        'velocity yet) is accepted from its refused global pose when the map trusts that '
+        "pose's refinement and the refinement is within this of the gyro rotation over the "
+        'interval (the refused pose itself within 4 times this; core/odometry/gyro_rescue.py; '
+        '0: off).',
+        unit='deg',
+        low=0.0,
+        high=30.0,
+    )
+    max_sample_gap: float = param(
+        0.5,
+        'A prior whose messages leave a hole longer than this within the interval (lost '
+        'messages, a stream that stopped and went on) does not cover it: nothing is '
+        'interpolated across the hole (0: no such check).',
+        unit='s',
+        low=0.0,
+        high=3600.0,
+    )
     buffer: float = param(
         30.0,
         'Prior messages older than this before the last accepted scan are dropped.',
@@ -238,13 +258,24 @@ class SampleBuffer:
         if first:
             self.stamps, self.values = self.stamps[first:], self.values[first:]
 
-    def covers(self, t0_ns: int, t1_ns: int, slack_ns: int) -> bool:
-        """Tell whether the samples reach ``[t0, t1]`` within ``slack_ns`` at both ends."""
-        return bool(
-            self.stamps.size >= 2
-            and self.stamps[0] <= t0_ns + slack_ns
-            and self.stamps[-1] >= t1_ns - slack_ns
-        )
+    def covers(self, t0_ns: int, t1_ns: int, slack_ns: int, max_gap_ns: int = 0) -> bool:
+        """
+        Tell whether the samples reach ``[t0, t1]`` within ``slack_ns`` at both ends.
+
+        With ``max_gap_ns`` > 0 they must also have no hole longer than that over the
+        interval (between the samples that bracket it): lost messages, or a stream that
+        stopped and went on, are not interpolated across.
+        """
+        stamps = self.stamps
+        if not (
+            stamps.size >= 2 and stamps[0] <= t0_ns + slack_ns and stamps[-1] >= t1_ns - slack_ns
+        ):
+            return False
+        if max_gap_ns <= 0:
+            return True
+        first = max(int(np.searchsorted(stamps, t0_ns, side='right')) - 1, 0)
+        end = min(int(np.searchsorted(stamps, t1_ns, side='left')), stamps.size - 1) + 1
+        return end - first < 2 or int(np.diff(stamps[first:end]).max()) <= max_gap_ns
 
     def clear(self) -> None:
         """Drop every sample."""

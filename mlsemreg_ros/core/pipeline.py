@@ -48,10 +48,11 @@ from mlsemreg_ros.core.stages.bev_search import BevSearchStage
 from mlsemreg_ros.core.stages.confidence import ConfidenceStage, consider
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
 from mlsemreg_ros.core.stages.covisibility import CovisibilityStage
+from mlsemreg_ros.core.stages.covisible_acceptance import CovisibleAcceptanceStage
 from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.far_search import FarSearchStage
 from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
-from mlsemreg_ros.core.stages.label_quality import LabelQualityStage
+from mlsemreg_ros.core.stages.label_quality import LabelQualityStage, UnlabeledFallbackStage
 from mlsemreg_ros.core.stages.levelling import LevelCheckStage
 from mlsemreg_ros.core.stages.matching import MatchingStage
 from mlsemreg_ros.core.stages.near_miss import NearMissStage
@@ -111,9 +112,11 @@ def default_stages() -> list[Stage]:
         FullGraphStage(),  # 6. SC2-PCR on the full correspondence graph,
         PolishStage(),  # 6. the pool's best candidates polished on the dense scans
         CovisibilityStage(),  # 6b. still refused: the best overlap where both scans see
+        UnlabeledFallbackStage(),  # 6b. poorer labels, refused: the unlabeled attempt's pose
         LevelCheckStage(),  # 6c. a tilt the two ground fits do not allow is refused
         FineAlignmentStage(),  # 7. GICP of the pair from the chosen pose (refine=True)
         NearMissStage(),  # 8. accepted and refined: no second basin from perturbed starts
+        CovisibleAcceptanceStage(),  # 9. refused, refined: accepted where both scans see
     ]
 
 

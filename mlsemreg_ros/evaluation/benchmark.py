@@ -40,6 +40,8 @@ known motion (:func:`generated_pair`).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
 import statistics
 import sys
 import time
@@ -198,4 +200,100 @@ def timing_table(rows: dict[str, dict[str, Any]]) -> ResultTable:
         ),
         lines,
         left_columns=0,
+    )
+
+
+class BenchError(ValueError):
+    """The pair cannot be benchmarked (unreadable, or without keypoints)."""
+
+
+@dataclass(frozen=True)
+class BenchOptions:
+    """Which pair, how many keypoints, how many runs (``mlsemreg bench``)."""
+
+    pair: Path | None = None  # pair file; None: the first KITTI dev pair, else generated
+    synthetic: bool = False  # the generated scene even when real pairs are present
+    repeats: int = 5  # runs per size (median)
+    keypoints: tuple[int, ...] = KEYPOINT_COUNTS
+    progress: bool = True
+
+
+@dataclass
+class BenchReport:
+    """Per keypoint count, the per-stage medians of one pair; the ``--json`` report."""
+
+    source_name: str
+    points: tuple[int, int]  # of the source and the target cloud
+    available: int  # keypoints per cloud the pair holds
+    repeats: int
+    rows: dict[str, dict[str, Any]]
+    config: dict[str, Any]
+
+    def as_dict(self) -> dict[str, Any]:
+        """The JSON of ``--json``: the pair, the configuration, the rows, the machine."""
+        import os
+
+        import numpy
+
+        return {
+            'pair': self.source_name,
+            'config': self.config,
+            'keypoints': self.rows,
+            'machine': {
+                'cpu_count': os.cpu_count(),
+                'numpy': numpy.__version__,
+                'python': sys.version.split()[0],
+                'load_average': list(os.getloadavg()),
+            },
+        }
+
+
+def benchmark_pair(options: BenchOptions, core: Any) -> BenchReport:
+    """Load (or generate) the pair and time the registration core at every keypoint count."""
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.datasets.pairs import first_dev_pair, load_pair
+    from mlsemreg_ros.evaluation import tables
+
+    counts = options.keypoints
+    path = None if options.synthetic else (options.pair or first_dev_pair())
+    if path is not None:
+        try:
+            pair = load_pair(path)
+        except (OSError, ValueError) as error:
+            raise BenchError(f'cannot read {path}: {error}') from None
+        if pair.kpts_src is None or pair.kpts_dst is None:
+            raise BenchError(f'{path} has no keypoints (kpts_src/kpts_dst)')
+        source_name = str(path)
+    else:
+        pair = generated_pair(keypoints=max(counts))
+        source_name = 'generated street scene'
+    available = min(len(pair.kpts_src), len(pair.kpts_dst))
+    if max(counts) > available:
+        tables.console(stderr=True).print(
+            f'note: the pair has {available} keypoints per cloud; larger counts use all of them',
+            markup=False,
+        )
+    rows = bench_pair(Registration(core), pair, counts, options.repeats, options.progress)
+    points = (len(pair.pts_src), len(pair.pts_dst))
+    return BenchReport(source_name, points, available, options.repeats, rows, core.to_dict())
+
+
+def print_benchmark(report: BenchReport) -> None:
+    """Print the pair, the machine's load, the time table and what its columns hold."""
+    import os
+
+    from mlsemreg_ros.evaluation import tables
+
+    load = ', '.join(f'{x:.1f}' for x in os.getloadavg())
+    tables.print_text(
+        f'pair: {report.source_name} ({report.points[0]} / {report.points[1]} points); median '
+        f'of {report.repeats} runs, ms per pair (both clouds); {os.cpu_count()} CPUs, load '
+        f'average {load} (other work makes timings noisy)'
+    )
+    tables.print_table(timing_table(report.rows))
+    tables.print_text(
+        'Total-1 = Local-SS + BMR-SS + GM+MM (paper); BMR-SS includes landmark extraction; '
+        'total = wall time of prepare x2 + register (keypoint lookup, FPFH, signatures, '
+        'matching, estimator); total 2 threads = the same with both clouds prepared '
+        'concurrently (Registration.prepare_scans).'
     )

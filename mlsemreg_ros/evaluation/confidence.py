@@ -186,6 +186,8 @@ def measure(
             **{k: d[f'confidence_{k}'] for k in fields if f'confidence_{k}' in d}
         )
         reason = confidence.refusal(evidence, config.confidence, config.estimator.min_inliers)
+        if d.get('covisible_accepted'):  # accepted where both scans see (covisible_acceptance)
+            reason = ''
         if case.kind.startswith('chain-') and case.kind != 'chain-far':
             rows.append(_slide_row(registration, case, result))
         rows.append(

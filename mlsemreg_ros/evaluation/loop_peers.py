@@ -40,6 +40,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Iterator
 import contextlib
+import ctypes
 from dataclasses import dataclass, field
 import io
 import os
@@ -111,6 +112,7 @@ def _silenced_stdout() -> Iterator[None]:
                 yield
     finally:
         sys.stdout.flush()
+        ctypes.CDLL(None).fflush(None)  # C stdio's buffer too, or it prints after the restore
         os.dup2(saved, 1)
         os.close(saved)
 
@@ -140,7 +142,8 @@ def _run_kiss_slam(scans: Iterable[Scan], split_m: float) -> LocalMapLoops:
     def recorded(query_id: int, points: Any, graph: Any) -> Any:
         good, reference, query, T_query_reference = compute(query_id, points, graph)
         if reference >= 0:  # MapClosures detected it; good: the overlap check agreed
-            run.proposed.append((int(reference), int(query), np.array(T_query_reference), good))
+            closed = bool(good)  # (a numpy bool from its overlap test)
+            run.proposed.append((int(reference), int(query), np.array(T_query_reference), closed))
         return good, reference, query, T_query_reference
 
     slam.closer.compute = recorded
@@ -256,7 +259,7 @@ def score_local_map_loops(run: LocalMapLoops) -> dict[str, Any]:
         'scans': len(run.truth),
         'local_maps': len(run.starts),
         'proposed': len(run.proposed),
-        'closed': sum(good for *_, good in run.proposed),
+        'closed': sum(bool(good) for *_, good in run.proposed),
         'time_s': run.seconds,
     }
     if len(posed) < len(run.truth) or len(posed) < 2:

@@ -26,9 +26,71 @@ edge's error (:func:`loop_edge`) against the keyframes that revisit a place
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 import sys
 from typing import Any
+
+
+class MapBuildError(RuntimeError):
+    """The bag cannot be read, it gave no keyframe, or the map cannot be written."""
+
+
+@dataclass(frozen=True)
+class MapBuildOptions:
+    """How ``mlsemreg map build`` builds a map folder (docs/maps.md)."""
+
+    poses: str = 'odometry'  # the keyframe poses: 'odometry' (loop closure) or 'ground-truth'
+    max_frames: int | None = None  # read at most this many scans
+    frame_id: str = 'map'  # the map's frame
+    peers: tuple[str, ...] = ()  # loop-closure peers run on the same scans (loop_peers.py)
+    peer_local_map: float = 100.0  # the peers' local-map size, m
+    progress: bool = False
+
+
+def build_map_folder(bag: Path, out: Path, options: MapBuildOptions, core: Any) -> dict:
+    """
+    Build the map of ``bag`` into the folder ``out``; return its summary.
+
+    Prints what was built (:func:`summary_lines`) and, with peers, the loops of all side by
+    side; the summary then holds their summaries under ``baselines``.
+    """
+    import time
+
+    from mlsemreg_ros.core.maps.map_io import MapError, save_map
+    from mlsemreg_ros.datasets.factory import open_scan_source
+    from mlsemreg_ros.datasets.source import SourceError
+    from mlsemreg_ros.evaluation.tables import print_text
+
+    try:
+        source = open_scan_source(bag)
+    except (SourceError, OSError, ValueError) as error:
+        raise MapBuildError(f'cannot read {bag}: {error}') from None
+    tic = time.perf_counter()
+    try:
+        built = build_map(source, core, options.poses, options.max_frames, options.progress)
+    finally:
+        source.close()
+    seconds = time.perf_counter() - tic
+    built['summary']['time_s'] = seconds
+    if len(built['mapper'].store) == 0:
+        raise MapBuildError(
+            f'{bag}: no keyframe (no labeled scan, or none with ground truth for '
+            '--poses ground-truth)'
+        )
+    try:
+        save_map(out, built['mapper'].store, options.frame_id, core)
+    except MapError as error:
+        raise MapBuildError(str(error)) from None
+    summary = built['summary']
+    for line in summary_lines(summary, out, options.poses):
+        print_text(line)
+    if options.peers:
+        summary['baselines'] = compare_loops(
+            bag, list(options.peers), options.max_frames, core, summary, seconds,
+            options.peer_local_map,
+        )  # fmt: skip
+    return summary
 
 
 def compare_loops(

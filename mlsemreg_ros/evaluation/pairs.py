@@ -118,6 +118,13 @@ def verification_summary(diagnostics: dict[str, Any]) -> dict[str, Any] | None:
     }
 
 
+def covisible_summary(diagnostics: dict[str, Any]) -> dict[str, Any]:
+    """Collect the refused path's covisible choice, refinement and acceptance (``covisible_*``)."""
+    keys = ('chosen_origin', 'fine_refused', 'fine_refused_kept', 'level_check_refused')
+    keys += ('degeneracy_ratio', 'fine_inlier_fraction', 'near_miss_refusal')
+    return {k: v for k, v in diagnostics.items() if k.startswith('covisible_') or k in keys}
+
+
 def summarize_pairs(metrics: list[Any], rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Summarize the pairs as the paper does, plus the mean time of every stage (ms/pair)."""
     from mlsemreg_ros.core.metrics import summarize
@@ -193,6 +200,7 @@ def evaluate_directory(
             estimator_inliers=result.num_inliers,
             message=result.message,
             verification=verification_summary(result.diagnostics),
+            covisible=covisible_summary(result.diagnostics),
         )
         rows.append(row)
     return {

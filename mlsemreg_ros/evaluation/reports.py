@@ -52,22 +52,33 @@ def effective_config(config: Settings) -> dict[str, Any]:
     return {NODE_NAME: {'ros__parameters': config.to_dict()}}
 
 
-def write_json(path: Path, report: dict[str, Any]) -> None:
-    """Write ``report`` as strict JSON (NaN/inf become null), creating parent folders."""
+def json_ready(value: Any) -> Any:
+    """
+    Return ``value`` as plain JSON data: the one encoder of every ``--json`` of the CLI.
 
-    def clean(value: Any) -> Any:
-        if isinstance(value, dict):
-            return {str(k): clean(v) for k, v in value.items()}
-        if isinstance(value, (list, tuple)):
-            return [clean(v) for v in value]
-        if hasattr(value, 'item') and not isinstance(value, (str, bytes)):
-            value = value.item()  # numpy scalar
-        if isinstance(value, float) and not math.isfinite(value):
-            return None
-        return value
+    Dicts (keys as strings), lists and tuples recurse; NumPy arrays become lists and NumPy
+    scalars Python ones (a numpy integer or bool from a peer's summary is no crash); paths
+    become strings; NaN and inf become ``None`` (strict JSON).
+    """
+    if isinstance(value, dict):
+        return {str(k): json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return json_ready(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
 
+
+def write_json(path: Path, report: Any) -> None:
+    """Write ``report`` as strict JSON (:func:`json_ready`), creating parent folders."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(clean(report), indent=2, allow_nan=False) + '\n')
+    path.write_text(json.dumps(json_ready(report), indent=2, allow_nan=False) + '\n')
 
 
 def write_results(

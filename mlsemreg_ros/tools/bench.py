@@ -22,9 +22,7 @@ data, a generated street scene with a known motion.
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
-import sys
 from typing import Annotated
 
 from mlsemreg_ros.core.config import metadata_errors, RegistrationConfig
@@ -63,31 +61,35 @@ def keypoint_counts(text: str) -> tuple[int, ...]:
     return counts
 
 
+PairOption = Annotated[
+    Path | None,
+    typer.Option(
+        '--pair',
+        metavar='PATH',
+        exists=True,
+        dir_okay=False,
+        help='pair file (.npz); default: the first KITTI dev pair if present, else a '
+        'generated scene',
+        rich_help_panel=DATA,
+    ),
+]
+SyntheticOption = Annotated[
+    bool,
+    typer.Option(
+        '--synthetic',
+        help='use the generated scene even when real pairs are present',
+        rich_help_panel=DATA,
+    ),
+]
+RepeatsOption = Annotated[int, typer.Option(min=1, help='runs per size (median)')]
+KeypointsOption = Annotated[str, typer.Option(help='comma-separated keypoint counts')]
+
+
 def bench(
-    pair_path: Annotated[
-        Path | None,
-        typer.Option(
-            '--pair',
-            metavar='PATH',
-            exists=True,
-            dir_okay=False,
-            help='pair file (.npz); default: the first KITTI dev pair if present, else a '
-            'generated scene',
-            rich_help_panel=DATA,
-        ),
-    ] = None,
-    synthetic: Annotated[
-        bool,
-        typer.Option(
-            '--synthetic',
-            help='use the generated scene even when real pairs are present',
-            rich_help_panel=DATA,
-        ),
-    ] = False,
-    repeats: Annotated[int, typer.Option(min=1, help='runs per size (median)')] = 5,
-    keypoints: Annotated[
-        str, typer.Option(help='comma-separated keypoint counts')
-    ] = '250,500,1000,2500,5000',
+    pair_path: PairOption = None,
+    synthetic: SyntheticOption = False,
+    repeats: RepeatsOption = 5,
+    keypoints: KeypointsOption = '250,500,1000,2500,5000',
     config: ConfigOption = None,
     overrides: SetOption = None,
     json_path: JsonOption = None,
@@ -95,62 +97,20 @@ def bench(
     no_progress: NoProgressOption = False,
 ) -> int:
     """Per-stage median times of the registration core (alias mlsemreg-bench)."""
-    from mlsemreg_ros.core.pipeline import Registration
-    from mlsemreg_ros.datasets.pairs import first_dev_pair, load_pair
-    from mlsemreg_ros.evaluation import tables
-    from mlsemreg_ros.evaluation.benchmark import bench_pair, generated_pair, timing_table
+    from mlsemreg_ros.evaluation import benchmark, tables
     from mlsemreg_ros.evaluation.reports import write_json
-    import numpy
 
     counts = keypoint_counts(keypoints)
     (core,) = settings((RegistrationConfig,), config, overrides)
-    path = None if synthetic else (pair_path or first_dev_pair())
-    if path is not None:
-        try:
-            pair = load_pair(path)
-        except (OSError, ValueError) as error:
-            raise CommandError(f'cannot read {path}: {error}') from None
-        if pair.kpts_src is None or pair.kpts_dst is None:
-            raise CommandError(f'{path} has no keypoints (kpts_src/kpts_dst)')
-        source_name = str(path)
-    else:
-        pair = generated_pair(keypoints=max(counts))
-        source_name = 'generated street scene'
-    available = min(len(pair.kpts_src), len(pair.kpts_dst))
-    if max(counts) > available:
-        tables.console(stderr=True).print(
-            f'note: the pair has {available} keypoints per cloud; larger counts use all of them',
-            markup=False,
-        )
-    rows = bench_pair(
-        Registration(core), pair, counts, repeats, progress=not (quiet or no_progress)
-    )
-    load = ', '.join(f'{x:.1f}' for x in os.getloadavg())
-    tables.print_text(
-        f'pair: {source_name} ({len(pair.pts_src)} / {len(pair.pts_dst)} points); median of '
-        f'{repeats} runs, ms per pair (both clouds); {os.cpu_count()} CPUs, load average '
-        f'{load} (other work makes timings noisy)'
-    )
-    tables.print_table(timing_table(rows))
-    tables.print_text(
-        'Total-1 = Local-SS + BMR-SS + GM+MM (paper); BMR-SS includes landmark extraction; '
-        'total = wall time of prepare x2 + register (keypoint lookup, FPFH, signatures, '
-        'matching, estimator); total 2 threads = the same with both clouds prepared '
-        'concurrently (Registration.prepare_scans).'
-    )
+    progress = not (quiet or no_progress)
+    options = benchmark.BenchOptions(pair_path, synthetic, repeats, counts, progress)
+    try:
+        report = benchmark.benchmark_pair(options, core)
+    except benchmark.BenchError as error:
+        raise CommandError(str(error)) from None
+    benchmark.print_benchmark(report)
     if json_path is not None:
-        report = {
-            'pair': source_name,
-            'config': core.to_dict(),
-            'keypoints': rows,
-            'machine': {
-                'cpu_count': os.cpu_count(),
-                'numpy': numpy.__version__,
-                'python': sys.version.split()[0],
-                'load_average': list(os.getloadavg()),
-            },
-        }
-        write_json(json_path, report)
+        write_json(json_path, report.as_dict())
         tables.print_text(f'wrote {json_path}')
     return 0
 

@@ -26,10 +26,11 @@ What every command of the ``mlsemreg`` CLI shares: options, settings, errors, th
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+import dataclasses
 from pathlib import Path
 import shutil
 import sys
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, TypeVar
 
 from mlsemreg_ros.core.config import RegistrationConfig
 import typer
@@ -160,6 +161,31 @@ def settings(
         return load_settings(kinds, config, list(overrides or []))
     except (ConfigError, OSError) as error:
         raise CommandError(f'configuration error: {error}', 2) from None
+
+
+OptionsT = TypeVar('OptionsT')
+
+
+def options_from(context: typer.Context, kind: type[OptionsT], **values: Any) -> OptionsT:
+    """
+    Build the options dataclass ``kind`` from the command's parsed options of its field names.
+
+    A command then declares its options once (its signature) and hands them to the library
+    function as one typed object; ``values`` set or replace fields (converted values).
+    """
+    names = {field.name for field in dataclasses.fields(kind)}  # type: ignore[arg-type]
+    given = {name: value for name, value in context.params.items() if name in names}
+    return kind(**{**given, **values})
+
+
+def require_peers(names: Sequence[str]) -> None:
+    """Stop with exit 2 and the install line when a ``--baseline`` peer is not installed."""
+    from mlsemreg_ros.evaluation import peer_runs
+
+    try:
+        peer_runs.require_peers(list(names))
+    except peer_runs.PeerUnavailable as error:
+        raise CommandError(str(error), 2) from None
 
 
 def replace_output(path: Path, force: bool) -> None:

@@ -37,9 +37,11 @@ from mlsemreg_ros.tools.common import (
     DATA,
     invocation_argv,
     LabelsOption,
+    options_from,
     OUTPUT,
     QuietOption,
     replay_options,
+    require_peers,
     SetOption,
     settings,
     with_labels,
@@ -200,37 +202,19 @@ def eval_bag(
         NoScansRead,
         print_bag_evaluation,
     )
-    from mlsemreg_ros.evaluation.peer_runs import PeerUnavailable, require_peers
+    from mlsemreg_ros.evaluation.peer_runs import PeerUnavailable
     from mlsemreg_ros.evaluation.settings import EvaluationSettings
 
     peer_names = tuple(peer.value for peer in baseline or [])
-    try:
-        require_peers(list(peer_names))
-    except PeerUnavailable as error:
-        raise CommandError(str(error), 2) from None
+    require_peers(peer_names)
     core, evaluation = settings(
         (RegistrationConfig, EvaluationSettings), config, with_labels(overrides, labels)
     )
-    topics = BagTopics(
-        label_field,
-        points_topic=points_topic,
-        gt_topic=gt_topic,
-        imu_topic=imu_topic,
-        wheel_topic=wheel_topic,
-    )
-    options = BagEvalOptions(
-        stride=stride,
-        max_frames=max_frames,
-        gt_poses=gt_poses,
-        gt_calib=gt_calib,
-        plot_frame=plot_frame,
-        plots=not no_plots,
-        baselines=peer_names,
-        drop_scans=drop_scans,
-        drop_seed=drop_seed,
-        progress=not quiet,
+    topics = options_from(context, BagTopics)
+    options = options_from(
+        context, BagEvalOptions, plots=not no_plots, baselines=peer_names, progress=not quiet,
         argv=tuple(invocation_argv(context)),
-    )
+    )  # fmt: skip
     try:
         result = evaluate_bag(
             bag, core, evaluation.evaluation, topics, options, output, results_root

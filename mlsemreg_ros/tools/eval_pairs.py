@@ -37,6 +37,7 @@ from mlsemreg_ros.tools.common import (
     JsonOption,
     LabelsOption,
     NoProgressOption,
+    options_from,
     PARAMETERS,
     QuietOption,
     SetOption,
@@ -155,6 +156,7 @@ NoiseSeedOption = Annotated[int, typer.Option(min=0, help='seed of --label-noise
 
 
 def eval_pairs(
+    context: typer.Context,
     directory: DirectoryArgument,
     descriptor: DescriptorOption = 'gedi',
     matcher: MatcherOption = None,
@@ -175,10 +177,10 @@ def eval_pairs(
     """Register every pair file of DIR and print the paper metrics (alias mlsemreg-eval-pairs)."""
     from mlsemreg_ros.core.config import ConfigError
     from mlsemreg_ros.evaluation import tables
-    from mlsemreg_ros.evaluation.baselines import BaselineUnavailable, run_baselines
-    from mlsemreg_ros.evaluation.label_noise import LabelNoise, LabelNoiseError
-    from mlsemreg_ros.evaluation.pair_report import print_comparison, print_pair_report
-    from mlsemreg_ros.evaluation.pairs import EvalError, evaluate_directory
+    from mlsemreg_ros.evaluation.baselines import BaselineUnavailable
+    from mlsemreg_ros.evaluation.label_noise import LabelNoiseError
+    from mlsemreg_ros.evaluation.pair_run import evaluate_pairs, PairEvalOptions
+    from mlsemreg_ros.evaluation.pairs import EvalError
     from mlsemreg_ros.evaluation.reports import write_json
 
     flags = _flags(matcher, no_semantic, estimator, no_refine, no_verification)
@@ -186,32 +188,14 @@ def eval_pairs(
         core, evaluation = build_settings(config, flags, with_labels(overrides, labels))
     except (ConfigError, OSError) as error:
         raise CommandError(f'configuration error: {error}', 2) from None
+    peers, progress = tuple(b.value for b in baseline or []), not (quiet or no_progress)
+    options = options_from(context, PairEvalOptions, baselines=peers, progress=progress)
     try:
-        noise = LabelNoise.parse(label_noise)
+        report = evaluate_pairs(directory, options, core, evaluation.evaluation)
     except LabelNoiseError as error:
         raise CommandError(f'--label-noise: {error}', 2) from None
-    bounds, progress = evaluation.evaluation, not (quiet or no_progress)
-    try:
-        report = evaluate_directory(
-            directory,
-            descriptor,
-            core,
-            bounds,
-            progress=progress,
-            label_noise=noise,
-            noise_seed=noise_seed,
-        )
-    except EvalError as error:
+    except (BaselineUnavailable, EvalError) as error:
         raise CommandError(str(error)) from None
-    label = print_pair_report(report, directory, descriptor, core, noise)
-    if baseline:
-        try:
-            report['baselines'] = run_baselines(
-                directory, [b.value for b in baseline], core, bounds, progress=progress
-            )
-        except (BaselineUnavailable, EvalError) as error:
-            raise CommandError(str(error)) from None
-        print_comparison(label, report)
     if json_path is not None:
         write_json(json_path, report)
         tables.print_text(f'wrote {json_path}')

@@ -34,70 +34,54 @@ HELP = (
 )
 
 
+DirectoryArgument = Annotated[
+    Path,
+    typer.Argument(metavar='DIR', help='folder of pair files', exists=True, file_okay=False),
+]
+OutOption = Annotated[Path, typer.Option(help='results folder')]
+LevelsOption = Annotated[
+    list[str] | None, typer.Option('--level', help='noise levels (default: the sweep)')
+]
+DescriptorsOption = Annotated[
+    list[str] | None, typer.Option('--descriptor', help='gedi and/or fpfh (default both)')
+]
+NoiseSeedOption = Annotated[int, typer.Option(min=0, help='seed of the label noise')]
+
+
 def label_noise_sweep(
-    directory: Annotated[
-        Path,
-        typer.Argument(metavar='DIR', help='folder of pair files', exists=True, file_okay=False),
-    ],
-    out: Annotated[Path, typer.Option(help='results folder')] = Path('results/label_noise'),
-    levels: Annotated[
-        list[str] | None, typer.Option('--level', help='noise levels (default: the sweep)')
-    ] = None,
-    descriptors: Annotated[
-        list[str] | None, typer.Option('--descriptor', help='gedi and/or fpfh (default both)')
-    ] = None,
-    noise_seed: Annotated[int, typer.Option(min=0, help='seed of the label noise')] = 0,
+    directory: DirectoryArgument,
+    out: OutOption = Path('results/label_noise'),
+    levels: LevelsOption = None,
+    descriptors: DescriptorsOption = None,
+    noise_seed: NoiseSeedOption = 0,
     config: ConfigOption = None,
     overrides: SetOption = None,
 ) -> int:
     """Sweep the label noise (alias mlsemreg-label-noise-sweep)."""
     from mlsemreg_ros.core.config import ConfigError
     from mlsemreg_ros.evaluation import tables
-    from mlsemreg_ros.evaluation.label_noise import (
-        LabelNoise,
-        LabelNoiseError,
-        plot_sweep,
-        SWEEP,
-        sweep_row,
-    )
-    from mlsemreg_ros.evaluation.pairs import EvalError, evaluate_directory
+    from mlsemreg_ros.evaluation.label_noise import LabelNoiseError, plot_sweep, SWEEP
+    from mlsemreg_ros.evaluation.pair_run import sweep_label_noise
+    from mlsemreg_ros.evaluation.pairs import EvalError
     from mlsemreg_ros.evaluation.reports import write_json
     from mlsemreg_ros.tools.eval_pairs import build_settings
 
-    try:
-        core, evaluation = build_settings(config, {}, list(overrides or []))
-        noises = [(level, LabelNoise.parse(level)) for level in (levels or SWEEP)]
-    except (ConfigError, LabelNoiseError, OSError) as error:
-        raise CommandError(f'configuration error: {error}', 2) from None
-    rows, reports = [], {}
-    for descriptor in descriptors or ('gedi', 'fpfh'):
+    chosen = tuple(descriptors or ('gedi', 'fpfh'))
+    for descriptor in chosen:
         if descriptor not in ('gedi', 'fpfh'):
             raise CommandError(f'--descriptor {descriptor!r}: gedi or fpfh', 2)
-        for level, noise in noises:
-            try:
-                report = evaluate_directory(
-                    directory,
-                    descriptor,
-                    core,
-                    evaluation.evaluation,
-                    progress=False,
-                    label_noise=noise,
-                    noise_seed=noise_seed,
-                )
-            except EvalError as error:
-                raise CommandError(str(error)) from None
-            reports[f'{descriptor} {level}'] = report
-            row = sweep_row(descriptor, level, report)
-            rows.append(row)
-            right = round(row['rr_pct'] * row['pairs'] / 100)
-            tables.print_text(
-                f'{descriptor:5} {level:12} RR {row["rr_pct"]:5.1f} %  accepted '
-                f'{row["accepted_right"]}/{right} right, {row["wrong_accepted"]} wrong  '
-                f'IR {row["ir_pct"]:.2f} %'
-            )
+    try:
+        core, evaluation = build_settings(config, {}, list(overrides or []))
+        sweep = sweep_label_noise(
+            directory, chosen, tuple(levels or SWEEP), core, evaluation.evaluation, noise_seed
+        )
+    except (ConfigError, LabelNoiseError, OSError) as error:
+        raise CommandError(f'configuration error: {error}', 2) from None
+    except EvalError as error:
+        raise CommandError(str(error)) from None
     out.mkdir(parents=True, exist_ok=True)
-    write_json(out / 'sweep.json', {'rows': rows, 'reports': reports})
-    plot_sweep(rows, out / 'sweep.png')
+    write_json(out / 'sweep.json', sweep)
+    plot_sweep(sweep['rows'], out / 'sweep.png')
     tables.print_text(f'wrote {out / "sweep.json"}, {out / "sweep.png"}')
     return 0
 

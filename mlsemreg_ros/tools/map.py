@@ -31,7 +31,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
@@ -42,8 +41,10 @@ from mlsemreg_ros.tools.common import (
     ForceOption,
     JsonOption,
     LabelsOption,
+    options_from,
     QuietOption,
     replace_output,
+    require_peers,
     SetOption,
     settings,
     with_labels,
@@ -71,35 +72,42 @@ app = typer.Typer(
 )
 
 
+BagArgument = Annotated[
+    Path, typer.Argument(help='rosbag2 folder (or KITTI sequence) of labeled scans')
+]
+OutArgument = Annotated[Path, typer.Argument(help='map folder to write')]
+PosesOption = Annotated[
+    Literal['odometry', 'ground-truth'],
+    typer.Option(help='keyframe poses: the odometry (with loop closure) or the ground truth'),
+]
+MaxFramesOption = Annotated[int | None, typer.Option(min=1, help='read at most this many scans')]
+FrameIdOption = Annotated[str, typer.Option(help='frame of the map')]
+BaselineOption = Annotated[
+    list[LoopPeer] | None,
+    typer.Option(
+        help='also run this loop-closure peer on the same scans and compare the loops '
+        '(--poses odometry); repeatable',
+    ),
+]
+PeerLocalMapOption = Annotated[
+    float,
+    typer.Option(
+        min=1.0,
+        help="the --baseline peers' local-map size, m (KISS-SLAM's "
+        'local_mapper.splitting_distance; their default 100)',
+    ),
+]
+
+
 @app.command('build', help=BUILD_HELP)
 def build(
-    bag: Annotated[
-        Path, typer.Argument(help='rosbag2 folder (or KITTI sequence) of labeled scans')
-    ],
-    out: Annotated[Path, typer.Argument(help='map folder to write')],
-    poses: Annotated[
-        Literal['odometry', 'ground-truth'],
-        typer.Option(help='keyframe poses: the odometry (with loop closure) or the ground truth'),
-    ] = 'odometry',
-    max_frames: Annotated[
-        int | None, typer.Option(min=1, help='read at most this many scans')
-    ] = None,
-    frame_id: Annotated[str, typer.Option(help='frame of the map')] = 'map',
-    baseline: Annotated[
-        list[LoopPeer] | None,
-        typer.Option(
-            help='also run this loop-closure peer on the same scans and compare the loops '
-            '(--poses odometry); repeatable',
-        ),
-    ] = None,
-    peer_local_map: Annotated[
-        float,
-        typer.Option(
-            min=1.0,
-            help="the --baseline peers' local-map size, m (KISS-SLAM's "
-            'local_mapper.splitting_distance; their default 100)',
-        ),
-    ] = 100.0,
+    bag: BagArgument,
+    out: OutArgument,
+    poses: PosesOption = 'odometry',
+    max_frames: MaxFramesOption = None,
+    frame_id: FrameIdOption = 'map',
+    baseline: BaselineOption = None,
+    peer_local_map: PeerLocalMapOption = 100.0,
     config: ConfigOption = None,
     labels: LabelsOption = None,
     overrides: SetOption = None,
@@ -108,55 +116,27 @@ def build(
     quiet: QuietOption = False,
 ) -> int:
     """Build a map folder from a bag."""
-    import time
-
     from mlsemreg_ros.core.config import RegistrationConfig
-    from mlsemreg_ros.core.maps.map_io import MapError, save_map
-    from mlsemreg_ros.datasets.factory import open_scan_source
-    from mlsemreg_ros.datasets.source import SourceError
-    from mlsemreg_ros.evaluation import peer_runs
-    from mlsemreg_ros.evaluation.map_build import build_map, compare_loops, summary_lines
-    from mlsemreg_ros.evaluation.tables import print_text
+    from mlsemreg_ros.evaluation.map_build import build_map_folder, MapBuildError, MapBuildOptions
+    from mlsemreg_ros.evaluation.reports import write_json
 
-    peers = [str(peer) for peer in baseline or []]
+    peers = tuple(str(peer) for peer in baseline or [])
     if peers and poses != 'odometry':
         raise CommandError('--baseline compares loop closures: it needs --poses odometry', 2)
-    try:
-        peer_runs.require_peers(peers)
-    except peer_runs.PeerUnavailable as error:
-        raise CommandError(str(error), 2) from None
+    require_peers(peers)
     (core,) = settings((RegistrationConfig,), config, with_labels(overrides, labels))
     replace_output(out, force)
+    options = MapBuildOptions(poses, max_frames, frame_id, peers, peer_local_map, not quiet)
     try:
-        source = open_scan_source(bag)
-    except (SourceError, OSError, ValueError) as error:
-        raise CommandError(f'cannot read {bag}: {error}') from None
-    tic = time.perf_counter()
-    try:
-        built = build_map(source, core, poses, max_frames, progress=not quiet)
-    finally:
-        source.close()
-    seconds = time.perf_counter() - tic
-    built['summary']['time_s'] = seconds
-    if len(built['mapper'].store) == 0:
-        raise CommandError(
-            f'{bag}: no keyframe (no labeled scan, or none with ground truth for '
-            '--poses ground-truth)'
-        )
-    try:
-        save_map(out, built['mapper'].store, frame_id, core)
-    except MapError as error:
+        summary = build_map_folder(bag, out, options, core)
+    except MapBuildError as error:
         raise CommandError(str(error)) from None
-    summary = built['summary']
-    for line in summary_lines(summary, out, poses):
-        print_text(line)
-    if peers:
-        summary['baselines'] = compare_loops(
-            bag, peers, max_frames, core, summary, seconds, peer_local_map
-        )
     if json_path is not None:
-        json_path.write_text(json.dumps(summary, indent=2) + '\n')
+        write_json(json_path, summary)
     return 0
+
+
+QueriesOutArgument = Annotated[Path, typer.Argument(help='folder of query files to write')]
 
 
 @app.command('queries', help=QUERIES_HELP)
@@ -164,7 +144,7 @@ def queries(
     bag: Annotated[
         Path, typer.Argument(help='rosbag2 folder (or KITTI sequence) of labeled scans')
     ],
-    out: Annotated[Path, typer.Argument(help='folder of query files to write')],
+    out: QueriesOutArgument,
     every: Annotated[int, typer.Option(min=1, help='write every K-th scan')] = 5,
     start: Annotated[int, typer.Option(min=0, help='first scan written')] = 0,
     force: ForceOption = False,
@@ -196,51 +176,64 @@ def queries(
     return 0
 
 
+SeedOption = Annotated[
+    int, typer.Option(min=0, help='seed of the mapped drive (mlsemreg simulate --seed)')
+]
+FramesOption = Annotated[int, typer.Option(min=2, help='frames of the mapped drive')]
+DriveOption = Annotated[
+    Literal['reverse', 'other'],
+    typer.Option(
+        help='reverse: the same streets backwards in the other lane; other: a route '
+        'of --route-seed'
+    ),
+]
+EveryOption = Annotated[int, typer.Option(min=1, help='write every K-th scan')]
+LaneChangeOption = Annotated[float, typer.Option(help='reverse: lateral shift to the left, m')]
+StartOffsetOption = Annotated[
+    float, typer.Option(min=0.0, help='reverse: metres skipped at the start')
+]
+RouteSeedOption = Annotated[int, typer.Option(min=0, help='other: seed of the route')]
+RouteFramesOption = Annotated[int, typer.Option(min=2, help='other: frames of the route')]
+MinDistanceOption = Annotated[
+    float,
+    typer.Option(min=0.0, help='other: keep scans at least this far from the mapped drive, m'),
+]
+NoiseSeedOption = Annotated[int, typer.Option(min=0, help='seed of the sensor noise')]
+RealismOption = Annotated[
+    Literal['clean', 'field'],
+    typer.Option(
+        help='the world of `mlsemreg simulate --realism`: clean, or field (HDL-64 skewed '
+        'sweeps, moving objects, network labels; --drive other is the loop route)'
+    ),
+]
+DeskewOption = Annotated[
+    Literal['odometry', 'previous', 'sweep', 'off'],
+    typer.Option(
+        help='field: odometry runs the odometry (--config/--set, no IMU) over every sweep '
+        'and writes the scans it deskewed (what the node relocalizes; sweeps it rejected '
+        'or left skewed are skipped); or motion-compensate each sweep to its start with '
+        'the true twist over the previous period (as a constant-velocity prediction), '
+        'over the sweep itself (as an IMU-aided deskew), or not (the raw skewed sweep)'
+    ),
+]
+
+
 @app.command('sim-queries', help=SIM_QUERIES_HELP)
 def sim_queries(
-    out: Annotated[Path, typer.Argument(help='folder of query files to write')],
-    seed: Annotated[
-        int, typer.Option(min=0, help='seed of the mapped drive (mlsemreg simulate --seed)')
-    ] = 0,
-    frames: Annotated[int, typer.Option(min=2, help='frames of the mapped drive')] = 200,
-    drive: Annotated[
-        Literal['reverse', 'other'],
-        typer.Option(
-            help='reverse: the same streets backwards in the other lane; other: a route '
-            'of --route-seed'
-        ),
-    ] = 'reverse',
-    every: Annotated[int, typer.Option(min=1, help='write every K-th scan')] = 5,
-    lane_change: Annotated[
-        float, typer.Option(help='reverse: lateral shift to the left, m')
-    ] = 3.6,
-    start_offset: Annotated[
-        float, typer.Option(min=0.0, help='reverse: metres skipped at the start')
-    ] = 0.5,
-    route_seed: Annotated[int, typer.Option(min=0, help='other: seed of the route')] = 7,
-    route_frames: Annotated[int, typer.Option(min=2, help='other: frames of the route')] = 300,
-    min_distance: Annotated[
-        float,
-        typer.Option(min=0.0, help='other: keep scans at least this far from the mapped drive, m'),
-    ] = 80.0,
-    noise_seed: Annotated[int, typer.Option(min=0, help='seed of the sensor noise')] = 1000,
-    realism: Annotated[
-        Literal['clean', 'field'],
-        typer.Option(
-            help='the world of `mlsemreg simulate --realism`: clean, or field (HDL-64 skewed '
-            'sweeps, moving objects, network labels; --drive other is the loop route)'
-        ),
-    ] = 'clean',
-    deskew: Annotated[
-        Literal['odometry', 'previous', 'sweep', 'off'],
-        typer.Option(
-            help='field: odometry runs the odometry (--config/--set, no IMU) over every sweep '
-            'and writes the scans it deskewed (what the node relocalizes; sweeps it rejected '
-            'or left skewed are skipped); or motion-compensate each sweep to its start with '
-            'the true twist over the previous period (as a constant-velocity prediction), '
-            'over the sweep itself (as an IMU-aided deskew), or not (the raw skewed sweep)'
-        ),
-    ] = 'odometry',
+    context: typer.Context,
+    out: QueriesOutArgument,
+    seed: SeedOption = 0,
+    frames: FramesOption = 200,
+    drive: DriveOption = 'reverse',
+    every: EveryOption = 5,
+    lane_change: LaneChangeOption = 3.6,
+    start_offset: StartOffsetOption = 0.5,
+    route_seed: RouteSeedOption = 7,
+    route_frames: RouteFramesOption = 300,
+    min_distance: MinDistanceOption = 80.0,
+    noise_seed: NoiseSeedOption = 1000,
+    realism: RealismOption = 'clean',
+    deskew: DeskewOption = 'odometry',
     config: ConfigOption = None,
     overrides: SetOption = None,
     force: ForceOption = False,
@@ -249,20 +242,7 @@ def sim_queries(
     from mlsemreg_ros.evaluation.tables import print_text
     from mlsemreg_ros.simulation.revisit_queries import SimQueries, write_sim_queries
 
-    request = SimQueries(
-        seed=seed,
-        frames=frames,
-        drive=drive,
-        every=every,
-        lane_change=lane_change,
-        start_offset=start_offset,
-        route_seed=route_seed,
-        route_frames=route_frames,
-        min_distance=min_distance,
-        noise_seed=noise_seed,
-        realism=realism,
-        deskew=deskew,
-    )
+    request = options_from(context, SimQueries)
     replace_output(out, force)
     registration = None
     if realism == 'field' and deskew == 'odometry':  # the odometry deskews the sweeps

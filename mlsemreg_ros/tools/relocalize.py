@@ -22,7 +22,6 @@ command line (docs/maps.md).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
@@ -33,6 +32,7 @@ from mlsemreg_ros.tools.common import (
     ConfigOption,
     JsonOption,
     LabelsOption,
+    require_peers,
     SetOption,
     with_labels,
 )
@@ -73,19 +73,16 @@ def relocalize(
     """Relocalize the queries against the map and print the recall (alias mlsemreg-relocalize)."""
     from mlsemreg_ros.core.config import ConfigError
     from mlsemreg_ros.core.maps.map_io import MapError
-    from mlsemreg_ros.evaluation import peer_runs
     from mlsemreg_ros.evaluation.relocalization import (
         print_relocalization,
         QueryError,
         relocalize_queries,
         RelocalizeOptions,
     )
+    from mlsemreg_ros.evaluation.reports import write_json
 
     peers = tuple(str(peer) for peer in baseline or [])
-    try:
-        peer_runs.require_peers(list(peers))
-    except peer_runs.PeerUnavailable as error:
-        raise CommandError(str(error), 2) from None
+    require_peers(peers)
     options = RelocalizeOptions(max_queries, duplicate, peers)
     try:
         report = relocalize_queries(
@@ -97,7 +94,7 @@ def relocalize(
         raise CommandError(str(error)) from None
     print_relocalization(report)
     if json_path is not None:
-        json_path.write_text(json.dumps(report.as_dict(), indent=2) + '\n')
+        write_json(json_path, report.as_dict())
     return 0
 
 

@@ -37,6 +37,7 @@ from mlsemreg_ros.tools.common import (
     ForceOption,
     FrameIdOption,
     GtTopicOption,
+    options_from,
     PointsTopicOption,
     QuietOption,
     replace_output,
@@ -47,7 +48,6 @@ import typer
 
 HELP = 'A labeled LiDAR sequence from the procedural world, as a rosbag2.'
 SENSOR, LABELS, FIELD = 'Sensor', 'Label degradation', 'Field mode (--realism field)'
-REALISMS = ('clean', 'field')
 
 
 OutArgument = Annotated[
@@ -167,6 +167,7 @@ NetworkOption = Annotated[
 
 
 def simulate(
+    context: typer.Context,
     out: OutArgument,
     frames: FramesOption = 200,
     seed: SeedOption = 0,
@@ -199,51 +200,20 @@ def simulate(
 ) -> int:
     """Simulate a labeled LiDAR drive into a rosbag2 (alias mlsemreg-simulate)."""
     from mlsemreg_ros.evaluation.tables import print_text
-    from mlsemreg_ros.simulation.export import write_simulation_bag
-    from mlsemreg_ros.simulation.field import FieldConfig
-    from mlsemreg_ros.simulation.field_export import write_field_bag
-    from mlsemreg_ros.simulation.lidar import LidarConfig
-    from mlsemreg_ros.simulation.sequence import SimulationConfig
+    from mlsemreg_ros.simulation.drive_request import (
+        DriveRequest,
+        DriveRequestError,
+        simulate_drive,
+    )
 
-    if realism not in REALISMS:
-        raise typer.BadParameter(f'use one of {list(REALISMS)}', param_hint='--realism')
-    layout = BagLayout(storage, compress, points_topic, gt_topic, frame_id, world_frame)
-    if realism == 'field':
-        write = write_field_bag
-        config = FieldConfig(
-            seed=seed,
-            frames=frames,
-            sensor=sensor,
-            profile=profile,
-            route=route,
-            speed=speed,
-            moving_objects=moving_objects,
-            network_labels=network_labels,
-            network=network,
-            rate=rate,
-        )
-        try:
-            config.validate()
-        except ValueError as error:
-            raise typer.BadParameter(str(error)) from None
-    elif frames == 0:
-        raise typer.BadParameter(
-            '0 frames only with --realism field --route loop', param_hint='--frames'
-        )
-    else:
-        write = write_simulation_bag
-        lidar = LidarConfig(
-            beams=beams,
-            azimuth_steps=azimuth_steps,
-            max_range=max_range,
-            range_noise=range_noise,
-            dropout=dropout,
-        )
-        config = SimulationConfig(
-            seed, frames, rate, step, blur_radius, blur_probability, flip_fraction, lidar=lidar
-        )
+    request = options_from(context, DriveRequest)
+    layout = options_from(context, BagLayout)
+    try:
+        request.config()  # invalid options are usage errors, before the output is replaced
+    except DriveRequestError as error:
+        raise typer.BadParameter(str(error), param_hint=error.option) from None
     replace_output(out, force)
-    print_text(write(out, config, layout, progress=not quiet).summary(out))
+    print_text(simulate_drive(out, request, layout, progress=not quiet))
     return 0
 
 

@@ -32,6 +32,7 @@ from mlsemreg_ros.tools.common import (
     ConfigOption,
     DATA,
     LabelsOption,
+    options_from,
     OUTPUT,
     PARAMETERS,
     QuietOption,
@@ -124,6 +125,7 @@ OutOption = Annotated[
 
 
 def tune(
+    context: typer.Context,
     data: DataArgument,
     objective: ObjectiveOption = 'pairs',
     descriptor: DescriptorOption = 'gedi',
@@ -166,19 +168,7 @@ def tune(
         node_values = NodeConfig.from_file(config).to_flat_dict() if config is not None else {}
     except ConfigError as error:
         raise CommandError(f'configuration error: {error}', 2) from None
-    options = TuneOptions(
-        objective=objective,
-        descriptor=descriptor,
-        stride=stride,
-        max_frames=max_frames,
-        trials=trials,
-        timeout_s=timeout,
-        workers=workers,
-        storage=storage,
-        study=study,
-        seed=seed,
-        space=tuple(space or ()),
-    )
+    options = options_from(context, TuneOptions, timeout_s=timeout, space=tuple(space or ()))
     console = TuneConsole(quiet)
     try:
         result = tune_parameters(data, core, evaluation.evaluation, options, out, console)

@@ -226,6 +226,14 @@ class NearMissConfig:
         low=0,
         high=1000000,
     )
+    pair_downsampled: bool = param(
+        False,
+        'Pairs: the perturbed starts are aligned with the source scan downsampled to '
+        'fine.downsampling_resolution (the refined pose and every basin are still judged '
+        'on the full scan): about a third of their GICP time. Off: with the covisible '
+        'acceptance it changed three 60 m verdicts, two right poses accepted and one lost '
+        '(docs/hard_pairs.md).',
+    )
     offset: float = param(
         0.6,
         'Translation of each perturbed start from the refined pose.',
@@ -264,6 +272,17 @@ class NearMissConfig:
         "1/rival_share times the refined pose's); a clearly worse basin does not.",
         low=0.0,
         high=1.0,
+    )
+    min_weak_support: float = param(
+        10.0,
+        'The odometry: a candidate accepted on its own evidence (core/odometry/second_look.py) '
+        "needs at least this many inliers' worth of information along its alignment's "
+        'weakest direction (the Hessian with 5 deg weighing as 0.6 m, '
+        'core/alignment/weak_direction.py; 0: not checked). Solid-state scans of a road '
+        'accepted 0.78 and 0.96 m off had the support of 5.2 and 2.8; the KITTI dev '
+        "chain's scan 7, right, 34.7 (docs/confidence.md).",
+        low=0.0,
+        high=10000.0,
     )
     max_residual: float = param(
         0.0,

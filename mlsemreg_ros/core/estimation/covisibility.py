@@ -121,6 +121,54 @@ class CovisibilityConfig:
         low=0.0,
         high=20.0,
     )
+    accept_overlap: float = param(
+        0.97,
+        'A refused pose chosen where both scans see and refined is accepted on its covisible '
+        'overlap (measured on covisibility.accept_points points) when it reaches this, with '
+        'covisibility.accept_checked of its surface checked, its tilt within '
+        'covisibility.accept_tilt and the level check, and every distinct candidate and '
+        'slide covisibility.accept_gap below it (core/estimation/covisible_acceptance.py, '
+        'docs/long_range.md); 0: off.',
+        low=0.0,
+        high=1.0,
+    )
+    accept_checked: float = param(
+        0.03,
+        'Smallest checkable share of the surface of a pose accepted on its covisible overlap.',
+        low=0.0,
+        high=1.0,
+    )
+    accept_gap: float = param(
+        0.04,
+        'A pose accepted on its covisible overlap must beat the best distinct candidate of '
+        'the pool and the best of its slides (confidence.slide_distance, 8 directions) by '
+        'this much.',
+        low=0.0,
+        high=1.0,
+    )
+    accept_tilt: float = param(
+        10.0,
+        "Largest tilt (angle between the scans' up axes) of a pose accepted on its "
+        'covisible overlap.',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
+    accept_points: int = param(
+        8000,
+        'Points of each scan (seeded random subset) on which a pose judged for acceptance on '
+        'its covisible overlap, its slides and its best distinct candidates are measured '
+        'again (the covisible choice measures verification.sample_points).',
+        low=100,
+        high=1000000,
+    )
+    accept_rivals: int = param(
+        8,
+        'Distinct pool candidates with the best covisible overlap that are measured again '
+        'against a pose judged for acceptance on its covisible overlap.',
+        low=1,
+        high=1000,
+    )
     min_gain: float = param(
         0.03,
         'The covisible choice keeps the current pose unless another candidate beats its '

@@ -19,6 +19,10 @@ Compiled kernels of the global path's refused stages (numba, ``core/features/ker
 - :func:`refine_all`: SC2-PCR's post-refinement (reweighted least squares, Chen et al.
   CVPR 2022, Sec. 3.5) of many starting poses in one compiled loop, each on the
   correspondences near it (the BEV search's peaks, ``core/estimation/bev_search.py``);
+- :func:`compatibility_upper`: SC2-PCR's length consistency (eq. 2) of every pair of
+  correspondences in the strict upper triangle, the compatible ones kept row by row
+  (``core/estimation/sc2pcr.py:compatibility_matrix``), computed from the coordinate
+  differences in one fused pass instead of blocked matrix products;
 - :func:`nearest_in_descriptor_space`: the guided re-matching's search
   (``core/estimation/guided.py``): for every moved source keypoint, the target keypoint
   nearest in descriptor space among those within a radius and of a compatible label,
@@ -310,3 +314,59 @@ def bev_local_peaks(
             out_u[found], out_v[found] = top_cell[r] // width, top_cell[r] % width
             found += 1
     return out_y[:found], out_u[:found], out_v[:found], out_value[:found]
+
+
+@jit
+def compatibility_upper(
+    p: np.ndarray, q: np.ndarray, threshold: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """
+    SC2-PCR's first-order compatibility (eq. 2) of the strict upper triangle, row by row.
+
+    ``p``, ``q``: ``(3, K)`` centred source and target coordinates (float32 or float64),
+    one row per axis. For ``i < j``, ``c_ij = | ||p_i - p_j|| - ||q_i - q_j|| |`` from the
+    differences (exact to the dtype's rounding of the difference, whatever the extent);
+    the entries with ``c_ij < threshold`` are kept as ``max(1 - c_ij^2 / d^2, 1e-12)``.
+    Returns ``(entries per row (K,), columns, values float32)`` in row-major order.
+    """
+    count = p.shape[1]
+    px, py, pz, qx, qy, qz = p[0], p[1], p[2], q[0], q[1], q[2]
+    limit = threshold
+    scale = np.float32(1.0 / threshold)
+    lengths = np.empty(count, dtype=p.dtype)
+    per_row = np.zeros(count, dtype=np.int64)
+    capacity = max(count * 16, 1024)
+    columns = np.empty(capacity, dtype=np.int32)
+    values = np.empty(capacity, dtype=np.float32)
+    size = 0
+    for i in range(count):
+        ax, ay, az, bx, by, bz = px[i], py[i], pz[i], qx[i], qy[i], qz[i]
+        width = count - i - 1
+        for k in range(width):  # vectorised by the compiler: no branch, no reduction
+            j = i + 1 + k
+            dx, dy, dz = px[j] - ax, py[j] - ay, pz[j] - az
+            ex, ey, ez = qx[j] - bx, qy[j] - by, qz[j] - bz
+            lengths[k] = abs(
+                np.sqrt(dx * dx + dy * dy + dz * dz) - np.sqrt(ex * ex + ey * ey + ez * ez)
+            )
+        found = 0
+        for k in range(width):
+            if lengths[k] < limit:
+                found += 1
+        if size + found > capacity:
+            while size + found > capacity:
+                capacity *= 2
+            grown_columns = np.empty(capacity, dtype=np.int32)
+            grown_columns[:size] = columns[:size]
+            columns = grown_columns
+            grown_values = np.empty(capacity, dtype=np.float32)
+            grown_values[:size] = values[:size]
+            values = grown_values
+        for k in range(width):
+            if lengths[k] < limit:
+                ratio = np.float32(lengths[k]) * scale
+                columns[size] = i + 1 + k
+                values[size] = max(np.float32(1.0) - ratio * ratio, np.float32(1e-12))
+                size += 1
+        per_row[i] = found
+    return per_row, columns[:size], values[:size]

@@ -66,12 +66,14 @@ from collections.abc import Callable
 import dataclasses
 import time
 
+from mlsemreg_ros.core.estimation import kernels
 from mlsemreg_ros.core.estimation.config import EstimatorConfig
 from mlsemreg_ros.core.estimation.second_order import (
     budget_seeds,
     seed_consensus_sets,
     tight_compatibility,
 )
+from mlsemreg_ros.core.features.kernels import use_compiled
 from mlsemreg_ros.core.poses import residuals
 from mlsemreg_ros.core.results import EstimateResult, Hypotheses
 from mlsemreg_ros.core.rigid import weighted_rigid_transform
@@ -211,7 +213,9 @@ def graph_rows(count: int, graph_size: int) -> np.ndarray:
     return np.sort(np.random.default_rng(0).choice(count, size=graph_size, replace=False))
 
 
-def compatibility_matrix(src: np.ndarray, dst: np.ndarray, threshold: float) -> sparse.csr_matrix:
+def compatibility_matrix(
+    src: np.ndarray, dst: np.ndarray, threshold: float, compiled: bool | None = None
+) -> sparse.csr_matrix:
     """
     First-order spatial compatibility of SC2-PCR (eq. 2) as a sparse matrix.
 
@@ -234,17 +238,29 @@ def compatibility_matrix(src: np.ndarray, dst: np.ndarray, threshold: float) -> 
     - ``src``: ``(K, 3)`` source points, metres.
     - ``dst``: ``(K, 3)`` target points, metres.
     - ``threshold``: compatibility threshold ``d`` in metres.
+    - ``compiled``: None uses the numba kernel when available
+      (:func:`~mlsemreg_ros.core.estimation.kernels.compatibility_upper`: one fused pass over
+      the coordinate differences, float32; 70 against 141 ms of CPU at K = 7000). Its
+      ``c_ij`` are exact to the float32 rounding of the difference, so an entry within a
+      few millimetres of ``d`` may fall on the other side than in the blocked products.
 
     Returns ``(K, K)`` symmetric CSR matrix, float32 values in ``(0, 1]``, sorted indices.
     """
     count = src.shape[0]
     p = src - src.mean(axis=0)
     q = dst - dst.mean(axis=0)
-    extent2 = float(max((p * p).sum(axis=1).max(), (q * q).sum(axis=1).max()))
+    extent2 = float(max((p * p).sum(axis=1).max(), (q * q).sum(axis=1).max())) if count else 0.0
     dtype: type = np.float32
     error = 2.0 * np.sqrt(np.finfo(np.float32).eps * extent2)  # sqrt(E)
     if 2.0 * error > threshold:
         dtype, error = np.float64, 2.0 * np.sqrt(np.finfo(np.float64).eps * extent2)
+    if use_compiled(compiled) and count:
+        per_row, columns, values = kernels.compatibility_upper(
+            np.ascontiguousarray(p.T, dtype=dtype),
+            np.ascontiguousarray(q.T, dtype=dtype),
+            threshold,
+        )
+        return _symmetric_from_upper(per_row, columns, values, count)
     margin, short = 2.0 * error, max(4.0 * error, 100.0 * error * error / threshold)
     left_p, right_p = _augmented(p, dtype)
     left_q, right_q = _augmented(q, dtype)

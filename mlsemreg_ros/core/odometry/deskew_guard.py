@@ -43,8 +43,9 @@ one that gives the capture times does so on every scan. So :class:`DeskewCheckSc
 every scan until :data:`FIRST_CHECKS` checks in a row kept the deskew, then every
 ``preprocess.deskew_check_interval``-th deskewed scan, and every scan again after a reset,
 after a check that refused the deskew, or when the time field's span moves by more than
-:data:`SPAN_CHANGE`. Checking only a few percent of the scans keeps the check out of the
-latency's 95th percentile as well as its median.
+:data:`SPAN_CHANGE`. A periodic check rides on the next scan that was registered globally
+(within another interval): that scan is among the slowest anyway, so the checks add no slow
+scans of their own to the latency's 95th percentile.
 """
 
 from __future__ import annotations
@@ -73,8 +74,15 @@ class DeskewCheckSchedule:
         """Check every scan again (an odometry reset)."""
         self.kept_in_a_row, self.unchecked, self.span = 0, 0, None
 
-    def due(self, point_times: Any, interval: int) -> bool:
-        """Whether the scan with these per-point times (s) is checked; counts it if not."""
+    def due(self, point_times: Any, interval: int, slow: bool = True) -> bool:
+        """
+        Whether the scan with these per-point times (s) is checked; counts it if not.
+
+        ``slow``: the scan was registered globally, so it is among the slowest already.
+        A check due by the interval waits for such a scan, for at most another interval:
+        with ``odometry.global_interval`` below ``interval`` one comes first, and the
+        periodic checks add no slow scan of their own to the latency's tail.
+        """
         span = time_span(point_times)
         moved = (
             self.span is None
@@ -83,7 +91,7 @@ class DeskewCheckSchedule:
         )
         if interval <= 1 or self.kept_in_a_row < FIRST_CHECKS or moved:
             return True
-        if self.unchecked + 1 >= interval:
+        if self.unchecked + 1 >= interval and (slow or self.unchecked + 1 >= 2 * interval):
             return True
         self.unchecked += 1
         return False
@@ -141,7 +149,8 @@ def guard_deskew(
         return raw, chosen, ''  # the poses' twist: the sweep alignment checks it (docs/field.md)
     points, labels, point_times, _ = scan
     schedule = odometry.deskew_checks
-    if not schedule.due(point_times, cfg.preprocess.deskew_check_interval):
+    slow = chosen.result is not None  # registered globally: a slow scan already
+    if not schedule.due(point_times, cfg.preprocess.deskew_check_interval, slow):
         return raw, chosen, ''
     tracker = odometry.tracker
     # no motion: not deskewed; the times kept for the sweep alignment of an accepted scan

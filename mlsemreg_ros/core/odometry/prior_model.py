@@ -179,7 +179,7 @@ class PriorMotionModel:
         if end <= start:
             return None
         with self._lock:
-            if not self._imu.covers(start, end, self._slack()):
+            if not self._imu.covers(start, end, self._slack(), self._gap()):
                 return None
             first = max(int(np.searchsorted(self._imu.stamps, start)) - 1, 0)
             last = int(np.searchsorted(self._imu.stamps, end, side='right')) + 1
@@ -192,6 +192,23 @@ class PriorMotionModel:
         rotations = np.stack(list(itertools.accumulate(steps, np.matmul, initial=np.eye(3))))
         at_stamp = rotations[int(np.searchsorted(nodes, stamp_ns))]
         return (nodes - stamp_ns) * 1e-9, np.einsum('ji,njk->nik', at_stamp, rotations)
+
+    def gyro_rotation(self, stamp_ns: int) -> np.ndarray | None:
+        """
+        Return the gyro's rotation (3, 3) from the last accepted scan to ``stamp_ns``.
+
+        ``R_last_current``, bias removed; None without an IMU covering the interval. Unlike
+        the IMU prior it needs no velocity: it is there for the second scan after a start.
+        """
+        if self.cfg.source not in ('imu', 'auto') or not self._accepted:
+            return None
+        t0 = self._accepted[-1][1]
+        if not 0.0 < (stamp_ns - t0) * 1e-9 <= self.cfg.max_span:
+            return None
+        with self._lock:
+            if not self._imu.covers(t0, stamp_ns, self._slack(), self._gap()):
+                return None
+            return np.asarray(self._segment(t0, stamp_ns).rotation, dtype=np.float64).copy()
 
     # -- the prior -----------------------------------------------------------------
     def relative_prior(self, stamp_ns: int) -> RelativePrior | None:
@@ -211,6 +228,10 @@ class PriorMotionModel:
 
     def _slack(self) -> int:
         return round(self.cfg.max_extrapolation * 1e9)
+
+    def _gap(self) -> int:
+        """Return the longest hole (ns) between messages a prior is interpolated across."""
+        return round(self.cfg.max_sample_gap * 1e9)
 
     def _segment(self, t0: int, t1: int):
         """
@@ -248,7 +269,7 @@ class PriorMotionModel:
         if duration <= 0.0:
             return None
         velocity = (P_a[:3, 3] - P_b[:3, 3]) / duration
-        if self._imu.covers(t_b, t_a, self._slack()):
+        if self._imu.covers(t_b, t_a, self._slack(), self._gap()):
             segment = self._segment(t_b, t_a)
             offset = P_b[:3, :3].T @ self._offset(P_b, t_b)
             velocity = velocity + P_b[:3, :3] @ segment.first_moment(offset) / duration
@@ -256,7 +277,7 @@ class PriorMotionModel:
         return velocity, 0.0
 
     def _imu_prior(self, t0: int, t1: int, index: int = -1) -> RelativePrior | None:
-        if not self._imu.covers(t0, t1, self._slack()):
+        if not self._imu.covers(t0, t1, self._slack(), self._gap()):
             return None
         known = self._velocity(index)
         if known is None:
@@ -278,7 +299,7 @@ class PriorMotionModel:
 
     def _wheel_relative(self, t0: int, t1: int) -> np.ndarray | None:
         wheel = self._wheel
-        if not wheel.covers(t0, t1, self._slack()):
+        if not wheel.covers(t0, t1, self._slack(), self._gap()):
             return None
         W0, W1 = interpolate_poses(wheel.stamps, wheel.values, np.array([t0, t1]))
         X = self.T_child_sensor
@@ -301,7 +322,7 @@ class PriorMotionModel:
         if span <= 0.0 or span > self.cfg.max_span:
             return
         accepted = invert_transform(P_a) @ P_b
-        if self._imu.covers(t_a, t_b, self._slack()):
+        if self._imu.covers(t_a, t_b, self._slack(), self._gap()):
             self._learn_imu(P_a, t_a, P_b, t_b, accepted)
         relative = self._wheel_relative(t_a, t_b)
         if relative is not None and self.cfg.wheel_scale_gain > 0.0:

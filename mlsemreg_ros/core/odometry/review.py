@@ -20,6 +20,7 @@ In order, each reading the decision before it (``Odometry.process``'s decide ste
 
 - prior_guard.py: a motion prior that disagrees with the scan: the scan again without it;
 - deskew_guard.py: a deskew that made the alignment worse: the scan again without it;
+- gyro_rescue.py: a refused global pose the gyro confirms, when nothing predicted the scan;
 - sweep_starts.py: a refused scan aligned again from other starts of its sweep;
 - failures.py: at the ``keyframe.max_failures``-th rejection in a row, relocalization
   onto the past keyframes (recovery.py).
@@ -31,6 +32,7 @@ from typing import Any, TYPE_CHECKING
 
 from mlsemreg_ros.core.odometry.deskew_guard import guard_deskew
 from mlsemreg_ros.core.odometry.failures import relocalize
+from mlsemreg_ros.core.odometry.gyro_rescue import rescue_by_gyro
 from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
 from mlsemreg_ros.core.odometry.prior_guard import guard_prior
@@ -60,6 +62,7 @@ def review(
     raw, chosen, deskew_refusal = guard_deskew(  # core/odometry/deskew_guard.py
         odometry, given, prediction, raw, chosen, timings
     )
+    chosen = rescue_by_gyro(odometry, given[3], prediction, raw, chosen, timings)  # gyro_rescue
     raw, chosen = retry_refused(odometry, given, prediction, raw, chosen, timings)  # sweep_starts
     chosen = relocalize(odometry, raw, chosen, timings)  # core/odometry/recovery.py
     return raw, chosen, prior_refusal, deskew_refusal

@@ -29,8 +29,11 @@ Two cases, both judged by the basins of the map alignment (core/alignment/near_m
   them overlaps the map less); the refined prediction, when the global registration
   failed, refused only by the correction bounds (a prediction extrapolated over a gap, a
   refused scan or a stride, is rougher than they assume). Each is judged on its own
-  evidence: every perturbed start must come back to it, with no rival basin. Then it is
-  accepted (the reason says so); otherwise the refusal stands.
+  evidence: its alignment's weakest direction must be held by at least
+  ``near_miss.min_weak_support`` inliers' worth of information
+  (core/alignment/weak_direction.py: perturbed starts come back to a place a handful of
+  inliers decide, wrong or right), and every perturbed start must come back to it, with no
+  rival basin. Then it is accepted (the reason says so); otherwise the refusal stands.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ from __future__ import annotations
 import dataclasses
 from typing import TYPE_CHECKING
 
+from mlsemreg_ros.core.alignment.alignment import Alignment
 from mlsemreg_ros.core.alignment.fine_alignment import (
     correction_refusal,
     refinement_refusal,
@@ -50,6 +54,7 @@ from mlsemreg_ros.core.alignment.near_miss import (
     judge_basins,
     NearMiss,
 )
+from mlsemreg_ros.core.alignment.weak_direction import weakest_direction
 from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.trust import Candidate, relative_inlier_refusal
@@ -174,6 +179,26 @@ def _own_evidence(
     )
 
 
+def weak_refusal(alignment: Alignment, cfg: RegistrationConfig) -> str:
+    """
+    Why ``alignment``'s own evidence cannot pin its weakest direction ('' if it can).
+
+    The support of the Hessian's weakest direction (core/alignment/weak_direction.py) must
+    reach ``near_miss.min_weak_support`` inliers' worth: perturbed starts come back to a
+    place that a handful of inliers decide, wrong or right.
+    """
+    near_miss = cfg.near_miss
+    if near_miss.min_weak_support <= 0:
+        return ''
+    weak = weakest_direction(alignment)
+    if weak.support >= near_miss.min_weak_support:
+        return ''
+    return (
+        f"its weakest direction, {weak.describe()}, carries {weak.support:.1f} inliers' "
+        f'worth of information < near_miss.min_weak_support={near_miss.min_weak_support:g}'
+    )
+
+
 def _rescue(
     tracker: Tracker,
     chosen: Decision,
@@ -181,10 +206,15 @@ def _rescue(
     scan: PreparedScan,
     cfg: RegistrationConfig,
 ) -> Decision:
+    notes = []
     for candidate in sorted(chosen.candidates, key=lambda c: c.name != 'global'):
         if not _own_evidence(candidate, estimate, tracker, cfg):
             continue
         alignment = candidate.alignment
+        weak = weak_refusal(alignment, cfg)
+        if weak:
+            notes.append(f'{candidate.name} not accepted on its own evidence: {weak}')
+            continue
         verdict = basins(tracker, candidate, scan, cfg)
         came_back = [
             np.linalg.norm(np.linalg.solve(alignment.T_target_source, b.T_target_source)[:3, 3])
@@ -206,5 +236,9 @@ def _rescue(
             inlier_fraction=alignment.inlier_fraction,
             candidates=chosen.candidates,
             timings_ms=chosen.timings_ms,
+        )
+    if notes:
+        return dataclasses.replace(
+            chosen, reason='; '.join(r for r in (chosen.reason, *notes) if r)
         )
     return chosen

@@ -25,12 +25,12 @@ from that twist, with a prior about it, and stays in its basin; the scan was acc
 
 The accepted pose itself says how the sensor moved since the last accepted scan: the twist
 from that pose to this one (:func:`~mlsemreg_ros.core.features.deskew.sweep_motion`). When
-it bends the sweep differently from the deskew's twist by more than
-``sweep_alignment.min_change``, the sweep alignment also starts from it, and its result
-replaces the first when it fits the local map clearly better (the mean Geman-McClure cost
-of the deskewed points against their nearest map voxel's Gaussian, lower by
-:data:`SECOND_START_GAIN`). A car, whose velocity barely changes between scans, never gets
-the second start.
+it bends the sweep differently from the deskew's twist by more than the pairing distance
+``sweep_alignment.max_distance`` (:func:`second_start_bend`), the sweep alignment also
+starts from it, and its result replaces the first when it fits the local map clearly better
+(the mean Geman-McClure cost of the deskewed points against their nearest map voxel's
+Gaussian, lower by :data:`SECOND_START_GAIN`). A car, whose velocity barely changes between
+scans, rarely gets the second start.
 """
 
 from __future__ import annotations
@@ -62,6 +62,20 @@ def bend_m(points: np.ndarray, times: np.ndarray, a: SweepMotion, b: SweepMotion
     """Return the largest distance (m) a point moves between the deskews by ``a`` and ``b``."""
     change = deskew(points, times, a) - deskew(points, times, b)
     return float(np.sqrt(np.max(np.einsum('ni,ni->n', change, change), initial=0.0)))
+
+
+def second_start_bend(config: SweepAlignmentConfig) -> float:
+    """
+    Return the bend (m) beyond which the implied twist gets a start of its own.
+
+    A twist that moves every point by less than ``sweep_alignment.max_distance`` from where
+    the deskew's twist put it leaves each point pairing with the map voxel the other twist
+    would pair it with: the first start's Gauss-Newton already sees that basin. On the car
+    drives the implied twist (from one interval's poses: yaw-rate noise of a few deg/s)
+    bent the sweep by 0.5-1.3 m on 14-19 % of the VLP-16, HDL-32 and solid-state scans and
+    never won; a hand's turn back bends it by 2-10 m (docs/sensors.md).
+    """
+    return max(config.min_change, config.max_distance)
 
 
 def fit_cost(
@@ -113,8 +127,8 @@ def align_from_starts(
         np.isfinite(np.concatenate([implied.omega, implied.velocity]))
     ):
         return first
-    if bend_m(points, times, implied, motion) <= config.min_change:
-        return first  # the poses and the deskew agree: one start is enough
+    if bend_m(points, times, implied, motion) <= second_start_bend(config):
+        return first  # within the first start's reach: one start is enough
     second = align_sweep(points, times, gaussians, pose, implied, config)
     if not np.all(np.isfinite(second.T_target_source)):
         return first

@@ -80,6 +80,9 @@ class RegistrationContext:
     ground_fits: tuple[GroundFit | None, GroundFit | None] | None = None
     # label quality
     label_quality: LabelQuality | None = None  # the pair's labels judged (None: not judged)
+    #: poorer labels: the unlabeled attempt, accepted but not strong enough to be taken
+    #: first; the labelled path falls back to it when it refuses (core/stages/label_quality.py)
+    unlabeled_attempt: RegistrationContext | None = None
     # matching
     correspondences: Correspondences | None = None
     source_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (K, 3)
@@ -102,6 +105,8 @@ class RegistrationContext:
     # BEV search and the refused path
     searched: VerificationResult | None = None  # the BEV search's candidates
     search_reason: str = ''  # why the search ran ('' = it did not)
+    # covisibility: the pool's covisible (overlap, checked), once the covisible choice ran
+    covisible_pool: tuple[np.ndarray, np.ndarray] | None = None
     # fine alignment
     coarse: np.ndarray | None = None  # the pose before the fine alignment
     alignment: Alignment | None = None

@@ -71,6 +71,7 @@ class CovisibilityStage:
             covis.margin,
         )
         pool = context.pool
+        context.covisible_pool = (overlap, checked)
         best = covisible_choice(
             overlap,
             checked,

@@ -25,20 +25,27 @@ Before the pair is matched its labels are judged (their ceiling and their source
   done. Otherwise the pair goes on with its labels: the verification's scores and the
   confidence rule give way to the geometric evidence (``context.config`` and
   ``context.scoring``), the labels keep a veto by their information, and the matching
-  stage widens Group Matching (``context.label_quality.widen``).
+  stage widens Group Matching (``context.label_quality.widen``);
+- never worse, pair by pair: an unlabeled attempt that was accepted (and not vetoed) but
+  too weak to be taken first is kept; when the labelled path ends refused, the pose falls
+  back to it (:class:`UnlabeledFallbackStage`, before the tilt check): what
+  ``label_source: none`` accepts, the labelled path does not lose.
 """
 
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Any
 
 from mlsemreg_ros.core.estimation import label_model
 from mlsemreg_ros.core.labeling import quality
+from mlsemreg_ros.core.poses import same_pose
 from mlsemreg_ros.core.stages.confidence import ConfidenceStage
 from mlsemreg_ros.core.stages.context import RegistrationContext
 from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.matching import MatchingStage
 from mlsemreg_ros.core.stages.verification import VerificationStage
+import numpy as np
 
 #: The unlabeled attempt of poorer labels: the stages up to the confidence rule's verdict.
 UNLABELED_FIRST = (MatchingStage(), EstimationStage(), VerificationStage(), ConfidenceStage())
@@ -102,47 +109,130 @@ def _unlabeled_first(context: RegistrationContext, judged: quality.LabelQuality)
     pose is taken when it is accepted, has ``FIRST_INLIER_FACTOR`` x
     ``estimator.min_inliers`` inliers and the labels do not veto it (their information at
     the pose reaches ``confidence.min_relative_information`` of their own); the stages it
-    ran are then done. Otherwise the pair goes on with its labels, weighed.
+    ran are then done. Otherwise the pair goes on with its labels, weighed, and the attempt
+    is kept for :class:`UnlabeledFallbackStage`.
     """
-    wildcard = context.scoring.unlabeled_local_ss
     # no second SC2-PCR on the full graph: it runs when the sampled one found fewer inliers
-    # than estimator.graph_retry_inliers, far below what the attempt needs to be kept
+    # than estimator.graph_retry_inliers, far below what the attempt needs to be taken first
     quick = replace(
         context.config, estimator=replace(context.config.estimator, graph_retry_inliers=0)
     )
+    attempt = _attempt(context, quick)
+    context.unlabeled_attempt = attempt  # the labelled path's fallback
+    if not _allowed(context, attempt, judged):
+        return False
+    if attempt.evidence.num_inliers < FIRST_INLIER_FACTOR * quick.estimator.min_inliers:
+        return False
+    _adopt(context, attempt)
+    context.diagnostics['labels_unlabeled_first'] = True
+    context.done.update(stage.name for stage in UNLABELED_FIRST)
+    return True
+
+
+def _attempt(context: RegistrationContext, config: Any) -> RegistrationContext:
+    """Run :data:`UNLABELED_FIRST` on unlabeled views of the pair with ``config``."""
+    wildcard = context.scoring.unlabeled_local_ss
     attempt = RegistrationContext(
         quality.unlabeled_view(context.source, wildcard),
         quality.unlabeled_view(context.target, wildcard),
         context.refine,
-        quick,
-        replace(context.scoring, config=quick),
+        config,
+        replace(context.scoring, config=config),
     )
     for stage in UNLABELED_FIRST:
         if stage.wanted(attempt):
             with attempt.timed(f'unlabeled_{stage.name}'):
                 stage.run(attempt)
-    context.timings_ms.update(attempt.timings_ms)
-    evidence, cfg = attempt.evidence, context.config
-    if attempt.refusal or evidence is None:
-        return False
-    if evidence.num_inliers < FIRST_INLIER_FACTOR * cfg.estimator.min_inliers:
+    for name, ms in attempt.timings_ms.items():
+        context.timings_ms[name] = context.timings_ms.get(name, 0.0) + ms
+    return attempt
+
+
+def _allowed(
+    context: RegistrationContext, attempt: RegistrationContext, judged: quality.LabelQuality
+) -> bool:
+    """Whether the attempt's pose is accepted and the labels do not veto it."""
+    if attempt.refusal or attempt.evidence is None:
         return False
     counts = label_model.cooccurrence(
         attempt.transform,
         context.source,
         context.target,
         len(context.scoring.compatibility.counted),
-        cfg.verification,
+        attempt.config.verification,
     )
     information = label_model.information(counts, context.scoring.compatibility)
     share = information / judged.information if judged.information > 0 else float('nan')
     context.diagnostics['labels_unlabeled_information'] = share
-    if not share >= cfg.confidence.min_relative_information:  # the labels veto (NaN too)
-        return False
+    # the labels veto (NaN too)
+    return bool(share >= attempt.config.confidence.min_relative_information)
+
+
+def _adopt(context: RegistrationContext, attempt: RegistrationContext) -> None:
+    """Hand the unlabeled attempt's pose, verdict and views on to ``context``."""
     for name in _ADOPTED:
         setattr(context, name, getattr(attempt, name))
     context.source, context.target = attempt.source, attempt.target
     context.diagnostics.update(attempt.diagnostics)
-    context.diagnostics['labels_unlabeled_first'] = True
-    context.done.update(stage.name for stage in UNLABELED_FIRST)
-    return True
+
+
+class UnlabeledFallbackStage:
+    """
+    Never worse, pair by pair: a refused labelled path takes the unlabeled pose.
+
+    Poorer labels run the unlabeled attempt first (:class:`LabelQualityStage`); one that is
+    accepted but has fewer than ``FIRST_INLIER_FACTOR`` x ``estimator.min_inliers`` inliers
+    is not taken first (at 40 m a wrong unlabeled pose had 84), and the labelled path runs.
+    When that path ends refused (the confidence rule, or a later stage's doubt), the pair
+    takes what ``label_source: none`` accepts up to its confidence rule: the attempt's pose,
+    or, when the attempt was refused, the attempt again with SC2-PCR's retry on the full
+    graph (``estimator.graph_retry_inliers``, which the quick attempt leaves out), if that
+    is accepted, the labels do not veto it, **and it is the labelled path's own pose**
+    (within ``verification.distinct_rotation`` / ``distinct_translation``): two matchings
+    that found the same pose. Without that last test a quick attempt's pose 42 m off (dev
+    pairs 40 m apart, GEDI, 000007_000008: 50 inliers, not vetoed) was accepted. Dev pair
+    000006 reversed, FPFH, geometric labels: the labelled path's right pose was refused as
+    ambiguous; ``none`` accepts it (after the retry), and now the labelled path does too.
+    The tilt check, the fine alignment and the near-miss check then judge the pose as any
+    other (``labels_unlabeled_fallback`` and ``labels_unlabeled_agrees`` in the
+    diagnostics).
+    """
+
+    name = 'unlabeled_fallback'
+
+    def wanted(self, context: RegistrationContext) -> bool:
+        """Say yes when the labelled path of poorer labels ends refused at a finite pose."""
+        return (
+            context.unlabeled_attempt is not None
+            and bool(context.refusal or context.doubts)
+            and bool(np.isfinite(context.transform).all())
+        )
+
+    def run(self, context: RegistrationContext) -> None:
+        """Adopt the unlabeled pose if allowed; the labelled path's search no longer holds."""
+        attempt, judged = context.unlabeled_attempt, context.label_quality
+        assert attempt is not None and judged is not None  # wanted() says so
+        if not _allowed(context, attempt, judged):
+            retry = context.config.estimator.graph_retry_inliers
+            sampled = attempt.estimated.num_inliers if attempt.estimated is not None else 0
+            if not attempt.refusal or sampled >= retry:
+                return  # accepted but vetoed, or the retry would not run
+            quick = attempt.config
+            full = replace(quick, estimator=replace(quick.estimator, graph_retry_inliers=retry))
+            attempt = _attempt(context, full)
+            if not _allowed(context, attempt, judged):
+                return
+        ver = context.config.verification
+        agree = same_pose(
+            context.transform,
+            attempt.transform[None],
+            ver.distinct_rotation,
+            ver.distinct_translation,
+        )
+        context.diagnostics['labels_unlabeled_agrees'] = bool(agree[0])
+        if not agree[0]:  # the two paths disagree: the refusal stands
+            return
+        _adopt(context, attempt)
+        context.searched, context.search_reason = None, ''
+        context.doubts.clear()
+        context.diagnostics['labels_unlabeled_fallback'] = True

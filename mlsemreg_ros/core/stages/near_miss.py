@@ -59,9 +59,11 @@ class NearMissStage:
         cfg = context.config
         source = alignment_cloud(context.source, cfg.fine, pair=True)
         target = alignment_cloud(context.target, cfg.fine, pair=True)
+        # the perturbed starts may run on the downsampled source; the fit is the full scan's
+        starts = alignment_cloud(context.source, cfg.fine, pair=not cfg.near_miss.pair_downsampled)
         verdict = judge_basins(
             context.alignment,
-            lambda start: align_pair(source, target, start, cfg.fine, cfg.fine.pair_method),
+            lambda start: align_pair(starts, target, start, cfg.fine, cfg.fine.pair_method),
             PointToDistribution(source, target, cfg.fine.max_correspondence_distance),
             cfg.near_miss,
         )
