@@ -179,15 +179,24 @@ def test_without_the_search_useless_correspondences_give_no_pose(street_far_apar
 
 
 def test_the_search_finds_the_pose_the_correspondences_miss(street_far_apart):
-    result = _register(street_far_apart)
+    result = _register(street_far_apart, **{'covisibility.accept_overlap': 0.0})
     d = result.diagnostics
     assert d['bev_search_used'] and result.timings_ms['bev_search_ms'] > 0.0
     re, te = _errors(result.transform, street_far_apart['truth'])
     assert re < 1.0 and te < 0.3  # refined by GICP even though refused
     assert d['bev_search_overlap'] > 0.5 and d['bev_search_label_agreement'] > 0.9
-    # random descriptors leave next to no sparse inliers: the evidence stays insufficient
+    # random descriptors leave next to no sparse inliers: the sparse evidence is insufficient
     assert not result.success and 'inliers' in result.message
     assert 'bev_search pose' in result.message
+
+
+def test_the_searched_pose_is_accepted_where_both_scans_see(street_far_apart):
+    # stage 9 (covisible acceptance, on by default) accepts the refined searched pose on its
+    # covisible overlap, which the sparse inliers of random descriptors could not
+    result = _register(street_far_apart)
+    assert result.success and result.diagnostics.get('covisible_accepted')
+    re, te = _errors(result.transform, street_far_apart['truth'])
+    assert re < 1.0 and te < 0.3
 
 
 def test_weak_evidence_sends_an_accepted_pose_to_the_search_too(street_far_apart):

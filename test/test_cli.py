@@ -86,38 +86,13 @@ def test_declared_validation_and_one_error_style(tmp_path, capsys):
 
 
 def test_the_subcommand_and_its_alias_are_the_same_command(tmp_path):
-    for argv in (
-        [
-            'simulate',
-            str(tmp_path / 'a'),
-            '--frames',
-            '1',
-            '--beams',
-            '8',
-            '--azimuth-steps',
-            '64',
-            '--quiet',
-        ],
-    ):
-        assert cli.main(argv) == 0
-        assert cli.main(argv) == 2  # exists, no --force
     from mlsemreg_ros.tools import simulate
 
-    assert (
-        simulate.main(
-            [
-                str(tmp_path / 'b'),
-                '--frames',
-                '1',
-                '--beams',
-                '8',
-                '--azimuth-steps',
-                '64',
-                '--quiet',
-            ]
-        )
-        == 0
-    )
+    options = ['--frames', '1', '--beams', '8', '--azimuth-steps', '64', '--quiet']
+    argv = ['simulate', str(tmp_path / 'a'), *options]
+    assert cli.main(argv) == 0
+    assert cli.main(argv) == 2  # exists, no --force
+    assert simulate.main([str(tmp_path / 'b'), *options]) == 0
     same = [(tmp_path / x / 'poses.txt').read_text() for x in ('a', 'b')]
     assert same[0] == same[1]
 

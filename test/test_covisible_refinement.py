@@ -41,11 +41,23 @@ def _register(pair, **flat):
 
 
 def test_the_covisible_refinement_brings_a_60_m_pose_within_the_bounds(pair_60_m_reversed):
-    result, metrics = _register(pair_60_m_reversed)
-    assert not result.success  # still refused: nothing here accepts a 60 m pose
+    result, metrics = _register(pair_60_m_reversed, **{'covisibility.accept_overlap': 0.0})
+    assert not result.success  # the refinement alone accepts nothing
     assert 'covisible_refinement' in result.diagnostics
     assert metrics.success, (metrics.rotation_error_deg, metrics.translation_error_cm)
-    usual, before = _register(pair_60_m_reversed, **{'covisibility.refine_distance': 0.0})
+    usual, before = _register(
+        pair_60_m_reversed,
+        **{'covisibility.refine_distance': 0.0, 'covisibility.accept_overlap': 0.0},
+    )
     assert not usual.success
     assert 'covisible_refinement' not in usual.diagnostics
     assert not before.success  # the usual GICP alone: 0.67 m off
+
+
+def test_the_refined_60_m_pose_is_accepted_where_both_scans_see(pair_60_m_reversed):
+    """Stage 7b: the refined pose beats its pool's distinct candidates and slides."""
+    result, metrics = _register(pair_60_m_reversed)
+    assert metrics.success, (metrics.rotation_error_deg, metrics.translation_error_cm)
+    assert result.success, result.message
+    assert result.diagnostics['covisible_accepted']
+    assert result.diagnostics['covisible_accept_overlap'] >= 0.97

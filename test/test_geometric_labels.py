@@ -219,3 +219,17 @@ def test_every_point_has_a_runner_up_class() -> None:
     assert not np.isin(out.second[objects], (g.POLE, g.TRUNK, g.CAR)).any()
     road = out.raw == g.ROAD
     assert np.all(out.second[road] == g.ROAD)
+
+
+def test_vertical_lines_are_poles_only_near_the_sensor() -> None:
+    """A line held above the ground (no standing column): a pole at 8 m, not at 25 m."""
+    rng = np.random.default_rng(4)
+
+    def held(x: float, y: float) -> np.ndarray:
+        upright = pole(x, y)
+        return upright[upright[:, 2] >= -SENSOR_HEIGHT + 1.6]  # from 1.6 m up
+
+    assert np.hypot(24.0, 7.0) > g.LINE_RANGE > np.hypot(8.0, 3.0)
+    _, (_, near, far), _ = labeled([ground(rng), held(8.0, 3.0), held(24.0, 7.0)])
+    assert majority(near) == g.POLE
+    assert share(far, g.POLE) == 0.0

@@ -229,40 +229,9 @@ def test_kiss_matcher_baseline_says_how_to_install_it(generated_dir, capsys, mon
 def test_bench_reports_the_verification_stage(generated_dir, tmp_path):
     out = tmp_path / 'bench.json'
     path = generated_dir / '000000.npz'
-    assert (
-        bench.main(
-            [
-                '--pair',
-                str(path),
-                '--repeats',
-                '1',
-                '--keypoints',
-                '500',
-                '--json',
-                str(out),
-                '--no-progress',
-            ]
-        )
-        == 0
-    )
+    args = ['--pair', str(path), '--repeats', '1', '--keypoints', '500', '--json', str(out)]
+    assert bench.main([*args, '--no-progress']) == 0
     row = json.loads(out.read_text())['keypoints']['500']
     assert row['verification_ms'] > 0.0
-    assert (
-        bench.main(
-            [
-                '--pair',
-                str(path),
-                '--repeats',
-                '1',
-                '--keypoints',
-                '500',
-                '--set',
-                'verification.enabled=false',
-                '--json',
-                str(out),
-                '--no-progress',
-            ]
-        )
-        == 0
-    )
+    assert bench.main([*args, '--set', 'verification.enabled=false', '--no-progress']) == 0
     assert json.loads(out.read_text())['keypoints']['500']['verification_ms'] == 0.0

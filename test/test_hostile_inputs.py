@@ -253,6 +253,34 @@ def test_a_restarted_wheel_stream_makes_the_model_forget_the_old_one() -> None:
     assert inbox.drops.count('wheel_dropped.pose_jump') == RESTART_RUN - 1
 
 
+def test_lost_messages_after_a_stream_pause_give_no_prior_across_the_hole() -> None:
+    """
+    Issue 34's wrong pose under load: the fuzz's cases 5 s apart, the first messages lost.
+
+    The new case's wheel messages continue the old stream (within the gate's gap and speed),
+    so the old ones stay; the prior at the keyframe must not interpolate across the hole.
+    """
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.odometry.prior_model import PriorMotionModel
+
+    inbox, model = PriorInbox(), PriorMotionModel(RegistrationConfig())
+    for t in np.arange(0.0, 2.1, 0.02):  # the previous case: ends 20 m away, turned 14 deg
+        s = min(t, 1.0)
+        turn = tuple(Rotation.from_euler('z', 14.0 * s, degrees=True).as_quat())
+        inbox.on_wheel(_wheel(1000.0 + t, 20.0 * s, turn))
+    for t in np.arange(5.8, 7.1, 0.02):  # this case from 5 s later, its first 0.8 s lost
+        inbox.on_wheel(_wheel(1000.0 + t, 20.0 * min(max(t - 6.0, 0.0), 1.0)))
+    assert inbox.counts['wheel'] == 105 + 65  # every one kept: one stream, no restart
+    inbox.flush(model, 'lidar', '', np.eye(4))
+    keyframe = round(1005.0 * 1e9)  # the keyframe at t0, the moved scan at t0 + 2 s
+    model.update(np.eye(4), keyframe)
+    assert model.relative_prior(keyframe + 2 * 10**9) is None  # t0 lies in the hole
+    assert model.predict(keyframe + 2 * 10**9) is None
+    model.cfg.max_sample_gap = 0.0  # as before: interpolated across the 3.7 s hole
+    prior = model.relative_prior(keyframe + 2 * 10**9)
+    assert np.linalg.norm(prior.T[:3, 3] - [20.0, 0.0, 0.0]) > 2.0
+
+
 def test_wheel_jump_allows_plausible_motion() -> None:
     still = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
     assert wheel_jump(still, ((5.0, 0.0, 0.0), still[1]), 0.1) == ''

@@ -188,14 +188,19 @@ def register_pair(scene, label_src, label_dst, **changes):
 
 
 class Refuse:
-    """A stage that refuses whatever pose the labelled path reached."""
+    """A stage that refuses the labelled path's pose (moved ``shift`` m along x first)."""
 
     name = 'refuse'
+
+    def __init__(self, shift: float = 0.0) -> None:
+        self.shift = shift
 
     def wanted(self, context) -> bool:
         return True
 
     def run(self, context) -> None:
+        context.transform = context.transform.copy()
+        context.transform[0, 3] += self.shift
         context.doubt('refused by the test')
 
 
@@ -208,12 +213,17 @@ def test_a_refused_labelled_path_falls_back_to_the_accepted_unlabeled_pose(scene
     )
     assert zeros.success
     results = {}
-    for name, label_src in (('kept', scene.label_src), ('vetoed', permuted(scene.label_src))):
+    cases = (
+        ('kept', scene.label_src, 0.0),
+        ('vetoed', permuted(scene.label_src), 0.0),
+        ('elsewhere', scene.label_src, 5.0),
+    )
+    for name, label_src, shift in cases:
         registration = Registration(
             RegistrationConfig().replace({**CONFIG, **weak, 'label_source': 'geometric'})
         )
         at = [stage.name for stage in registration.stages].index('unlabeled_fallback')
-        registration.stages.insert(at, Refuse())
+        registration.stages.insert(at, Refuse(shift))
         source, target = registration.prepare_scans(
             {'points': scene.pts_src, 'labels': label_src},
             {'points': scene.pts_dst, 'labels': scene.label_dst},
@@ -227,3 +237,8 @@ def test_a_refused_labelled_path_falls_back_to_the_accepted_unlabeled_pose(scene
     # labels that contradict the unlabeled pose keep their veto: the refusal stands
     assert not vetoed.diagnostics.get('labels_unlabeled_fallback')
     assert not vetoed.success
+    # a labelled path refused at another pose (5 m off): the two paths disagree, refused
+    elsewhere = results['elsewhere']
+    assert elsewhere.diagnostics['labels_unlabeled_agrees'] is False
+    assert not elsewhere.diagnostics.get('labels_unlabeled_fallback')
+    assert not elsewhere.success

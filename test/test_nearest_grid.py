@@ -22,7 +22,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import bev_search, nearest_grid
-from mlsemreg_ros.core.features import kernels
+from mlsemreg_ros.core.features import cell_grid, kernels
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.rigid import apply_transform
 from mlsemreg_ros.datasets.synthetic_scene import motion
@@ -68,11 +68,40 @@ def test_nearest_within_is_the_kd_tree_query(seed, radius):
     np.testing.assert_array_equal(broken[0], [np.inf, np.inf])  # the tree raises instead
 
 
+@pytest.mark.parametrize(('cell', 'radius'), [(1.0, 1.0), (0.5, 1.3), (1.0, 0.4)])
+def test_cells_of_any_edge_answer_as_the_kd_tree(cell, radius):
+    """Tall columns, a far point, a radius over or under the edge: the KD-tree's answers."""
+    rng = np.random.default_rng(11)
+    points = _cloud(11, 2000)
+    pole = np.column_stack([np.full(300, 3.1), np.full(300, -2.2), np.linspace(-5, 25, 300)])
+    points = np.vstack([points, pole, [[900.0, -700.0, 40.0]]])  # a far point: a wide box
+    grid = cell_grid.CellGrid.build(points, cell)
+    assert grid.usable and len(grid) == len(points)
+    queries = np.vstack(
+        [
+            points[rng.integers(0, len(points), 800)] + rng.normal(0, radius, (800, 3)),
+            pole[::10] + np.array([0.3, 0.2, 0.0]),
+            [[900.2, -700.0, 40.0], [-2000.0, 0.0, 0.0]],
+        ]
+    )
+    expected, expected_rows = cKDTree(points).query(queries, distance_upper_bound=radius)
+    found, rows = grid.nearest(queries, radius)
+    np.testing.assert_allclose(found, expected, rtol=0, atol=1e-12)
+    hit = np.isfinite(expected)
+    assert 0 < np.count_nonzero(hit) < len(queries)
+    same = rows[hit] == expected_rows[hit]
+    assert np.all(same | np.isclose(found[hit], expected[hit], rtol=0, atol=1e-12))
+    np.testing.assert_array_equal(rows[~hit], np.full(np.count_nonzero(~hit), len(points)))
+    squared, rows_or_none = grid.nearest_squared(queries, radius)
+    np.testing.assert_array_equal(rows_or_none[~hit], -1)
+    np.testing.assert_allclose(squared[hit], expected[hit] ** 2, rtol=1e-12)
+
+
 def test_a_box_too_large_for_the_cells_falls_back_to_the_tree(monkeypatch):
     target = np.array([[0.0, 0.0, 0.0], [5000.0, 5000.0, 100.0], [0.1, 0.0, 0.0]])
     tree = cKDTree(target)
-    monkeypatch.setattr(nearest_grid, 'MAX_CELLS', 1000)
-    assert not nearest_grid.NearestGrid.build(target, 0.5).usable
+    monkeypatch.setattr(cell_grid, 'MAX_COLUMNS', 1000)
+    assert not cell_grid.CellGrid.build(target, 0.5).usable
     found, rows = nearest_grid.nearest_within(tree, np.array([[0.08, 0.0, 0.0]]), 0.5)
     assert rows[0] == 2 and found[0] == pytest.approx(0.02)
 

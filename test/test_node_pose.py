@@ -112,6 +112,19 @@ def test_a_wrong_seed_is_refused(probe: NodeProbe) -> None:
     assert_at(map_pose_of(probe, stamp), truth @ motion(0.0, (0.5, 0.0, 0.0)))
 
 
+def test_set_pose_in_the_map_frame_sets_map_to_odom(probe: NodeProbe) -> None:
+    """With a loaded map, ``mlsemreg/set_pose`` in ``map`` is taken as it is (unchecked)."""
+    here = motion(0.0, (-13.0, 0.3, 0.0))
+    publish_pose(probe, '/initialpose', pose_message('map', here))  # wherever it was before
+    stamp, _ = send(probe, here, 40.0, seed=921)
+    assert_at(map_pose_of(probe, stamp), here)
+    given = here @ motion(6.0, (1.5, -0.7, 0.0))  # not where the scan is: not checked
+    publish_pose(probe, 'mlsemreg/set_pose', pose_message('map', given))
+    stamp, status = send(probe, here, 40.1, seed=922)  # the sensor stood still
+    assert status['level'] == 0, status['message']
+    assert_at(map_pose_of(probe, stamp), given)
+
+
 def test_the_map_arrives_at_a_late_subscriber(probe: NodeProbe, map_folder: Path) -> None:
     from mlsemreg_ros.codec.pointcloud2 import pointcloud2_to_arrays
     from mlsemreg_ros.core.maps.map_io import load_map

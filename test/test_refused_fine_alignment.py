@@ -38,6 +38,7 @@ def test_a_refused_pose_is_refined_on_the_downsampled_source(downsampled):
             'fine.refused_downsampled': downsampled,
             'bev_search.polish_fine': 0,  # the polishing's alignments: downsampled anyway
             'covisibility.refine_distance': 0.0,  # the covisible refinement's: full source
+            'covisibility.accept_overlap': 0.0,  # refused: no near-miss check's clouds
         },
     )
     fine = config.fine

@@ -154,8 +154,8 @@ def test_compiled_normal_equations_equal_numpy() -> None:
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
 
 
-def test_hashed_nearest_mean_equals_the_kd_tree_within_the_distance() -> None:
-    """The cell hash finds every point's nearest mean within its cell edge, as a KD-tree does."""
+def test_the_cells_find_the_nearest_mean_as_the_kd_tree_within_the_distance() -> None:
+    """The map means' cells find every point's nearest mean within their edge, as a KD-tree."""
     rng = np.random.default_rng(3)
     means = rng.uniform(-30, 30, (4000, 3)) * [1.0, 1.0, 0.1]
     means[:7] = [[0.0, 0.0, 0.0], [0.999, 0.0, 0.0], [-1e-9, 0.0, 0.0], [5.5, 5.5, 0.5]] + [
@@ -164,15 +164,15 @@ def test_hashed_nearest_mean_equals_the_kd_tree_within_the_distance() -> None:
     near = means[:600] + rng.normal(0, 0.5, (600, 3))
     points = np.vstack([near, rng.uniform(-40, 40, (400, 3))])
     points[0] = [np.nan, 0.0, 0.0]
-    cells = sweep_kernels.CellIndex(means, 0.8)
-    index, squared = cells.nearest(points)
+    gaussians = sweep_alignment.MapGaussians(means, np.tile(np.eye(3), (len(means), 1, 1)))
+    index, squared = gaussians.nearest(points, 0.8)
     tree = small_gicp.KdTree(means, num_threads=1)
     want_index, want_squared = (np.asarray(a) for a in tree.batch_nearest_neighbor_search(points))
     within = want_squared < 0.8**2
     assert 300 < np.count_nonzero(within) < 1000
     np.testing.assert_array_equal(index[within], want_index[within])
     np.testing.assert_allclose(squared[within], want_squared[within], rtol=1e-12)
-    assert np.all(squared[~within] >= 0.8**2)  # beyond the edge: none, or a farther mean
+    assert np.all(index[~within] == -1) and np.all(np.isinf(squared[~within]))
     assert index[0] == -1 and np.isinf(squared[0])  # a non-finite point pairs with nothing
 
 
@@ -190,6 +190,29 @@ def test_compiled_linearization_equals_numpy(street, monkeypatch) -> None:
     assert compiled[2] == reference[2] > 500
     for got, want in zip(compiled[:2], reference[:2], strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-9 * np.abs(want).max())
+
+
+@pytest.mark.parametrize('yaw_rate', [0.0, 40.0, -60.0])
+def test_the_compiled_loop_is_the_python_loop(street, yaw_rate) -> None:
+    """The whole Gauss-Newton loop in one compiled call: the Python loop's result, to rounding."""
+    world, gaussians = street
+    truth = SweepMotion(np.array([0.0, 0.0, np.radians(yaw_rate)]), np.array([8.0, 0.0, 0.0]))
+    T_true = _pose(2.0, 0.5, 10.0)
+    raw, times = _sweep(world, T_true, truth)
+    raw, times = sweep_alignment.sweep_subset(raw, times, 1000)
+    straight = SweepMotion(np.zeros(3), truth.velocity)
+    T_initial = T_true @ _pose(0.15, -0.1, 1.0) @ invert_transform(_pose(0, 0, 0))
+    config = SweepAlignmentConfig()
+    loop = sweep_alignment.align_sweep(
+        raw, times, gaussians, T_initial, straight, config, compiled=False
+    )
+    one = sweep_alignment.align_sweep(raw, times, gaussians, T_initial, straight, config)
+    assert (one.pairs, one.iterations) == (loop.pairs, loop.iterations)
+    assert one.pairs > 500
+    np.testing.assert_allclose(one.T_target_source, loop.T_target_source, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(one.motion.omega, loop.motion.omega, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(one.motion.velocity, loop.motion.velocity, rtol=0, atol=1e-9)
+    assert one.change_m == pytest.approx(loop.change_m, abs=1e-9)
 
 
 @pytest.mark.slow  # a 34-sweep HDL-64 field drive without an IMU: about 20 s

@@ -55,7 +55,7 @@ def _corridor(sign: bool) -> np.ndarray:
 def _support(points: np.ndarray) -> tuple[float, np.ndarray, int]:
     cloud = AlignmentCloud.build(points, 0.0, 10)
     alignment = align_pair(cloud, cloud, np.eye(4), FineAlignmentConfig(), 'gicp')
-    weak = weakest_direction(alignment, 0.4, 1.0)
+    weak = weakest_direction(alignment)
     return weak.support, weak.direction, alignment.num_inliers
 
 
@@ -73,7 +73,7 @@ def test_a_corridor_leaves_its_axis_free_and_a_sign_pins_it() -> None:
 def test_no_hessian_no_support() -> None:
     cloud = AlignmentCloud.build(np.zeros((3, 3)), 0.0, 10)
     alignment = align_pair(cloud, cloud, np.eye(4), FineAlignmentConfig(), 'gicp')
-    assert weakest_direction(alignment, 0.4, 1.0).support == 0.0
+    assert weakest_direction(alignment).support == 0.0
 
 
 @pytest.mark.slow

@@ -181,11 +181,12 @@ class MotionPriorConfig:
         high=180.0,
     )
     gyro_rescue: float = param(
-        2.0,
+        1.0,
         'A scan rejected with no prediction (the second after a start: the IMU prior has no '
-        'velocity yet) is accepted from its refused global pose when that pose and its map '
-        'refinement are within this of the gyro rotation over the interval and the map trusts '
-        'the refinement (core/odometry/gyro_rescue.py; 0: off).',
+        'velocity yet) is accepted from its refused global pose when the map trusts that '
+        "pose's refinement and the refinement is within this of the gyro rotation over the "
+        'interval (the refused pose itself within 4 times this; core/odometry/gyro_rescue.py; '
+        '0: off).',
         unit='deg',
         low=0.0,
         high=30.0,
@@ -273,8 +274,8 @@ class SampleBuffer:
         if max_gap_ns <= 0:
             return True
         first = max(int(np.searchsorted(stamps, t0_ns, side='right')) - 1, 0)
-        last = min(int(np.searchsorted(stamps, t1_ns, side='left')), stamps.size - 1)
-        return last <= first or int(np.diff(stamps[first : last + 1]).max()) <= max_gap_ns
+        end = min(int(np.searchsorted(stamps, t1_ns, side='left')), stamps.size - 1) + 1
+        return end - first < 2 or int(np.diff(stamps[first:end]).max()) <= max_gap_ns
 
     def clear(self) -> None:
         """Drop every sample."""

@@ -115,8 +115,8 @@ def default_stages() -> list[Stage]:
         UnlabeledFallbackStage(),  # 6b. poorer labels, refused: the unlabeled attempt's pose
         LevelCheckStage(),  # 6c. a tilt the two ground fits do not allow is refused
         FineAlignmentStage(),  # 7. GICP of the pair from the chosen pose (refine=True)
-        CovisibleAcceptanceStage(),  # 7b. refused, refined: accepted where both scans see
         NearMissStage(),  # 8. accepted and refined: no second basin from perturbed starts
+        CovisibleAcceptanceStage(),  # 9. refused, refined: accepted where both scans see
     ]
 
 

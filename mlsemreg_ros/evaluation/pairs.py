@@ -25,7 +25,6 @@ evaluation settings (paper Sec. 4.1).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 import sys
 import time
@@ -120,7 +119,7 @@ def verification_summary(diagnostics: dict[str, Any]) -> dict[str, Any] | None:
 
 
 def covisible_summary(diagnostics: dict[str, Any]) -> dict[str, Any]:
-    """The refused path's covisible choice, refinement and acceptance (``covisible_*``)."""
+    """Collect the refused path's covisible choice, refinement and acceptance (``covisible_*``)."""
     keys = ('chosen_origin', 'fine_refused', 'fine_refused_kept', 'level_check_refused')
     keys += ('degeneracy_ratio', 'fine_inlier_fraction', 'near_miss_refusal')
     return {k: v for k, v in diagnostics.items() if k.startswith('covisible_') or k in keys}
@@ -252,43 +251,3 @@ def method_label(descriptor: str, config: Any) -> str:
         f'{" + verification" if config.verification.enabled else ""}'
         f'{"" if fine == "off" else " + " + fine.upper()}'
     )
-
-
-@dataclass(frozen=True)
-class PairEvalOptions:
-    """What ``mlsemreg eval-pairs`` runs besides the configuration: descriptor, peers, noise."""
-
-    descriptor: str = 'gedi'  # gedi: stored in the pair files; fpfh: computed at the keypoints
-    baselines: tuple[str, ...] = ()  # pair baselines on the same pairs (evaluation/baselines.py)
-    label_noise: str | None = None  # flip:F, confuse:C or both (evaluation/label_noise.py)
-    noise_seed: int = 0
-    progress: bool = True
-
-
-def evaluate_pairs(
-    directory: Path, options: PairEvalOptions, config: Any, bounds: EvaluationConfig
-) -> dict[str, Any]:
-    """
-    Register every pair of ``directory``, print the paper's table, run and print the baselines.
-
-    Returns the report of :func:`evaluate_directory` with the baselines' under ``baselines``.
-    Raises :class:`~mlsemreg_ros.evaluation.label_noise.LabelNoiseError` (a bad
-    ``label_noise``), :class:`EvalError` and
-    :class:`~mlsemreg_ros.evaluation.baselines.BaselineUnavailable`.
-    """
-    from mlsemreg_ros.evaluation.baselines import run_baselines
-    from mlsemreg_ros.evaluation.label_noise import LabelNoise
-    from mlsemreg_ros.evaluation.pair_report import print_comparison, print_pair_report
-
-    noise = LabelNoise.parse(options.label_noise)
-    report = evaluate_directory(
-        directory, options.descriptor, config, bounds, progress=options.progress,
-        label_noise=noise, noise_seed=options.noise_seed,
-    )  # fmt: skip
-    label = print_pair_report(report, directory, options.descriptor, config, noise)
-    if options.baselines:
-        report['baselines'] = run_baselines(
-            directory, list(options.baselines), config, bounds, progress=options.progress
-        )
-        print_comparison(label, report)
-    return report

@@ -163,6 +163,29 @@ class _MeshBuilder:
 
 
 # -- objects ------------------------------------------------------------------------------
+def _wheel(
+    b: _MeshBuilder,
+    pose: tuple[float, float, float],
+    offset: tuple[float, float],
+    radius: float,
+    width: float,
+    label: str,
+    inst: int,
+) -> None:
+    """Add a wheel across a vehicle at ``pose`` (x, y, yaw), ``offset`` (forward, left) from it."""
+    x, y, yaw = pose
+    c, s = np.cos(yaw), np.sin(yaw)
+    dx, dy = offset
+    b.add(
+        prim.horizontal_cylinder(
+            x + c * dx - s * dy, y + s * dx + c * dy, radius, radius, width, yaw + np.pi / 2,
+            sides=8,
+        ),
+        label,
+        inst,
+    )  # fmt: skip
+
+
 def _car(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float, yaw: float) -> None:
     """Sedan or van: body, cabin and four wheels (class car, one instance)."""
     inst = b.instance()
@@ -190,19 +213,8 @@ def _car(b: _MeshBuilder, rng: np.random.Generator, x: float, y: float, yaw: flo
         )
     for fx in (-0.33, 0.33):
         for fy in (-1.0, 1.0):
-            dx, dy = fx * length, fy * (0.5 * width - 0.12)
-            b.add(
-                prim.horizontal_cylinder(
-                    x + c * dx - s * dy,
-                    y + s * dx + c * dy,
-                    0.32,
-                    0.32,
-                    0.22,
-                    yaw + np.pi / 2,
-                    sides=8,
-                ),
-                'car',
-                inst,
+            _wheel(
+                b, (x, y, yaw), (fx * length, fy * (0.5 * width - 0.12)), 0.32, 0.22, 'car', inst
             )
     b.objects['car'] += 1
 
@@ -236,20 +248,7 @@ def _truck(
     )
     for wx in (fx, bx - 0.25 * cargo, bx + 0.25 * cargo):
         for fy in (-1.0, 1.0):
-            dy = fy * (0.5 * width - 0.2)
-            b.add(
-                prim.horizontal_cylinder(
-                    x + c * wx - s * dy,
-                    y + s * wx + c * dy,
-                    0.5,
-                    0.5,
-                    0.35,
-                    yaw + np.pi / 2,
-                    sides=8,
-                ),
-                'truck',
-                inst,
-            )
+            _wheel(b, (x, y, yaw), (wx, fy * (0.5 * width - 0.2)), 0.5, 0.35, 'truck', inst)
     b.objects['truck'] += 1
 
 
@@ -573,6 +572,30 @@ def _scatter(
     return np.asarray(kept).reshape(-1, 2)
 
 
+def _perimeter_fence(
+    b: _MeshBuilder,
+    rng: np.random.Generator,
+    sides: list[_Side],
+    sidewalk: float,
+    gate: tuple[float, float, float],
+) -> None:
+    """
+    Fence every side 0.2 m inside the sidewalk, with one gate per side.
+
+    ``gate``: (fraction of the side, metres before, metres after) where the gate opens.
+    """
+    fraction, before, after = gate
+    for side in sides:
+        at = fraction * side.length
+        _fence(
+            b,
+            rng,
+            side.at(sidewalk, sidewalk + 0.2),
+            side.at(side.length - sidewalk, sidewalk + 0.2),
+            [(at - before, at + after)],
+        )
+
+
 def _urban(
     b: _MeshBuilder,
     rng: np.random.Generator,
@@ -702,14 +725,7 @@ def _park(
         if rng.random() < 0.5:
             _clutter(b, rng, s + 3.0, cy + 1.8, 0.0)
     if rng.random() < 0.4:
-        for side in sides:
-            _fence(
-                b,
-                rng,
-                side.at(sidewalk, sidewalk + 0.2),
-                side.at(side.length - sidewalk, sidewalk + 0.2),
-                [(0.5 * side.length - 2.0, 0.5 * side.length + 2.0)],
-            )
+        _perimeter_fence(b, rng, sides, sidewalk, (0.5, 2.0, 2.0))
 
 
 def _parking(
@@ -747,14 +763,7 @@ def _parking(
         else:
             u += rng.uniform(6.0, 14.0)
     if rng.random() < 0.6:
-        for side in sides:
-            _fence(
-                b,
-                rng,
-                side.at(sidewalk, sidewalk + 0.2),
-                side.at(side.length - sidewalk, sidewalk + 0.2),
-                [(0.3 * side.length, 0.3 * side.length + 6.0)],
-            )
+        _perimeter_fence(b, rng, sides, sidewalk, (0.3, 0.0, 6.0))
     if rng.random() < 0.3:
         b.add(prim.box(*xy(u0 + 4.0, v1 - 9.0), 4.0, 3.0, 0.0, 2.8, row_yaw), 'building')
         b.objects['building'] += 1
@@ -796,14 +805,7 @@ def _industrial(
         b.add(prim.box(px, py, 6.0, 2.4, 0.0, 2.6, 0.0), 'unlabeled')
         b.objects['clutter'] += 1
     if rng.random() < 0.8:
-        for side in sides:
-            _fence(
-                b,
-                rng,
-                side.at(sidewalk, sidewalk + 0.2),
-                side.at(side.length - sidewalk, sidewalk + 0.2),
-                [(0.5 * side.length - 4.0, 0.5 * side.length + 4.0)],
-            )
+        _perimeter_fence(b, rng, sides, sidewalk, (0.5, 4.0, 4.0))
 
 
 _BLOCK_BUILDERS = {

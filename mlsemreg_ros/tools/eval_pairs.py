@@ -179,7 +179,8 @@ def eval_pairs(
     from mlsemreg_ros.evaluation import tables
     from mlsemreg_ros.evaluation.baselines import BaselineUnavailable
     from mlsemreg_ros.evaluation.label_noise import LabelNoiseError
-    from mlsemreg_ros.evaluation.pairs import EvalError, evaluate_pairs, PairEvalOptions
+    from mlsemreg_ros.evaluation.pair_run import evaluate_pairs, PairEvalOptions
+    from mlsemreg_ros.evaluation.pairs import EvalError
     from mlsemreg_ros.evaluation.reports import write_json
 
     flags = _flags(matcher, no_semantic, estimator, no_refine, no_verification)

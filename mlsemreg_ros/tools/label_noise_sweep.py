@@ -60,12 +60,8 @@ def label_noise_sweep(
     """Sweep the label noise (alias mlsemreg-label-noise-sweep)."""
     from mlsemreg_ros.core.config import ConfigError
     from mlsemreg_ros.evaluation import tables
-    from mlsemreg_ros.evaluation.label_noise import (
-        LabelNoiseError,
-        plot_sweep,
-        SWEEP,
-        sweep_label_noise,
-    )
+    from mlsemreg_ros.evaluation.label_noise import LabelNoiseError, plot_sweep, SWEEP
+    from mlsemreg_ros.evaluation.pair_run import sweep_label_noise
     from mlsemreg_ros.evaluation.pairs import EvalError
     from mlsemreg_ros.evaluation.reports import write_json
     from mlsemreg_ros.tools.eval_pairs import build_settings

@@ -40,7 +40,8 @@ are ``T exp(delta)`` and ``xi + delta_xi``; to first order
 
 with ``d = exp(tau xi) p`` the deskewed point. Every step is vectorised over the points
 (every k-th point, about ``sweep_alignment.points``); the map's nearest voxels come from
-a hash of the means by cells of ``max_distance`` (``sweep_kernels.CellIndex``).
+the means sorted by cells of ``max_distance`` (``core/features/cell_grid.py``, the search the
+dense scores use too).
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.alignment import sweep_kernels
 from mlsemreg_ros.core.alignment.config import SweepAlignmentConfig
 from mlsemreg_ros.core.features import kernels
+from mlsemreg_ros.core.features.cell_grid import CellGrid
 from mlsemreg_ros.core.features.deskew import _twist_terms, deskew, SMALL_ANGLE, SweepMotion
 import numpy as np
 import small_gicp
@@ -90,9 +92,10 @@ class MapGaussians:
     """
     A local map's voxel Gaussians and a search of the nearest mean (built once per use).
 
-    With the compiled kernels, the means are hashed by cells of the search distance
-    (:class:`~mlsemreg_ros.core.alignment.sweep_kernels.CellIndex`: one pass, exact within
-    that distance); without them, or for an unbounded search, small_gicp's KD-tree.
+    With the compiled kernels, the means are sorted by cells of the search distance
+    (:class:`~mlsemreg_ros.core.features.cell_grid.CellGrid`: built in one pass, exact
+    within that distance); without them, for an unbounded search, or for a map the cells
+    cannot hold, small_gicp's KD-tree.
     """
 
     def __init__(self, means: np.ndarray, covariances: np.ndarray) -> None:
@@ -100,17 +103,17 @@ class MapGaussians:
         self.means = np.ascontiguousarray(means[:, :3], dtype=np.float64)
         self.covariances = np.asarray(covariances, dtype=np.float64)[:, :3, :3]
         self._tree: small_gicp.KdTree | None = None
-        self._cells: sweep_kernels.CellIndex | None = None
+        self._cells: CellGrid | None = None
 
     def __len__(self) -> int:
         """Voxels."""
         return len(self.means)
 
-    def cells(self, cell: float) -> sweep_kernels.CellIndex:
-        """Return the means hashed by cells of edge ``cell`` (built on first use)."""
+    def cells(self, cell: float) -> CellGrid | None:
+        """Return the means sorted by cells of edge ``cell`` (built once; None: unusable)."""
         if self._cells is None or self._cells.cell != cell:
-            self._cells = sweep_kernels.CellIndex(self.means, cell)
-        return self._cells
+            self._cells = CellGrid.build(self.means, cell)
+        return self._cells if self._cells.usable else None
 
     def nearest(
         self, points: np.ndarray, within: float | None = None
@@ -121,8 +124,12 @@ class MapGaussians:
         ``within``: only a mean at most this far counts; a point without one may then get
         index -1 and an infinite squared distance (the hashed search). None: any distance.
         """
-        if within is not None and within > 0 and kernels.enabled():
-            return self.cells(within).nearest(points)
+        cells = (
+            self.cells(within) if within is not None and within > 0 and kernels.enabled() else None
+        )
+        if cells is not None:
+            squared, index = cells.nearest_squared(points, within)
+            return index, squared
         if self._tree is None:
             self._tree = small_gicp.KdTree(self.means, num_threads=threads.workers())
         index, sq = self._tree.batch_nearest_neighbor_search(
@@ -149,12 +156,16 @@ def align_sweep(
     T_initial: np.ndarray,
     motion_initial: SweepMotion,
     config: SweepAlignmentConfig,
+    compiled: bool | None = None,
 ) -> SweepAlignment:
     """
     Estimate the pose at the stamp and the sweep twist of raw ``points`` taken at ``times``.
 
     ``points`` (N, 3) as the sensor gave them, ``times`` (N,) s after the stamp,
     ``T_initial`` the rigid alignment of the scan deskewed by ``motion_initial``.
+    ``compiled``: the whole loop in one compiled call (``sweep_kernels.align_sweep``; None:
+    when the kernels are on and the map's cells are usable), else this loop, each step's
+    linearization compiled or not (:func:`linearization`).
     """
     T = np.asarray(T_initial, dtype=np.float64).copy()
     xi0 = np.concatenate([motion_initial.omega, motion_initial.velocity]).astype(np.float64)
@@ -168,6 +179,25 @@ def align_sweep(
             np.full(3, 1.0 / config.velocity_sigma**2),
         ]
     )
+    cells = gaussians.cells(config.max_distance) if kernels.use_compiled(compiled) else None
+    if cells is not None:
+        T, xi, pairs, iteration, change_m = sweep_kernels.align_sweep(
+            points,
+            times,
+            T,
+            xi0,
+            prior,
+            config.iterations,
+            KERNEL_SCALE_START,
+            STEP_TOLERANCE,
+            SMALL_ANGLE,
+            cells,
+            gaussians.means,
+            gaussians.covariances,
+            config.max_distance,
+            VOXEL_REGULARIZATION,
+        )
+        return SweepAlignment(T, SweepMotion(xi[:3], xi[3:]), change_m, pairs, iteration)
     pose_offset = np.zeros(6)  # accumulated (phi, t) of T relative to T_initial
     pairs, iteration = 0, 0
     decay = KERNEL_SCALE_START ** (-1.0 / max(config.iterations - 2, 1))
@@ -211,8 +241,8 @@ def linearization(
     Each point pairs with its nearest map mean within ``max_distance``. Compiled in one pass
     (``sweep_kernels.sweep_linearization``) when the kernels are on; else the NumPy steps.
     """
-    if kernels.enabled():
-        cells = gaussians.cells(max_distance)
+    cells = gaussians.cells(max_distance) if kernels.enabled() else None
+    if cells is not None:
         return sweep_kernels.sweep_linearization(
             points,
             times,
@@ -220,6 +250,7 @@ def linearization(
             SMALL_ANGLE,
             T,
             cells,
+            gaussians.means,
             gaussians.covariances,
             max_distance,
             VOXEL_REGULARIZATION,

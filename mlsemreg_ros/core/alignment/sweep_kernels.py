@@ -25,6 +25,7 @@ checks that both agree.
 
 from __future__ import annotations
 
+from mlsemreg_ros.core.features.cell_grid import _nearest_squared, CellGrid
 from mlsemreg_ros.core.features.kernels import _deskew_piecewise, jit
 import numpy as np
 
@@ -150,135 +151,6 @@ def normal_equations(
     )
 
 
-#: Each coordinate of a cell key is offset by this and packed into 21 bits.
-_CELL_OFFSET = 1 << 20
-_GOLDEN = -7046029254386353131  # 0x9E3779B97F4A7C15 as int64 (Fibonacci hashing)
-
-
-@jit
-def _cell_key(x: float, y: float, z: float, cell: float) -> int:
-    """Packed key of the cell of ``(x, y, z)``; -1 outside the +-2**20 cells of the origin."""
-    ix = np.int64(np.floor(x / cell)) + _CELL_OFFSET
-    iy = np.int64(np.floor(y / cell)) + _CELL_OFFSET
-    iz = np.int64(np.floor(z / cell)) + _CELL_OFFSET
-    limit = 2 * _CELL_OFFSET
-    if ix < 1 or iy < 1 or iz < 1 or ix >= limit - 1 or iy >= limit - 1 or iz >= limit - 1:
-        return -1
-    return (ix << 42) | (iy << 21) | iz
-
-
-@jit
-def _cell_table(
-    means: np.ndarray, cell: float, bits: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """
-    Open-addressing table (``2**bits`` buckets) of the means by cell: key, index and mean.
-
-    Every mean takes a bucket of its own (several means may share a cell); a mean whose
-    cell is out of range is left out. The bucket holds a copy of its mean, so a probe
-    reads neighbouring memory instead of the means array at random.
-    """
-    size = 1 << bits
-    mask = size - 1
-    table_key = np.full(size, -1, dtype=np.int64)
-    table_index = np.full(size, -1, dtype=np.int64)
-    table_mean = np.zeros((size, 3))
-    for m in range(means.shape[0]):
-        key = _cell_key(means[m, 0], means[m, 1], means[m, 2], cell)
-        if key < 0:
-            continue
-        bucket = ((key * _GOLDEN) >> (64 - bits)) & mask
-        while table_key[bucket] >= 0:
-            bucket = (bucket + 1) & mask
-        table_key[bucket] = key
-        table_index[bucket] = m
-        table_mean[bucket, 0] = means[m, 0]
-        table_mean[bucket, 1] = means[m, 1]
-        table_mean[bucket, 2] = means[m, 2]
-    return table_key, table_index, table_mean
-
-
-@jit
-def _nearest_in_cells(
-    points: np.ndarray,
-    table_key: np.ndarray,
-    table_index: np.ndarray,
-    table_mean: np.ndarray,
-    cell: float,
-    bits: int,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest mean of each point among the 27 cells around it (-1 and inf: none)."""
-    mask = (1 << bits) - 1
-    n = points.shape[0]
-    index = np.full(n, -1, dtype=np.int64)
-    squared = np.full(n, np.inf)
-    gap = np.empty((3, 3))  # squared distance to the neighbour cells along each axis
-    limit = cell * cell
-    for i in range(n):
-        x, y, z = points[i, 0], points[i, 1], points[i, 2]
-        center = _cell_key(x, y, z, cell)
-        if center < 0:
-            continue
-        for k in range(3):
-            low = points[i, k] - np.floor(points[i, k] / cell) * cell
-            gap[k, 0] = low * low
-            gap[k, 1] = 0.0
-            gap[k, 2] = (cell - low) * (cell - low)
-        best, best_sq = -1, np.inf
-        for step in range(27):  # the point's own cell first (step 13 is the centre)
-            c = (step + 13) % 27
-            dx, dy, dz = c // 9, (c // 3) % 3, c % 3
-            bound = gap[0, dx] + gap[1, dy] + gap[2, dz]
-            if bound >= best_sq or bound > limit:  # no mean there can be nearer
-                continue
-            key = center + ((dx - 1) << 42) + ((dy - 1) << 21) + (dz - 1)
-            bucket = ((key * _GOLDEN) >> (64 - bits)) & mask
-            while table_key[bucket] >= 0:
-                if table_key[bucket] == key:
-                    ex = table_mean[bucket, 0] - x
-                    ey = table_mean[bucket, 1] - y
-                    ez = table_mean[bucket, 2] - z
-                    sq = ex * ex + ey * ey + ez * ez
-                    if sq < best_sq:
-                        best, best_sq = bucket, sq
-                bucket = (bucket + 1) & mask
-        if best >= 0:
-            index[i] = table_index[best]
-            squared[i] = best_sq
-    return index, squared
-
-
-class CellIndex:
-    """
-    The means hashed by cells of edge ``cell``: the nearest mean within ``cell`` of a point.
-
-    Exact for every point whose nearest mean is at most ``cell`` away (it lies in one of the
-    27 cells around the point's own); a point with none that near gets index -1 and an
-    infinite squared distance. Built in one pass (no tree): the sweep alignment's map
-    changes at every scan, and a KD-tree over it cost more than the whole search.
-    """
-
-    def __init__(self, means: np.ndarray, cell: float) -> None:
-        """``means`` (V, 3); ``cell`` > 0, metres."""
-        self.means = np.ascontiguousarray(means, dtype=np.float64)
-        self.cell = float(cell)
-        self.bits = max(4, int(np.ceil(np.log2(max(2 * len(self.means), 2)))))  # load <= 1/2
-        self.table_key, self.table_index, self.table_mean = _cell_table(
-            self.means, self.cell, self.bits
-        )
-
-    def nearest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Index (-1: none) and squared distance (inf: none) of each point's nearest mean."""
-        return _nearest_in_cells(
-            np.ascontiguousarray(points, dtype=np.float64),
-            self.table_key,
-            self.table_index,
-            self.table_mean,
-            self.cell,
-            self.bits,
-        )
-
-
 @jit
 def _sweep_linearization(
     points: np.ndarray,
@@ -291,11 +163,14 @@ def _sweep_linearization(
     small_angle: float,
     rotation: np.ndarray,
     translation: np.ndarray,
-    table_key: np.ndarray,
-    table_index: np.ndarray,
-    table_mean: np.ndarray,
     cell: float,
-    bits: int,
+    low: np.ndarray,
+    extent: np.ndarray,
+    bottom: np.ndarray,
+    base: np.ndarray,
+    starts: np.ndarray,
+    sorted_means: np.ndarray,
+    order: np.ndarray,
     means: np.ndarray,
     covariances: np.ndarray,
     max_squared: float,
@@ -326,7 +201,19 @@ def _sweep_linearization(
                 + rotation[r, 2] * deskewed[i, 2]
                 + translation[r]
             )
-    index, squared = _nearest_in_cells(world, table_key, table_index, table_mean, cell, bits)
+    squared, index = _nearest_squared(
+        world,
+        np.sqrt(max_squared),
+        cell,
+        low,
+        extent,
+        bottom,
+        base,
+        starts,
+        sorted_means,
+        order,
+        False,
+    )
     pairs = 0
     for i in range(n):
         if squared[i] < max_squared:
@@ -358,7 +245,8 @@ def sweep_linearization(
     twist_terms: tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray],
     small_angle: float,
     T: np.ndarray,
-    cells: CellIndex,
+    cells: CellGrid,
+    means: np.ndarray,
     covariances: np.ndarray,
     max_distance: float,
     regularization: float,
@@ -369,10 +257,10 @@ def sweep_linearization(
 
     Deskews ``points`` (N, 3) taken at ``times`` by the twist (``twist_terms``: velocity,
     rate, axis, axis x velocity, axis x (axis x velocity), as ``deskew._twist_terms``),
-    moves them by ``T`` (4, 4), pairs each with its nearest mean of ``cells`` within
-    ``max_distance`` and returns ``H`` (12, 12), ``g`` (12,) of the pairs
-    (:func:`normal_equations`) and their count. The same steps as the NumPy loop of
-    ``sweep_alignment.align_sweep``, without its temporaries.
+    moves them by ``T`` (4, 4), pairs each with its nearest mean (``means`` (V, 3), sorted
+    in ``cells``: ``core/features/cell_grid.py``) within ``max_distance`` and returns ``H``
+    (12, 12), ``g`` (12,) of the pairs (:func:`normal_equations`) and their count. The same
+    steps as the NumPy loop of ``sweep_alignment.align_sweep``, without its temporaries.
     """
     velocity, rate, axis, cross1, cross2 = twist_terms
     f64 = np.float64
@@ -388,14 +276,243 @@ def sweep_linearization(
         float(small_angle),
         np.ascontiguousarray(T[:3, :3]),
         np.ascontiguousarray(T[:3, 3]),
-        cells.table_key,
-        cells.table_index,
-        cells.table_mean,
         cells.cell,
-        cells.bits,
-        cells.means,
+        cells.low,
+        cells.extent,
+        cells.bottom,
+        cells.base,
+        cells.starts,
+        cells.sorted_points,
+        cells.order,
+        means,
         covariances,
         float(max_distance) ** 2,
         float(regularization),
         float(scale),
+    )
+
+
+@jit
+def _twist_rows(
+    xi: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``deskew._twist_terms`` of ``xi = (omega, v)`` as the kernels' (1, 3) rows and rate."""
+    velocity = xi[3:].copy().reshape(1, 3)
+    rate = np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
+    axis = np.zeros((1, 3))
+    cross1 = np.zeros((1, 3))
+    cross2 = np.zeros((1, 3))
+    if rate > 0.0:
+        a, v = xi[:3] / rate, xi[3:]
+        axis[0, :] = a
+        cross1[0, 0] = a[1] * v[2] - a[2] * v[1]
+        cross1[0, 1] = a[2] * v[0] - a[0] * v[2]
+        cross1[0, 2] = a[0] * v[1] - a[1] * v[0]
+        c = cross1[0]
+        cross2[0, 0] = a[1] * c[2] - a[2] * c[1]
+        cross2[0, 1] = a[2] * c[0] - a[0] * c[2]
+        cross2[0, 2] = a[0] * c[1] - a[1] * c[0]
+    return velocity, np.array([rate]), axis, cross1, cross2
+
+
+@jit
+def _solve(matrix: np.ndarray, vector: np.ndarray) -> tuple[np.ndarray, bool]:
+    """``matrix^-1 vector`` by Gaussian elimination with partial pivoting (False: singular)."""
+    n = vector.shape[0]
+    a = matrix.copy()
+    b = vector.copy()
+    for k in range(n):
+        pivot = k
+        for r in range(k + 1, n):
+            if abs(a[r, k]) > abs(a[pivot, k]):
+                pivot = r
+        if a[pivot, k] == 0.0 or not np.isfinite(a[pivot, k]):
+            return b, False
+        if pivot != k:
+            for c in range(n):
+                a[k, c], a[pivot, c] = a[pivot, c], a[k, c]
+            b[k], b[pivot] = b[pivot], b[k]
+        for r in range(k + 1, n):
+            factor = a[r, k] / a[k, k]
+            for c in range(k, n):
+                a[r, c] -= factor * a[k, c]
+            b[r] -= factor * b[k]
+    for k in range(n - 1, -1, -1):
+        s = b[k]
+        for c in range(k + 1, n):
+            s -= a[k, c] * b[c]
+        b[k] = s / a[k, k]
+    return b, True
+
+
+@jit
+def _se3_small(step: np.ndarray) -> np.ndarray:
+    """``sweep_alignment._se3_small``: the (4, 4) pose of a small step (rotation exact)."""
+    out = np.eye(4)
+    angle = np.sqrt(step[0] * step[0] + step[1] * step[1] + step[2] * step[2])
+    if angle > 0.0:
+        k = step[:3] / angle
+        skew = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+        out[:3, :3] += np.sin(angle) * skew + (1.0 - np.cos(angle)) * (skew @ skew)
+    out[:3, 3] = step[3:]
+    return out
+
+
+@jit
+def _align_sweep(
+    points: np.ndarray,
+    times: np.ndarray,
+    T_initial: np.ndarray,
+    xi_initial: np.ndarray,
+    prior: np.ndarray,
+    iterations: int,
+    kernel_start: float,
+    step_tolerance: float,
+    small_angle: float,
+    cell: float,
+    low: np.ndarray,
+    extent: np.ndarray,
+    bottom: np.ndarray,
+    base: np.ndarray,
+    starts: np.ndarray,
+    sorted_means: np.ndarray,
+    order: np.ndarray,
+    means: np.ndarray,
+    covariances: np.ndarray,
+    max_squared: float,
+    regularization: float,
+) -> tuple[np.ndarray, np.ndarray, int, int, float]:
+    T = T_initial.copy()
+    xi = xi_initial.copy()
+    pose_offset = np.zeros(6)
+    pairs, iteration = 0, 0
+    decay = kernel_start ** (-1.0 / max(iterations - 2, 1))
+    for iteration in range(1, iterations + 1):
+        scale = max(1.0, kernel_start * decay ** (iteration - 1))
+        velocity, rate, axis, cross1, cross2 = _twist_rows(xi)
+        hessian, gradient, pairs = _sweep_linearization(
+            points,
+            times,
+            velocity,
+            rate,
+            axis,
+            cross1,
+            cross2,
+            small_angle,
+            np.ascontiguousarray(T[:3, :3]),
+            np.ascontiguousarray(T[:3, 3]),
+            cell,
+            low,
+            extent,
+            bottom,
+            base,
+            starts,
+            sorted_means,
+            order,
+            means,
+            covariances,
+            max_squared,
+            regularization,
+            scale,
+        )
+        if pairs < 12:
+            break
+        for k in range(12):
+            state = pose_offset[k] if k < 6 else xi[k - 6] - xi_initial[k - 6]
+            hessian[k, k] += prior[k]
+            gradient[k] += prior[k] * state
+        step, solved = _solve(hessian, gradient)
+        if not solved:
+            break
+        step = -step
+        T = T @ _se3_small(step[:6])
+        pose_offset += step[:6]
+        xi += step[6:]
+        if np.max(np.abs(step)) < step_tolerance:
+            break
+    # the largest move of a point between the deskews by the result's and the initial twist
+    change = 0.0
+    n = points.shape[0]
+    segment = np.zeros(n, dtype=np.int64)
+    moved = []
+    for twist in (xi, xi_initial):
+        velocity, rate, axis, cross1, cross2 = _twist_rows(twist)
+        moved.append(
+            _deskew_piecewise(
+                points,
+                times,
+                segment,
+                np.zeros(1),
+                velocity,
+                rate,
+                axis,
+                cross1,
+                cross2,
+                np.eye(3).reshape(1, 3, 3),
+                np.zeros((1, 3)),
+                small_angle,
+            )
+        )
+    final, initial = moved[0], moved[1]
+    for i in range(n):
+        d = (
+            (final[i, 0] - initial[i, 0]) ** 2
+            + (final[i, 1] - initial[i, 1]) ** 2
+            + (final[i, 2] - initial[i, 2]) ** 2
+        )
+        change = max(change, d)
+    return T, xi, pairs, iteration, np.sqrt(change)
+
+
+def align_sweep(
+    points: np.ndarray,
+    times: np.ndarray,
+    T_initial: np.ndarray,
+    xi_initial: np.ndarray,
+    prior: np.ndarray,
+    iterations: int,
+    kernel_start: float,
+    step_tolerance: float,
+    small_angle: float,
+    cells: CellGrid,
+    means: np.ndarray,
+    covariances: np.ndarray,
+    max_distance: float,
+    regularization: float,
+) -> tuple[np.ndarray, np.ndarray, int, int, float]:
+    """
+    Run the whole Gauss-Newton loop of ``sweep_alignment.align_sweep`` in one compiled call.
+
+    ``points`` (N, 3) raw, ``times`` (N,), ``T_initial`` (4, 4), ``xi_initial`` (6,) the
+    deskew's twist ``(omega, v)``, ``prior`` (12,) the diagonal prior of ``(pose offset,
+    twist - xi_initial)``; the map's ``means`` (V, 3) sorted in ``cells`` and their
+    ``covariances`` (V, 3, 3). Each step is :func:`sweep_linearization`; the 12x12 system is
+    solved by Gaussian elimination with partial pivoting (LAPACK's ``gesv`` without
+    blocking: the same poses to rounding). Returns ``(T, xi, pairs, iterations, change_m)``,
+    ``change_m`` the largest move of a point between the deskews by ``xi`` and
+    ``xi_initial``.
+    """
+    f64 = np.float64
+    return _align_sweep(
+        np.ascontiguousarray(points, dtype=f64),
+        np.ascontiguousarray(times, dtype=f64),
+        np.ascontiguousarray(T_initial, dtype=f64),
+        np.ascontiguousarray(xi_initial, dtype=f64),
+        np.ascontiguousarray(prior, dtype=f64),
+        int(iterations),
+        float(kernel_start),
+        float(step_tolerance),
+        float(small_angle),
+        cells.cell,
+        cells.low,
+        cells.extent,
+        cells.bottom,
+        cells.base,
+        cells.starts,
+        cells.sorted_points,
+        cells.order,
+        np.ascontiguousarray(means, dtype=f64),
+        np.ascontiguousarray(covariances, dtype=f64),
+        float(max_distance) ** 2,
+        float(regularization),
     )

@@ -17,10 +17,10 @@ How much of a fine alignment's evidence pins its weakest direction (issue 35).
 small_gicp's Gauss-Newton Hessian ``H`` (source frame, ``delta = [omega, v]``) is a sum over
 the inliers of ``J^T M J``; an inlier on a surface constrains mostly the direction of its
 normal, with about the same information ``m`` for every inlier, so ``trace(H_vv) / n`` is
-one inlier's information. The rotation is put on the translation's scale first:
-``near_miss.agreement_rotation`` counts as ``near_miss.agreement_translation`` (a rotation
-``omega`` is the displacement ``L * omega`` with ``L = agreement_translation /
-agreement_rotation``), so ``H_s = D H D`` with ``D = diag(1/L, 1/L, 1/L, 1, 1, 1)``.
+one inlier's information. The rotation is put on the translation's scale first, by the
+bounds of a right pose: 5 degrees count as 0.6 m (:data:`ROTATION_LENGTH_M`; a rotation
+``omega`` is the displacement ``L * omega``), so ``H_s = D H D`` with
+``D = diag(1/L, 1/L, 1/L, 1, 1, 1)``.
 
 The **support** of the weakest direction is the smallest eigenvalue of ``H_s`` divided by
 one inlier's information: how many inliers facing that direction squarely its evidence is
@@ -37,6 +37,10 @@ from dataclasses import dataclass
 
 from mlsemreg_ros.core.alignment.alignment import Alignment
 import numpy as np
+
+#: Metres per radian of rotation: a right pose is within 0.6 m and 5 degrees of the truth
+#: (docs/definitions.md), so a rotation of 5 degrees weighs as much as 0.6 m.
+ROTATION_LENGTH_M = 0.6 / float(np.radians(5.0))
 
 
 @dataclass(frozen=True)
@@ -58,10 +62,12 @@ class WeakDirection:
         return f'{part} ({", ".join(f"{a:.2f}" for a in axes)})'
 
 
-def weakest_direction(
-    alignment: Alignment, agreement_translation: float, agreement_rotation_deg: float
-) -> WeakDirection:
-    """Return the weakest direction of ``alignment``'s Hessian and its support (module doc)."""
+def weakest_direction(alignment: Alignment, length: float = ROTATION_LENGTH_M) -> WeakDirection:
+    """
+    Return the weakest direction of ``alignment``'s Hessian and its support (module doc).
+
+    ``length``: metres per radian, the rotation's scale against the translation's.
+    """
     H = np.asarray(alignment.hessian, dtype=np.float64)
     n = alignment.num_inliers
     if H.shape != (6, 6) or n <= 0 or not np.all(np.isfinite(H)):
@@ -69,7 +75,6 @@ def weakest_direction(
     per_inlier = float(np.trace(H[3:, 3:])) / n
     if per_inlier <= 0:
         return WeakDirection(0.0, np.zeros(6))
-    length = agreement_translation / max(np.radians(agreement_rotation_deg), 1e-12)
     D = np.diag([1.0 / length] * 3 + [1.0] * 3)
     scaled = D @ H @ D
     values, vectors = np.linalg.eigh(0.5 * (scaled + scaled.T))

@@ -139,7 +139,7 @@ class CovisibilityConfig:
         high=1.0,
     )
     accept_gap: float = param(
-        0.03,
+        0.04,
         'A pose accepted on its covisible overlap must beat the best distinct candidate of '
         'the pool and the best of its slides (confidence.slide_distance, 8 directions) by '
         'this much.',

@@ -122,7 +122,7 @@ def best_rivals(
     count: int,
 ) -> np.ndarray:
     """
-    Indices of the ``count`` candidates distinct from ``pose`` with the best overlap.
+    Return the ``count`` candidates distinct from ``pose`` with the best overlap (indices).
 
     Candidates ``transforms`` ``(N, 4, 4)`` with their covisible ``overlap`` and
     ``checked`` ``(N,)``; only those with ``checked >= min_checked`` count.

@@ -25,6 +25,7 @@ import time
 
 from mlsemreg_ros.core.alignment import sweep_kernels
 from mlsemreg_ros.core.features import fpfh, kernels
+from mlsemreg_ros.core.features.cell_grid import CellGrid
 from mlsemreg_ros.core.features.features import voxel_downsample
 import numpy as np
 
@@ -77,9 +78,10 @@ def warm_up() -> dict[str, float]:
     sweep_kernels.normal_equations(points, times, points, covariances, axes, 0.01, 1.0)
     map_covariances = np.tile(np.eye(4), (200, 1, 1))[:, :3, :3]  # as the local map gives
     terms = (axes[0], 1.0, axes[2], axes[1], axes[0])
-    cells = sweep_kernels.CellIndex(points, 1.0)
+    cells = CellGrid.build(points, 1.0)
+    cells.nearest(points, 0.6)  # the dense scores' call
     sweep_kernels.sweep_linearization(
-        points, times, terms, 1e-6, np.eye(4), cells, map_covariances, 1.0, 0.01, 1.0
+        points, times, terms, 1e-6, np.eye(4), cells, points, map_covariances, 1.0, 0.01, 1.0
     )
     timings['sweep_ms'] = 1e3 * (time.perf_counter() - deskewed)
     timings['total_ms'] = 1e3 * (time.perf_counter() - start)

@@ -30,9 +30,10 @@ in the sensor frame (z up, the sensor at the origin):
 2. **Eigenvalue features** of the points above the ground on a voxel grid of
    ``cell_size``: linearity ``(l1 - l2) / l1``, planarity ``(l2 - l3) / l1``, scatter
    ``l3 / l1`` and the verticality of the normal and principal axis. Vertical planes are
-   building (50, walls and fences as one class); vertical lines standing alone, and thin
-   columns standing alone on the ground (``_standing``), are pole (80), or trunk (71)
-   under vegetation; scatter is vegetation (70); high horizontal planes are building.
+   building (50, walls and fences as one class); vertical lines standing alone within
+   ``LINE_RANGE`` of the sensor, and thin columns standing alone on the ground
+   (``_standing``), are pole (80), or trunk (71) under vegetation; scatter is vegetation
+   (70); high horizontal planes are building.
 3. **Objects**: columns of the ground grid whose points stay between 1.0 and 2.2 m
    above the ground form 8-connected clusters (sparse connected components); a compact
    cluster (longest side 2.5 m to ``vehicle_max_length``, smooth surfaces) is a vehicle
@@ -96,6 +97,9 @@ VEHICLE_LOW, VEHICLE_HIGH, VEHICLE_MIN_LENGTH, VEHICLE_MAX_BASE = 1.0, 2.2, 2.5,
 VEHICLE_MAX_WIDTH = 3.0
 VEHICLE_MAX_SCATTER = 0.2  # mean scatter of a vehicle's cells (box corners: 0.15)
 VEHICLE_RANGE = 50.0
+#: vertical lines in the 1 m cells are poles only this near the sensor: farther, the cells
+#: hold few rings and their lines are mostly not found again (docs/labels.md)
+LINE_RANGE = 20.0
 TRUNK_CANOPY = 1.0  # vegetation at least this far above a vertical line makes it a trunk
 # object points (the matcher's landmark classes) need this share of their neighbours
 OBJECT_IDS = np.array([POLE, TRUNK, CAR], dtype=np.uint32)
@@ -252,6 +256,7 @@ class GeometricLabeler:
         crowd = columns.window_sum(np.ones(columns.count), 1)
         alone = crowd[columns.index] <= ALONE
         line = described & ~is_scatter & (linear >= LINEAR) & (axis_z >= VERTICAL_AXIS) & alone
+        line &= np.einsum('ij,ij->i', above[:, :2], above[:, :2]) < LINE_RANGE**2
         surface = described & ~is_scatter & ~line
         labels[surface & (normal_z < VERTICAL_NORMAL)] = BUILDING
         labels[surface & (normal_z > HORIZONTAL_NORMAL) & (h >= ROOF_HEIGHT)] = BUILDING

@@ -82,6 +82,7 @@ class LocalMap:
             self._map = small_gicp.IncrementalVoxelMap(self.fine.voxel_size)
         self._map.set_lru(self.config.horizon, self.config.clear_cycle)
         self._indexed = None
+        self._gaussians = None
         self.insertions = 0
 
     def reconfigure(self, fine: FineAlignmentConfig, local_map: LocalMapConfig) -> bool:
@@ -117,15 +118,19 @@ class LocalMap:
         """
         Return the map's Gaussians: means (V, 3) and covariances (V, 3, 3), odom frame.
 
-        ``vgicp``: the voxels' own; point maps: the indexed points' (None when empty).
+        ``vgicp``: the voxels' own; point maps: the indexed points' (None when empty). The
+        same arrays until the map changes (an insertion, a clear): do not modify them.
         """
         if len(self) == 0:
             return None
+        if self._gaussians is not None:  # the map did not change since they were copied
+            return self._gaussians
         if isinstance(self._map, small_gicp.GaussianVoxelMap):
             means = np.asarray(self._map.voxel_points(), dtype=np.float64)[:, :3]
             covariances = np.asarray(self._map.voxel_covs(), dtype=np.float64)
             covariances = covariances.reshape(-1, 4, 4)[:, :3, :3]
-            return means, covariances
+            self._gaussians = (means, covariances)
+            return self._gaussians
         if self._indexed is None:
             self._indexed = AlignmentCloud.build(self.points(), 0.0, self.fine.num_neighbors)
         cloud = self._indexed.cloud
@@ -153,6 +158,7 @@ class LocalMap:
             return
         self._map.insert(scan.cloud, np.asarray(T_map_scan, dtype=np.float64))
         self._indexed = None
+        self._gaussians = None
         self.insertions += 1
 
     def align(

@@ -190,9 +190,7 @@ def weak_refusal(alignment: Alignment, cfg: RegistrationConfig) -> str:
     near_miss = cfg.near_miss
     if near_miss.min_weak_support <= 0:
         return ''
-    weak = weakest_direction(
-        alignment, near_miss.agreement_translation, near_miss.agreement_rotation
-    )
+    weak = weakest_direction(alignment)
     if weak.support >= near_miss.min_weak_support:
         return ''
     return (

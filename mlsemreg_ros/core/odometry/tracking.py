@@ -67,6 +67,21 @@ class Tracker:
         """Track against ``local_map`` (the odometry's ``map``)."""
         self.map = local_map
         self.trust = trust if trust is not None else Trust()
+        self._gaussians: tuple[tuple[np.ndarray, np.ndarray], MapGaussians] | None = None
+
+    def map_gaussians(self) -> MapGaussians | None:
+        """
+        Return the local map's Gaussians and their cells for the sweep alignment (None: empty).
+
+        Kept while the map returns the same arrays (it did not change): a scan refused or
+        aligned again does not sort the same means into cells twice.
+        """
+        gaussians = self.map.gaussians()
+        if gaussians is None:
+            return None
+        if self._gaussians is None or self._gaussians[0] is not gaussians:
+            self._gaussians = (gaussians, MapGaussians(*gaussians))
+        return self._gaussians[1]
 
     @property
     def history(self) -> InlierHistory:
@@ -285,8 +300,8 @@ class Tracker:
             or self.map.empty
         ):
             return raw, pose, '', None
-        gaussians = self.map.gaussians()
-        if gaussians is None or len(gaussians[0]) < MIN_SWEEP_MAP_VOXELS:
+        gaussians = self.map_gaussians()
+        if gaussians is None or len(gaussians) < MIN_SWEEP_MAP_VOXELS:
             return raw, pose, '', None
         points, times = raw.input_points, np.asarray(raw.point_times, dtype=np.float64)
         if cfg.moving_objects.matching != 'drop':  # 'drop' took them out before the deskew
@@ -295,7 +310,7 @@ class Tracker:
                 points, times = points[~moving], times[~moving]
         points, times = sweep_subset(points, times, cfg.sweep_alignment.points)
         result = align_from_starts(
-            points, times, MapGaussians(*gaussians), pose, motion, implied, cfg.sweep_alignment
+            points, times, gaussians, pose, motion, implied, cfg.sweep_alignment
         )
         finite = np.all(np.isfinite(result.T_target_source)) and np.all(
             np.isfinite(np.concatenate([result.motion.omega, result.motion.velocity]))

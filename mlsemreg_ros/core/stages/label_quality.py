@@ -39,11 +39,13 @@ from typing import Any
 
 from mlsemreg_ros.core.estimation import label_model
 from mlsemreg_ros.core.labeling import quality
+from mlsemreg_ros.core.poses import same_pose
 from mlsemreg_ros.core.stages.confidence import ConfidenceStage
 from mlsemreg_ros.core.stages.context import RegistrationContext
 from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.matching import MatchingStage
 from mlsemreg_ros.core.stages.verification import VerificationStage
+import numpy as np
 
 #: The unlabeled attempt of poorer labels: the stages up to the confidence rule's verdict.
 UNLABELED_FIRST = (MatchingStage(), EstimationStage(), VerificationStage(), ConfidenceStage())
@@ -185,17 +187,26 @@ class UnlabeledFallbackStage:
     takes what ``label_source: none`` accepts up to its confidence rule: the attempt's pose,
     or, when the attempt was refused, the attempt again with SC2-PCR's retry on the full
     graph (``estimator.graph_retry_inliers``, which the quick attempt leaves out), if that
-    is accepted and the labels do not veto it. Dev pair 000006 reversed, FPFH, geometric
-    labels: the labelled path's right pose was refused as ambiguous, ``none`` accepted it
-    after the retry. The tilt check, the fine alignment and the near-miss check then judge
-    the pose as any other (``labels_unlabeled_fallback`` in the diagnostics).
+    is accepted, the labels do not veto it, **and it is the labelled path's own pose**
+    (within ``verification.distinct_rotation`` / ``distinct_translation``): two matchings
+    that found the same pose. Without that last test a quick attempt's pose 42 m off (dev
+    pairs 40 m apart, GEDI, 000007_000008: 50 inliers, not vetoed) was accepted. Dev pair
+    000006 reversed, FPFH, geometric labels: the labelled path's right pose was refused as
+    ambiguous; ``none`` accepts it (after the retry), and now the labelled path does too.
+    The tilt check, the fine alignment and the near-miss check then judge the pose as any
+    other (``labels_unlabeled_fallback`` and ``labels_unlabeled_agrees`` in the
+    diagnostics).
     """
 
     name = 'unlabeled_fallback'
 
     def wanted(self, context: RegistrationContext) -> bool:
-        """Say yes when the labelled path of poorer labels ends refused."""
-        return context.unlabeled_attempt is not None and bool(context.refusal or context.doubts)
+        """Say yes when the labelled path of poorer labels ends refused at a finite pose."""
+        return (
+            context.unlabeled_attempt is not None
+            and bool(context.refusal or context.doubts)
+            and bool(np.isfinite(context.transform).all())
+        )
 
     def run(self, context: RegistrationContext) -> None:
         """Adopt the unlabeled pose if allowed; the labelled path's search no longer holds."""
@@ -211,6 +222,16 @@ class UnlabeledFallbackStage:
             attempt = _attempt(context, full)
             if not _allowed(context, attempt, judged):
                 return
+        ver = context.config.verification
+        agree = same_pose(
+            context.transform,
+            attempt.transform[None],
+            ver.distinct_rotation,
+            ver.distinct_translation,
+        )
+        context.diagnostics['labels_unlabeled_agrees'] = bool(agree[0])
+        if not agree[0]:  # the two paths disagree: the refusal stands
+            return
         _adopt(context, attempt)
         context.searched, context.search_reason = None, ''
         context.doubts.clear()
