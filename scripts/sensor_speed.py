@@ -23,8 +23,8 @@ ours come from wrapping the odometry's steps (CPU time, nested steps indented). 
 machine inflates both sides; the ratio of the medians is the figure (docs/sensors.md). Usage::
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 PYTHONPATH=$PWD nice -n 5 \\
-        .venv/bin/python scripts/sensor_speed.py BAG [--frames 120] [--threads 1] \\
-        [--no-kiss] [--set KEY=VALUE ...]
+        .venv/bin/python scripts/sensor_speed.py BAG [--frames 120] [--stride 1] \\
+        [--threads 1] [--no-kiss] [--set KEY=VALUE ...]
 """
 
 from __future__ import annotations
@@ -82,6 +82,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     parser.add_argument('bag')
     parser.add_argument('--frames', type=int, default=120)
+    parser.add_argument('--stride', type=int, default=1, help='every STRIDE-th scan')
     parser.add_argument('--threads', type=int, default=1, help='both sides (0: all cores)')
     parser.add_argument('--no-kiss', action='store_true', help='ours alone')
     parser.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE')
@@ -99,7 +100,7 @@ def main() -> int:
     (core,) = load_settings((RegistrationConfig,), None, [f'threads={args.threads}', *args.set])
     source = open_scan_source(args.bag)
     try:
-        scans = list(source.scans(1, args.frames))
+        scans = list(source.scans(args.stride, args.frames))
     finally:
         source.close()
     ours = OdometryEstimator(Odometry(Registration(core)))
@@ -126,7 +127,9 @@ def main() -> int:
         rows.append(row)
     times = 1e3 * np.median(np.array(rows[1:]), axis=0)
     print(f'{args.bag}: {len(scans)} scans, {np.mean([len(s.xyz) for s in scans]):.0f} points')
+    global_path = sum(v for k, v in modes.items() if 'global' in k)
     print(f'ours: CPU {times[0]:.1f} ms, wall {times[1]:.1f} ms (medians); {dict(modes)}')
+    print(f'global path: {global_path} of {len(scans) - 1} scans')
     if kiss is not None:
         print(f'KISS-ICP: CPU {times[2]:.1f} ms, wall {times[3]:.1f} ms')
         cpu_ratio, wall_ratio = times[0] / times[2], times[1] / times[3]

@@ -34,6 +34,7 @@ from mlsemreg_ros.evaluation.covariance_calibration import (
     chain_scans,
     CovarianceSample,
     fit_calibration,
+    fit_calibration_continuous,
     load_samples,
     NEES_BOUND_95,
     nees_summary,
@@ -124,6 +125,25 @@ def test_errors_drawn_from_the_true_covariance_have_a_chi_square_nees(seed: int)
         },
     )
     assert scale == 20.0 and cfg.floor_translation == 0.0
+
+
+def test_the_continuous_fit_meets_the_target_on_two_data_sets() -> None:
+    """Hessians 4 times too small, errors growing with the distance: both sets met."""
+    rng = np.random.default_rng(3)
+    near, far = [], []
+    for samples, distance in ((near, 1.0), (far, 10.0)):
+        for _ in range(200):
+            truth = np.diag([1e-4] * 3 + [1e-6] * 3) * (1.0 + 0.5 * distance)
+            error = rng.multivariate_normal(np.zeros(6), truth)
+            samples.append(CovarianceSample(error, truth / 4.0, distance))
+    datasets = {'near': near, 'far': far}
+    scale, cfg, _ = fit_calibration_continuous(datasets, iterations=40)
+    for samples in datasets.values():
+        summary = nees_summary(nees_values(samples, scale, cfg))
+        assert 3.0 <= summary['nees_mean'] <= 12.0, (scale, cfg, summary)
+        assert summary['inside_95_pct'] >= 85.0, summary
+    before = nees_summary(nees_values(far, 1.0, OFF))
+    assert before['nees_mean'] > 12.0  # the fit had something to do
 
 
 def test_samples_survive_a_round_trip(tmp_path) -> None:

@@ -207,7 +207,7 @@ def test_the_refinement_s_move_from_the_coarse_pose_is_no_doubt_here():
     context.refusal, context.doubts = REFUSED, [correction_refusal(context.alignment, bounds)]
     assert context.doubts[0]
     CovisibleAcceptanceStage().run(context)
-    assert context.refusal == ''
+    assert context.refusal == '' and context.doubts == []
 
 
 def test_the_stage_never_runs_without_the_pair_s_fine_alignment():

@@ -27,6 +27,7 @@ from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 from mlsemreg_ros.ros.probe import node_and_probe, to_stamp
 from mlsemreg_ros.tools.cli import app
 import numpy as np
+from pose_messages import pose_of
 import pytest
 from ros_domains import domain_id
 from street_map import STREET_SEED
@@ -83,3 +84,62 @@ def test_a_node_localizes_in_an_imported_point_map(imported_map: Path) -> None:
         error = invert_transform(truth) @ transform_message_to_matrix(found.transform)
         assert np.linalg.norm(error[:3, 3]) < 0.3
         assert rotation_error_deg(error[:3, :3], np.eye(3)) < 2.0
+
+
+def test_scans_without_labels_localize_in_an_imported_unlabeled_pcd_map(
+    tmp_path: Path,
+) -> None:
+    """
+    An unlabeled PCD survey, imported, and a drive of unlabeled clouds: every scan placed right.
+
+    The node labels both with the geometric labeler (``label_source: auto``, no label field);
+    a scan is right within 0.3 m and 2 deg of the truth; >= 90 % must be placed, none wrong.
+    """
+    world, _ = street_scene(seed=STREET_SEED)
+    write_cloud(tmp_path / 'survey.pcd', world)  # x, y, z only
+    trajectory = np.stack([motion(0.0, (x, 0.0, 0.0)) for x in np.arange(-40.0, 41.0, 1.0)])
+    write_tum_poses(tmp_path / 'drive.tum', np.arange(len(trajectory)) * 10**8, trajectory)
+    run = CliRunner().invoke(
+        app,
+        [
+            'map',
+            'import',
+            str(tmp_path / 'survey.pcd'),
+            str(tmp_path / 'map'),
+            '--trajectory',
+            str(tmp_path / 'drive.tum'),
+            '--set',
+            'map.keyframe_distance=15',
+        ],
+    )
+    assert run.exit_code == 0, f'{run.output}{run.exception}'
+    args = ['--ros-args', '-p', f'map.load_path:={tmp_path / "map"}']
+    with node_and_probe(domain_id('point_map_node'), args) as (_, probe):
+        from geometry_msgs.msg import TransformStamped
+
+        probe.received['map_pose'] = []
+        probe.node.create_subscription(
+            TransformStamped, 'mlsemreg/map_pose', probe._recorder('map_pose'), 10
+        )
+        placed, wrong = 0, []
+        drive = [motion(-40.0, (-20.0 + 1.0 * k, -1.0, 0.0)) for k in range(6)]
+        for k, truth in enumerate(drive):
+            points, _ = scan_at(
+                world, np.zeros(len(world), np.uint32), truth, seed=930 + k, max_points=15000
+            )
+            stamp = to_stamp(20.0 + 0.1 * k)
+            probe.publish(probe.cloud(points, None, stamp))
+            assert probe.status_for(stamp, TIMEOUT_S) is not None, 'no diagnostics for the scan'
+            found = probe.wait_for('map_pose', stamp, 5.0)
+            odometry = probe.wait_for('odometry', stamp, 5.0)
+            if found is None or odometry is None:
+                continue
+            estimate = transform_message_to_matrix(found.transform) @ pose_of(odometry)
+            error = invert_transform(truth) @ estimate
+            right = np.linalg.norm(error[:3, 3]) < 0.3
+            right = right and rotation_error_deg(error[:3, :3], np.eye(3)) < 2.0
+            placed += 1
+            if not right:
+                wrong.append((k, error[:3, 3].round(2).tolist()))
+    assert not wrong, f'wrong map poses: {wrong}'
+    assert placed >= 0.9 * len(drive), f'{placed} of {len(drive)} scans placed in the map'

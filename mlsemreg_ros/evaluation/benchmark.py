@@ -230,7 +230,7 @@ class BenchReport:
     config: dict[str, Any]
 
     def as_dict(self) -> dict[str, Any]:
-        """The JSON of ``--json``: the pair, the configuration, the rows, the machine."""
+        """Return the JSON of ``--json``: the pair, the configuration, the rows, the machine."""
         import os
 
         import numpy

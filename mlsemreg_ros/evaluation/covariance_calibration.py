@@ -245,19 +245,7 @@ def fit_calibration(
     default :data:`FIT_GRID`); the degenerate-direction inflation is not fitted.
     """
     grid = {**FIT_GRID, **(grid or {})}
-    stacks = [
-        (
-            np.array([s.error for s in samples]).reshape(-1, 6),
-            np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
-            np.array([s.distance for s in samples], dtype=np.float64),
-            np.array([s.turn_deg for s in samples], dtype=np.float64),
-            np.array(
-                [(s.correction_m, s.correction_deg, s.gap_s) for s in samples], dtype=np.float64
-            ).reshape(-1, 3),
-        )
-        for samples in datasets.values()
-        if samples
-    ]
+    stacks = _stacks(datasets)
     names = list(grid)
     best = (1.0, CovarianceConfig(), np.inf)
     for values in itertools.product(*(grid[name] for name in names)):
@@ -272,6 +260,96 @@ def fit_calibration(
         if cost < best[2]:
             best = (scale, cfg, cost)
     return best
+
+
+def _stacks(datasets: dict[str, list[CovarianceSample]]) -> list[tuple[np.ndarray, ...]]:
+    """Stack each data set's samples for :func:`_batch_nees`."""
+    return [
+        (
+            np.array([s.error for s in samples]).reshape(-1, 6),
+            np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
+            np.array([s.distance for s in samples], dtype=np.float64),
+            np.array([s.turn_deg for s in samples], dtype=np.float64),
+            np.array(
+                [(s.correction_m, s.correction_deg, s.gap_s) for s in samples], dtype=np.float64
+            ).reshape(-1, 3),
+        )
+        for samples in datasets.values()
+        if samples
+    ]
+
+
+def target_violation(values: list[np.ndarray], spread_weight: float = 0.1) -> float:
+    """
+    How far NEES values are from the target, smoothly (0: met with every mean at 6).
+
+    Per data set: the distance of the mean below 3 or above 12, a tenth of the percentage
+    points below 85 % inside the 95 % bound, and ``spread_weight * |log(mean / 6)|``.
+    """
+    total = 0.0
+    for nees in values:
+        mean = float(np.mean(nees))
+        if not np.isfinite(mean) or mean <= 0:
+            return np.inf
+        inside = 100.0 * float(np.mean(nees <= NEES_BOUND_95))
+        total += max(3.0 - mean, 0.0) + max(mean - 12.0, 0.0) + max(85.0 - inside, 0.0) / 10
+        total += spread_weight * abs(np.log(mean / 6.0))
+    return total
+
+
+def fit_calibration_continuous(
+    datasets: dict[str, list[CovarianceSample]], seed: int = 0, iterations: int = 300
+) -> tuple[float, CovarianceConfig, float]:
+    """
+    ``(scale, CovarianceConfig, violation)`` minimising :func:`target_violation`.
+
+    A continuous search (scipy's differential evolution) within :data:`FIT_BOUNDS`, where
+    the grid of :func:`fit_calibration` holds no calibration meeting every data set. The
+    degenerate-direction inflation is not fitted.
+    """
+    from scipy.optimize import differential_evolution
+
+    stacks = _stacks(datasets)
+    names = list(FIT_BOUNDS)
+
+    def calibration(x: np.ndarray) -> tuple[float, CovarianceConfig]:
+        chosen = dict(zip(names, (float(v) for v in x), strict=True))
+        return chosen.pop('scale'), CovarianceConfig(**chosen)
+
+    def violation(x: np.ndarray) -> float:
+        scale, cfg = calibration(x)
+        try:
+            return target_violation([_batch_nees(*stack, scale, cfg) for stack in stacks])
+        except np.linalg.LinAlgError:
+            return np.inf
+
+    result = differential_evolution(
+        violation,
+        list(FIT_BOUNDS.values()),
+        seed=seed,
+        maxiter=iterations,
+        popsize=20,
+        tol=1e-8,
+        polish=False,
+    )
+    return (*calibration(result.x), float(result.fun))
+
+
+#: The ranges :func:`fit_calibration_continuous` searches.
+FIT_BOUNDS: dict[str, tuple[float, float]] = {
+    'scale': (1.0, 10.0),
+    'floor_translation': (0.0, 0.03),
+    'floor_rotation': (0.0, 0.1),
+    'per_metre_translation': (0.0, 0.005),
+    'per_metre_rotation': (0.0, 0.03),
+    'per_degree_translation': (0.0, 0.006),
+    'per_degree_rotation': (0.0, 0.1),
+    'per_correction_translation': (0.0, 2.0),
+    'per_correction_rotation': (0.0, 0.5),
+    'correction_free_translation': (0.0, 0.5),
+    'correction_free_rotation': (0.0, 3.0),
+    'correction_sweep': (0.02, 0.5),
+}
 
 
 #: The values :func:`fit_calibration` tries by default.

@@ -46,6 +46,7 @@ class NeesOptions:
     samples: Path | None = None  # folder of the samples (reused when present)
     fit: bool = False  # grid search the calibration
     hold_out: tuple[str, ...] = ()  # data sets whose name contains one are left out of the fit
+    continuous: bool = False  # fit by a continuous search (differential evolution), not the grid
 
     def held_out(self, name: str) -> bool:
         """Whether data set ``name`` is left out of the fit."""
@@ -119,7 +120,8 @@ def covariance_nees(options: NeesOptions, core: Any) -> NeesReport:
         report['datasets'][name] = {'before': before, 'after': after}
     fitted = {name: data for name, data in datasets.items() if not options.held_out(name)}
     if options.fit and fitted:
-        best_scale, best, cost = cc.fit_calibration(fitted)
+        fitter = cc.fit_calibration_continuous if options.continuous else cc.fit_calibration
+        best_scale, best, cost = fitter(fitted)
         report['fit'] = {
             'scale': best_scale,
             'covariance': vars(best),

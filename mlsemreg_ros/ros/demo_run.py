@@ -65,7 +65,7 @@ class DemoResult:
 
     @property
     def complete(self) -> bool:
-        """The node answered every scan of the drive."""
+        """Return whether the node answered every scan of the drive."""
         return self.answered_scans == self.scans
 
 

@@ -172,7 +172,7 @@ def _wheel(
     label: str,
     inst: int,
 ) -> None:
-    """A wheel across a vehicle at ``pose`` (x, y, yaw), ``offset`` (forward, left) from it."""
+    """Add a wheel across a vehicle at ``pose`` (x, y, yaw), ``offset`` (forward, left) from it."""
     x, y, yaw = pose
     c, s = np.cos(yaw), np.sin(yaw)
     dx, dy = offset

@@ -50,6 +50,9 @@ SamplesOption = Annotated[
     Path | None, typer.Option(help='folder to keep the samples in (reused when present)')
 ]
 FitOption = Annotated[bool, typer.Option(help='grid search the calibration')]
+ContinuousOption = Annotated[
+    bool, typer.Option(help='with --fit: a continuous search (differential evolution)')
+]
 HoldOutOption = Annotated[
     list[str] | None,
     typer.Option(help='data sets whose name contains this are left out of --fit (repeatable)'),
@@ -63,6 +66,7 @@ def covariance_nees(
     stride: StrideOption = None,
     samples: SamplesOption = None,
     fit: FitOption = False,
+    continuous: ContinuousOption = False,
     hold_out: HoldOutOption = None,
     config: ConfigOption = None,
     overrides: SetOption = None,
@@ -75,7 +79,14 @@ def covariance_nees(
 
     (core,) = settings((RegistrationConfig,), config, overrides)
     options = nees.NeesOptions(
-        pairs, chain, tuple(drive or ()), tuple(stride or [1]), samples, fit, tuple(hold_out or ())
+        pairs,
+        chain,
+        tuple(drive or ()),
+        tuple(stride or [1]),
+        samples,
+        fit,
+        tuple(hold_out or ()),
+        continuous,
     )
     result = nees.covariance_nees(options, core)
     nees.print_nees(result)

@@ -194,14 +194,7 @@ def eval_bag(
 ) -> int:
     """Replay a bag offline through the node's odometry and score it (alias mlsemreg-eval-bag)."""
     from mlsemreg_ros.core.config import RegistrationConfig
-    from mlsemreg_ros.evaluation.bag_run import (
-        BagEvalOptions,
-        BagInputError,
-        BagTopics,
-        evaluate_bag,
-        NoScansRead,
-        print_bag_evaluation,
-    )
+    from mlsemreg_ros.evaluation import bag_run
     from mlsemreg_ros.evaluation.peer_runs import PeerUnavailable
     from mlsemreg_ros.evaluation.settings import EvaluationSettings
 
@@ -210,20 +203,20 @@ def eval_bag(
     core, evaluation = settings(
         (RegistrationConfig, EvaluationSettings), config, with_labels(overrides, labels)
     )
-    topics = options_from(context, BagTopics)
+    topics = options_from(context, bag_run.BagTopics)
     options = options_from(
-        context, BagEvalOptions, plots=not no_plots, baselines=peer_names, progress=not quiet,
-        argv=tuple(invocation_argv(context)),
+        context, bag_run.BagEvalOptions, plots=not no_plots, baselines=peer_names,
+        progress=not quiet, argv=tuple(invocation_argv(context)),
     )  # fmt: skip
     try:
-        result = evaluate_bag(
+        result = bag_run.evaluate_bag(
             bag, core, evaluation.evaluation, topics, options, output, results_root
         )
-    except (BagInputError, PeerUnavailable) as error:
+    except (bag_run.BagInputError, PeerUnavailable) as error:
         raise CommandError(str(error), 2) from None
-    except NoScansRead as error:
+    except bag_run.NoScansRead as error:
         raise CommandError(str(error)) from None
-    print_bag_evaluation(result)
+    bag_run.print_bag_evaluation(result)
     rr = result.summary['registration_recall_pct']
     if fail_below is not None and (rr is None or rr < fail_below):
         raise CommandError(f'registration recall {rr} % < {fail_below} %')

@@ -58,7 +58,7 @@ class CovarianceConfig:
     """Calibration of the fine alignment's pose covariance (docs/covariance.md)."""
 
     floor_translation: float = param(
-        0.01,
+        0.02,
         'Standard deviation added to every axis of the pose covariance (errors the '
         'Hessian does not see: deskew, labels, the keyframe).',
         unit='m',
@@ -81,14 +81,14 @@ class CovarianceConfig:
         high=10.0,
     )
     per_metre_rotation: float = param(
-        0.0,
+        0.003,
         'Standard deviation added to every rotation axis per metre of that motion.',
         unit='deg/m',
         low=0.0,
         high=100.0,
     )
     per_degree_translation: float = param(
-        0.002,
+        0.004,
         'Standard deviation added to every translation axis per degree the motion turned '
         '(deskew and timing errors grow in turns).',
         unit='m/deg',
@@ -96,14 +96,14 @@ class CovarianceConfig:
         high=10.0,
     )
     per_degree_rotation: float = param(
-        0.05,
+        0.007,
         'Standard deviation added to every rotation axis per degree the motion turned.',
         unit='deg/deg',
         low=0.0,
         high=10.0,
     )
     per_correction_translation: float = param(
-        0.75,
+        1.8,
         'Standard deviation added to every translation axis per metre that the accepted pose '
         "lies from the motion model's prediction (times the sweep share, correction_sweep) "
         'beyond correction_free_translation: the scan was deskewed by that prediction, so a '
@@ -114,7 +114,7 @@ class CovarianceConfig:
         high=10.0,
     )
     per_correction_rotation: float = param(
-        0.1,
+        0.44,
         'Standard deviation added to every rotation axis per degree that the accepted pose '
         'turned from the prediction (times the sweep share) beyond correction_free_rotation. '
         '0: off.',
@@ -123,7 +123,7 @@ class CovarianceConfig:
         high=10.0,
     )
     correction_free_translation: float = param(
-        0.1,
+        0.36,
         'The part of the distance from the prediction (times the sweep share) that adds '
         'nothing (per_correction_translation).',
         unit='m',
@@ -131,14 +131,14 @@ class CovarianceConfig:
         high=100.0,
     )
     correction_free_rotation: float = param(
-        0.5,
+        0.2,
         'The part of the turn from the prediction that adds nothing (per_correction_rotation).',
         unit='deg',
         low=0.0,
         high=180.0,
     )
     correction_sweep: float = param(
-        0.1,
+        0.135,
         "The sweep time over which the prediction's velocity error bends the scan: the "
         'correction counts times min(1, correction_sweep / horizon), the horizon being the '
         'time since the last accepted scan (a prediction 3 m off after 1 s bends a sweep as '

@@ -79,8 +79,10 @@ class CovisibleAcceptanceStage:
             context.diagnostics.update(evidence.as_diagnostics())
             reason = acceptance_refusal(evidence, context.config.covisibility)
         context.diagnostics['covisible_accept_refusal'] = reason
-        if reason or self._doubts(context):
+        doubts = self._doubts(context)
+        if reason or doubts:
             return None
+        context.doubts = doubts  # the refinement's move from the coarse pose no longer counts
         context.diagnostics['covisible_accepted'] = True
         context.message = (
             f'accepted where both scans see (covisible overlap {evidence.overlap:.3f} of '
