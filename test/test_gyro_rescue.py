@@ -66,13 +66,18 @@ def test_the_gyro_rotation_needs_one_accepted_pose_and_a_covering_imu() -> None:
     assert model.gyro_rotation(T0_NS + 10**9) is None
 
 
-def _second_scan_with_an_imu_only(gyro_offset_deg: float = 0.0) -> tuple[object, np.ndarray]:
+def _second_scan_with_an_imu_only(
+    gyro_offset_deg: float = 0.0, min_weak_support: float | None = None
+) -> tuple[object, np.ndarray]:
     """Dev pair 000007 as fuzz-node's IMU cases: the keyframe at t0, the moved scan at t2."""
     from mlsemreg_ros.datasets.pairs import load_pair
     from mlsemreg_ros.evaluation.hostile_cases import good_streams, Timeline
 
     pair = load_pair(DEV_PAIRS / '000007.npz')
-    odometry = Odometry(Registration(RegistrationConfig().replace({'keypoints.count': 2000})))
+    overrides: dict[str, object] = {'keypoints.count': 2000}
+    if min_weak_support is not None:
+        overrides['near_miss.min_weak_support'] = min_weak_support
+    odometry = Odometry(Registration(RegistrationConfig().replace(overrides)))
     timeline = Timeline(1000.0, 1.0)
     imu = good_streams(pair.trans_gt, timeline)['imu']
     stamps = np.array([round(t * 1e9) for t, _ in imu], dtype=np.int64)
@@ -97,3 +102,11 @@ def test_the_gyro_confirms_the_refused_second_scan_of_pair_000007() -> None:
 def test_a_gyro_that_disagrees_confirms_nothing() -> None:
     step, _ = _second_scan_with_an_imu_only(gyro_offset_deg=5.0)
     assert not step.accepted and 'confirmed by the gyro' not in step.reason
+
+
+@pytest.mark.skipif(not DEV_PAIRS.is_dir(), reason=f'no dev pairs at {DEV_PAIRS}')
+def test_the_gyro_confirms_no_pose_whose_weakest_direction_is_not_held() -> None:
+    # the gyro pins no translation: a rescued pose must hold its weakest direction as an
+    # own-evidence acceptance of the second look must (near_miss.min_weak_support)
+    step, _ = _second_scan_with_an_imu_only(min_weak_support=10000.0)
+    assert 'confirmed by the gyro' not in step.reason

@@ -32,8 +32,10 @@ turned right: the 18 wrong poses the pair registration refused on the 40 and 60 
   of the gyro's rotation (a sparse estimate's rotation is coarse);
 
 that pose is refined against the local map like any global candidate (:class:`Trust`'s
-rules: correction bounds, inlier share) and accepted when the refinement is trusted and
-within ``motion_prior.gyro_rescue`` of the gyro. The step says so (``confirmed by the gyro``).
+rules: correction bounds, inlier share) and accepted when the refinement is trusted, holds
+its weakest direction as the second look's own-evidence acceptance must
+(``near_miss.min_weak_support``, :func:`second_look.weak_refusal`) and is within
+``motion_prior.gyro_rescue`` of the gyro. The step says so (``confirmed by the gyro``).
 
 Translation is not checked by this: a wrong pose along a straight road with the right
 rotation would pass the gyro; the map's rules must refuse it. Rotation-constrained voting
@@ -48,6 +50,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from mlsemreg_ros.core.odometry.second_look import weak_refusal
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.rigid import rotation_angle_deg
 import numpy as np
@@ -104,6 +107,8 @@ def rescue_by_gyro(
     alignment = candidate.alignment
     after = gyro_disagreement_deg(last[0], measured, alignment.T_target_source)
     if not candidate.acceptable or after > bound:
+        return chosen
+    if weak_refusal(alignment, odometry.config):  # the gyro pins no translation either
         return chosen
     note = (
         f'the refused global pose confirmed by the gyro ({before:.2f} deg from its rotation, '
