@@ -43,7 +43,11 @@ from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
 from mlsemreg_ros.core.odometry.local_map import Keyframe, LocalMap
 from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
-from mlsemreg_ros.core.odometry.rotated_starts import best_rotated_start, worth_rotating
+from mlsemreg_ros.core.odometry.rotated_starts import (
+    best_rotated_start,
+    offsets_within,
+    worth_rotating,
+)
 from mlsemreg_ros.core.odometry.second_look import second_look
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.sweep_starts import align_from_starts, implied_twist
@@ -165,6 +169,8 @@ class Tracker:
         ):
             return None
         odometry = self.trust.motion_bound.widen(cfg.odometry)
+        if not offsets_within(odometry.max_correction_rotation):
+            return None  # a car's tight bound: no rotated start
         tic = time.perf_counter()
         chosen = best_rotated_start(
             prediction.T_odom_current,
