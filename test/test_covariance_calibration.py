@@ -22,6 +22,8 @@ from mlsemreg_ros.core.alignment.covariance import (
     calibrated_covariance,
     CovarianceConfig,
     degenerate_inflation,
+    floor_shape,
+    MAX_FLOOR_STRETCH,
     motion_size,
     no_calibration,
 )
@@ -90,6 +92,34 @@ def test_a_weak_direction_of_the_hessian_is_inflated_along_it_only() -> None:
     )
     covariance[:3, :3] = rotation @ np.diag([5e-3, 1e-4, 1e-4]) @ rotation.T
     assert np.allclose(degenerate_inflation(covariance, CovarianceConfig()), 0.0)
+
+
+def test_the_rotation_floor_follows_the_shape_of_the_hessian() -> None:
+    """A roll 4 times weaker (in variance) than pitch and yaw gets 4^(1/3) of the floor."""
+    rotation = motion(30.0, (0, 0, 0))[:3, :3]  # the block in turned axes: the floor turns too
+    covariance = np.zeros((6, 6))
+    covariance[:3, :3] = np.eye(3) * 1e-6
+    covariance[3:, 3:] = rotation @ np.diag([4e-8, 1e-8, 1e-8]) @ rotation.T
+    floor_only = replace(OFF, floor_rotation=0.1, rotation_floor_shape=0.5)
+    sigma_r2 = np.radians(0.1) ** 2
+    shaped = calibrated_covariance(covariance, 1.0, floor_only)[3:, 3:] - covariance[3:, 3:]
+    weak, strong = rotation[:, 0], rotation[:, 1]
+    assert np.isclose(weak @ shaped @ weak, sigma_r2 * 4 ** (1 / 3))
+    assert np.isclose(strong @ shaped @ strong, sigma_r2 * 4 ** (-1 / 6))
+    assert np.isclose(np.linalg.det(shaped), sigma_r2**3)  # the floor's volume is kept
+    isotropic = replace(floor_only, rotation_floor_shape=0.0)
+    plain = calibrated_covariance(covariance, 1.0, isotropic)[3:, 3:] - covariance[3:, 3:]
+    assert np.allclose(plain, sigma_r2 * np.eye(3))
+    # the translation floor stays isotropic; a zero or non-finite block gives the identity
+    assert np.allclose(floor_shape(np.zeros((3, 3)), 0.5), np.eye(3))
+    assert np.allclose(floor_shape(np.full((3, 3), np.nan), 0.5), np.eye(3))
+    # a nearly degenerate block is stretched at most MAX_FLOOR_STRETCH along its weak axis
+    stretched = floor_shape(np.diag([1.0, 1e-12, 1e-12]), 1.0)
+    assert np.isclose(stretched[0, 0], MAX_FLOOR_STRETCH)
+    # stacked blocks give what each block gives alone
+    stack = np.stack([covariance[3:, 3:], np.eye(3) * 1e-8])
+    assert np.allclose(floor_shape(stack, 0.5)[0], floor_shape(covariance[3:, 3:], 0.5))
+    assert np.allclose(floor_shape(stack, 0.5)[1], np.eye(3))
 
 
 @pytest.mark.parametrize('seed', [0, 1])

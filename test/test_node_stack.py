@@ -202,3 +202,59 @@ def test_the_heartbeat_says_no_input(ros: Any) -> None:
     assert status is not None, 'no heartbeat saying "no input for N s"'
     values = {kv.key: kv.value for kv in status.values}
     assert float(values['seconds_since_input']) >= 1.0
+
+
+class RecordingBroadcaster:
+    """
+    Stands in for tf2_ros' ``TransformBroadcaster`` (no tf2_ros or tf2_msgs wheel exists).
+
+    The broadcaster only wraps what it is given in a ``tf2_msgs/TFMessage`` on ``/tf``;
+    recording the ``TransformStamped`` the node hands it checks everything the node decides:
+    whether TF goes out for a scan, with which frames, stamp and pose.
+    """
+
+    def __init__(self) -> None:
+        self.sent: list[Any] = []
+
+    def sendTransform(self, transform: Any) -> None:  # tf2_ros' name
+        self.sent.append(transform)
+
+    def at(self, stamp: Any) -> list[Any]:
+        return [t for t in self.sent if t.header.stamp == stamp]
+
+
+@pytest.fixture
+def tf(ros: Any, probe: NodeProbe) -> Any:
+    node, _ = ros
+    original, node._tf = node._tf, RecordingBroadcaster()
+    try:
+        yield node._tf
+    finally:
+        node._tf = original
+
+
+@pytest.mark.parametrize('publish_predicted', [True, False])
+def test_a_refused_scan_broadcasts_tf_from_the_prediction_unless_turned_off(
+    probe: NodeProbe, street: Any, tf: RecordingBroadcaster, publish_predicted: bool
+) -> None:
+    parameters = {'publish_predicted_on_refusal': publish_predicted}
+    assert all(r.successful for r in probe.set_parameters(parameters))
+    stamps = drive(probe, street, 4)
+    assert probe.wait_for('odometry', stamps[-1], 5.0) is not None
+    assert [len(tf.at(s)) for s in stamps] == [1, 1, 1, 1]  # every accepted scan
+    stamp, status = send(probe, *noise(street))
+    assert status['level'] == 1 and 'frame rejected' in status['message'], status['message']
+    if not publish_predicted:
+        assert status['published'] == 'nothing', status
+        assert probe.wait_for('odometry', stamp, 1.0) is None
+        assert tf.at(stamp) == [], 'TF for a refused scan with publish_predicted_on_refusal off'
+        return
+    odometry = probe.wait_for('odometry', stamp, 5.0)
+    assert odometry is not None, 'no odometry for the refused scan'
+    (transform,) = tf.at(stamp)
+    assert transform.header.frame_id == 'odom'
+    assert transform.child_frame_id == odometry.child_frame_id
+    moved = transform.transform.translation
+    assert abs(moved.x - 4 * STEP_M) < 0.1 and abs(moved.y) < 0.1, moved  # one more step
+    assert abs(moved.x - odometry.pose.pose.position.x) < 1e-9  # the odometry's pose
+    assert probe.wait_for('transform', stamp, 1.0) is None, 'a refused scan on transform'

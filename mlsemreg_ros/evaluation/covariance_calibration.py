@@ -32,6 +32,7 @@ from typing import Any
 from mlsemreg_ros.core.alignment.covariance import (
     calibrated_covariance,
     CovarianceConfig,
+    floor_shape,
     motion_size,
     no_calibration,
 )
@@ -198,7 +199,8 @@ def _batch_nees(
     )
     floor = np.zeros_like(covariances)
     floor[:, [0, 1, 2], [0, 1, 2]] = (sigma_t**2)[:, None]
-    floor[:, [3, 4, 5], [3, 4, 5]] = (sigma_r**2)[:, None]
+    shape = floor_shape(covariances[:, 3:, 3:], cfg.rotation_floor_shape)
+    floor[:, 3:, 3:] = (sigma_r**2)[:, None, None] * shape
     solved = np.linalg.solve(scale * covariances + floor, errors[:, :, None])[:, :, 0]
     return np.einsum('ki,ki->k', errors, solved)
 

@@ -33,7 +33,9 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   ``d`` the distance and ``a`` the angle (deg) of the motion the covariance describes (the
   odometry: from the keyframe to the scan; a pair: between the scans): the errors no
   Hessian sees (deskew, timing, labels, the keyframe's and the local map's own drift),
-  which grow with the distance and in turns;
+  which grow with the distance and in turns; the rotation part is shaped like the
+  Hessian's rotation block (``covariance.rotation_floor_shape``, :func:`floor_shape`): a
+  rotation the scene observes worse (the roll on a straight road) gets more of it;
 - plus ``covariance.per_correction_translation * max(k * c - correction_free_translation,
   0)`` (and the rotation likewise), ``c`` the distance of the accepted pose from the motion
   model's prediction and ``k = min(1, correction_sweep / horizon)`` the share of it that
@@ -51,6 +53,10 @@ from dataclasses import dataclass
 
 from mlsemreg_ros.core.settings import param
 import numpy as np
+
+#: The most a shaped floor (``covariance.rotation_floor_shape``) stretches one direction's
+#: variance.
+MAX_FLOOR_STRETCH = 100.0
 
 
 @dataclass
@@ -147,6 +153,16 @@ class CovarianceConfig:
         low=0.0,
         high=10.0,
     )
+    rotation_floor_shape: float = param(
+        0.5,
+        "The rotation floor follows the shape of the Hessian's rotation block: along each of "
+        'its eigen-directions the floor variance is multiplied by (variance / geometric mean '
+        'of the three) to this power, capped at 100 (the product stays 1). A roll the scene '
+        'observes worse than the pitch (a straight road, the ground seen on one side) gets '
+        'more of the floor. 0: isotropic (docs/covariance.md).',
+        low=0.0,
+        high=2.0,
+    )
     degenerate_ratio: float = param(
         100.0,
         'An eigen-direction of the translation or rotation block of the Hessian covariance '
@@ -226,9 +242,35 @@ def calibrated_covariance(
         + cfg.per_degree_rotation * turn_deg
         + cfg.per_correction_rotation * max(turned_deg - cfg.correction_free_rotation, 0.0)
     )
-    floor = np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
+    floor = np.diag([sigma_t**2] * 3 + [0.0] * 3)
+    floor[3:, 3:] = sigma_r**2 * floor_shape(scaled[3:, 3:], cfg.rotation_floor_shape)
     covariance = scaled + degenerate_inflation(scaled, cfg) + floor
     return 0.5 * (covariance + covariance.T)
+
+
+def floor_shape(blocks: np.ndarray, exponent: float) -> np.ndarray:
+    """
+    Return the shape (..., 3, 3) of a floor that follows covariance ``blocks`` (..., 3, 3).
+
+    ``U diag(w) U^T`` with ``U`` the blocks' eigen-directions and ``w = (lambda / g) ** exponent``,
+    ``g`` the geometric mean of the eigenvalues ``lambda`` (so ``prod(w) = 1``: the floor's
+    volume is kept, only its shape follows the Hessian), ``w`` at most
+    ``MAX_FLOOR_STRETCH``. Exponent 0, or a block that is zero or not finite: the identity.
+    """
+    blocks = np.asarray(blocks, dtype=np.float64)
+    identity = np.broadcast_to(np.eye(3), blocks.shape).copy()
+    if exponent <= 0.0:
+        return identity
+    usable = np.all(np.isfinite(blocks), axis=(-2, -1))
+    safe = np.where(usable[..., None, None], blocks, np.eye(3))
+    values, vectors = np.linalg.eigh(0.5 * (safe + np.swapaxes(safe, -1, -2)))
+    values = np.maximum(values, 1e-30)
+    logs = np.log(values)
+    weights = np.exp(exponent * (logs - logs.mean(axis=-1, keepdims=True)))
+    weights = np.minimum(weights, MAX_FLOOR_STRETCH)
+    shaped = np.einsum('...ij,...j,...kj->...ik', vectors, weights, vectors)
+    usable &= np.any(blocks != 0.0, axis=(-2, -1))
+    return np.where(usable[..., None, None], shaped, identity)
 
 
 def sweep_share(horizon_s: float, cfg: CovarianceConfig) -> float:
