@@ -80,15 +80,19 @@ def test_a_car_gets_no_second_start(street, monkeypatch) -> None:  # noqa: F811
     assert len(calls) == 1
 
 
-@pytest.mark.parametrize(('implied_deg_s', 'starts'), [(15.0, 1), (20.0, 1), (30.0, 2)])
-def test_a_second_start_only_beyond_the_pairing_distance(
+@pytest.mark.parametrize(
+    ('implied_deg_s', 'starts'), [(15.0, 1), (20.0, 1), (30.0, 1), (40.0, 1), (60.0, 2)]
+)
+def test_a_second_start_only_beyond_the_first_starts_reach(
     street,  # noqa: F811
     monkeypatch,
     implied_deg_s,
     starts,
 ) -> None:
     # a car's implied yaw rate, off by 10-15 deg/s of pose noise, bends the sweep by
-    # 0.6-0.9 m (over min_change, within max_distance): no second start; 30 deg/s: 1.5 m
+    # 0.6-0.9 m (over min_change, within max_distance); a hand's at stride 1 by 1-2.2 m
+    # (30-40 deg/s off here: 1.5-2.1 m), within the first start's reach (2.5 pairing
+    # distances): no second start; 55 deg/s off: 3.4 m, two
     world, gaussians = street
     truth = _yaw_rate(5.0, speed=10.0)
     T_true = _pose(2.0, 0.5, 10.0)
@@ -97,8 +101,9 @@ def test_a_second_start_only_beyond_the_pairing_distance(
     implied = _yaw_rate(implied_deg_s, speed=10.0)
     bend = sweep_starts.bend_m(raw, times, implied, truth)
     assert config.min_change < bend
-    assert (bend > config.max_distance) == (starts == 2)
-    assert sweep_starts.second_start_bend(config) == config.max_distance
+    reach = sweep_starts.SECOND_START_REACH * config.max_distance
+    assert (bend > reach) == (starts == 2)
+    assert sweep_starts.second_start_bend(config) == reach
     calls = []
     original = sweep_alignment.align_sweep
 

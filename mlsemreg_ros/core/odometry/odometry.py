@@ -64,6 +64,7 @@ from mlsemreg_ros.core.odometry.prior_model import motion_model_name
 from mlsemreg_ros.core.odometry.reconfigure import reconfigure
 from mlsemreg_ros.core.odometry.recovery import PastKeyframes
 from mlsemreg_ros.core.odometry.review import review
+from mlsemreg_ros.core.odometry.rotated_starts import Redeskew
 from mlsemreg_ros.core.odometry.steps import Decision, OdometryStep, step_at_pose
 from mlsemreg_ros.core.odometry.tracking import Tracker
 from mlsemreg_ros.core.pipeline import Registration
@@ -212,10 +213,18 @@ class Odometry:
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
             return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
         timings: dict[str, float] = {}
-        chosen = self.tracker.estimate(
-            raw.scan, prediction, self.keyframe, self.global_registration, self.config, timings
-        )
         given = (points, labels, point_times, stamp_ns)
+        redeskew = Redeskew(self, given, raw)  # core/odometry/rotated_starts.py
+        chosen = self.tracker.estimate(
+            raw.scan,
+            prediction,
+            self.keyframe,
+            self.global_registration,
+            self.config,
+            timings,
+            redeskew,
+        )
+        raw = redeskew.scan_of(chosen, raw)
         raw, chosen, prior_refusal, deskew_refusal = review(  # prior, deskew, relocalization
             self, given, prediction, raw, chosen, timings
         )

@@ -32,6 +32,7 @@ The map (``core/odometry/local_map.py``) owns its clouds and Gaussians.
 from __future__ import annotations
 
 from collections.abc import Callable
+import dataclasses
 import time
 from typing import Any, TYPE_CHECKING
 
@@ -42,6 +43,11 @@ from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
 from mlsemreg_ros.core.odometry.local_map import Keyframe, LocalMap
 from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
+from mlsemreg_ros.core.odometry.rotated_starts import (
+    best_rotated_start,
+    offsets_within,
+    worth_rotating,
+)
 from mlsemreg_ros.core.odometry.second_look import second_look
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.sweep_starts import align_from_starts, implied_twist
@@ -112,12 +118,15 @@ class Tracker:
         register: Callable[[PreparedScan, Keyframe], GlobalEstimate],
         cfg: RegistrationConfig,
         timings: dict[str, float],
+        redeskew: Callable[[np.ndarray], PreparedScan | None] | None = None,
     ) -> Decision:
         """
         Track the prediction, or register globally and decide (``core/odometry/decision.py``).
 
         ``register(current, keyframe)``: the global registration. With ``fine.method: off``
-        the pose is the chain of global registrations.
+        the pose is the chain of global registrations. ``redeskew(T)``: the scan deskewed
+        by the twist a pose ``T`` implies (the caller keeps it; None: not possible), for the
+        yaw-rotated starts (``core/odometry/rotated_starts.py``).
         """
         if cfg.fine.method == 'off':
             return chain(register(current, keyframe), cfg)
@@ -130,6 +139,11 @@ class Tracker:
         why_global = self.trust.tracking_refusal(predicted, gap, cfg.odometry)
         if not why_global:  # tracking: no global registration needed
             return self.track(predicted, cfg)
+        rotated = self.rotated_start(current, prediction, cfg, timings, redeskew)
+        if rotated is not None:  # core/odometry/rotated_starts.py
+            decision = self.track(rotated, cfg)
+            decision.reason = f'{decision.reason}; from a yaw-rotated start ({why_global})'
+            return decision
         estimate = register(current, keyframe)
         self.trust.tracked_in_a_row = 0
         chosen = decide(
@@ -140,6 +154,46 @@ class Tracker:
             r for r in (f'registered globally: {why_global}', chosen.reason) if r
         )
         return chosen
+
+    def rotated_start(
+        self,
+        scan: PreparedScan,
+        prediction: Prediction | None,
+        cfg: RegistrationConfig,
+        timings: dict[str, float],
+        redeskew: Callable[[np.ndarray], PreparedScan | None] | None = None,
+    ) -> Candidate | None:
+        """Return a yaw-rotated start of the prediction to track, or None (``rotated_starts``)."""
+        if prediction is None or not worth_rotating(
+            self.trust.tracked_in_a_row, prediction.stamp_gap, cfg.odometry
+        ):
+            return None
+        odometry = self.trust.motion_bound.widen(cfg.odometry)
+        if not offsets_within(odometry.max_correction_rotation):
+            return None  # a car's tight bound: no rotated start
+        tic = time.perf_counter()
+        chosen = best_rotated_start(
+            prediction.T_odom_current,
+            odometry.max_correction_rotation,
+            lambda T: self.candidate('prediction', T, scan, cfg),
+            lambda c: self.trust.tracking_refusal(c, prediction.stamp_gap, cfg.odometry),
+            None if redeskew is None else lambda T: self.redeskewed(T, redeskew, cfg),
+        )
+        timings['rotated_starts_ms'] = 1e3 * (time.perf_counter() - tic)
+        return chosen
+
+    def redeskewed(
+        self,
+        T: np.ndarray,
+        redeskew: Callable[[np.ndarray], PreparedScan | None],
+        cfg: RegistrationConfig,
+    ) -> Candidate | None:
+        """Refine ``T`` of the scan deskewed by the twist ``T`` implies (None: not deskewed)."""
+        scan = redeskew(T)
+        if scan is None:
+            return None
+        self.map.cloud(scan)
+        return dataclasses.replace(self.candidate('prediction', T, scan, cfg), name='rotated')
 
     def refine_prediction(
         self,
