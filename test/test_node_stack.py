@@ -213,7 +213,7 @@ def test_the_heartbeat_says_no_input(ros: Any) -> None:
 
     start = len(beats())
     assert probe.wait_until(lambda: len(beats()) >= start + 4, 10.0), 'heartbeat stopped'
-    gaps = np.diff(beats()[start : start + 4])
+    gaps = np.diff(beats()[start:][:4])
     assert np.all((gaps > 0.5) & (gaps < 2.0)), gaps  # 1 Hz (steady clock, receipt jitter)
 
 
