@@ -38,6 +38,7 @@ Otherwise the scan goes to the global registration as before.
 from __future__ import annotations
 
 from collections.abc import Callable
+import dataclasses
 from typing import Any, TYPE_CHECKING
 
 from mlsemreg_ros.core.features.deskew import SweepMotion
@@ -56,6 +57,16 @@ if TYPE_CHECKING:
 YAW_OFFSETS = (10.0, -10.0, 20.0, -20.0)
 #: Two passing starts further apart than this (m, deg) found two basins: take neither.
 AGREEMENT = (0.3, 2.0)
+
+
+def rotated(candidate: Candidate) -> Candidate:
+    """
+    Return the candidate named ``'rotated'`` (judged as a prediction, from a rotated start).
+
+    The decision lists it first and the refined prediction after it: the covariance's
+    correction (``core/odometry/advance.py``) is then the pose against the prediction.
+    """
+    return dataclasses.replace(candidate, name='rotated')
 
 
 def yaw_rotated(T: np.ndarray, yaw_deg: float) -> np.ndarray:
@@ -179,6 +190,11 @@ class Redeskew:
         return again.scan
 
     def scan_of(self, decision: Any, raw: PreprocessedScan) -> PreprocessedScan:
-        """Return the scan the decision was made on: :attr:`redone` for a ``'rotated'`` one."""
+        """
+        Return the scan the decision was made on: :attr:`redone` for a ``'rotated'`` one.
+
+        The scan is deskewed again only when no rotated start passed on ``raw``
+        (:func:`best_rotated_start`), so a rotated decision after it is the redone scan's.
+        """
         used = decision.accepted and decision.candidates and decision.candidates[0].name
         return self.redone if used == 'rotated' and self.redone is not None else raw

@@ -32,7 +32,6 @@ The map (``core/odometry/local_map.py``) owns its clouds and Gaussians.
 from __future__ import annotations
 
 from collections.abc import Callable
-import dataclasses
 import time
 from typing import Any, TYPE_CHECKING
 
@@ -46,6 +45,7 @@ from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
 from mlsemreg_ros.core.odometry.rotated_starts import (
     best_rotated_start,
     offsets_within,
+    rotated,
     worth_rotating,
 )
 from mlsemreg_ros.core.odometry.second_look import second_look
@@ -143,6 +143,8 @@ class Tracker:
         if rotated is not None:  # core/odometry/rotated_starts.py
             decision = self.track(rotated, cfg)
             decision.reason = f'{decision.reason}; from a yaw-rotated start ({why_global})'
+            if predicted is not None:  # the correction from the prediction (covariance)
+                decision.candidates.append(predicted)
             return decision
         estimate = register(current, keyframe)
         self.trust.tracked_in_a_row = 0
@@ -175,7 +177,7 @@ class Tracker:
         chosen = best_rotated_start(
             prediction.T_odom_current,
             odometry.max_correction_rotation,
-            lambda T: self.candidate('prediction', T, scan, cfg),
+            lambda T: rotated(self.candidate('prediction', T, scan, cfg)),
             lambda c: self.trust.tracking_refusal(c, prediction.stamp_gap, cfg.odometry),
             None if redeskew is None else lambda T: self.redeskewed(T, redeskew, cfg),
         )
@@ -193,7 +195,7 @@ class Tracker:
         if scan is None:
             return None
         self.map.cloud(scan)
-        return dataclasses.replace(self.candidate('prediction', T, scan, cfg), name='rotated')
+        return rotated(self.candidate('prediction', T, scan, cfg))
 
     def refine_prediction(
         self,
