@@ -203,6 +203,19 @@ def test_the_heartbeat_says_no_input(ros: Any) -> None:
     values = {kv.key: kv.value for kv in status.values}
     assert float(values['seconds_since_input']) >= 1.0
 
+    def beats() -> list[float]:
+        return [
+            received
+            for received, msg in probe.received['diagnostics']
+            for status in msg.status
+            if status.name.endswith(': heartbeat')
+        ]
+
+    start = len(beats())
+    assert probe.wait_until(lambda: len(beats()) >= start + 4, 10.0), 'heartbeat stopped'
+    gaps = np.diff(beats()[start:][:4])
+    assert np.all((gaps > 0.5) & (gaps < 2.0)), gaps  # 1 Hz (steady clock, receipt jitter)
+
 
 class RecordingBroadcaster:
     """
@@ -258,3 +271,43 @@ def test_a_refused_scan_broadcasts_tf_from_the_prediction_unless_turned_off(
     assert abs(moved.x - 4 * STEP_M) < 0.1 and abs(moved.y) < 0.1, moved  # one more step
     assert abs(moved.x - odometry.pose.pose.position.x) < 1e-9  # the odometry's pose
     assert probe.wait_for('transform', stamp, 1.0) is None, 'a refused scan on transform'
+
+
+def test_a_loop_closure_publishes_the_map_again(
+    ros: Any, probe: NodeProbe, street: Any, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """
+    ``mlsemreg/map`` goes out again on a loop closure while mapping (ros/map_services.py).
+
+    A real loop closure needs a drive around a block; here the map's verdict on an ordinary
+    scan is relabelled ``loop`` (the closure itself is tested in test_maps.py), so what is
+    checked is the node's wiring: the map is published on the event, and only on it.
+    """
+    from dataclasses import replace
+
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+
+    node, _ = ros
+    received: list[Any] = []
+    volatile = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)  # no latched copy
+    subscription = probe.node.create_subscription(
+        PointCloud2, 'mlsemreg/map', received.append, volatile
+    )
+    try:
+        assert probe.wait_until(lambda: probe.node.count_subscribers('mlsemreg/map') >= 1, 10.0)
+        drive(probe, street, 3)  # mapping: keyframes go into the map, no loop
+        probe.wait_until(lambda: received, 1.0)
+        assert received == [], 'mlsemreg/map published without a loop closure'
+        localization = node._map.localization
+        verdict = localization.update
+        monkeypatch.setattr(
+            localization, 'update', lambda *a, **k: replace(verdict(*a, **k), event='loop')
+        )
+        stamp = drive(probe, street, 1)[0]
+        assert probe.wait_until(lambda: received, 10.0), 'no mlsemreg/map after a loop closure'
+        assert received[0].header.frame_id == 'map'
+        assert received[0].header.stamp == stamp
+        assert received[0].width * received[0].height > 100
+    finally:
+        probe.node.destroy_subscription(subscription)

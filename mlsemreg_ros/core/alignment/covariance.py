@@ -64,7 +64,7 @@ class CovarianceConfig:
     """Calibration of the fine alignment's pose covariance (docs/covariance.md)."""
 
     floor_translation: float = param(
-        0.02,
+        0.018,
         'Standard deviation added to every axis of the pose covariance (errors the '
         'Hessian does not see: deskew, labels, the keyframe).',
         unit='m',
