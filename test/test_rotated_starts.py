@@ -106,3 +106,29 @@ def test_a_start_refused_for_its_bent_sweep_is_deskewed_again_and_tracked() -> N
         np.eye(4), 18.0, world.refine, world.refusal, lambda T: world.refine(T, inliers=0.6)
     )
     assert stays is None
+
+
+def test_a_hand_turn_at_stride_3_is_tracked_from_a_rotated_start_and_right() -> None:
+    """The simulated handheld VLP-16 walk (seed 5, no IMU), every 3rd scan, scans 0-33."""
+    from mlsemreg_ros.core.odometry import Odometry
+    from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.simulation.field import FieldConfig, FieldSimulation
+
+    sim = FieldSimulation(FieldConfig(seed=5, frames=36, sensor='vlp16', profile='handheld'))
+    odometry = Odometry(Registration(RegistrationConfig()))
+    rotated, first = 0, None
+    for k in range(0, 36, 3):
+        frame = sim.frame(k)
+        first = frame.pose if first is None else first
+        points = frame.scan.points.astype(np.float32).astype(np.float64)  # as in the bag
+        step = odometry.process(
+            points, frame.labels, frame.stamp_ns, point_times=frame.scan.times
+        )
+        assert step.accepted, step.reason
+        error = np.linalg.solve(np.linalg.solve(first, frame.pose), step.pose)
+        assert np.linalg.norm(error[:3, 3]) < 0.5 and rotation_angle_deg(error) < 2.0, (
+            k,
+            step.reason,
+        )
+        rotated += 'yaw-rotated start' in step.reason
+    assert rotated >= 1
