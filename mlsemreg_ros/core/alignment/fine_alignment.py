@@ -107,13 +107,27 @@ def correction_refusal(alignment: Alignment, bounds: RefinementBounds) -> str:
     ``odometry.max_correction_translation/rotation`` was not right to that bound; a pair
     registration refuses such a pose instead of returning it unrefined (docs/confidence.md).
     """
-    if not np.all(np.isfinite(alignment.T_target_source)):
+    return move_refusal(alignment.T_initial, alignment.T_target_source, bounds)
+
+
+def move_refusal(
+    T_from: np.ndarray, T_to: np.ndarray, bounds: RefinementBounds, what: str = 'its guess'
+) -> str:
+    """
+    Why ``T_to`` lies beyond the correction bounds of ``T_from`` ('' if it does not).
+
+    ``inv(T_from) @ T_to`` must stay within ``odometry.max_correction_translation/rotation``:
+    the bound of a fine alignment's correction (:func:`correction_refusal`), and of anything
+    that replaces an accepted pose by a refined one (the sweep alignment,
+    ``core/odometry/tracking.py``).
+    """
+    if not (np.all(np.isfinite(T_from)) and np.all(np.isfinite(T_to))):
         return 'non-finite fine alignment'
-    moved = alignment.correction
+    moved = np.linalg.solve(T_from, T_to)
     shift, turn = float(np.linalg.norm(moved[:3, 3])), rotation_angle_deg(moved)
     if shift > bounds.max_correction_translation or turn > bounds.max_correction_rotation:
         return (
-            f'fine alignment moved its guess by {shift:.2f} m / {turn:.2f} deg, more '
+            f'fine alignment moved {what} by {shift:.2f} m / {turn:.2f} deg, more '
             f'than odometry.max_correction_translation/rotation='
             f'{bounds.max_correction_translation:g} m / '
             f'{bounds.max_correction_rotation:g} deg'

@@ -379,6 +379,9 @@ class Tracker:
         if not redone.deskewed:
             return raw, pose, '', None
         again = self.candidate('sweep', result.T_target_source, redone.scan, cfg)
-        if not again.acceptable:
-            return raw, pose, f'{result.summary(motion)}: not kept ({again.refusal})', None
+        refusal = again.refusal or self.trust.replacement_refusal(
+            pose, again.alignment.T_target_source, cfg.odometry
+        )
+        if refusal:
+            return raw, pose, f'{result.summary(motion)}: not kept ({refusal})', None
         return redone, again.alignment.T_target_source, result.summary(motion), result.motion

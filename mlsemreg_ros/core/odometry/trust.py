@@ -39,7 +39,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.alignment import Alignment
-from mlsemreg_ros.core.alignment.fine_alignment import refinement_refusal, RefinementBounds
+from mlsemreg_ros.core.alignment.fine_alignment import (
+    move_refusal,
+    refinement_refusal,
+    RefinementBounds,
+)
 from mlsemreg_ros.core.odometry.motion_bound import MotionBound
 from mlsemreg_ros.core.poses import within_bounds
 from mlsemreg_ros.core.rigid import rotation_angle_deg
@@ -188,6 +192,25 @@ class Trust:
             alignment, odometry.min_relative_inlier_fraction, self.history
         )
         return Candidate(name, np.asarray(T_initial).copy(), alignment, refusal)
+
+    def replacement_refusal(
+        self, T_accepted: np.ndarray, T_new: np.ndarray, odometry: OdometryConfig
+    ) -> str:
+        """
+        Why ``T_new`` may not replace the accepted pose ``T_accepted`` ('' if it may).
+
+        A second alignment of an accepted scan (the sweep alignment) starts from its own
+        estimate, so its correction bound says nothing about how far it took the pose from the
+        one the rules accepted. The whole move must stay within the correction bounds, widened
+        as the prediction's are (``core/odometry/motion_bound.py``): on a solid-state drive a
+        sweep fit bent an accepted pose 2.6 m along a weakly held road (issue 35).
+        """
+        return move_refusal(
+            T_accepted,
+            T_new,
+            RefinementBounds.of(self.motion_bound.widen(odometry)),
+            'the accepted pose',
+        )
 
     def tracking_refusal(
         self, predicted: Candidate | None, stamp_gap: float, odometry: OdometryConfig
