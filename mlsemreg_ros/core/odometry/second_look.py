@@ -107,7 +107,7 @@ def _near_miss(
     verdict = basins(tracker, candidate, scan, cfg)
     if not verdict.refusal:
         return chosen
-    better = better_place(verdict, cfg.near_miss)
+    better = better_place(verdict, cfg.near_miss) if cfg.near_miss.move_to_better_place else None
     if better is not None and better.alignment is not None:  # the refinement stopped short
         moved = tracker.trust.judge(
             candidate.name, candidate.T_initial, better.alignment, cfg.odometry
