@@ -121,9 +121,7 @@ def test_a_hand_turn_at_stride_3_is_tracked_from_a_rotated_start_and_right() -> 
         frame = sim.frame(k)
         first = frame.pose if first is None else first
         points = frame.scan.points.astype(np.float32).astype(np.float64)  # as in the bag
-        step = odometry.process(
-            points, frame.labels, frame.stamp_ns, point_times=frame.scan.times
-        )
+        step = odometry.process(points, frame.labels, frame.stamp_ns, point_times=frame.scan.times)
         assert step.accepted, step.reason
         error = np.linalg.solve(np.linalg.solve(first, frame.pose), step.pose)
         assert np.linalg.norm(error[:3, 3]) < 0.5 and rotation_angle_deg(error) < 2.0, (
