@@ -107,7 +107,9 @@ def correction_refusal(alignment: Alignment, bounds: RefinementBounds) -> str:
     ``odometry.max_correction_translation/rotation`` was not right to that bound; a pair
     registration refuses such a pose instead of returning it unrefined (docs/confidence.md).
     """
-    return move_refusal(alignment.T_initial, alignment.T_target_source, bounds)
+    if not np.all(np.isfinite(alignment.T_target_source)):
+        return 'non-finite fine alignment'
+    return _moved_refusal(alignment.correction, bounds, 'its guess')
 
 
 def move_refusal(
@@ -123,7 +125,11 @@ def move_refusal(
     """
     if not (np.all(np.isfinite(T_from)) and np.all(np.isfinite(T_to))):
         return 'non-finite fine alignment'
-    moved = np.linalg.solve(T_from, T_to)
+    return _moved_refusal(np.linalg.solve(T_from, T_to), bounds, what)
+
+
+def _moved_refusal(moved: np.ndarray, bounds: RefinementBounds, what: str) -> str:
+    """Why the move ``moved`` (4, 4) is beyond the correction bounds ('' if it is not)."""
     shift, turn = float(np.linalg.norm(moved[:3, 3])), rotation_angle_deg(moved)
     if shift > bounds.max_correction_translation or turn > bounds.max_correction_rotation:
         return (
