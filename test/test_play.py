@@ -35,6 +35,16 @@ START_NS = 1_700_000_000 * 10**9
 N_CLOUDS = 12
 
 
+def _player(path: Path, env: dict[str, str], *options: str) -> subprocess.Popen:
+    """Start ``mlsemreg_ros.tools.play PATH OPTIONS`` with ``env``, output piped."""
+    return subprocess.Popen(
+        [sys.executable, '-m', 'mlsemreg_ros.tools.play', str(path), *options],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+
+
 @pytest.fixture
 def bag(tmp_path: Path) -> tuple[Path, list[np.ndarray]]:
     rng = np.random.default_rng(0)
@@ -75,22 +85,8 @@ def test_player_delivers_every_message_to_a_subscriber(
         executor.add_node(node)
         env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID))
         start = time.monotonic()
-        player = subprocess.Popen(
-            [
-                sys.executable,
-                '-m',
-                'mlsemreg_ros.tools.play',
-                str(path),
-                '--rate',
-                '1',
-                '--clock',
-                '--wait-for-subscribers',
-                '1',
-                '--quiet',
-            ],
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
+        player = _player(
+            path, env, '--rate', '1', '--clock', '--wait-for-subscribers', '1', '--quiet'
         )
         deadline = start + 45.0
         while time.monotonic() < deadline:
@@ -145,25 +141,11 @@ def test_pace_topic_holds_playback_until_a_slow_consumer_answered(
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
         env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID))
-        player = subprocess.Popen(
-            [
-                sys.executable,
-                '-m',
-                'mlsemreg_ros.tools.play',
-                str(path),
-                '--rate',
-                '0',
-                '--topics',
-                '/test_play/points',
-                '--pace-topic',
-                '/test_play/answer',
-                '--wait-for-subscribers',
-                '1',
-                '--quiet',
-            ],
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
+        player = _player(
+            path,
+            env,
+            *('--rate', '0', '--topics', '/test_play/points'),
+            *('--pace-topic', '/test_play/answer', '--wait-for-subscribers', '1', '--quiet'),
         )
         deadline = time.monotonic() + 45.0
         while time.monotonic() < deadline:
@@ -199,21 +181,7 @@ def test_wait_for_subscribers_does_not_wait_for_topics_nobody_subscribes(
         executor.add_node(node)
         env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID))
         start = time.monotonic()
-        player = subprocess.Popen(
-            [
-                sys.executable,
-                '-m',
-                'mlsemreg_ros.tools.play',
-                str(path),
-                '--wait-for-subscribers',
-                '1',
-                '--wait-timeout',
-                '60',
-            ],
-            env=env,
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-        )
+        player = _player(path, env, '--wait-for-subscribers', '1', '--wait-timeout', '60')
         deadline = start + 90.0
         while time.monotonic() < deadline:
             executor.spin_once(timeout_sec=0.05)

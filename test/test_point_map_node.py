@@ -44,19 +44,19 @@ def imported_map(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp('point_map')
     world, labels = street_scene(seed=STREET_SEED)
     write_cloud(root / 'survey.ply', world, labels)
+    return _import_along_the_street(root / 'survey.ply')
+
+
+def _import_along_the_street(survey: Path) -> Path:
+    """`mlsemreg map import SURVEY` along a drive on the street's axis; return the map."""
+    root = survey.parent
     trajectory = np.stack([motion(0.0, (x, 0.0, 0.0)) for x in np.arange(-40.0, 41.0, 1.0)])
     write_tum_poses(root / 'drive.tum', np.arange(len(trajectory)) * 10**8, trajectory)
     run = CliRunner().invoke(
         app,
         [
-            'map',
-            'import',
-            str(root / 'survey.ply'),
-            str(root / 'map'),
-            '--trajectory',
-            str(root / 'drive.tum'),
-            '--set',
-            'map.keyframe_distance=15',
+            *('map', 'import', str(survey), str(root / 'map')),
+            *('--trajectory', str(root / 'drive.tum'), '--set', 'map.keyframe_distance=15'),
         ],
     )
     assert run.exit_code == 0, f'{run.output}{run.exception}'
@@ -97,23 +97,8 @@ def test_scans_without_labels_localize_in_an_imported_unlabeled_pcd_map(
     """
     world, _ = street_scene(seed=STREET_SEED)
     write_cloud(tmp_path / 'survey.pcd', world)  # x, y, z only
-    trajectory = np.stack([motion(0.0, (x, 0.0, 0.0)) for x in np.arange(-40.0, 41.0, 1.0)])
-    write_tum_poses(tmp_path / 'drive.tum', np.arange(len(trajectory)) * 10**8, trajectory)
-    run = CliRunner().invoke(
-        app,
-        [
-            'map',
-            'import',
-            str(tmp_path / 'survey.pcd'),
-            str(tmp_path / 'map'),
-            '--trajectory',
-            str(tmp_path / 'drive.tum'),
-            '--set',
-            'map.keyframe_distance=15',
-        ],
-    )
-    assert run.exit_code == 0, f'{run.output}{run.exception}'
-    args = ['--ros-args', '-p', f'map.load_path:={tmp_path / "map"}']
+    imported = _import_along_the_street(tmp_path / 'survey.pcd')
+    args = ['--ros-args', '-p', f'map.load_path:={imported}']
     with node_and_probe(domain_id('point_map_node'), args) as (_, probe):
         from geometry_msgs.msg import TransformStamped
 
