@@ -31,8 +31,6 @@ On the 60 m dev pairs the near-miss check disputed right poses for a second basi
 
 from __future__ import annotations
 
-import dataclasses
-
 from mlsemreg_ros.core.alignment.fine_alignment import correction_refusal, RefinementBounds
 from mlsemreg_ros.core.estimation.confidence import slid_poses, tilt_deg
 from mlsemreg_ros.core.estimation.covisibility import mutual_covisible_overlap
@@ -46,7 +44,7 @@ from mlsemreg_ros.core.estimation.covisible_acceptance import (
 from mlsemreg_ros.core.features.levelling import tilt_refusal as level_refusal
 from mlsemreg_ros.core.results import VerificationResult
 from mlsemreg_ros.core.stages.context import RegistrationContext
-from mlsemreg_ros.core.stages.covisibility import covisible_side
+from mlsemreg_ros.core.stages.covisibility import covisible_sides
 from mlsemreg_ros.core.stages.levelling import ground_fits
 import numpy as np
 
@@ -113,11 +111,9 @@ class CovisibleAcceptanceStage:
             : SLIDES * (conf.slide_distance > 0)
         ]
         transforms = np.concatenate([pose[None], slides, candidates[rivals]])
-        dense = dataclasses.replace(check, sample_points=covis.accept_points)
         overlap, checked = mutual_covisible_overlap(
             transforms,
-            covisible_side(context.source, covis.bin_deg, dense),
-            covisible_side(context.target, covis.bin_deg, dense),
+            *covisible_sides(context, covis.accept_points),
             check.overlap_distance,
             covis.margin,
         )
