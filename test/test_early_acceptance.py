@@ -109,10 +109,15 @@ def candidates() -> np.ndarray:
     return np.stack([np.eye(4), pose(0.3, 0.0, 0.0, 0.0), pose(20.0, 0.0, 0.0, 0.0)])
 
 
-def test_the_gate_sits_after_the_bev_and_far_searches_and_is_off_by_default():
+def test_the_gate_sits_after_each_search_but_the_last_and_is_off_by_default():
     names = [stage.name for stage in default_stages()]
     gates = [i for i, name in enumerate(names) if name == 'early_accept']
-    assert [names[i - 1] for i in gates] == ['bev_search', 'far_search']
+    assert [names[i - 1] for i in gates] == [
+        'bev_search',
+        'bev_search_swapped',
+        'far_search',
+        'guided',
+    ]
     context = refused(candidates(), gap=0.0)
     assert not EarlyAcceptanceStage([], LATER).wanted(context)
     assert RegistrationConfig().covisibility.early_accept_gap == 0.0

@@ -124,10 +124,14 @@ def default_stages() -> list[Stage]:
         ConfidenceStage(),  # 4. the choice and the confidence rule's verdict
         ObjectStage(),  # 5a. refused or weak: the object hypotheses, 4-DoF in levelled frames
         BevSearchStage(),  # 5. refused or weak: the semantic bird's-eye-view search
-        EarlyAcceptanceStage(end, skipped),  # the gate, after the BEV search
-        *later[:2],
-        EarlyAcceptanceStage(end, skipped),  # the gate, after the far search
-        *later[2:],
+        EarlyAcceptanceStage(end, skipped),  # the gate, after the BEV search,
+        later[0],
+        EarlyAcceptanceStage(end, skipped),  # after the swapped search,
+        later[1],
+        EarlyAcceptanceStage(end, skipped),  # after the far search,
+        later[2],
+        EarlyAcceptanceStage(end, skipped),  # and after the guided re-matching
+        *later[3:],
         *end,
     ]
 

@@ -148,8 +148,9 @@ class CovisibilityConfig:
     )
     early_accept_gap: float = param(
         0.0,
-        'The gate of the refused path: after the BEV search and after the far search, while '
-        'the pose is refused, the end stages (covisible choice, fine alignment, acceptance '
+        'The gate of the refused path: after the BEV, swapped and far searches and the guided '
+        're-matching, while the pose is refused, the end stages (covisible choice, fine '
+        'alignment, acceptance '
         'where both scans see) are tried on the candidates found so far; a pose accepted '
         'whose covisible overlap beats the best distinct candidate and slide by this much '
         'ends the registration there (core/stages/early_acceptance.py); 0: off.',

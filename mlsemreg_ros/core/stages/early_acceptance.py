@@ -21,7 +21,9 @@ scans see (stage 9). On the dev pairs 40 and 60 m apart, 28 of 68 accepted poses
 accepted by stage 9, and their pose often comes from the first searches
 (docs/hard_pairs.md, "The refused path, fourth round").
 
-After a search, while the pose is still refused, this stage runs the end stages on a copy
+After a search (the BEV, swapped and far searches and the guided re-matching; not after
+the full graph and the polishing, which the end stages follow anyway), while the pose is
+still refused, this stage runs the end stages on a copy
 of the registration. Their verdict is taken, and the remaining searches and end stages are
 skipped, only when stage 9 accepts the pose beyond doubt: its covisible overlap beats the
 best distinct candidate of the pool so far and the best slide by at least
