@@ -152,6 +152,20 @@ def test_a_pose_accepted_by_less_than_the_gap_leaves_the_search_going():
     assert np.array_equal(context.transform, candidates()[-1])  # the copy was dropped
 
 
+def test_a_pose_accepted_without_stage_9_s_measure_is_not_taken():
+    """Accepted by the confidence rule, but not refined (no alignment to measure): dropped."""
+
+    class Confident(Covisible):
+        def run(self, context: RegistrationContext) -> None:
+            super().run(context)
+            context.refusal = ''  # the covisible overlap stands in for the overlap
+
+    context = refused(candidates())
+    EarlyAcceptanceStage([Confident([0.99, 0.99, 0.80])], LATER).run(context)
+    assert context.refusal == REFUSED and not context.done
+    assert np.isnan(context.diagnostics['covisible_early_gap'])
+
+
 def test_a_distinct_candidate_within_the_gap_stops_the_trial_before_the_fine_alignment():
     """The variant 0.3 m away does not count; the pose 20 m away at 0.95 does."""
     context = refused(candidates())

@@ -144,3 +144,8 @@ class CovisibleAcceptanceStage:
         if source is None or target is None:
             return ''
         return level_refusal(context.transform, source, target, context.config.levelling)
+
+
+def covisible_evidence(context: RegistrationContext) -> CovisibleEvidence:
+    """Measure the context's pose, its slides and the pool's best rivals as stage 9 does."""
+    return CovisibleAcceptanceStage._measure(context, tilt_deg(context.transform))

@@ -25,12 +25,15 @@ After a search (the BEV, swapped and far searches and the guided re-matching; no
 the full graph and the polishing, which the end stages follow anyway), while the pose is
 still refused, this stage runs the end stages on a copy
 of the registration. Their verdict is taken, and the remaining searches and end stages are
-skipped, only when stage 9 accepts the pose beyond doubt: its covisible overlap beats the
-best distinct candidate of the pool so far and the best slide by at least
-``covisibility.early_accept_gap`` (stage 9 itself asks ``covisibility.accept_gap``), since
-the searches not run would have added rivals. Otherwise the copy is dropped and the search
-goes on; the trial's time is the price (``early_accept_ms``). A trial whose covisible
-choice falls short of ``covisibility.accept_overlap`` stops before the fine alignment.
+skipped, only when the pose is accepted beyond doubt: by stage 9, or by the confidence rule
+on its covisible overlap and then the near-miss check, and in both cases on stage 9's own
+measure (8000 points) its covisible overlap beats the best distinct candidate of the pool
+so far and the best slide by at least ``covisibility.early_accept_gap`` (stage 9 itself
+asks ``covisibility.accept_gap``), since the searches not run would have added rivals.
+Otherwise the copy is dropped and the search goes on; the trial's time is the price
+(``early_accept_ms``). A trial whose covisible choice falls short of
+``covisibility.accept_overlap``, or has a distinct candidate within the gap on the choice's
+own measure (2000 points), stops before the fine alignment.
 ``covisibility.early_accept_gap`` 0: off. Only for the pair's own fine alignment
 (``refine``): the odometry's global registration refines on its map and never runs stage 9.
 """
@@ -40,11 +43,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 import dataclasses
 
+from mlsemreg_ros.core.estimation.covisible_acceptance import acceptance_refusal, tilt_refusal
 from mlsemreg_ros.core.poses import same_pose
 from mlsemreg_ros.core.results import VerificationResult
 from mlsemreg_ros.core.stages.confidence import consider
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage
 from mlsemreg_ros.core.stages.covisibility import CovisibilityStage
+from mlsemreg_ros.core.stages.covisible_acceptance import covisible_evidence
 import numpy as np
 
 
@@ -92,12 +97,12 @@ class EarlyAcceptanceStage:
                 consider(trial, found)
             if stage.name == CovisibilityStage.name:
                 context.covisible_measured = trial.covisible_measured  # the pool is the same
-                if not _bound_for_stage_9(context, trial):
+                if not _worth_refining(context, trial):
                     return None  # no fine alignment for nothing
+        if trial.refusal or trial.doubts:
+            return None
         gap = _gap(trial)
         context.diagnostics['covisible_early_gap'] = gap
-        if not trial.diagnostics.get('covisible_accepted') or trial.refusal or trial.doubts:
-            return None
         if not gap >= covis.early_accept_gap:  # NaN: not beyond doubt
             return None
         for field in dataclasses.fields(context):
@@ -108,18 +113,17 @@ class EarlyAcceptanceStage:
         return None
 
 
-def _bound_for_stage_9(context: RegistrationContext, trial: RegistrationContext) -> bool:
+def _worth_refining(context: RegistrationContext, trial: RegistrationContext) -> bool:
     """
-    Tell whether the trial's covisible choice may end accepted by stage 9, and is new.
+    Tell whether the trial's covisible choice may pass beyond doubt, and is new.
 
-    Not when its covisible overlap falls short of ``covisibility.accept_overlap``, when the
-    confidence rule accepts it (then the near-miss check would judge it, on a pool without
-    the later searches' rivals: the trial stops there), when an earlier trial judged the
-    same pose (the rivals can only have grown), or when a distinct candidate of the pool
-    comes within ``covisibility.early_accept_gap`` of it on the choice's own measure.
+    Not when its covisible overlap falls short of ``covisibility.accept_overlap``, when an
+    earlier trial judged the same pose (the rivals can only have grown), or when a distinct
+    candidate of the pool comes within ``covisibility.early_accept_gap`` of it on the
+    choice's own measure.
     """
     covis, conf = trial.config.covisibility, trial.config.confidence
-    if not trial.refusal or trial.diagnostics.get('covisible_overlap', 0.0) < covis.accept_overlap:
+    if trial.diagnostics.get('covisible_overlap', 0.0) < covis.accept_overlap:
         return False
     pose = trial.transform
     if any(np.array_equal(pose, tried) for tried in context.early_tried):
@@ -137,9 +141,25 @@ def _bound_for_stage_9(context: RegistrationContext, trial: RegistrationContext)
 
 
 def _gap(trial: RegistrationContext) -> float:
-    """Stage 9's margin: the pose's covisible overlap over its best rival or slide (NaN: none)."""
+    """
+    Stage 9's margin: the pose's covisible overlap over its best rival or slide (NaN: none).
+
+    A pose stage 9 accepted has it in its diagnostics. A pose the confidence rule accepted
+    on its covisible overlap (the covisible choice, then the fine alignment and the
+    near-miss check) is measured as stage 9 would measure it, and must pass stage 9's rule
+    too (NaN when it does not).
+    """
     found = trial.diagnostics
-    if 'covisible_accept_overlap' not in found:
-        return float('nan')
+    if not found.get('covisible_accepted'):
+        if trial.alignment is None or not np.array_equal(
+            trial.transform, trial.alignment.T_target_source
+        ):
+            return float('nan')
+        evidence = covisible_evidence(trial)
+        if acceptance_refusal(evidence, trial.config.covisibility) or tilt_refusal(
+            evidence.tilt_deg, trial.config.covisibility
+        ):
+            return float('nan')
+        found = evidence.as_diagnostics()
     rival = max(found['covisible_accept_rival_overlap'], found['covisible_accept_slide_overlap'])
     return float(found['covisible_accept_overlap'] - rival)
