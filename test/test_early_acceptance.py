@@ -109,7 +109,7 @@ def candidates() -> np.ndarray:
     return np.stack([np.eye(4), pose(0.3, 0.0, 0.0, 0.0), pose(20.0, 0.0, 0.0, 0.0)])
 
 
-def test_the_gate_sits_after_each_search_but_the_last_and_is_off_by_default():
+def test_the_gate_sits_after_each_search_but_the_last_and_is_on_by_default():
     names = [stage.name for stage in default_stages()]
     gates = [i for i, name in enumerate(names) if name == 'early_accept']
     assert [names[i - 1] for i in gates] == [
@@ -120,7 +120,7 @@ def test_the_gate_sits_after_each_search_but_the_last_and_is_off_by_default():
     ]
     context = refused(candidates(), gap=0.0)
     assert not EarlyAcceptanceStage([], LATER).wanted(context)
-    assert RegistrationConfig().covisibility.early_accept_gap == 0.0
+    assert RegistrationConfig().covisibility.early_accept_gap == 0.08  # 2 x accept_gap
 
 
 def test_the_gate_never_runs_without_the_pair_s_fine_alignment():
