@@ -65,7 +65,16 @@ class RescueSpy:
         self.seen: dict[str, Any] | None = None
         self._rescue = gyro_rescue.rescue_by_gyro
 
-    def __call__(self, odometry, stamp_ns, prediction, raw, chosen, timings):  # noqa: ANN001
+    def __call__(
+        self,
+        odometry: Any,
+        stamp_ns: int,
+        prediction: Any,
+        raw: Any,
+        chosen: Any,
+        timings: dict[str, float],
+    ) -> Any:
+        """Measure the refused pose the rescue is given (if it would look), then rescue."""
         result = chosen.result
         model = odometry.motion_model
         if (
@@ -81,7 +90,10 @@ class RescueSpy:
                 self.seen = self._measure(odometry, raw, result, measured, last[0])
         return self._rescue(odometry, stamp_ns, prediction, raw, chosen, timings)
 
-    def _measure(self, odometry, raw, result, measured, last_pose) -> dict[str, Any]:  # noqa: ANN001
+    def _measure(
+        self, odometry: Any, raw: Any, result: Any, measured: np.ndarray, last_pose: np.ndarray
+    ) -> dict[str, Any]:
+        """The refused pose and its map refinement: angles to the gyro, errors, verdicts."""
         T_global = odometry.keyframe.pose @ result.transform
         candidate = odometry.tracker.candidate('global', T_global, raw.scan, odometry.config)
         refined = candidate.alignment.T_target_source
@@ -91,9 +103,7 @@ class RescueSpy:
             'refused_to_gyro_deg': gyro_rescue.gyro_disagreement_deg(
                 last_pose, measured, T_global
             ),
-            'refined_to_gyro_deg': gyro_rescue.gyro_disagreement_deg(
-                last_pose, measured, refined
-            ),
+            'refined_to_gyro_deg': gyro_rescue.gyro_disagreement_deg(last_pose, measured, refined),
             'refined_trusted': bool(candidate.acceptable),
             'weak_refusal': weak_refusal(candidate.alignment, odometry.config),
             'refused_error': [m0, d0],
@@ -164,8 +174,10 @@ def main() -> None:
         seen = [r for r in rows if r.get('refined_right') is key]
         if seen:
             angles = sorted(r['refined_to_gyro_deg'] for r in seen)
-            print(f'refined {label} poses: {len(seen)}, to the gyro {angles[0]:.2f}-'
-                  f'{angles[-1]:.2f} deg')
+            print(
+                f'refined {label} poses: {len(seen)}, to the gyro {angles[0]:.2f}-'
+                f'{angles[-1]:.2f} deg'
+            )
 
 
 if __name__ == '__main__':
