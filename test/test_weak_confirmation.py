@@ -132,3 +132,19 @@ def test_the_right_solid_state_first_registration_is_accepted() -> None:
     assert not accepted and 'min_weak_support' in reason, outcomes
     accepted, error, reason = outcomes[None]
     assert accepted and error < 0.3 and 'confirmed by the sweep alignment' in reason, outcomes
+
+
+@pytest.mark.slow
+def test_a_wrong_weak_pose_the_sweep_moves_is_not_published() -> None:
+    """Field drive seed 7, livox, stride 5: scan 5 onto scan 0 was accepted 0.96 m off."""
+    sim = FieldSimulation(FieldConfig(seed=7, frames=60, sensor='livox'))
+    frames = [sim.frame(k) for k in (0, 5)]
+    truth = np.linalg.solve(frames[0].pose, frames[1].pose)
+    odometry = Odometry(Registration(RegistrationConfig()))
+    for frame in frames:
+        points = frame.scan.points.astype(np.float32).astype(np.float64)  # as in the bag
+        labels, _ = sim.raw_labels(frame)
+        step = odometry.process(points, labels, frame.stamp_ns, point_times=frame.scan.times)
+    error = np.linalg.norm(np.linalg.solve(truth, step.pose)[:3, 3])
+    assert not step.accepted or error < 0.6, (error, step.reason)
+    assert 'not confirmed: the sweep alignment moved it' in step.reason, step.reason
