@@ -80,6 +80,12 @@ class MapConfig:
         low=1,
         high=100000,
     )
+    prepare_on_load: bool = param(
+        True,
+        'Prepare the place index and up to map.prepared_cache keyframes (features and '
+        'alignment clouds) when a map is loaded, so that a relocalization does not pay for '
+        'them (the node does it in the background).',
+    )
     rings: int = param(20, 'Rings of the semantic scan context.', low=2, high=200)
     sectors: int = param(60, 'Sectors of the semantic scan context.', low=4, high=720)
     max_radius: float = param(

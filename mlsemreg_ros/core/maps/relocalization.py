@@ -46,10 +46,11 @@ No accepted candidate: the query is refused (``found`` false) and no pose is giv
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import threading
 import time
 
 from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
-from mlsemreg_ros.core.maps.submap_check import refine_on_submap, static_points
+from mlsemreg_ros.core.maps.submap_check import refine_on_submap, static_points, submap_cloud
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult, VerificationResult
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage
@@ -149,6 +150,49 @@ class Relocalizer:
         self.registration = registration
         self.store = store
         self._quick: tuple[object, Registration] | None = None
+        self._ahead: threading.Thread | None = None
+        self._stop_ahead = threading.Event()
+
+    def prepare_map(self, background: bool = False) -> threading.Thread | None:
+        """
+        Prepare what every query needs before the first one (``map.prepare_on_load``).
+
+        The place index (every keyframe's scan context), the quick pass's registration,
+        then keyframes completely (:meth:`KeyframeStore.prepare_ahead`) and their submap
+        clouds (``map.relocalize_refine``), up to ``map.prepared_cache`` of each.
+        ``background``: on a daemon thread (returned; a query meanwhile prepares what it
+        needs itself), else before returning.
+        """
+        self.stop_preparing()
+        stop = self._stop_ahead.is_set
+
+        def prepare() -> None:
+            store, cfg = self.store, self.store.config
+            store.place_index()
+            if cfg.map.quick_first:
+                self.quick_registration()
+            store.prepare_ahead(self.registration, stop)
+            ids = store.ids
+            everyone = set(ids)
+            for keyframe_id in ids[: cfg.map.prepared_cache if cfg.map.relocalize_refine else 0]:
+                if stop() or store.config is not cfg:
+                    break
+                submap_cloud(store, keyframe_id, cfg.map.submap_keyframes, everyone, cfg.fine)
+
+        if not background:
+            prepare()
+            return None
+        self._stop_ahead.clear()
+        self._ahead = threading.Thread(target=prepare, name='prepare_map', daemon=True)
+        self._ahead.start()
+        return self._ahead
+
+    def stop_preparing(self) -> None:
+        """Stop a background :meth:`prepare_map` and wait for it (at most one keyframe)."""
+        if self._ahead is not None:
+            self._stop_ahead.set()
+            self._ahead.join()
+            self._ahead = None
 
     def quick_registration(self) -> Registration:
         """
