@@ -179,3 +179,38 @@ def test_a_cached_submap_is_dropped_when_the_map_changes(config: RegistrationCon
     np.testing.assert_array_equal(rebuilt.points, fresh.points)  # built from the new poses
     store.remove(store.ids[-1])
     assert submap_cloud(store, store.ids[2], 3, everyone, config.fine)[0] is not rebuilt
+
+
+def _relocalize(config: RegistrationConfig, points, labels):
+    store = _store(config)
+    return Relocalizer(Registration(config, store.label_map), store).relocalize(points, labels)
+
+
+def test_the_screen_leaves_the_answer_as_it_was(config: RegistrationConfig) -> None:
+    """A candidate found without SC2-PCR's retry is registered as by the quick pass."""
+    points, labels = _query()
+    screened = _relocalize(config, points, labels)
+    plain = _relocalize(config.replace({'map.quick_defers_retry': False}), points, labels)
+    assert screened.found and plain.found and screened.keyframe_id == plain.keyframe_id
+    assert [t.keyframe_id for t in screened.trials] == [t.keyframe_id for t in plain.trials]
+    assert not any(t.deferred for t in screened.trials)
+    np.testing.assert_allclose(screened.T_map_sensor, plain.T_map_sensor, atol=1e-12)
+
+
+def test_candidates_the_estimator_would_retry_wait_and_then_go_most_inliers_first(
+    config: RegistrationConfig,
+) -> None:
+    """Every sampled estimate retried (a huge retry bound): all wait, most inliers go first."""
+    points, labels = _query()
+    config = config.replace({'estimator.graph_retry_inliers': 100000})
+    screened = _relocalize(config, points, labels)
+    waited = [t for t in screened.trials if t.deferred]
+    assert len(waited) == config.map.candidates and not any(t.accepted for t in waited)
+    assert screened.trials[: len(waited)] == waited  # the screen first, every candidate
+    after = screened.trials[len(waited) :]
+    assert after and all(t.quick and not t.deferred for t in after) and after[-1].accepted
+    ranked = sorted(waited, key=lambda t: -t.inliers)  # stable: best scan context on ties
+    assert [t.keyframe_id for t in after] == [t.keyframe_id for t in ranked[: len(after)]]
+    truth = motion(-40.0, (7.0, -1.0, 0.0))
+    error = np.linalg.inv(truth) @ screened.T_map_sensor
+    assert screened.found and np.linalg.norm(error[:3, 3]) < 0.3

@@ -260,6 +260,7 @@ def score(name: str, found: Any, truth: Any) -> dict[str, Any]:
                 'message': t.message,
                 'time_ms': t.time_ms,
                 'quick': t.quick,
+                'deferred': t.deferred,
             }
             for t in found.trials
         ],

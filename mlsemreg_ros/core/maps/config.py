@@ -129,6 +129,14 @@ class MapConfig:
         'evidence (the full registration would return the same); only then register the '
         'candidates again with the full path (core/maps/relocalization.py).',
     )
+    quick_defers_retry: bool = param(
+        True,
+        'In the quick pass (map.quick_first), a candidate on which SC2-PCR would run again '
+        'on the full graph (estimator.graph_retry_inliers) is set aside after its sampled '
+        'estimate until every other candidate had its quick try; then the set-aside ones '
+        'get theirs, most sampled inliers first. The accepted poses are the same; a wrong '
+        'place ranked first costs less.',
+    )
     relocalize_after_failures: int = param(
         2,
         'A lost odometry (this many rejected scans in a row) relocalizes against its own '
