@@ -206,8 +206,9 @@ def test_candidates_the_estimator_would_retry_wait_and_then_go_most_inliers_firs
     screened = _relocalize(config, points, labels)
     waited = [t for t in screened.trials if t.deferred]
     assert len(waited) == config.map.candidates and not any(t.accepted for t in waited)
-    assert screened.trials[: len(waited)] == waited  # the screen first, every candidate
-    after = screened.trials[len(waited) :]
+    count = len(waited)
+    assert screened.trials[:count] == waited  # the screen first, every candidate
+    after = screened.trials[count:]
     assert after and all(t.quick and not t.deferred for t in after) and after[-1].accepted
     ranked = sorted(waited, key=lambda t: -t.inliers)  # stable: best scan context on ties
     assert [t.keyframe_id for t in after] == [t.keyframe_id for t in ranked[: len(after)]]
