@@ -99,7 +99,7 @@ def main() -> None:
     wall = time.perf_counter()
     store = data.store(core, registration.label_map)
     relocalizer = Relocalizer(registration, store)
-    if core.map.prepare_on_load:  # as `mlsemreg relocalize` and the node do
+    if getattr(core.map, 'prepare_on_load', False):  # as `mlsemreg relocalize` and the node do
         relocalizer.prepare_map()
     load_cpu_ms = 1e3 * (time.process_time() - cpu)
     load_wall_ms = 1e3 * (time.perf_counter() - wall)
