@@ -232,12 +232,13 @@ class KeyframeStore:
 
     def place_index(self) -> tuple[PlaceIndex, list[int]]:
         """Return the place index of every keyframe and the keyframe id of each row."""
-        if self._index is None:
-            ids = self.ids
-            descriptors = [self.descriptor(i) for i in ids]
-            positions = np.array([self._keyframes[i].position for i in ids]).reshape(-1, 3)
-            self._index, self._index_ids = PlaceIndex(descriptors, positions), ids
-        return self._index, self._index_ids
+        with self._cache_lock:  # built once, also when a background preparation builds it
+            if self._index is None:
+                ids = self.ids
+                descriptors = [self.descriptor(i) for i in ids]
+                positions = np.array([self._keyframes[i].position for i in ids]).reshape(-1, 3)
+                self._index, self._index_ids = PlaceIndex(descriptors, positions), ids
+            return self._index, self._index_ids
 
     def prepared(self, keyframe_id: int, registration: object) -> PreparedScan:
         """Return the keyframe's prepared scan for ``registration`` (LRU-cached, lazy)."""
