@@ -62,13 +62,6 @@ if TYPE_CHECKING:
 START_DESKEW_ROUNDS = 3
 #: ... until the alignment moves the pose by less than this (m).
 START_DESKEW_TOLERANCE = 0.01
-#: Over a start gap longer than this (s: strides of 20 and more at 10 Hz), the first scan is
-#: deskewed by the mean velocity between the two scans without their mean turn rate: a car's
-#: speed changes slowly, but the turn over seconds says little about the turn within either
-#: sweep (field drive seed 0 at stride 30: -2.7 deg/s at scan 0, -30 deg/s on the mean; its
-#: first registration 0.598 -> 0.411 m from the truth; the later scan's own twist is
-#: estimated by the sweep alignment).
-START_TURN_GAP_S = 1.5
 #: The sweep alignment needs a local map of at least this many voxels.
 MIN_SWEEP_MAP_VOXELS = 100
 
@@ -285,8 +278,7 @@ class Tracker:
         A map of skewed scans would bias every deskewed scan aligned to it (and, through the
         velocity, the next deskew), and the next one's pose was registered on two skewed
         sweeps. So both are deskewed with the motion estimated between them (the gyro's
-        rotation when there is an IMU; over a gap of more than :data:`START_TURN_GAP_S`, the
-        first one without the mean turn rate), prepared again, and the next one is aligned again
+        rotation when there is an IMU), prepared again, and the next one is aligned again
         to the first, :data:`START_DESKEW_ROUNDS` times at most (the motion follows the
         pose). Returns the scan and pose to accept; the map holds the first scan
         (``docs/field.md``).
@@ -306,14 +298,10 @@ class Tracker:
             if twist is None:
                 break
             attempt = []
-            long_gap = (stamp_ns - first_stamp) * 1e-9 > START_TURN_GAP_S
             for scan, stamp in ((first, first_stamp), (raw, stamp_ns)):
-                motion = preprocessor.gyro_motion(
-                    motion_model, stamp, scan.point_times, twist.velocity
-                ) or (
-                    SweepMotion(np.zeros(3), twist.velocity)
-                    if long_gap and scan is first
-                    else twist
+                motion = (
+                    preprocessor.gyro_motion(motion_model, stamp, scan.point_times, twist.velocity)
+                    or twist
                 )
                 points = scan.input_points if scan.input_points is not None else scan.points
                 attempt.append(preprocessor.scan(points, scan.labels, scan.point_times, motion))
