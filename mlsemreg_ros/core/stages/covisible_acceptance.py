@@ -73,12 +73,7 @@ class CovisibleAcceptanceStage:
         pose = context.transform
         tilt = tilt_deg(pose)
         context.diagnostics['covisible_accept_tilt_deg'] = tilt
-        covis = context.config.covisibility
-        reason = (
-            tilt_refusal(tilt, covis)
-            or self._level_refusal(context)
-            or localizability_refusal(context.diagnostics.get('degeneracy_ratio'), covis)
-        )
+        reason = pose_refusal(context, tilt)
         if not reason:
             evidence = self._measure(context, tilt)
             context.diagnostics.update(evidence.as_diagnostics())
@@ -153,6 +148,27 @@ class CovisibleAcceptanceStage:
         return level_refusal(context.transform, source, target, context.config.levelling)
 
 
-def covisible_evidence(context: RegistrationContext) -> CovisibleEvidence:
-    """Measure the context's pose, its slides and the pool's best rivals as stage 9 does."""
-    return CovisibleAcceptanceStage._measure(context, tilt_deg(context.transform))
+def pose_refusal(context: RegistrationContext, tilt: float) -> str:
+    """Stage 9's checks of the refined pose before its measure: tilt, level, localizability."""
+    covis = context.config.covisibility
+    return (
+        tilt_refusal(tilt, covis)
+        or CovisibleAcceptanceStage._level_refusal(context)
+        or localizability_refusal(context.diagnostics.get('degeneracy_ratio'), covis)
+    )
+
+
+def covisible_evidence(context: RegistrationContext) -> tuple[CovisibleEvidence | None, str]:
+    """
+    Judge the context's pose as stage 9 does: ``(evidence, refusal)`` ('' = it passes).
+
+    The refined pose's tilt, level and localizability first (no evidence measured when one
+    refuses: ``(None, reason)``), then its covisible overlap against its slides and the
+    pool's best distinct candidates.
+    """
+    tilt = tilt_deg(context.transform)
+    reason = pose_refusal(context, tilt)
+    if reason:
+        return None, reason
+    evidence = CovisibleAcceptanceStage._measure(context, tilt)
+    return evidence, acceptance_refusal(evidence, context.config.covisibility)

@@ -43,7 +43,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 import dataclasses
 
-from mlsemreg_ros.core.estimation.covisible_acceptance import acceptance_refusal, tilt_refusal
 from mlsemreg_ros.core.poses import same_pose
 from mlsemreg_ros.core.results import VerificationResult
 from mlsemreg_ros.core.stages.confidence import consider
@@ -155,10 +154,8 @@ def _gap(trial: RegistrationContext) -> float:
             trial.transform, trial.alignment.T_target_source
         ):
             return float('nan')
-        evidence = covisible_evidence(trial)
-        if acceptance_refusal(evidence, trial.config.covisibility) or tilt_refusal(
-            evidence.tilt_deg, trial.config.covisibility
-        ):
+        evidence, refusal = covisible_evidence(trial)
+        if refusal:
             return float('nan')
         found = evidence.as_diagnostics()
     rival = max(found['covisible_accept_rival_overlap'], found['covisible_accept_slide_overlap'])
