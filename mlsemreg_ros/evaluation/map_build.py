@@ -107,7 +107,10 @@ def compare_loops(
     from mlsemreg_ros.evaluation.loop_peers import loop_table, ours_loop_summary, run_loop_peers
     from mlsemreg_ros.evaluation.tables import print_table
 
-    results = run_loop_peers(lambda: open_scan_source(bag), peers, max_frames, core.map, split_m)
+    results = run_loop_peers(
+        lambda: open_scan_source(bag), peers, max_frames, core.map, split_m,
+        ours.get('revisit_segments'),
+    )  # fmt: skip
     mine = ours_loop_summary(ours, seconds)
     print_table(loop_table([mine, *results.values()]))
     return {'ours': mine, **results}
@@ -148,6 +151,7 @@ def build_map(
     from mlsemreg_ros.core.maps.mapping import Mapper
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.evaluation.loop_peers import ground_truth_revisits
     from mlsemreg_ros.evaluation.trajectory import ate_rmse
     import numpy as np
     from tqdm import tqdm
@@ -158,6 +162,7 @@ def build_map(
         mapper.store.config = config.replace({'map.loop_closure': False})
     odometry = Odometry(registration) if poses == 'odometry' else None
     truth: dict[int, np.ndarray] = {}  # keyframe id -> ground truth
+    scan_truth: dict[int, np.ndarray] = {}  # stamp -> ground truth, every scan read
     scans = accepted = trials = 0
     total = len(source) if max_frames is None else min(len(source), max_frames)
     labeled = (
@@ -177,6 +182,8 @@ def build_map(
         labeled = deskewed_by_truth((scan for scan in labeled if scan.pose is not None), config)
     for scan in labeled:
         scans += 1
+        if scan.pose is not None:
+            scan_truth[int(scan.stamp_ns)] = np.asarray(scan.pose)
         if odometry is None:
             labels = label_source(scan.xyz, scan.labels, config).labels
             step = mapper.add(scan.xyz, labels, scan.pose, scan.stamp_ns)
@@ -218,6 +225,9 @@ def build_map(
         summary['loops_refused'] = [loop_edge(loop, truth, store) for loop in mapper.refused]
         summary['loops_true'], summary['loops_wrong'] = right, wrong
         summary['revisits'] = int(count_revisits(gt, config.map))
+        summary['revisit_segments'] = ground_truth_revisits(
+            list(scan_truth), list(scan_truth.values())
+        )
     return {'mapper': mapper, 'summary': summary}
 
 
