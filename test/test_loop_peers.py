@@ -111,6 +111,31 @@ def test_our_keyframe_loops_count_in_the_same_revisits() -> None:
     assert ours['unit_revisits'] == 4 and ours['unit_recall_pct'] == pytest.approx(25.0)
 
 
+def test_the_revisit_diagnosis_says_where_our_loop_closure_stops() -> None:
+    """Per revisit: keyframes, tried at the same place, registered, closed right."""
+    from mlsemreg_ros.evaluation.map_build import revisit_diagnosis
+
+    trials = [
+        {'keyframe': 1, 'stamp_ns': 5, 'tried': [], 'tried_distance_m': [], 'closed': False},
+        {'keyframe': 2, 'stamp_ns': 11, 'tried': [], 'tried_distance_m': [], 'closed': False},
+        {'keyframe': 3, 'stamp_ns': 12, 'tried': [0], 'tried_distance_m': [40.0], 'closed': False},
+        {'keyframe': 4, 'stamp_ns': 13, 'tried': [0], 'tried_distance_m': [3.0], 'closed': False},
+        {'keyframe': 5, 'stamp_ns': 14, 'tried': [0], 'tried_distance_m': [2.0], 'closed': True},
+    ]
+    summary = {
+        'revisit_segments': {'segments': [(10, 20)], 'places': []},
+        'keyframe_trials': trials,
+        'loop_edges': [{'current': 5, 'right': True}],
+        'loops_refused': [{'current': 4, 'right': True}],
+    }
+    assert revisit_diagnosis(summary) == [
+        {
+            'first_stamp_ns': 10, 'last_stamp_ns': 20, 'keyframes': 4, 'tried': 3,
+            'tried_same_place': 2, 'registered': 2, 'closed_right': 1, 'closed_wrong': 0,
+        }
+    ]  # fmt: skip
+
+
 def test_without_ground_truth_a_peer_run_is_only_counted() -> None:
     run = _out_and_back()
     run.truth[5] = None

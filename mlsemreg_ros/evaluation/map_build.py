@@ -163,6 +163,7 @@ def build_map(
     odometry = Odometry(registration) if poses == 'odometry' else None
     truth: dict[int, np.ndarray] = {}  # keyframe id -> ground truth
     scan_truth: dict[int, np.ndarray] = {}  # stamp -> ground truth, every scan read
+    keyframe_trials: list[dict[str, Any]] = []  # per keyframe: the loop candidates tried
     scans = accepted = trials = 0
     total = len(source) if max_frames is None else min(len(source), max_frames)
     labeled = (
@@ -200,6 +201,15 @@ def build_map(
                 scan.xyz, scan.labels, moved.pose, scan.stamp_ns, prepared=moved.prepared
             )
         trials += bool(step.tried)
+        if step.keyframe is not None:
+            keyframe_trials.append(
+                {
+                    'keyframe': int(step.keyframe.keyframe_id),
+                    'stamp_ns': int(scan.stamp_ns),
+                    'tried': [int(match) for match in step.tried],
+                    'closed': step.loop is not None,
+                }
+            )
         if step.keyframe is not None and scan.pose is not None:
             truth[step.keyframe.keyframe_id] = np.asarray(scan.pose)
     store = mapper.store
@@ -228,6 +238,16 @@ def build_map(
         summary['revisit_segments'] = ground_truth_revisits(
             list(scan_truth), list(scan_truth.values())
         )
+        for entry in keyframe_trials:  # how far (truly) each tried candidate was
+            here = truth.get(entry['keyframe'])
+            entry['tried_distance_m'] = [
+                None if here is None or m not in truth else float(
+                    np.linalg.norm(truth[m][:3, 3] - here[:3, 3])
+                )
+                for m in entry['tried']
+            ]  # fmt: skip
+        summary['keyframe_trials'] = keyframe_trials
+        summary['revisit_diagnosis'] = revisit_diagnosis(summary)
     return {'mapper': mapper, 'summary': summary}
 
 
@@ -294,6 +314,47 @@ def loop_edge(loop: Any, truth: dict[int, Any], store: Any) -> dict[str, Any]:
             'reason': loop.check.reason,
         }
     return edge
+
+
+#: A tried loop candidate is of the same place when its keyframe is truly this close.
+SAME_PLACE_M = 10.0
+
+
+def revisit_diagnosis(summary: dict[str, Any]) -> list[dict[str, Any]]:
+    """
+    Per ground-truth revisit, where our loop closure stops: what each of its keyframes got.
+
+    ``keyframes`` in the revisit; ``tried``: with a loop candidate registered onto;
+    ``tried_same_place``: with a candidate truly within :data:`SAME_PLACE_M` (place
+    recognition found the place); ``registered``: the confidence rule accepted the loop
+    registration (closed, or refused by the submap check); ``closed_right`` /
+    ``closed_wrong``: loops closed. A revisit with keyframes but none tried at the same
+    place is missed by place recognition; one tried there but not registered, by the
+    registration; registered but not closed, by the submap check.
+    """
+    edges = summary.get('loop_edges', [])
+    refused = summary.get('loops_refused', [])
+    out = []
+    for first, last in summary['revisit_segments']['segments']:
+        inside = [t for t in summary['keyframe_trials'] if first <= t['stamp_ns'] <= last]
+        ids = {t['keyframe'] for t in inside}
+        closed = [e for e in edges if e['current'] in ids]
+        out.append(
+            {
+                'first_stamp_ns': first,
+                'last_stamp_ns': last,
+                'keyframes': len(inside),
+                'tried': sum(bool(t['tried']) for t in inside),
+                'tried_same_place': sum(
+                    any(d is not None and d <= SAME_PLACE_M for d in t['tried_distance_m'])
+                    for t in inside
+                ),
+                'registered': len(closed) + sum(e['current'] in ids for e in refused),
+                'closed_right': sum(e['right'] for e in closed),
+                'closed_wrong': sum(not e['right'] for e in closed),
+            }
+        )
+    return out
 
 
 def count_revisits(gt: Any, map_config: Any) -> int:
