@@ -151,8 +151,6 @@ def build_map(
     from mlsemreg_ros.core.maps.mapping import Mapper
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
-    from mlsemreg_ros.evaluation.loop_peers import ground_truth_revisits
-    from mlsemreg_ros.evaluation.trajectory import ate_rmse
     import numpy as np
     from tqdm import tqdm
 
@@ -222,33 +220,59 @@ def build_map(
         'loops': len(mapper.loops),
         'loop_trials': trials,
     }
-    ids = [i for i in store.ids if i in truth]
-    if odometry is not None and len(ids) >= 2:
-        gt = np.stack([truth[i] for i in ids])
-        odom = mapper.keyframe_odometry()
-        summary['ate_m'] = ate_rmse(np.stack([store[i].T_map_keyframe for i in ids]), gt)
-        summary['ate_odometry_m'] = ate_rmse(np.stack([odom[i] for i in ids]), gt)
-        loops = [loop_edge(loop, truth, store) for loop in mapper.loops]
-        right = sum(edge['right'] for edge in loops)
-        wrong = len(loops) - right
-        summary['loop_edges'] = loops
-        summary['loops_refused'] = [loop_edge(loop, truth, store) for loop in mapper.refused]
-        summary['loops_true'], summary['loops_wrong'] = right, wrong
-        summary['revisits'] = int(count_revisits(gt, config.map))
-        summary['revisit_segments'] = ground_truth_revisits(
-            list(scan_truth), list(scan_truth.values())
-        )
-        for entry in keyframe_trials:  # how far (truly) each tried candidate was
-            here = truth.get(entry['keyframe'])
-            entry['tried_distance_m'] = [
-                None if here is None or m not in truth else float(
-                    np.linalg.norm(truth[m][:3, 3] - here[:3, 3])
-                )
-                for m in entry['tried']
-            ]  # fmt: skip
-        summary['keyframe_trials'] = keyframe_trials
-        summary['revisit_diagnosis'] = revisit_diagnosis(summary)
+    if odometry is not None:
+        score_loops(summary, mapper, truth, scan_truth, keyframe_trials)
     return {'mapper': mapper, 'summary': summary}
+
+
+def score_loops(
+    summary: dict[str, Any],
+    mapper: Any,
+    truth: dict[int, Any],
+    scan_truth: dict[int, Any],
+    keyframe_trials: list[dict[str, Any]],
+) -> None:
+    """
+    Add to ``summary`` the map's scores against the ground truth (with two posed keyframes).
+
+    The ATE of the keyframes with and without the loops, every loop edge's error
+    (:func:`loop_edge`), the keyframes that revisit a place (:func:`count_revisits`), the
+    ground truth's revisits (``truth`` of the keyframes, ``scan_truth`` of every scan by
+    stamp) and where our loop closure stopped on each (:func:`revisit_diagnosis`, from the
+    ``keyframe_trials``).
+    """
+    from mlsemreg_ros.evaluation.loop_peers import ground_truth_revisits
+    from mlsemreg_ros.evaluation.trajectory import ate_rmse
+    import numpy as np
+
+    store = mapper.store
+    ids = [i for i in store.ids if i in truth]
+    if len(ids) < 2:
+        return
+    gt = np.stack([truth[i] for i in ids])
+    odom = mapper.keyframe_odometry()
+    summary['ate_m'] = ate_rmse(np.stack([store[i].T_map_keyframe for i in ids]), gt)
+    summary['ate_odometry_m'] = ate_rmse(np.stack([odom[i] for i in ids]), gt)
+    loops = [loop_edge(loop, truth, store) for loop in mapper.loops]
+    right = sum(edge['right'] for edge in loops)
+    wrong = len(loops) - right
+    summary['loop_edges'] = loops
+    summary['loops_refused'] = [loop_edge(loop, truth, store) for loop in mapper.refused]
+    summary['loops_true'], summary['loops_wrong'] = right, wrong
+    summary['revisits'] = int(count_revisits(gt, store.config.map))
+    summary['revisit_segments'] = ground_truth_revisits(
+        list(scan_truth), list(scan_truth.values())
+    )
+    for entry in keyframe_trials:  # how far (truly) each tried candidate was
+        here = truth.get(entry['keyframe'])
+        entry['tried_distance_m'] = [
+            None if here is None or m not in truth else float(
+                np.linalg.norm(truth[m][:3, 3] - here[:3, 3])
+            )
+            for m in entry['tried']
+        ]  # fmt: skip
+    summary['keyframe_trials'] = keyframe_trials
+    summary['revisit_diagnosis'] = revisit_diagnosis(summary)
 
 
 def deskewed_by_truth(scans: Any, config: Any) -> Any:
