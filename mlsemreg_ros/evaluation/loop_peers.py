@@ -98,7 +98,7 @@ class LocalMapLoops:
     seconds: float = 0.0
 
     def query_stamps(self, query: int) -> tuple[int, int]:
-        """The first and last stamp of local map ``query``'s scans."""
+        """Return the first and last stamp of local map ``query``'s scans."""
         end = self.starts[query + 1] - 1 if query + 1 < len(self.starts) else len(self.truth) - 1
         return self.stamps_ns[self.starts[query]], self.stamps_ns[end]
 
@@ -322,7 +322,7 @@ def revisit_recall(revisits: dict[str, list], queries: list[tuple[int, int]]) ->
 
 
 def ground_truth_revisits(stamps_ns: list[int], truth: list[np.ndarray]) -> dict[str, list]:
-    """The revisits of a drive, whole and cut into places (:func:`revisit_segments`)."""
+    """Return the revisits of a drive, whole and cut into places (:func:`revisit_segments`)."""
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     positions = np.stack([np.asarray(pose)[:3, 3] for pose in truth])
     return {
