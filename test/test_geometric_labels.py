@@ -233,21 +233,3 @@ def test_vertical_lines_are_poles_only_near_the_sensor() -> None:
     _, (_, near, far), _ = labeled([ground(rng), held(8.0, 3.0), held(24.0, 7.0)])
     assert majority(near) == g.POLE
     assert share(far, g.POLE) == 0.0
-
-
-def hedge(rng: np.random.Generator, x: float, y: float, height: float = 1.2) -> np.ndarray:
-    """Sample a hedge 6 m long along y, 1 m deep, ``height`` tall: points scattered in it."""
-    inside = rng.uniform((-0.5, -3.0, 0.0), (0.5, 3.0, height), (4000, 3))
-    return inside + np.array([x, y, -SENSOR_HEIGHT])
-
-
-def test_a_pole_standing_in_a_hedge_is_a_pole() -> None:
-    """A pole rising 1.3 m above the hedge it stands in: a pole; the hedge alone is none."""
-    rng = np.random.default_rng(6)
-    # the pole inside one 0.5 m column of the standing-thing grid (g.POLE_CELL)
-    scene = [ground(rng), hedge(rng, 8.25, 3.25), pole(8.25, 3.25, 2.5), hedge(rng, -9.0, -4.0)]
-    _, (_, around, pole_, alone), _ = labeled(scene)
-    upper = pole_[len(pole_) // 2 :]  # four lines from the ground up: the upper halves
-    assert share(upper, g.POLE) + share(upper, g.TRUNK) > 0.5
-    assert share(alone, g.POLE) + share(alone, g.TRUNK) == 0.0
-    assert share(around, g.POLE) + share(around, g.TRUNK) < 0.3

@@ -92,10 +92,6 @@ POLE_MIN_EXTENT = 1.0  # vertical extent of the band points of a pole's column, 
 POLE_MAX_BASE = 1.2  # a pole's band points start this near the ground, m
 POLE_CORE = 4  # occupied columns of the 3 x 3 core at most
 POLE_RING_SHARE = 0.2  # band points in the ring around the core, per core point
-#: a column rising this far above the top of each of its 8 neighbours (an empty one: the
-#: ground) stands out of what surrounds it: a pole in a hedge or among parked cars
-PROTRUDE_ABOVE = 0.4
-PROTRUDE_MIN_TOP = 1.5  # m above the ground, the protruding column's top at least
 # vehicle clusters
 VEHICLE_LOW, VEHICLE_HIGH, VEHICLE_MIN_LENGTH, VEHICLE_MAX_BASE = 1.0, 2.2, 2.5, 0.6
 VEHICLE_MAX_WIDTH = 3.0
@@ -292,17 +288,9 @@ class GeometricLabeler:
 
         On a ground grid of ``POLE_CELL`` columns: a column whose points in the trunk band
         (``POLE_BAND`` above the ground) reach from near the ground at least
-        ``POLE_MIN_EXTENT`` up, and that either
-
-        - stands alone: a 3 x 3 core of at most ``POLE_CORE`` occupied columns, with at most
-          ``POLE_RING_SHARE`` of the core's band points in the ring of columns around the
-          core (5 x 5 minus 3 x 3); or
-        - **protrudes**, within ``LINE_RANGE`` of the sensor: its top (at least
-          ``PROTRUDE_MIN_TOP``) rises ``PROTRUDE_ABOVE`` above the top of each of its eight
-          neighbours (the ground where one is empty). The poles near the sensor stand in
-          hedges and among parked cars, where no column stands alone (docs/labels.md).
-          Letting one neighbour be as high (a pole on the border of two columns) made
-          three times as many false poles on the dev pairs.
+        ``POLE_MIN_EXTENT`` up, in a 3 x 3 core of at most ``POLE_CORE`` occupied columns,
+        with at most ``POLE_RING_SHARE`` of the core's band points in the ring of columns
+        around the core (5 x 5 minus 3 x 3).
         """
         band = (h >= POLE_BAND[0]) & (h <= POLE_BAND[1])
         if not band.any():
@@ -313,17 +301,12 @@ class GeometricLabeler:
         core = columns.window_sum(counts, 1)
         wide = columns.window_sum(counts, 2)
         occupied = columns.window_sum((counts > 0).astype(np.float64), 1)
-        upright = (high - low >= POLE_MIN_EXTENT) & (low <= POLE_MAX_BASE)
-        alone = (occupied <= POLE_CORE) & (wide - core < POLE_RING_SHARE * core)
-        top, _ = gk.column_extent(columns.index, h, np.ones(h.shape[0], dtype=bool), columns.count)
-        centre = (columns.cells + 0.5) * POLE_CELL
-        near = np.einsum('ij,ij->i', centre, centre) < LINE_RANGE**2
-        protrudes = (
-            near
-            & (top >= PROTRUDE_MIN_TOP)
-            & (top - np.maximum(columns.neighbour_top(top, 1), 0.0) >= PROTRUDE_ABOVE)
+        candidate = (
+            (high - low >= POLE_MIN_EXTENT)
+            & (low <= POLE_MAX_BASE)
+            & (occupied <= POLE_CORE)
+            & (wide - core < POLE_RING_SHARE * core)
         )
-        candidate = upright & (alone | protrudes)
         # the candidate's own and its neighbour columns with band points, every height
         grown = columns.window_sum(candidate.astype(np.float64), 1) > 0
         return grown[columns.index] & (counts[columns.index] > 0)
@@ -445,23 +428,6 @@ class Columns:
                 neighbour = self._neighbour(dx, dy)
                 total += np.where(neighbour >= 0, values[np.maximum(neighbour, 0)], 0.0)
         return total
-
-    def neighbour_top(self, values: np.ndarray, rank: int) -> np.ndarray:
-        """
-        The ``rank``-th largest of ``values`` (M,) over each column's 8 neighbours (1: largest).
-
-        An unoccupied neighbour counts as 0.
-        """
-        around = np.stack(
-            [
-                np.where(neighbour >= 0, values[np.maximum(neighbour, 0)], 0.0)
-                for neighbour in (
-                    self._neighbour(dx, dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1) if dx or dy
-                )
-            ],
-            axis=1,
-        )
-        return -np.partition(-around, rank - 1, axis=1)[:, rank - 1]
 
     def clusters(self, member: np.ndarray) -> np.ndarray:
         """8-connected clusters of the ``member`` columns: (M,) cluster id, -1 for others."""
