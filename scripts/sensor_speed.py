@@ -42,6 +42,7 @@ import numpy as np
 STEPS = (
     ('mlsemreg_ros.core.odometry.preprocess', 'Preprocessor', 'sweep', 'preprocess'),
     ('mlsemreg_ros.core.odometry.preprocess', 'Preprocessor', 'deskew', '  deskew'),
+    ('mlsemreg_ros.core.labeling.source', 'LabelSource', '__call__', 'labels (label_source)'),
     ('mlsemreg_ros.core.pipeline', 'Registration', 'prepare', '  prepare'),
     ('mlsemreg_ros.core.features.features', None, 'voxel_downsample', '    voxelize 0.3 m'),
     ('mlsemreg_ros.core.odometry.tracking', 'Tracker', 'estimate', 'track or register'),
