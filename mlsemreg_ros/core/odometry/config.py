@@ -226,7 +226,7 @@ class OdometryConfig:
         high=1.0,
     )
     covariance_scale: float = param(
-        5.0,
+        10.0,
         'Factor on the pose covariance inv(H) * 2E / (n - 6) of the fine alignment '
         '(H Hessian, E final error, n inliers), before the covariance section adds its '
         'floors (docs/covariance.md). Fitted with them by mlsemreg covariance-nees on real '
