@@ -40,9 +40,9 @@ import numpy as np
 
 #: The wrapped steps: (module, owner, attribute, label). Indented labels are nested steps.
 STEPS = (
+    ('mlsemreg_ros.core.labeling.source', 'LabelSource', '__call__', 'labels (label_source)'),
     ('mlsemreg_ros.core.odometry.preprocess', 'Preprocessor', 'sweep', 'preprocess'),
     ('mlsemreg_ros.core.odometry.preprocess', 'Preprocessor', 'deskew', '  deskew'),
-    ('mlsemreg_ros.core.labeling.source', 'LabelSource', '__call__', 'labels (label_source)'),
     ('mlsemreg_ros.core.pipeline', 'Registration', 'prepare', '  prepare'),
     ('mlsemreg_ros.core.features.features', None, 'voxel_downsample', '    voxelize 0.3 m'),
     ('mlsemreg_ros.core.odometry.tracking', 'Tracker', 'estimate', 'track or register'),
