@@ -134,16 +134,21 @@ def _unlabeled_first(context: RegistrationContext, judged: quality.LabelQuality)
     return True
 
 
-def _attempt(context: RegistrationContext, config: Any) -> RegistrationContext:
-    """Run :data:`UNLABELED_FIRST` on unlabeled views of the pair with ``config``."""
+def _unlabeled(context: RegistrationContext, config: Any) -> RegistrationContext:
+    """Return a fresh context of the pair's unlabeled views with ``config``."""
     wildcard = context.scoring.unlabeled_local_ss
-    attempt = RegistrationContext(
+    return RegistrationContext(
         quality.unlabeled_view(context.source, wildcard),
         quality.unlabeled_view(context.target, wildcard),
         context.refine,
         config,
         replace(context.scoring, config=config),
     )
+
+
+def _attempt(context: RegistrationContext, config: Any) -> RegistrationContext:
+    """Run :data:`UNLABELED_FIRST` on unlabeled views of the pair with ``config``."""
+    attempt = _unlabeled(context, config)
     for stage in UNLABELED_FIRST:
         if stage.wanted(attempt):
             with attempt.timed(f'unlabeled_{stage.name}'):
@@ -280,14 +285,7 @@ class UnlabeledRerunStage:
         quick = attempt.config
         retry = context.config.estimator.graph_retry_inliers
         config = replace(quick, estimator=replace(quick.estimator, graph_retry_inliers=retry))
-        wildcard = context.scoring.unlabeled_local_ss
-        rerun = RegistrationContext(
-            quality.unlabeled_view(context.source, wildcard),
-            quality.unlabeled_view(context.target, wildcard),
-            context.refine,
-            config,
-            replace(context.scoring, config=config),
-        )
+        rerun = _unlabeled(context, config)
         rerun.label_names = context.label_names
         stages = [s for s in default_stages() if not isinstance(s, UnlabeledRerunStage)]
         run_stages(rerun, stages)
