@@ -209,3 +209,35 @@ def test_a_pair_whose_refinement_pulls_the_pose_beyond_the_bounds_is_refused(
     )
     assert 'inliers < odometry.min_inlier_fraction' in overlap_only.diagnostics['fine_refused']
     assert overlap_only.success, overlap_only.message
+
+
+def test_an_accepted_pose_whose_refused_refinement_moved_it_is_refused(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """
+    A refinement refused for its overlap leaves the coarse pose only where it agrees.
+
+    (A simulated 60 m pair with a 33 deg turn, ``mlsemreg simulate --realism field --seed 3``
+    frames 117 and 184: the sparse pose accepted on 50 inliers was 0.78 m off and returned
+    unrefined, while its refinement, refused for keeping 0.18 of the scan, was 0.11 m off.)
+    """
+    from mlsemreg_ros.core.stages import fine_alignment
+
+    pair = synthetic_pair(seed=0)
+    strict = RegistrationConfig().replace(
+        {'keypoints.count': 1500, 'odometry.min_inlier_fraction': 0.999}
+    )
+    real_align = fine_alignment.align_pair
+
+    def elsewhere(*args, **kwargs):
+        found = real_align(*args, **kwargs)
+        return replace(found, T_target_source=motion(0.0, (0.7, 0.0, 0.0)) @ found.T_initial)
+
+    monkeypatch.setattr(fine_alignment, 'align_pair', elsewhere)
+    result = Registration(strict).register_scans(
+        pair.pts_src, pair.label_src, pair.pts_dst, pair.label_dst
+    )
+    assert 'inliers < odometry.min_inlier_fraction' in result.diagnostics['fine_refused']
+    assert not result.diagnostics.get('fine_refused_kept')
+    assert not result.success and 'moved the unrefined pose by 0.70 m' in result.message
+    np.testing.assert_array_equal(result.transform, result.estimate)  # unrefined, refused

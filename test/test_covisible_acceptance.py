@@ -33,6 +33,7 @@ from mlsemreg_ros.core.estimation.covisible_acceptance import (
     best_eligible,
     best_rivals,
     CovisibleEvidence,
+    localizability_refusal,
     tilt_refusal,
 )
 from mlsemreg_ros.core.pipeline import Registration
@@ -135,7 +136,13 @@ def straight_street() -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([world, *walls]), np.concatenate([labels, np.full(12000, BUILDING)])
 
 
-def judged(world, labels, chosen_offset: np.ndarray, pool_offsets: list[np.ndarray]):
+def judged(
+    world,
+    labels,
+    chosen_offset: np.ndarray,
+    pool_offsets: list[np.ndarray],
+    degeneracy_ratio: float | None = None,
+):
     """Run the stage on a refused 60 m pose (truth moved by ``chosen_offset``); its context."""
     registration = Registration(RegistrationConfig())
     T_ws, T_wt = pose(0.0, 0.0, 1.7, 0.0), pose(60.0, -1.0, 1.7, 175.0)
@@ -153,6 +160,8 @@ def judged(world, labels, chosen_offset: np.ndarray, pool_offsets: list[np.ndarr
     context.refusal = REFUSED
     context.pool = SimpleNamespace(transforms=lambda: candidates)
     context.covisible_pool = mutual_covisible_overlap(candidates, *sides, 0.6, 1.0)
+    if degeneracy_ratio is not None:  # what the fine alignment measured (stages/fine_alignment)
+        context.diagnostics['degeneracy_ratio'] = degeneracy_ratio
     stage = CovisibleAcceptanceStage()
     assert stage.wanted(context)
     stage.run(context)
@@ -177,6 +186,35 @@ def test_a_tilted_pose_is_not_accepted():
     context = judged(world, labels, pose(0, 0, 0, 0.0, roll=15.0), [pose(0, 0, 0, 30.0)])
     assert context.refusal == REFUSED
     assert 'accept_tilt' in context.diagnostics['covisible_accept_refusal']
+
+
+def test_a_pose_slid_along_a_weak_direction_is_not_accepted():
+    """
+    The covisible overlap cannot see a slide of a metre: the pose must be localizable.
+
+    (A simulated 80 m pair, ``mlsemreg simulate --realism field --seed 3`` frames 25 and 112,
+    FPFH: accepted here 0.90 m off along the street, covisible overlap 1.000, best distinct
+    candidate 0.918, degeneracy ratio 0.006; docs/hard_pairs.md, margins.)
+    """
+    world, labels = facade_street()
+    slid = pose(0.9, 0.0, 0.0, 0.0)  # along the street
+    context = judged(world, labels, slid, [pose(0, 0, 0, 30.0)])
+    assert context.refusal == '' and context.diagnostics['covisible_accept_overlap'] >= 0.97
+    context = judged(world, labels, slid, [pose(0, 0, 0, 30.0)], degeneracy_ratio=0.006)
+    assert context.refusal == REFUSED
+    assert 'accept_localizability' in context.diagnostics['covisible_accept_refusal']
+    right = judged(world, labels, np.eye(4), [pose(0, 0, 0, 30.0)], degeneracy_ratio=0.023)
+    assert right.refusal == ''  # the least localizable right KITTI 60 m pose
+
+
+def test_localizability_refusal():
+    covis = RegistrationConfig().covisibility
+    assert localizability_refusal(None, covis) == ''  # not measured
+    assert localizability_refusal(0.023, covis) == ''
+    assert 'accept_localizability=0.01' in localizability_refusal(0.006, covis)
+    assert localizability_refusal(float('nan'), covis)
+    covis.accept_localizability = 0.0
+    assert localizability_refusal(0.001, covis) == ''
 
 
 def test_a_straight_street_keeps_the_pose_refused():

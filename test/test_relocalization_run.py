@@ -43,6 +43,7 @@ def _found(T: np.ndarray | None, trials: int = 1, time_ms: float = 10.0) -> Simp
         message='',
         time_ms=1.0,
         quick=False,
+        deferred=False,
     )
     return SimpleNamespace(
         found=T is not None, T_map_sensor=T, keyframe_id=0 if T is not None else -1,

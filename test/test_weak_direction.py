@@ -97,4 +97,5 @@ def test_the_solid_state_pose_slid_along_the_road_is_not_published() -> None:
     assert accepted and error > 0.6 and 'accepted on its own evidence' in reason, outcomes
     accepted, error, reason = outcomes[None]
     assert not accepted or error < 0.6, reason
-    assert 'not accepted on its own evidence' in reason and 'min_weak_support' in reason
+    assert 'min_weak_support' in reason  # refused, or left to the sweep's confirmation
+    assert 'not accepted on its own evidence' in reason or 'not confirmed' in reason

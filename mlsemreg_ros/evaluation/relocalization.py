@@ -30,6 +30,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+import time
 from typing import Any, TYPE_CHECKING
 
 import numpy as np
@@ -133,6 +134,10 @@ def relocalize_queries(
     if not files:
         raise QueryError(f'{queries}: no .npz query files')
     relocalizer = Relocalizer(registration, store)
+    began = time.perf_counter()
+    if core.map.prepare_on_load:  # as the node does when it loads a map
+        relocalizer.prepare_map()
+    prepare_ms = 1e3 * (time.perf_counter() - began)
     label_source = LabelSource(registration.label_map)
     records = []
     for file in files:
@@ -141,7 +146,12 @@ def relocalize_queries(
         found = relocalizer.relocalize(query['points'], labeled.labels)
         records.append(score(file.stem, found, query.get('T_map_scan')))
     summary = summarize(records)
-    summary.update(keyframes=len(store), map=str(map_path), duplicate=options.duplicate)
+    summary.update(
+        keyframes=len(store),
+        map=str(map_path),
+        duplicate=options.duplicate,
+        map_prepare_ms=prepare_ms,
+    )
     report = RelocalizationReport(records, summary)
     if options.baselines:
         report.baselines = place_peer_summaries(data.keyframes, files)
@@ -250,6 +260,7 @@ def score(name: str, found: Any, truth: Any) -> dict[str, Any]:
                 'message': t.message,
                 'time_ms': t.time_ms,
                 'quick': t.quick,
+                'deferred': t.deferred,
             }
             for t in found.trials
         ],

@@ -78,6 +78,7 @@ class MapServices:
                     f'{data.frame_id!r}): unlocalized until a scan relocalizes'
                 )
         self.localization = MapLocalization(registration, store, core.map.frame_id)
+        self.localization.prepare_map()  # map.prepare_on_load, on a background thread
         self._pub_pose = node.create_publisher(TransformStamped, 'mlsemreg/map_pose', 10)
         self._pub_path = node.create_publisher(Path, 'mlsemreg/map_path', 1)
         node.create_service(Trigger, 'mlsemreg/relocalize', self._on_relocalize)
@@ -91,6 +92,10 @@ class MapServices:
         self._map_voxel_size = config.node.map_cloud_voxel_size
         if store is not None:
             self.publish_map(node.get_clock().now().to_msg())
+
+    def close(self) -> None:
+        """Stop the map's background preparation (the node shuts down)."""
+        self.localization.close()
 
     def after_step(self, scan: Any, step: Any, config: Any) -> LocalizationUpdate:
         """Update ``map -> odom`` with one odometry step and publish it (worker thread)."""

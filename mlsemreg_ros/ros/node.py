@@ -715,6 +715,7 @@ class MlSemRegNode(GuardedCallbacks, Node):
         self._configured = False
         self._slot.close()
         self._worker.join(timeout=5.0)
+        self._map.close()
         for destroy, entity in reversed(self._created):
             destroy(entity)
         self._created = []
@@ -724,6 +725,7 @@ class MlSemRegNode(GuardedCallbacks, Node):
         if self._configured:
             self._slot.close()
             self._worker.join(timeout=5.0)
+            self._map.close()
             self._configured = False
         super().destroy_node()
 

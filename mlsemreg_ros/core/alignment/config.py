@@ -293,6 +293,18 @@ class NearMissConfig:
         low=0.0,
         high=10000.0,
     )
+    weak_confirmation: float = param(
+        0.3,
+        'The odometry: a candidate accepted on its own evidence whose weakest direction '
+        'holds less than near_miss.min_weak_support is accepted only if the sweep alignment '
+        '(the scan and, on a start, the first scan deskewed by the motion the candidate '
+        'implies, then the sweep twist free) keeps a pose within this distance of it; else '
+        'it is refused (0: refused outright). Right solid-state first registrations moved '
+        '0.10-0.21 m; a wrong one 0.82 m, another was not kept (docs/sensors.md).',
+        unit='m',
+        low=0.0,
+        high=5.0,
+    )
     max_residual: float = param(
         0.0,
         'Refuse a refined pose whose mean point-to-distribution residual (squared '

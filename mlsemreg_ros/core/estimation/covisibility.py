@@ -154,6 +154,16 @@ class CovisibilityConfig:
         low=0.0,
         high=180.0,
     )
+    accept_localizability: float = param(
+        0.01,
+        "Smallest ratio of the refined pose's translation Hessian eigenvalues (smallest to "
+        'largest, degeneracy_ratio) for an acceptance on its covisible overlap: the overlap '
+        'cannot see a slide of a metre along a weak direction (a simulated 80 m pose 0.90 m '
+        'off along the street measured 1.000 at a ratio of 0.006; right KITTI 40-60 m poses '
+        '0.023-0.17; docs/hard_pairs.md, margins); 0: not checked.',
+        low=0.0,
+        high=1.0,
+    )
     accept_points: int = param(
         8000,
         'Points of each scan (seeded random subset) on which a pose judged for acceptance on '

@@ -111,6 +111,25 @@ def tilt_refusal(tilt_deg: float, covis: CovisibilityConfig) -> str:
     return f'tilt {tilt_deg:.1f} deg > covisibility.accept_tilt={covis.accept_tilt:g}'
 
 
+def localizability_refusal(ratio: float | None, covis: CovisibilityConfig) -> str:
+    """
+    Why the refined pose is too weakly constrained for the covisible evidence ('' if it is not).
+
+    ``ratio``: the fine alignment's ``degeneracy_ratio`` (smallest over largest eigenvalue of
+    the translation Hessian; None: not measured, nothing to refuse on). The covisible overlap
+    counts a point as seen through only a metre (``covisibility.margin``) in front of the
+    other scan, so a pose slid along a street's weak direction by a metre still measures 1.0.
+    """
+    if covis.accept_localizability <= 0.0 or ratio is None:
+        return ''
+    if ratio >= covis.accept_localizability:  # NaN refuses
+        return ''
+    return (
+        f"the refined pose's localizability {ratio:.3g} (degeneracy_ratio) < "
+        f'covisibility.accept_localizability={covis.accept_localizability:g}'
+    )
+
+
 def best_rivals(
     pose: np.ndarray,
     transforms: np.ndarray,

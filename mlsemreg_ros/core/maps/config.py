@@ -80,6 +80,12 @@ class MapConfig:
         low=1,
         high=100000,
     )
+    prepare_on_load: bool = param(
+        True,
+        'Prepare the place index and up to map.prepared_cache keyframes (features and '
+        'alignment clouds) when a map is loaded, so that a relocalization does not pay for '
+        'them (the node does it in the background).',
+    )
     rings: int = param(20, 'Rings of the semantic scan context.', low=2, high=200)
     sectors: int = param(60, 'Sectors of the semantic scan context.', low=4, high=720)
     max_radius: float = param(
@@ -122,6 +128,14 @@ class MapConfig:
         'search and the refused path, and keep the first whose pose is accepted on strong '
         'evidence (the full registration would return the same); only then register the '
         'candidates again with the full path (core/maps/relocalization.py).',
+    )
+    quick_defers_retry: bool = param(
+        True,
+        'In the quick pass (map.quick_first), a candidate on which SC2-PCR would run again '
+        'on the full graph (estimator.graph_retry_inliers) is set aside after its sampled '
+        'estimate until every other candidate had its quick try; then the set-aside ones '
+        'get theirs, most sampled inliers first. The accepted poses are the same; a wrong '
+        'place ranked first costs less.',
     )
     relocalize_after_failures: int = param(
         2,

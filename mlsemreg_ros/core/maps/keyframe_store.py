@@ -30,9 +30,12 @@ another keyframe) is dropped.
 from __future__ import annotations
 
 import collections
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+import threading
+from typing import Any
 
+from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import bev_search
 from mlsemreg_ros.core.maps.place_recognition import describe, PlaceDescriptor, PlaceIndex
@@ -76,6 +79,10 @@ class KeyframeStore:
         self.label_map = label_map if label_map is not None else LabelMap.load()
         self._keyframes: collections.OrderedDict[int, StoredKeyframe] = collections.OrderedDict()
         self._prepared: collections.OrderedDict[int, PreparedScan] = collections.OrderedDict()
+        self._cache_lock = threading.RLock()  # the cache is filled ahead (prepare_ahead)
+        # other derived data by key (e.g. submap clouds), dropped whenever the store changes
+        self._derived: collections.OrderedDict[Any, Any] = collections.OrderedDict()
+        self._generation = 0  # counts the changes that drop _derived
         self._index: PlaceIndex | None = None
         self._index_ids: list[int] = []
         self._next_id = 0
@@ -96,6 +103,8 @@ class KeyframeStore:
         self._channels = bev_search.channel_lookup(self.label_map, config.bev_search)
         if old is None:
             return
+        if old != config:
+            self._changed()
         if old.map != config.map or old.bev_search != config.bev_search:
             for keyframe in self._keyframes.values():  # descriptors: recomputed when needed
                 self._bytes -= keyframe.descriptor.nbytes if keyframe.descriptor else 0
@@ -104,7 +113,8 @@ class KeyframeStore:
         if any(
             getattr(old, s) != getattr(config, s) for s in ('semantic', 'features', 'keypoints')
         ):
-            self._prepared.clear()
+            with self._cache_lock:
+                self._prepared.clear()
         self._enforce_bounds()
 
     # -- contents ------------------------------------------------------------------
@@ -178,6 +188,7 @@ class KeyframeStore:
         if prepared is not None:
             self._cache_prepared(new_id, prepared)
         self._index = None
+        self._changed()
         self._enforce_bounds(keep=new_id)
         return keyframe
 
@@ -185,8 +196,10 @@ class KeyframeStore:
         """Drop a keyframe and what is cached of it."""
         keyframe = self._keyframes.pop(keyframe_id)
         self._bytes -= keyframe.nbytes
-        self._prepared.pop(keyframe_id, None)
+        with self._cache_lock:
+            self._prepared.pop(keyframe_id, None)
         self._index = None
+        self._changed()
 
     def set_poses(self, poses: dict[int, np.ndarray]) -> None:
         """Move keyframes (``{id: T_map_keyframe}``, e.g. after a loop closure)."""
@@ -196,6 +209,7 @@ class KeyframeStore:
                     pose, dtype=np.float64
                 ).copy()
         self._index = None  # positions changed
+        self._changed()
 
     def poses(self) -> np.ndarray:
         """``T_map_keyframe`` (K, 4, 4) in insertion order."""
@@ -218,18 +232,20 @@ class KeyframeStore:
 
     def place_index(self) -> tuple[PlaceIndex, list[int]]:
         """Return the place index of every keyframe and the keyframe id of each row."""
-        if self._index is None:
-            ids = self.ids
-            descriptors = [self.descriptor(i) for i in ids]
-            positions = np.array([self._keyframes[i].position for i in ids]).reshape(-1, 3)
-            self._index, self._index_ids = PlaceIndex(descriptors, positions), ids
-        return self._index, self._index_ids
+        with self._cache_lock:  # built once, also when a background preparation builds it
+            if self._index is None:
+                ids = self.ids
+                descriptors = [self.descriptor(i) for i in ids]
+                positions = np.array([self._keyframes[i].position for i in ids]).reshape(-1, 3)
+                self._index, self._index_ids = PlaceIndex(descriptors, positions), ids
+            return self._index, self._index_ids
 
     def prepared(self, keyframe_id: int, registration: object) -> PreparedScan:
         """Return the keyframe's prepared scan for ``registration`` (LRU-cached, lazy)."""
-        if keyframe_id in self._prepared:
-            self._prepared.move_to_end(keyframe_id)
-            return self._prepared[keyframe_id]
+        with self._cache_lock:
+            if keyframe_id in self._prepared:
+                self._prepared.move_to_end(keyframe_id)
+                return self._prepared[keyframe_id]
         keyframe = self._keyframes[keyframe_id]
         scan = registration.prepare(  # type: ignore[attr-defined]
             keyframe.points.astype(np.float64), keyframe.labels, lazy=True
@@ -237,11 +253,80 @@ class KeyframeStore:
         self._cache_prepared(keyframe_id, scan)
         return scan
 
-    def _cache_prepared(self, keyframe_id: int, scan: PreparedScan) -> None:
-        self._prepared[keyframe_id] = scan
-        self._prepared.move_to_end(keyframe_id)
-        while len(self._prepared) > self.config.map.prepared_cache:
-            self._prepared.popitem(last=False)
+    def derived(self, key: Any, build: Callable[[], Any]) -> Any:
+        """
+        Return ``build()``, cached under ``key`` until the store changes (LRU).
+
+        For data derived from several keyframes and their poses (the submap clouds of
+        core/maps/submap_check.py): a keyframe added or removed, a pose moved or the
+        configuration changed drops every entry. At most ``map.prepared_cache`` are kept.
+        """
+        with self._cache_lock:
+            if key in self._derived:
+                self._derived.move_to_end(key)
+                return self._derived[key]
+            generation = self._generation
+        value = build()
+        with self._cache_lock:
+            if generation == self._generation:  # not made stale while it was built
+                self._derived[key] = value
+                while len(self._derived) > self.config.map.prepared_cache:
+                    self._derived.popitem(last=False)
+        return value
+
+    def _changed(self) -> None:
+        """Drop what :meth:`derived` cached (the keyframes, their poses or the config changed)."""
+        with self._cache_lock:
+            self._generation += 1
+            self._derived.clear()
+
+    def is_prepared(self, keyframe_id: int) -> bool:
+        """Tell whether the keyframe's prepared scan is in the cache (not counted as a use)."""
+        with self._cache_lock:
+            return keyframe_id in self._prepared
+
+    def prepare_ahead(self, registration: object, stop: Callable[[], bool] | None = None) -> int:
+        """
+        Prepare keyframes before a query needs them (``map.prepare_on_load``); return the count.
+
+        Each keyframe not in the cache yet is prepared completely (keypoints, descriptors,
+        Local-SS, landmarks, KD-tree) with the alignment cloud of the pair's fine
+        alignment, in store order, until the cache holds ``map.prepared_cache`` scans.
+        ``stop``: asked before each keyframe (e.g. the node shuts down). It stops by
+        itself when the configuration changes (its scans would be stale).
+        """
+        config, done = self.config, 0
+        for keyframe_id in self.ids:
+            with self._cache_lock:
+                full = len(self._prepared) >= config.map.prepared_cache
+                if full or self._config is not config:
+                    break
+                if keyframe_id in self._prepared:
+                    continue
+            if stop is not None and stop():
+                break
+            keyframe = self._keyframes.get(keyframe_id)
+            if keyframe is None:  # dropped meanwhile
+                continue
+            scan = registration.prepare(  # type: ignore[attr-defined]
+                keyframe.points.astype(np.float64), keyframe.labels
+            )
+            alignment_cloud(scan, config.fine, pair=True)
+            with self._cache_lock:
+                if self._config is not config or keyframe_id not in self._keyframes:
+                    break
+                if keyframe_id not in self._prepared:  # a query may have prepared it
+                    self._cache_prepared(keyframe_id, scan, use=False)
+                    done += 1
+        return done
+
+    def _cache_prepared(self, keyframe_id: int, scan: PreparedScan, use: bool = True) -> None:
+        """Cache a prepared scan; ``use`` False: the least recently used end (ahead of use)."""
+        with self._cache_lock:
+            self._prepared[keyframe_id] = scan
+            self._prepared.move_to_end(keyframe_id, last=use)
+            while len(self._prepared) > self.config.map.prepared_cache:
+                self._prepared.popitem(last=False)
 
     # -- bounds ----------------------------------------------------------------------
     def _enforce_bounds(self, keep: int | None = None) -> None:

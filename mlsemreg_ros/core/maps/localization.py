@@ -115,6 +115,21 @@ class MapLocalization:
             return self.mapper.T_map_odom.copy()
         return self._T_map_odom.copy()
 
+    def prepare_map(self) -> None:
+        """
+        With a loaded map and ``map.prepare_on_load``: prepare it for relocalization now.
+
+        On a background thread (:meth:`Relocalizer.prepare_map`): the place index and up to
+        ``map.prepared_cache`` keyframes, so that the first relocalizations do not pay for
+        them. :meth:`close` stops it.
+        """
+        if self.mode == 'localization' and self.store.config.map.prepare_on_load:
+            self.relocalizer.prepare_map(background=True)
+
+    def close(self) -> None:
+        """Stop a background preparation (:meth:`prepare_map`)."""
+        self.relocalizer.stop_preparing()
+
     def request_relocalization(self) -> None:
         """Relocalize the next scan whatever the state (the relocalize service)."""
         self._relocalize_requested = True

@@ -180,16 +180,16 @@ class PlaceIndex:
         """Re-rank ``neighbours`` by scan context; keep the best ones that lie apart."""
         similarity, yaw = context_similarity(query, self.contexts[neighbours])
         order = np.argsort(-similarity, kind='stable')
+        positions = self.positions[neighbours[order]]
+        open_ = np.ones(len(order), dtype=bool)  # not within the separation of a chosen one
         chosen: list[Candidate] = []
-        for i in order:
-            index = int(neighbours[i])
-            if config.candidate_separation > 0 and any(
-                np.linalg.norm(self.positions[index] - self.positions[c.index])
-                < config.candidate_separation
-                for c in chosen
-            ):
-                continue
-            chosen.append(Candidate(index, float(similarity[i]), float(yaw[i])))
-            if len(chosen) >= config.candidates:
-                break
+        # greedy in similarity order: take the best open one, close every one near it
+        while len(chosen) < config.candidates and open_.any():
+            at = int(np.argmax(open_))
+            i = order[at]
+            chosen.append(Candidate(int(neighbours[i]), float(similarity[i]), float(yaw[i])))
+            open_[at] = False
+            if config.candidate_separation > 0:
+                gap = np.linalg.norm(positions - positions[at], axis=1)
+                open_ &= gap >= config.candidate_separation
         return chosen

@@ -46,10 +46,12 @@ No accepted candidate: the query is refused (``found`` false) and no pose is giv
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import threading
 import time
 
 from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
-from mlsemreg_ros.core.maps.submap_check import refine_on_submap, static_points
+from mlsemreg_ros.core.maps.place_recognition import Candidate
+from mlsemreg_ros.core.maps.submap_check import refine_on_submap, static_points, submap_cloud
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult, VerificationResult
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage
@@ -58,12 +60,17 @@ import numpy as np
 #: Diagnostics key of the quick pass: the first round's verdict was an accepted pose on
 #: strong evidence (``bev_search.weak_inliers``), so no refused-path stage could run.
 FIRST_ROUND_DECIDED = 'quick_first_round_decided'
+#: Diagnostics key of the quick pass's screen (``map.quick_defers_retry``): SC2-PCR's
+#: sampled graph found fewer than ``estimator.graph_retry_inliers`` inliers, so the
+#: estimator would run again on the full graph; the candidate waits for the quick pass.
+RETRY_DEFERRED = 'quick_retry_deferred'
 
 
 def _first_round_decided(context: RegistrationContext) -> bool:
     """Tell whether the pose is accepted on strong evidence now (no stage would search)."""
     return (
         context.evidence is not None
+        and not context.diagnostics.get(RETRY_DEFERRED, False)
         and not context.refusal
         and context.evidence.num_inliers >= context.config.bev_search.weak_inliers
     )
@@ -111,6 +118,57 @@ class _WhenDecided:
         return self.stage.run(context)
 
 
+def _would_retry(diagnostics: dict, retry_inliers: int) -> bool:
+    """Tell whether SC2-PCR's sampled estimate is one it would run again on the full graph."""
+    sampled = diagnostics.get('graph_correspondences', 0) < diagnostics.get('n_correspondences', 0)
+    return bool(sampled and diagnostics.get('best_hypothesis_inliers', 0) < retry_inliers)
+
+
+class _Screened:
+    """
+    The screen's estimator: SC2-PCR without its retry, noting when it would have retried.
+
+    Its registration's ``estimator.graph_retry_inliers`` is 0; the registration's own value
+    decides :data:`RETRY_DEFERRED`. Everything up to the estimate is the quick pass's, so an
+    estimate that is not deferred is the quick pass's too.
+    """
+
+    def __init__(self, stage: Stage, retry_inliers: int) -> None:
+        """Wrap the registration's estimation stage."""
+        self.stage = stage
+        self.name = stage.name
+        self.retry_inliers = retry_inliers
+
+    def wanted(self, context: RegistrationContext) -> bool:
+        """Return the wrapped stage's condition."""
+        return self.stage.wanted(context)
+
+    def run(self, context: RegistrationContext) -> VerificationResult | None:
+        """Estimate on the sampled graph and note :data:`RETRY_DEFERRED`."""
+        found = self.stage.run(context)
+        deferred = _would_retry(context.diagnostics, self.retry_inliers)
+        context.diagnostics[RETRY_DEFERRED] = deferred
+        return found
+
+
+class _UnlessDeferred:
+    """A stage after the screen's first verdict: skipped for a deferred candidate."""
+
+    def __init__(self, stage: Stage) -> None:
+        """Wrap a stage of the quick registration."""
+        self.stage = stage
+        self.name = stage.name
+
+    def wanted(self, context: RegistrationContext) -> bool:
+        """Return the wrapped stage's condition, unless the estimate was deferred."""
+        deferred = bool(context.diagnostics.get(RETRY_DEFERRED, False))
+        return not deferred and self.stage.wanted(context)
+
+    def run(self, context: RegistrationContext) -> VerificationResult | None:
+        """Run the wrapped stage."""
+        return self.stage.run(context)
+
+
 @dataclass
 class CandidateTrial:
     """One candidate keyframe and what its registration said."""
@@ -122,6 +180,7 @@ class CandidateTrial:
     message: str
     time_ms: float
     quick: bool = False  # registered in the quick pass (map.quick_first)
+    deferred: bool = False  # its screen left it to the quick pass (map.quick_defers_retry)
 
 
 @dataclass
@@ -149,6 +208,52 @@ class Relocalizer:
         self.registration = registration
         self.store = store
         self._quick: tuple[object, Registration] | None = None
+        self._screen: tuple[object, Registration] | None = None
+        self._ahead: threading.Thread | None = None
+        self._stop_ahead = threading.Event()
+
+    def prepare_map(self, background: bool = False) -> threading.Thread | None:
+        """
+        Prepare what every query needs before the first one (``map.prepare_on_load``).
+
+        The place index (every keyframe's scan context), the quick pass's registration,
+        then keyframes completely (:meth:`KeyframeStore.prepare_ahead`) and their submap
+        clouds (``map.relocalize_refine``), up to ``map.prepared_cache`` of each.
+        ``background``: on a daemon thread (returned; a query meanwhile prepares what it
+        needs itself), else before returning.
+        """
+        self.stop_preparing()
+        stop = self._stop_ahead.is_set
+
+        def prepare() -> None:
+            store, cfg = self.store, self.store.config
+            store.place_index()
+            if cfg.map.quick_first:
+                self.quick_registration()
+                if cfg.map.quick_defers_retry:
+                    self.screen_registration()
+            store.prepare_ahead(self.registration, stop)
+            ids = store.ids
+            everyone = set(ids)
+            for keyframe_id in ids[: cfg.map.prepared_cache if cfg.map.relocalize_refine else 0]:
+                if stop() or store.config is not cfg:
+                    break
+                submap_cloud(store, keyframe_id, cfg.map.submap_keyframes, everyone, cfg.fine)
+
+        if not background:
+            prepare()
+            return None
+        self._stop_ahead.clear()
+        self._ahead = threading.Thread(target=prepare, name='prepare_map', daemon=True)
+        self._ahead.start()
+        return self._ahead
+
+    def stop_preparing(self) -> None:
+        """Stop a background :meth:`prepare_map` and wait for it (at most one keyframe)."""
+        if self._ahead is not None:
+            self._stop_ahead.set()
+            self._ahead.join()
+            self._ahead = None
 
     def quick_registration(self) -> Registration:
         """
@@ -168,6 +273,36 @@ class Relocalizer:
             ]
             self._quick = (config, registration)
         return self._quick[1]
+
+    def screen_registration(self) -> Registration:
+        """
+        Return the quick pass's screen (``map.quick_defers_retry``).
+
+        The quick registration with SC2-PCR's retry on the full graph left out: its
+        estimator notes :data:`RETRY_DEFERRED` where the retry would run; such a candidate
+        is then judged (the registration's result needs a verdict) but not decided, and no
+        stage after the confidence stage runs. Any other candidate is registered exactly as
+        the quick pass would (up to the first verdict only the estimator reads the retry's
+        parameter, and a quick result counts only when decided then).
+        """
+        config = self.registration.config
+        if self._screen is None or self._screen[0] is not config:
+            quick = self.quick_registration()
+            retry = config.estimator.graph_retry_inliers
+            registration = Registration(
+                quick.config.replace({'estimator.graph_retry_inliers': 0}),
+                self.registration.label_map,
+            )
+            stages, judged = [], False  # after the first verdict: not for a deferred one
+            for stage in quick.stages:
+                if stage.name == 'estimator':
+                    stages.append(_Screened(stage, retry))
+                else:
+                    stages.append(_UnlessDeferred(stage) if judged else stage)
+                judged = judged or stage.name == 'confidence'
+            registration.stages = stages
+            self._screen = (config, registration)
+        return self._screen[1]
 
     def relocalize(
         self,
@@ -197,28 +332,29 @@ class Relocalizer:
         shortlist = index.shortlist(query, cfg, mask)
         timings['place_recognition_ms'] = 1e3 * (time.perf_counter() - tic)
         trials: list[CandidateTrial] = []
-        best: tuple[int, RegistrationResult] | None = None
+        best: tuple[int, RegistrationResult, np.ndarray] | None = None
         tic = time.perf_counter()
         search = self.registration.config.bev_search
-        passes = [(self.registration, False)]
-        if cfg.quick_first and cfg.stop_at_first_accepted and search.enabled:
-            passes.insert(0, (self.quick_registration(), True))
+        quick_first = cfg.quick_first and cfg.stop_at_first_accepted and search.enabled
+        everyone = set(ids) if allowed is None else allowed
         decided: set[int] = set()  # the full path would give the quick pass's result
-        for (registration, quick), candidate in [(p, c) for p in passes for c in shortlist]:
-            if best is not None and cfg.stop_at_first_accepted:
-                break
+
+        def attempt(registration: Registration, candidate: Candidate, kind: str) -> bool:
+            """Register onto one candidate; note the trial; True once the answer is found."""
+            nonlocal best
             keyframe_id = ids[candidate.index]
-            if keyframe_id in decided:
-                continue
             began = time.perf_counter()
             target = self.store.prepared(keyframe_id, self.registration)
             result = registration.register(prepared, target)
             accepted = bool(result.success) and bool(np.all(np.isfinite(result.transform)))
-            if quick and accepted:  # decided in the first round: the full path's answer
+            if kind != 'full' and accepted:  # decided in the first round: the full answer
                 accepted = bool(result.diagnostics.get(FIRST_ROUND_DECIDED, False))
                 if accepted:
                     decided.add(keyframe_id)
+            deferred = bool(result.diagnostics.get(RETRY_DEFERRED, False))
             inliers = int(np.count_nonzero(result.inlier_mask))
+            if deferred:  # the sampled estimate's inliers rank it for the quick pass
+                waiting.append((-inliers, len(waiting), candidate))
             T_keyframe_query, message = result.transform, result.message
             if accepted and cfg.relocalize_refine:
                 check = refine_on_submap(
@@ -226,7 +362,7 @@ class Relocalizer:
                     keyframe_id,
                     static_points(prepared),
                     result.transform,
-                    set(ids) if allowed is None else allowed,
+                    everyone,
                     cfg,
                     self.store.config.fine,
                 )
@@ -240,11 +376,33 @@ class Relocalizer:
                     inliers,
                     message,
                     1e3 * (time.perf_counter() - began),
-                    quick,
+                    kind != 'full',
+                    deferred,
                 )
             )
             if accepted and (best is None or inliers > int(np.count_nonzero(best[1].inlier_mask))):
                 best = (keyframe_id, result, T_keyframe_query)
+            return best is not None and cfg.stop_at_first_accepted
+
+        waiting: list[tuple[int, int, Candidate]] = []  # deferred by the screen
+        found = False
+        if quick_first:
+            screen = cfg.quick_defers_retry
+            first = self.screen_registration() if screen else self.quick_registration()
+            for candidate in shortlist:
+                if found := attempt(first, candidate, 'quick'):
+                    break
+            if not found and waiting:  # the quick pass of the deferred, most inliers first
+                quick = self.quick_registration()
+                for _, _, candidate in sorted(waiting, key=lambda w: w[:2]):
+                    if found := attempt(quick, candidate, 'quick'):
+                        break
+        if not found:
+            for candidate in shortlist:
+                if ids[candidate.index] in decided:
+                    continue
+                if attempt(self.registration, candidate, 'full'):
+                    break
         timings['registration_ms'] = 1e3 * (time.perf_counter() - tic)
         timings['total_ms'] = 1e3 * (time.perf_counter() - start)
         if best is None:

@@ -93,6 +93,37 @@ def submap_points(
     return np.concatenate(clouds, axis=0), len(chosen)
 
 
+def submap_cloud(
+    store: KeyframeStore,
+    match: int,
+    neighbours: int,
+    allowed: set[int],
+    fine: FineAlignmentConfig,
+) -> tuple[AlignmentCloud, int]:
+    """
+    Return the submap of :func:`submap_points` as small_gicp aligns onto it, and its size.
+
+    Downsampled to ``fine.downsampling_resolution``, covariances from
+    ``fine.pair_num_neighbors`` neighbours; cached in the store until it changes
+    (:meth:`KeyframeStore.derived`), so that a place checked again, or prepared when the
+    map was loaded (``map.prepare_on_load``), costs no second build.
+    """
+    ids = store.ids
+    at = ids.index(match)
+    chosen = tuple(
+        k
+        for k in ids[slice(max(at - neighbours, 0), at + neighbours + 1)]
+        if k == match or k in allowed
+    )
+    resolution, count = fine.downsampling_resolution, fine.pair_num_neighbors
+
+    def build() -> tuple[AlignmentCloud, int]:
+        points, used = submap_points(store, match, neighbours, allowed)
+        return AlignmentCloud.build(points, resolution, count), used
+
+    return store.derived(('submap', match, chosen, resolution, count), build)
+
+
 def refine_on_submap(
     store: KeyframeStore,
     match: int,
@@ -109,9 +140,8 @@ def refine_on_submap(
     ``T_match_current``: the registration's pose of it in the matched keyframe's frame.
     """
     T_match_current = np.asarray(T_match_current, dtype=np.float64)
-    target_points, used = submap_points(store, match, cfg.submap_keyframes, allowed)
+    target, used = submap_cloud(store, match, cfg.submap_keyframes, allowed, fine)
     resolution = fine.downsampling_resolution
-    target = AlignmentCloud.build(target_points, resolution, fine.pair_num_neighbors)
     source = AlignmentCloud.build(current_points, resolution, fine.pair_num_neighbors)
     alignment = align_pair(source, target, T_match_current, fine, method='gicp')
     refined = alignment.T_target_source

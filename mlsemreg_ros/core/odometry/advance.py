@@ -53,6 +53,11 @@ def accept_scan(
         odometry.motion_model,
         odometry.config,
     )
+    if pose is None:  # the sweep alignment did not confirm a weak pose (second_look.py)
+        odometry._start_scan = start
+        result = chosen.result
+        relative = result.transform if result is not None else None
+        return odometry._rejected(index, stamp_ns, raw.scan, chosen.reason, result, relative)
     if sweep_twist is not None:
         odometry._sweep_twist = (sweep_twist, stamp_ns)
     current, relative = raw.scan, invert_transform(keyframe.pose) @ pose

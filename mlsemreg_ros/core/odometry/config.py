@@ -225,6 +225,15 @@ class OdometryConfig:
         low=0.0,
         high=1.0,
     )
+    seeded_search: bool = param(
+        True,
+        'A scan still refused after a gap in the stamps (a lost scan before it) is matched '
+        'onto the keyframe again around its prediction (turned and moved seeds, guided '
+        're-matching, SC2-PCR, the map alignment), and the best place is accepted only on '
+        'the evidence of stage 9: its covisible overlap with the keyframe above every '
+        'distinct place and slide by covisibility.accept_gap, the best dense score, and no '
+        'second basin (core/odometry/seeded_search.py).',
+    )
     covariance_scale: float = param(
         10.0,
         'Factor on the pose covariance inv(H) * 2E / (n - 6) of the fine alignment '

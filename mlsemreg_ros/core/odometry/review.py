@@ -22,6 +22,8 @@ In order, each reading the decision before it (``Odometry.process``'s decide ste
 - deskew_guard.py: a deskew that made the alignment worse: the scan again without it;
 - gyro_rescue.py: a refused global pose the gyro confirms, when nothing predicted the scan;
 - sweep_starts.py: a refused scan aligned again from other starts of its sweep;
+- seeded_search.py: a scan refused after a gap matched onto the keyframe around its
+  prediction, accepted on its overlap where both scans see;
 - failures.py: at the ``keyframe.max_failures``-th rejection in a row, relocalization
   onto the past keyframes (recovery.py).
 """
@@ -36,6 +38,7 @@ from mlsemreg_ros.core.odometry.gyro_rescue import rescue_by_gyro
 from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
 from mlsemreg_ros.core.odometry.prior_guard import guard_prior
+from mlsemreg_ros.core.odometry.seeded_search import search_around_prediction
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.sweep_starts import retry_refused
 
@@ -64,5 +67,6 @@ def review(
     )
     chosen = rescue_by_gyro(odometry, given[3], prediction, raw, chosen, timings)  # gyro_rescue
     raw, chosen = retry_refused(odometry, given, prediction, raw, chosen, timings)  # sweep_starts
+    chosen = search_around_prediction(odometry, prediction, raw, chosen, timings)  # after a gap
     chosen = relocalize(odometry, raw, chosen, timings)  # core/odometry/recovery.py
     return raw, chosen, prior_refusal, deskew_refusal

@@ -34,6 +34,10 @@ Two cases, both judged by the basins of the map alignment (core/alignment/near_m
   (core/alignment/weak_direction.py: perturbed starts come back to a place a handful of
   inliers decide, wrong or right), and every perturbed start must come back to it, with no
   rival basin. Then it is accepted (the reason says so); otherwise the refusal stands.
+  A candidate held by fewer is accepted only on the sweep alignment's confirmation
+  (``near_miss.weak_confirmation``, ``Tracker.align_accepted``): the scan deskewed by the
+  motion the candidate implies, aligned with its sweep twist free, must keep a pose close
+  to it. A pose a few skewed points decide moves or is not kept.
 """
 
 from __future__ import annotations
@@ -212,7 +216,7 @@ def _rescue(
             continue
         alignment = candidate.alignment
         weak = weak_refusal(alignment, cfg)
-        if weak:
+        if weak and cfg.near_miss.weak_confirmation <= 0:
             notes.append(f'{candidate.name} not accepted on its own evidence: {weak}')
             continue
         verdict = basins(tracker, candidate, scan, cfg)
@@ -227,6 +231,8 @@ def _rescue(
             f'{candidate.name} accepted on its own evidence ({candidate.refusal}; '
             f'{len(came_back)} perturbed starts came back to it)'
         )
+        if weak:  # tracking.py's Tracker.align_accepted: the sweep alignment must confirm
+            note = f'{note}, if the sweep alignment confirms it ({weak})'
         return Decision(
             source=candidate.name,
             reason='; '.join(r for r in (chosen.reason.split('; ')[0], note) if r),
@@ -236,6 +242,7 @@ def _rescue(
             inlier_fraction=alignment.inlier_fraction,
             candidates=chosen.candidates,
             timings_ms=chosen.timings_ms,
+            confirm_weak=bool(weak),
         )
     if notes:
         return dataclasses.replace(

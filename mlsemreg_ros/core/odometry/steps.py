@@ -97,6 +97,8 @@ class Decision:
     inlier_fraction: float | None = None  # the accepted fine alignment's (history)
     candidates: list[Candidate] = field(default_factory=list)
     timings_ms: dict[str, float] = field(default_factory=dict)
+    #: accepted only if the sweep alignment confirms the pose (near_miss.weak_confirmation)
+    confirm_weak: bool = False
 
     @property
     def accepted(self) -> bool:

@@ -32,6 +32,7 @@ The map (``core/odometry/local_map.py``) owns its clouds and Gaussians.
 from __future__ import annotations
 
 from collections.abc import Callable
+import copy
 import time
 from typing import Any, TYPE_CHECKING
 
@@ -64,6 +65,29 @@ START_DESKEW_ROUNDS = 3
 START_DESKEW_TOLERANCE = 0.01
 #: The sweep alignment needs a local map of at least this many voxels.
 MIN_SWEEP_MAP_VOXELS = 100
+
+
+def weak_confirmation_refusal(
+    T_candidate: np.ndarray, T_swept: np.ndarray, kept: bool, cfg: RegistrationConfig
+) -> str:
+    """
+    Why the sweep alignment does not confirm a candidate with a weak direction ('' if it does).
+
+    ``T_swept``: the pose after the start's deskew and the sweep alignment; ``kept``: the
+    sweep alignment replaced the pose (it bent the scan and the map accepted the result).
+    A pose that a few skewed points decide moves when the sweep is deskewed by its own
+    twist, or its realignment is not kept (``near_miss.weak_confirmation``).
+    """
+    bound = cfg.near_miss.weak_confirmation
+    moved = float(np.linalg.norm(np.linalg.solve(T_candidate, T_swept)[:3, 3]))
+    if not kept:
+        return 'not confirmed: the sweep alignment did not replace its pose'
+    if moved > bound:
+        return (
+            f'not confirmed: the sweep alignment moved it by {moved:.2f} m > '
+            f'near_miss.weak_confirmation={bound:g} m'
+        )
+    return ''
 
 
 class Tracker:
@@ -238,25 +262,55 @@ class Tracker:
         preprocessor: Preprocessor,
         motion_model: Any,
         cfg: RegistrationConfig,
-    ) -> tuple[PreprocessedScan, np.ndarray, SweepMotion | None]:
+    ) -> tuple[PreprocessedScan, np.ndarray | None, SweepMotion | None]:
         """
         Record an accepted alignment, then the start's deskew and the sweep alignment.
 
         Returns the scan and pose to accept, and the sweep twist estimated (or None);
-        ``chosen`` gets the sweep alignment's time and note.
+        ``chosen`` gets the sweep alignment's time and note. A decision that awaits the
+        sweep alignment's confirmation (``Decision.confirm_weak``, second_look.py) and does
+        not get it (:func:`weak_confirmation_refusal`) returns the pose None: the map, the
+        keyframe and the history are as they were, and ``chosen.reason`` says why.
         """
+        before = (copy.deepcopy(self.trust.history), raw) if chosen.confirm_weak else None
         self.trust.accepted(chosen.inlier_fraction)
         raw, pose = self.deskew_start(
             start, raw, chosen.pose, stamp_ns, keyframe, preprocessor, motion_model, cfg
         )
         tic = time.perf_counter()
         implied = implied_twist(motion_model, pose, stamp_ns)  # core/odometry/sweep_starts.py
+        deskewed = raw
         raw, pose, note, sweep_twist = self.align_sweep(raw, pose, preprocessor, cfg, implied)
-        self.trust.motion_bound.accepted(pose)  # the prediction's error (motion_bound.py)
         chosen.timings_ms['sweep_alignment_ms'] = 1e3 * (time.perf_counter() - tic)
         if note:
             chosen.reason = '; '.join(r for r in (chosen.reason, note) if r)
+        if before is not None:
+            refusal = weak_confirmation_refusal(chosen.pose, pose, raw is not deskewed, cfg)
+            chosen.reason = '; '.join(
+                r for r in (chosen.reason, refusal or 'confirmed by the sweep alignment') if r
+            )
+            if refusal:
+                self.trust.history = before[0]
+                self.undo_start(start, keyframe)
+                return before[1], None, None
+        self.trust.motion_bound.accepted(pose)  # the prediction's error (motion_bound.py)
         return raw, pose, sweep_twist
+
+    def undo_start(
+        self, start: tuple[PreprocessedScan, np.ndarray, int] | None, keyframe: Keyframe
+    ) -> None:
+        """Put the map and keyframe back on the start's scan as it was (undo deskew_start)."""
+        if start is None:
+            return  # deskew_start changed nothing
+        first, first_pose, first_stamp = start
+        self.map.clear()
+        self.map.insert_scan(first.scan, first_pose)
+        if keyframe.stamp_ns == first_stamp:
+            keyframe.points, keyframe.labels, keyframe.prepared = (
+                first.points,
+                first.labels,
+                first.scan,
+            )
 
     def deskew_start(
         self,

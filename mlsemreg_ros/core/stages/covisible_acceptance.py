@@ -17,11 +17,12 @@ Stage 9, acceptance where both scans see: a refused far pose accepted on its cov
 Runs when ``covisibility.accept_overlap`` > 0, last, for a pose that is still refused, that
 the covisible choice judged (core/stages/covisibility.py) and that the fine alignment
 refined. Its tilt first (``covisibility.accept_tilt``, the level check on the refined
-pose); then the pose, its slides and the pool's best distinct candidates are measured where
-both scans see on ``covisibility.accept_points`` points (``covisible_accept_*``
-diagnostics), and a pose that passes the rule (core/estimation/covisible_acceptance.py) and
-that no later stage doubted (but for the refinement's move from the coarse pose: the refined
-pose is the one judged) is accepted.
+pose) and the refined pose's localizability (``covisibility.accept_localizability``, the
+fine alignment's ``degeneracy_ratio``); then the pose, its slides and the pool's best
+distinct candidates are measured where both scans see on ``covisibility.accept_points``
+points (``covisible_accept_*`` diagnostics), and a pose that passes the rule
+(core/estimation/covisible_acceptance.py) and that no later stage doubted (but for the
+refinement's move from the coarse pose: the refined pose is the one judged) is accepted.
 
 It runs after the near-miss check, which therefore does not judge a pose accepted here: its
 rivals are the pool's distinct candidates and the 5 m slides, measured where both scans see.
@@ -41,6 +42,7 @@ from mlsemreg_ros.core.estimation.covisible_acceptance import (
     best_eligible,
     best_rivals,
     CovisibleEvidence,
+    localizability_refusal,
     tilt_refusal,
 )
 from mlsemreg_ros.core.features.levelling import tilt_refusal as level_refusal
@@ -73,7 +75,12 @@ class CovisibleAcceptanceStage:
         pose = context.transform
         tilt = tilt_deg(pose)
         context.diagnostics['covisible_accept_tilt_deg'] = tilt
-        reason = tilt_refusal(tilt, context.config.covisibility) or self._level_refusal(context)
+        covis = context.config.covisibility
+        reason = (
+            tilt_refusal(tilt, covis)
+            or self._level_refusal(context)
+            or localizability_refusal(context.diagnostics.get('degeneracy_ratio'), covis)
+        )
         if not reason:
             evidence = self._measure(context, tilt)
             context.diagnostics.update(evidence.as_diagnostics())

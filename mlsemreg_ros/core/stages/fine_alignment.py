@@ -22,8 +22,10 @@ pose was not right to those bounds and the pose is refused; a refinement refused
 its bounds is kept when it holds the dense score (at 40-60 m the true overlap stays under
 ``odometry.min_inlier_fraction``; docs/hard_pairs.md); a refused pose chosen where both
 scans see is refined at two distances and judged by that overlap instead
-(core/stages/covisible_refinement.py). Last, the localizability of the alignment
-(``confidence.degeneracy``).
+(core/stages/covisible_refinement.py). An accepted pose whose refinement is refused and not
+kept stays unrefined only if the refinement stayed in the same place
+(``near_miss.agreement_*``, :func:`unrefined_refusal`); otherwise it is refused. Last, the
+localizability of the alignment (``confidence.degeneracy``).
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ import dataclasses
 from typing import Any
 
 from mlsemreg_ros.core.alignment.alignment import align_pair, Alignment
+from mlsemreg_ros.core.alignment.config import NearMissConfig
 from mlsemreg_ros.core.alignment.fine_alignment import (
     alignment_cloud,
     correction_refusal,
@@ -40,6 +43,7 @@ from mlsemreg_ros.core.alignment.fine_alignment import (
 )
 from mlsemreg_ros.core.estimation import confidence
 from mlsemreg_ros.core.estimation.config import ConfidenceConfig
+from mlsemreg_ros.core.rigid import rotation_angle_deg
 from mlsemreg_ros.core.stages.context import RegistrationContext
 from mlsemreg_ros.core.stages.covisible_refinement import refine_where_both_see
 import numpy as np
@@ -85,7 +89,8 @@ class FineAlignmentStage:
             fine_refused=refused or '',
         )
         # an accepted pose the refinement moved beyond the correction bounds is refused
-        context.doubt(correction_refusal(alignment, bounds))
+        moved = correction_refusal(alignment, bounds)
+        context.doubt(moved)
         if refused and (
             covisible
             or context.scoring.refused_path().refinement_holds(
@@ -94,6 +99,8 @@ class FineAlignmentStage:
         ):
             context.diagnostics['fine_refused_kept'] = True
             refused = ''
+        if refused and not moved:  # the coarse pose stays: only if the refinement agrees
+            context.doubt(unrefined_refusal(alignment, cfg.near_miss))
         if not refused:
             context.transform = alignment.T_target_source
             alignment, degenerate = degeneracy(alignment, cfg.confidence, context.diagnostics)
@@ -123,3 +130,24 @@ def degeneracy(
         hessian = confidence.inflated_hessian(alignment.hessian, conf.degeneracy_inflation)
         return dataclasses.replace(alignment, hessian=hessian), ''
     return alignment, confidence.degeneracy_refusal(found, conf)
+
+
+def unrefined_refusal(alignment: Alignment, near_miss: NearMissConfig) -> str:
+    """
+    Why an accepted pose cannot stay unrefined after its refinement was refused ('' if it can).
+
+    A refinement refused for its small overlap leaves the coarse pose in place. That pose is
+    only as good as the refinement says when the refinement stayed in the same place
+    (``near_miss.agreement_translation`` / ``agreement_rotation``): on a simulated 60 m pair
+    with a 33 deg turn the sparse pose accepted on 50 inliers was 0.78 m off, and its refused
+    refinement 0.11 m off, 0.7 m away (docs/hard_pairs.md, margins).
+    """
+    moved = alignment.correction
+    shift, turn = float(np.linalg.norm(moved[:3, 3])), rotation_angle_deg(moved)
+    if shift <= near_miss.agreement_translation and turn <= near_miss.agreement_rotation:
+        return ''
+    return (
+        f'the refused fine alignment moved the unrefined pose by {shift:.2f} m / {turn:.2f} '
+        f'deg, more than near_miss.agreement_translation/rotation='
+        f'{near_miss.agreement_translation:g} m / {near_miss.agreement_rotation:g} deg'
+    )
