@@ -52,7 +52,11 @@ from mlsemreg_ros.core.stages.covisible_acceptance import CovisibleAcceptanceSta
 from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.far_search import FarSearchStage
 from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
-from mlsemreg_ros.core.stages.label_quality import LabelQualityStage, UnlabeledFallbackStage
+from mlsemreg_ros.core.stages.label_quality import (
+    LabelQualityStage,
+    UnlabeledFallbackStage,
+    UnlabeledRerunStage,
+)
 from mlsemreg_ros.core.stages.levelling import LevelCheckStage
 from mlsemreg_ros.core.stages.matching import MatchingStage
 from mlsemreg_ros.core.stages.near_miss import NearMissStage
@@ -117,7 +121,27 @@ def default_stages() -> list[Stage]:
         FineAlignmentStage(),  # 7. GICP of the pair from the chosen pose (refine=True)
         NearMissStage(),  # 8. accepted and refined: no second basin from perturbed starts
         CovisibleAcceptanceStage(),  # 9. refused, refined: accepted where both scans see
+        UnlabeledRerunStage(),  # 10. poorer labels, still refused: what `none` accepts
     ]
+
+
+def run_stages(context: RegistrationContext, stages: list[Stage]) -> RegistrationContext:
+    """
+    Run ``stages`` in order on ``context`` and return it.
+
+    Each stage that is :meth:`~mlsemreg_ros.core.stages.context.Stage.wanted` (and not
+    done by an earlier one) runs, timed as ``<name>_ms``; the candidates a stage returns
+    join the pool and face the confidence rule again (``core/stages/confidence.py``).
+    """
+    for stage in stages:
+        if stage.name in context.done or not stage.wanted(context):
+            continue
+        with context.timed(stage.name):
+            found = stage.run(context)
+        if found is not None and found.hypotheses:
+            with context.timed(ConfidenceStage.name):
+                consider(context, found)
+    return context
 
 
 class Registration:
@@ -355,15 +379,7 @@ class Registration:
         context.diagnostics.update(
             source_keypoints=len(source.keypoints), target_keypoints=len(target.keypoints)
         )
-        for stage in self.stages:
-            if stage.name in context.done or not stage.wanted(context):
-                continue
-            with context.timed(stage.name):
-                found = stage.run(context)
-            if found is not None and found.hypotheses:
-                with context.timed(ConfidenceStage.name):
-                    consider(context, found)
-        return context.result()
+        return run_stages(context, self.stages).result()
 
     def scoring(self) -> Scoring:
         """Return the scores with the current config and label rule (core/stages/scoring.py)."""
