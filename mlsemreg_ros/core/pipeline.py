@@ -45,7 +45,7 @@ from mlsemreg_ros.core.matching import landmarks, signatures
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.results import Landmarks, PreparedScan, RegistrationResult
 from mlsemreg_ros.core.stages.bev_search import BevSearchStage
-from mlsemreg_ros.core.stages.confidence import ConfidenceStage, consider
+from mlsemreg_ros.core.stages.confidence import ConfidenceStage
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
 from mlsemreg_ros.core.stages.covisibility import CovisibilityStage
 from mlsemreg_ros.core.stages.covisible_acceptance import CovisibleAcceptanceStage
@@ -62,6 +62,7 @@ from mlsemreg_ros.core.stages.matching import MatchingStage
 from mlsemreg_ros.core.stages.near_miss import NearMissStage
 from mlsemreg_ros.core.stages.objects import ObjectStage
 from mlsemreg_ros.core.stages.refused_path import FullGraphStage, GuidedStage, PolishStage
+from mlsemreg_ros.core.stages.runner import run_stages
 from mlsemreg_ros.core.stages.scoring import Scoring
 from mlsemreg_ros.core.stages.swapped_search import SwappedSearchStage
 from mlsemreg_ros.core.stages.verification import VerificationStage
@@ -102,7 +103,7 @@ def default_stages() -> list[Stage]:
     list at its place (docs/extending.md); one that returns candidates is a candidate
     source, like the BEV search: its candidates face the confidence rule.
     """
-    return [
+    stages: list[Stage] = [
         LabelQualityStage(),  # 0. the labels' weight: never worse than no labels
         MatchingStage(),  # 1. correspondences: ML-SemReg (GM o MM) or the plain matcher
         EstimationStage(),  # 2. the robust estimator (SC2-PCR): hypotheses, best first
@@ -121,27 +122,9 @@ def default_stages() -> list[Stage]:
         FineAlignmentStage(),  # 7. GICP of the pair from the chosen pose (refine=True)
         NearMissStage(),  # 8. accepted and refined: no second basin from perturbed starts
         CovisibleAcceptanceStage(),  # 9. refused, refined: accepted where both scans see
-        UnlabeledRerunStage(),  # 10. poorer labels, still refused: what `none` accepts
     ]
-
-
-def run_stages(context: RegistrationContext, stages: list[Stage]) -> RegistrationContext:
-    """
-    Run ``stages`` in order on ``context`` and return it.
-
-    Each stage that is :meth:`~mlsemreg_ros.core.stages.context.Stage.wanted` (and not
-    done by an earlier one) runs, timed as ``<name>_ms``; the candidates a stage returns
-    join the pool and face the confidence rule again (``core/stages/confidence.py``).
-    """
-    for stage in stages:
-        if stage.name in context.done or not stage.wanted(context):
-            continue
-        with context.timed(stage.name):
-            found = stage.run(context)
-        if found is not None and found.hypotheses:
-            with context.timed(ConfidenceStage.name):
-                consider(context, found)
-    return context
+    # 10. poorer labels, still refused: what `none` accepts (stages 0 to 9 once more)
+    return [*stages, UnlabeledRerunStage(stages)]
 
 
 class Registration:

@@ -46,9 +46,10 @@ from mlsemreg_ros.core.estimation import label_model
 from mlsemreg_ros.core.labeling import quality
 from mlsemreg_ros.core.poses import same_pose
 from mlsemreg_ros.core.stages.confidence import ConfidenceStage
-from mlsemreg_ros.core.stages.context import RegistrationContext
+from mlsemreg_ros.core.stages.context import RegistrationContext, Stage
 from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.matching import MatchingStage
+from mlsemreg_ros.core.stages.runner import run_stages
 from mlsemreg_ros.core.stages.verification import VerificationStage
 import numpy as np
 
@@ -262,7 +263,8 @@ class UnlabeledRerunStage:
     reversed, GEDI, is accepted by its covisible acceptance (stage 9), and with 30 % of its
     labels flipped the labelled path refused it (docs/labels.md). So when every stage has
     run and the pair is still refused, the whole registration runs once more on the
-    unlabeled views with the unweighed config (``pipeline.default_stages``, the same
+    unlabeled views with the unweighed config (``stages``: the pipeline's default stages
+    before this one, given at construction by ``pipeline.default_stages``; the same
     ``refine``): exactly what ``label_source: none`` does. Its pose is taken when it is
     accepted and the labels do not veto it (their information at the pose, as for the
     unlabeled attempt); ``labels_unlabeled_rerun`` in the diagnostics, its stage times as
@@ -271,14 +273,15 @@ class UnlabeledRerunStage:
 
     name = 'unlabeled_rerun'
 
+    def __init__(self, stages: list[Stage]) -> None:
+        self.stages = list(stages)  # what ``none`` runs: every stage before this one
+
     def wanted(self, context: RegistrationContext) -> bool:
         """Say yes when a pair of poorer labels ends refused."""
         return context.unlabeled_attempt is not None and bool(context.refusal or context.doubts)
 
     def run(self, context: RegistrationContext) -> None:
         """Register the unlabeled views with every stage; adopt an accepted, unvetoed pose."""
-        from mlsemreg_ros.core.pipeline import default_stages, run_stages
-
         attempt, judged = context.unlabeled_attempt, context.label_quality
         assert attempt is not None and judged is not None  # wanted() says so
         # the config before the labels' weight: the attempt's, with the full-graph retry
@@ -287,8 +290,7 @@ class UnlabeledRerunStage:
         config = replace(quick, estimator=replace(quick.estimator, graph_retry_inliers=retry))
         rerun = _unlabeled(context, config)
         rerun.label_names = context.label_names
-        stages = [s for s in default_stages() if not isinstance(s, UnlabeledRerunStage)]
-        run_stages(rerun, stages)
+        run_stages(rerun, self.stages)
         for name, ms in rerun.timings_ms.items():
             key = f'unlabeled_rerun_{name}'
             context.timings_ms[key] = context.timings_ms.get(key, 0.0) + ms
