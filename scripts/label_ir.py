@@ -30,6 +30,10 @@ the true pose (IR, %), the inliers and the correspondences, for the labels
   widening of poorer labels, ``quality.widened``);
 - ``none``: no labels.
 
+Each cell also gives the scans' BMR-SS landmarks and how many of the source's are **found
+again**: a target landmark of the same class within ``RECUR_DISTANCE`` (xy) at the true
+pose (Mask Matching compares the same landmarks across scans; docs/labels.md).
+
 Usage (docs/labels.md)::
 
     PYTHONPATH=$PWD .venv/bin/python scripts/label_ir.py PAIR_DIR [--descriptor gedi] \\
@@ -48,9 +52,11 @@ from mlsemreg_ros.core.labeling import quality
 from mlsemreg_ros.core.labeling.source import LabelSource
 from mlsemreg_ros.core.matching import matching, signatures
 from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.core.results import Landmarks
 from mlsemreg_ros.datasets.pairs import load_pair
 from mlsemreg_ros.evaluation.settings import EvaluationSettings
 import numpy as np
+from scipy.spatial import cKDTree
 
 #: The five classes geometry can tell, as groups of learning ids (the collapse's target id).
 FIVE_CLASSES = {
@@ -61,6 +67,8 @@ FIVE_CLASSES = {
     1: (1, 2, 3, 4, 5),  # vehicles
 }
 VARIANTS = ('field', 'collapse', 'geometric', 'top2', 'union', 'none')
+#: A source landmark is found again when the target has one of its class this near (xy, m).
+RECUR_DISTANCE = 1.0
 
 
 def collapse(labels: np.ndarray) -> np.ndarray:
@@ -69,6 +77,20 @@ def collapse(labels: np.ndarray) -> np.ndarray:
     for target, ids in FIVE_CLASSES.items():
         out[np.isin(labels, ids)] = target
     return out
+
+
+def recurring(source: Landmarks, target: Landmarks, truth: np.ndarray) -> int:
+    """Source landmarks with a target landmark of their class within RECUR_DISTANCE (xy)."""
+    if len(source) == 0 or len(target) == 0:
+        return 0
+    moved = source.centroids @ truth[:3, :3].T + truth[:3, 3]
+    found = 0
+    for cls in np.unique(source.classes):
+        theirs = target.centroids[target.classes == cls]
+        if len(theirs):
+            gap, _ = cKDTree(theirs[:, :2]).query(moved[source.classes == cls, :2])
+            found += int((gap < RECUR_DISTANCE).sum())
+    return found
 
 
 def geometric_both(
@@ -97,7 +119,7 @@ def main() -> None:
     source = LabelSource(registration.label_map)
     threshold = EvaluationSettings().evaluation.inlier_threshold
     semantic, kind = config.semantic, config.matcher.kind
-    rows: dict[str, list[tuple[int, int]]] = {v: [] for v in variants}
+    rows: dict[str, list[tuple[int, ...]]] = {v: [] for v in variants}
     for file in sorted(args.pairs.glob('*.npz')):
         pair = load_pair(file)
         gedi = pair.descriptors('gedi') if args.descriptor == 'gedi' else (None, None)
@@ -152,26 +174,39 @@ def main() -> None:
                 )
             moved = scans[0].keypoints[corr.source] @ truth[:3, :3].T + truth[:3, 3]
             gap = np.linalg.norm(moved - scans[1].keypoints[corr.target], axis=1)
-            rows[variant].append((int((gap < threshold).sum()), len(corr)))
+            marks = scans[0].landmarks, scans[1].landmarks
+            rows[variant].append(
+                (
+                    int((gap < threshold).sum()),
+                    len(corr),
+                    len(marks[0]),
+                    len(marks[1]),
+                    recurring(marks[0], marks[1], truth),
+                )
+            )
         print(
             file.stem,
             '  '.join(
-                f'{v} {100 * i / max(n, 1):.2f} % ({i}/{n})'
+                f'{v} {100 * i / max(n, 1):.2f} % ({i}/{n}, landmarks {a}/{b} found {f})'
                 for v in variants
-                for i, n in rows[v][-1:]
+                for i, n, a, b, f in rows[v][-1:]
             ),
             flush=True,
         )
     print(
         f'{args.pairs.name} {args.descriptor}{" reversed" if args.reverse else ""}: '
-        'mean IR % / inliers / correspondences'
+        'mean IR % / inliers / correspondences, median inliers, pairs with '
+        'estimator.min_inliers, source landmarks found again / all'
     )
+    least = config.estimator.min_inliers
     for variant in variants:
-        values = np.array(rows[variant], dtype=float).reshape(-1, 2)
+        values = np.array(rows[variant], dtype=float).reshape(-1, 5)
         ratio = 100 * values[:, 0] / np.maximum(values[:, 1], 1)
         print(
             f'  {variant:10s} {ratio.mean():6.2f}  {values[:, 0].mean():7.1f}  '
-            f'{values[:, 1].mean():7.0f}'
+            f'{values[:, 1].mean():7.0f}  {np.median(values[:, 0]):6.0f}  '
+            f'{int((values[:, 0] >= least).sum()):3d}  '
+            f'{int(values[:, 4].sum())}/{int(values[:, 2].sum())}'
         )
 
 

@@ -40,6 +40,7 @@ import numpy as np
 
 #: The wrapped steps: (module, owner, attribute, label). Indented labels are nested steps.
 STEPS = (
+    ('mlsemreg_ros.core.labeling.source', 'LabelSource', '__call__', 'labels (label_source)'),
     ('mlsemreg_ros.core.odometry.preprocess', 'Preprocessor', 'sweep', 'preprocess'),
     ('mlsemreg_ros.core.odometry.preprocess', 'Preprocessor', 'deskew', '  deskew'),
     ('mlsemreg_ros.core.pipeline', 'Registration', 'prepare', '  prepare'),

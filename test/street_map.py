@@ -19,6 +19,7 @@ from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
 from mlsemreg_ros.core.maps.map_io import save_map
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
+import pytest
 
 STREET_SEED = 3
 
@@ -32,3 +33,9 @@ def write_street_map(folder: Path) -> Path:
         points, scan_labels = scan_at(world, labels, pose, seed=200 + k, max_points=15000)
         store.add(points, scan_labels, pose, k)
     return save_map(folder, store, 'map')
+
+
+@pytest.fixture(scope='module', name='map_folder')
+def street_map_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Write a map of the synthetic street: five keyframes 15 m apart (fixture ``map_folder``)."""
+    return write_street_map(tmp_path_factory.mktemp('maps') / 'street')

@@ -13,7 +13,7 @@
 # limitations under the License.
 """Known-answer tests of voxel downsampling, keypoint sampling, FPFH at keypoints, validity."""
 
-from mlsemreg_ros.core.features import kernels
+from kernel_modes import kernel_mode  # noqa: F401 (autouse: numba and NumPy)
 from mlsemreg_ros.core.features.features import (
     fpfh_open3d_at,
     sample_keypoints,
@@ -23,15 +23,6 @@ from mlsemreg_ros.core.features.features import (
 import numpy as np
 import open3d as o3d
 import pytest
-
-
-@pytest.fixture(autouse=True, params=['numba', 'numpy'])
-def kernel_mode(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
-    """Run every test with the compiled kernels and with the NumPy passes."""
-    if request.param == 'numba' and not kernels.AVAILABLE:
-        pytest.skip('numba is not installed')
-    monkeypatch.setenv(kernels.ENV_SWITCH, request.param)
-    return request.param
 
 
 def test_voxel_downsample_gives_centroids_and_majority_labels():

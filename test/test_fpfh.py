@@ -13,7 +13,7 @@
 # limitations under the License.
 """Known-answer and property tests of the vectorized FPFH (core/features/fpfh.py)."""
 
-from mlsemreg_ros.core.features import kernels
+from kernel_modes import kernel_mode  # noqa: F401 (autouse: numba and NumPy)
 from mlsemreg_ros.core.features.fpfh import (
     estimate_normals,
     fpfh_at_keypoints,
@@ -22,18 +22,8 @@ from mlsemreg_ros.core.features.fpfh import (
 )
 import numpy as np
 import open3d as o3d
-import pytest
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
-
-
-@pytest.fixture(autouse=True, params=['numba', 'numpy'])
-def kernel_mode(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
-    """Run every test with the compiled kernels and with the NumPy passes."""
-    if request.param == 'numba' and not kernels.AVAILABLE:
-        pytest.skip('numba is not installed')
-    monkeypatch.setenv(kernels.ENV_SWITCH, request.param)
-    return request.param
 
 
 def _soa(rows: np.ndarray) -> np.ndarray:

@@ -234,11 +234,18 @@ def test_a_refused_labelled_path_falls_back_to_the_accepted_unlabeled_pose(scene
     assert kept.diagnostics.get('labels_unlabeled_fallback')
     assert kept.success, kept.message
     np.testing.assert_allclose(kept.estimate, zeros.estimate, atol=1e-9)  # none's pose
-    # labels that contradict the unlabeled pose keep their veto: the refusal stands
+    # labels that contradict the unlabeled pose keep their veto: the refusal stands, also
+    # against the whole unlabeled registration run again (stage 10)
     assert not vetoed.diagnostics.get('labels_unlabeled_fallback')
+    assert vetoed.diagnostics.get('labels_unlabeled_rerun_accepted')
+    assert not vetoed.diagnostics.get('labels_unlabeled_rerun')
     assert not vetoed.success
-    # a labelled path refused at another pose (5 m off): the two paths disagree, refused
+    # a labelled path refused at another pose (5 m off): the two paths disagree, so the
+    # quick attempt's pose is not taken; the pair is registered again as `none` registers
+    # it (every stage) and takes that verdict: none's pose, accepted
     elsewhere = results['elsewhere']
     assert elsewhere.diagnostics['labels_unlabeled_agrees'] is False
     assert not elsewhere.diagnostics.get('labels_unlabeled_fallback')
-    assert not elsewhere.success
+    assert elsewhere.diagnostics.get('labels_unlabeled_rerun')
+    assert elsewhere.success, elsewhere.message
+    np.testing.assert_allclose(elsewhere.estimate, zeros.estimate, atol=1e-9)

@@ -46,6 +46,7 @@ def _out_and_back() -> loop_peers.LocalMapLoops:
     back = [_pose(x, 3.6, 180.0) for x in np.arange(150.0, 0.0, -1.0)]
     truth = out + back
     run = loop_peers.LocalMapLoops('peer', [0, 75, 150, 225], truth=truth)
+    run.stamps_ns = [100_000_000 * i for i in range(len(truth))]  # 10 Hz
     run.poses_odometry = run.poses_loops = np.stack(truth)
     return run
 
@@ -61,13 +62,78 @@ def test_local_map_loops_are_scored_against_the_ground_truth() -> None:
     assert summary['proposed'] == 3 and summary['closed'] == 2
     assert summary['right'] == 1 and summary['wrong'] == 1
     assert summary['precision_pct'] == pytest.approx(50.0)
-    # maps 2 and 3 come back along maps 1 and 0; map 2 onto map 1 only is right
-    assert summary['revisits'] == 2 and summary['recall_pct'] == pytest.approx(50.0)
+    # in the peer's own unit: maps 2 and 3 come back along maps 1 and 0; map 2 onto map 1
+    # only is right
+    assert summary['unit_revisits'] == 2 and summary['unit_recall_pct'] == pytest.approx(50.0)
+    # in the one unit of every method: the way back is one revisit from scan 163 (x = 137 m,
+    # 4.7 m from x = 134 m passed 31.7 m before) to the end, 14 places of 10 m; map 2's scans
+    # (150-224) hold the first 7 of them
+    assert summary['revisits'] == 1 and summary['revisits_found'] == 1
+    assert summary['recall_pct'] == pytest.approx(100.0)
+    assert summary['places'] == 14 and summary['places_found'] == 7
+    assert summary['place_recall_pct'] == pytest.approx(50.0)
     edges = summary['loop_edges']
     assert edges[0]['right'] and edges[0]['te_m'] < 1e-9
     assert not edges[1]['right'] and edges[1]['te_m'] == pytest.approx(1.0)
     assert edges[1]['same_place']  # right place, pose beyond the bound
     assert summary['ate_loops_m'] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_revisits_are_runs_of_scans_back_within_5_m_after_30_m_of_travel() -> None:
+    run = _out_and_back()
+    stamps = np.asarray(run.stamps_ns)
+    positions = np.stack(run.truth)[:, :3, 3]
+    scan = 100_000_000
+    assert loop_peers.revisit_segments(stamps, positions) == [(163 * scan, 299 * scan)]
+    places = loop_peers.revisit_segments(stamps, positions, place_m=10.0)
+    assert places[0] == (163 * scan, 172 * scan) and places[-1] == (293 * scan, 299 * scan)
+    assert loop_peers.revisit_segments(stamps[:150], positions[:150]) == []  # out only
+    # a revisit is found by a query holding one of its scans, not by one beside it
+    assert loop_peers.segments_found(places, [(172 * scan, 173 * scan)]) == 2
+    assert loop_peers.segments_found(places, [(100 * scan, 162 * scan)]) == 0
+
+
+def test_our_keyframe_loops_count_in_the_same_revisits() -> None:
+    """A right loop finds the revisit holding its current keyframe's scan; a wrong one none."""
+    scan = 100_000_000
+    revisits = {'segments': [(10 * scan, 40 * scan)], 'places': [(10 * scan, 20 * scan)]}
+    edges = [
+        {'current': 5, 'current_stamp_ns': 25 * scan, 'right': True},
+        {'current': 6, 'current_stamp_ns': 15 * scan, 'right': False},
+    ]
+    build = {
+        'scans': 50, 'keyframes': 9, 'loops': 2, 'loop_edges': edges, 'loops_wrong': 1,
+        'revisits': 4, 'revisit_segments': revisits,
+    }  # fmt: skip
+    ours = loop_peers.ours_loop_summary(build, 1.0)
+    assert ours['revisits'] == 1 and ours['revisits_found'] == 1
+    assert ours['places'] == 1 and ours['places_found'] == 0  # the right loop is at 25
+    assert ours['unit_revisits'] == 4 and ours['unit_recall_pct'] == pytest.approx(25.0)
+
+
+def test_the_revisit_diagnosis_says_where_our_loop_closure_stops() -> None:
+    """Per revisit: keyframes, tried at the same place, registered, closed right."""
+    from mlsemreg_ros.evaluation.map_build import revisit_diagnosis
+
+    trials = [
+        {'keyframe': 1, 'stamp_ns': 5, 'tried': [], 'tried_distance_m': [], 'closed': False},
+        {'keyframe': 2, 'stamp_ns': 11, 'tried': [], 'tried_distance_m': [], 'closed': False},
+        {'keyframe': 3, 'stamp_ns': 12, 'tried': [0], 'tried_distance_m': [40.0], 'closed': False},
+        {'keyframe': 4, 'stamp_ns': 13, 'tried': [0], 'tried_distance_m': [3.0], 'closed': False},
+        {'keyframe': 5, 'stamp_ns': 14, 'tried': [0], 'tried_distance_m': [2.0], 'closed': True},
+    ]
+    summary = {
+        'revisit_segments': {'segments': [(10, 20)], 'places': []},
+        'keyframe_trials': trials,
+        'loop_edges': [{'current': 5, 'right': True}],
+        'loops_refused': [{'current': 4, 'right': True}],
+    }
+    assert revisit_diagnosis(summary) == [
+        {
+            'first_stamp_ns': 10, 'last_stamp_ns': 20, 'keyframes': 4, 'tried': 3,
+            'tried_same_place': 2, 'registered': 2, 'closed_right': 1, 'closed_wrong': 0,
+        }
+    ]  # fmt: skip
 
 
 def test_without_ground_truth_a_peer_run_is_only_counted() -> None:
@@ -170,6 +236,8 @@ def test_map_build_runs_both_loop_peers_on_the_same_scans(
         assert peer['closed'] == 0 and peer['wrong'] == 0
         assert peer['ate_odometry_m'] < 0.2 and peer['ate_loops_m'] < 0.2, name
     assert baselines['ours']['scans'] == 12 and baselines['ours']['wrong'] == 0
+    for summary in baselines.values():  # one count of the ground truth's revisits for all
+        assert summary['revisits'] == 0 and summary['recall_pct'] is None
 
 
 def test_the_peers_local_map_size_is_theirs_to_set(drive: Path) -> None:

@@ -180,6 +180,15 @@ def test_engine_agrees_with_reference_on_repeated_patterns_and_small_chunks(
         np.testing.assert_array_equal(corr.distance, results[0].distance)
 
 
+def _match_args(case: tuple, mutual: bool) -> tuple:
+    """``semantic_match``'s arguments for a :func:`_clustered_case` (top-2 levels)."""
+    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = case
+    return (
+        src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss), src_bmr, dst_bmr, 2,
+        mutual,
+    )  # fmt: skip
+
+
 def test_dense_and_sparse_bmr_inputs_agree_and_explicit_zeros_are_not_bits():
     src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(7)
     args = (src_desc, dst_desc, group_bitmask(src_ss), group_bitmask(dst_ss))
@@ -236,19 +245,8 @@ def test_bmr_without_bins_falls_back_to_group_matching():
 
 
 def test_matcher_reports_sub_stage_timings():
-    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(3)
     timings: dict[str, float] = {}
-    semantic_match(
-        src_desc,
-        dst_desc,
-        group_bitmask(src_ss),
-        group_bitmask(dst_ss),
-        src_bmr,
-        dst_bmr,
-        2,
-        False,
-        timings=timings,
-    )
+    semantic_match(*_match_args(_clustered_case(3), False), timings=timings)
     assert set(timings) == {'gm_mm_mask_ms', 'gm_mm_dense_ms'}
     assert all(v >= 0 for v in timings.values())
 
@@ -257,20 +255,9 @@ def test_matcher_reports_sub_stage_timings():
 @pytest.mark.parametrize('mutual', [False, True])
 def test_dense_and_sparse_candidate_paths_agree_with_reference(seed, mutual, monkeypatch):
     # few landmarks -> low S maxima -> many candidates: the case the dense path is for
-    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(
-        seed, bins=30, patterns=4
-    )
-    expected = reference_match(src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr, 2, mutual)
-    args = (
-        src_desc,
-        dst_desc,
-        group_bitmask(src_ss),
-        group_bitmask(dst_ss),
-        src_bmr,
-        dst_bmr,
-        2,
-        mutual,
-    )
+    case = _clustered_case(seed, bins=30, patterns=4)
+    expected = reference_match(*case, 2, mutual)
+    args = _match_args(case, mutual)
     outputs = []
     for fraction in (0.0, np.inf):  # every chunk dense / every chunk sparse
         monkeypatch.setattr(mask_search, '_DENSE_FRACTION', fraction)
@@ -285,19 +272,11 @@ def test_dense_and_sparse_candidate_paths_agree_with_reference(seed, mutual, mon
 @pytest.mark.filterwarnings('ignore:invalid value:RuntimeWarning')  # NaN on purpose
 @pytest.mark.parametrize('mutual', [False, True])
 def test_non_finite_descriptors_give_the_same_winners_on_both_candidate_paths(mutual, monkeypatch):
-    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(5, patterns=4)
+    case = _clustered_case(5, patterns=4)
+    src_desc, dst_desc = case[:2]
     dst_desc[[3, 40]] = np.nan  # NaN and inf must sort the same way on both paths
     src_desc[7] = np.inf
-    args = (
-        src_desc,
-        dst_desc,
-        group_bitmask(src_ss),
-        group_bitmask(dst_ss),
-        src_bmr,
-        dst_bmr,
-        2,
-        mutual,
-    )
+    args = _match_args(case, mutual)
     results = []
     for fraction in (0.0, np.inf):
         monkeypatch.setattr(mask_search, '_DENSE_FRACTION', fraction)
@@ -306,19 +285,7 @@ def test_non_finite_descriptors_give_the_same_winners_on_both_candidate_paths(mu
 
 
 def _match_in_child(seed: int) -> set[tuple[int, int]]:
-    src_desc, dst_desc, src_ss, dst_ss, src_bmr, dst_bmr = _clustered_case(seed)
-    return _pairs(
-        semantic_match(
-            src_desc,
-            dst_desc,
-            group_bitmask(src_ss),
-            group_bitmask(dst_ss),
-            src_bmr,
-            dst_bmr,
-            2,
-            False,
-        )
-    )
+    return _pairs(semantic_match(*_match_args(_clustered_case(seed), False)))
 
 
 @pytest.mark.filterwarnings('ignore:This process:DeprecationWarning')  # Python >= 3.12

@@ -76,7 +76,7 @@ def test_cells_of_any_edge_answer_as_the_kd_tree(cell, radius):
     pole = np.column_stack([np.full(300, 3.1), np.full(300, -2.2), np.linspace(-5, 25, 300)])
     points = np.vstack([points, pole, [[900.0, -700.0, 40.0]]])  # a far point: a wide box
     grid = cell_grid.CellGrid.build(points, cell)
-    assert grid.usable and len(grid) == len(points)
+    assert grid.usable and grid.size == len(points)
     queries = np.vstack(
         [
             points[rng.integers(0, len(points), 800)] + rng.normal(0, radius, (800, 3)),

@@ -33,17 +33,11 @@ import numpy as np
 from pose_messages import pose_message, pose_of, publish_pose
 import pytest
 from ros_domains import domain_id
-from street_map import STREET_SEED, write_street_map
+from street_map import street_map_folder, STREET_SEED  # noqa: F401 (the map_folder fixture)
 
 pytestmark = pytest.mark.usefixtures('rclpy_module')  # skip without rclpy (conftest.py)
 
 TIMEOUT_S = 120.0
-
-
-@pytest.fixture(scope='module')
-def map_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Write a map of the synthetic street: five keyframes 15 m apart."""
-    return write_street_map(tmp_path_factory.mktemp('maps') / 'street')
 
 
 @pytest.fixture(scope='module')

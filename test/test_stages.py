@@ -109,6 +109,7 @@ def test_the_default_stages_run_in_order_and_each_is_timed_by_the_loop(prepared)
         'fine',
         'near_miss',
         'covisible_accept',
+        'unlabeled_rerun',
     ]
     result = registration.register(source, target)
     assert result.success, result.message

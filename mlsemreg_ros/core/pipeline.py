@@ -45,7 +45,7 @@ from mlsemreg_ros.core.matching import landmarks, signatures
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.results import Landmarks, PreparedScan, RegistrationResult
 from mlsemreg_ros.core.stages.bev_search import BevSearchStage
-from mlsemreg_ros.core.stages.confidence import ConfidenceStage, consider
+from mlsemreg_ros.core.stages.confidence import ConfidenceStage
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
 from mlsemreg_ros.core.stages.covisibility import CovisibilityStage
 from mlsemreg_ros.core.stages.covisible_acceptance import CovisibleAcceptanceStage
@@ -53,12 +53,17 @@ from mlsemreg_ros.core.stages.early_acceptance import EarlyAcceptanceStage
 from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.far_search import FarSearchStage
 from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
-from mlsemreg_ros.core.stages.label_quality import LabelQualityStage, UnlabeledFallbackStage
+from mlsemreg_ros.core.stages.label_quality import (
+    LabelQualityStage,
+    UnlabeledFallbackStage,
+    UnlabeledRerunStage,
+)
 from mlsemreg_ros.core.stages.levelling import LevelCheckStage
 from mlsemreg_ros.core.stages.matching import MatchingStage
 from mlsemreg_ros.core.stages.near_miss import NearMissStage
 from mlsemreg_ros.core.stages.objects import ObjectStage
 from mlsemreg_ros.core.stages.refused_path import FullGraphStage, GuidedStage, PolishStage
+from mlsemreg_ros.core.stages.runner import run_stages
 from mlsemreg_ros.core.stages.scoring import Scoring
 from mlsemreg_ros.core.stages.swapped_search import SwappedSearchStage
 from mlsemreg_ros.core.stages.verification import VerificationStage
@@ -116,7 +121,7 @@ def default_stages() -> list[Stage]:
     ]
     # the gate (covisibility.early_accept_gap): the end stages tried on the pool so far
     skipped = [stage.name for stage in later]
-    return [
+    stages: list[Stage] = [
         LabelQualityStage(),  # 0. the labels' weight: never worse than no labels
         MatchingStage(),  # 1. correspondences: ML-SemReg (GM o MM) or the plain matcher
         EstimationStage(),  # 2. the robust estimator (SC2-PCR): hypotheses, best first
@@ -134,6 +139,8 @@ def default_stages() -> list[Stage]:
         *later[3:],
         *end,
     ]
+    # 10. poorer labels, still refused: what `none` accepts (stages 0 to 9 once more)
+    return [*stages, UnlabeledRerunStage(stages)]
 
 
 class Registration:
@@ -371,15 +378,7 @@ class Registration:
         context.diagnostics.update(
             source_keypoints=len(source.keypoints), target_keypoints=len(target.keypoints)
         )
-        for stage in self.stages:
-            if stage.name in context.done or not stage.wanted(context):
-                continue
-            with context.timed(stage.name):
-                found = stage.run(context)
-            if found is not None and found.hypotheses:
-                with context.timed(ConfidenceStage.name):
-                    consider(context, found)
-        return context.result()
+        return run_stages(context, self.stages).result()
 
     def scoring(self) -> Scoring:
         """Return the scores with the current config and label rule (core/stages/scoring.py)."""

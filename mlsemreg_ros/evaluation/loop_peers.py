@@ -26,10 +26,15 @@ The loop-closure peers of ``mlsemreg map build --baseline``, on the same scans (
 
 Each run is scored against the ground truth the same way as our keyframe loops
 (``mlsemreg map build``): a loop is right when its relative pose is within
-:data:`RIGHT_TRANSLATION_M` and :data:`RIGHT_ROTATION_DEG` of the true one; a unit (our
-keyframe, a peer's local map) *revisits* when it comes back to a place of an earlier one;
-recall is the share of revisiting units with a right loop, precision the share of the
-closed loops that are right.
+:data:`RIGHT_TRANSLATION_M` and :data:`RIGHT_ROTATION_DEG` of the true one; precision is
+the share of the closed loops that are right. Recall is counted in one unit for every
+method, the ground truth's revisits (:func:`revisit_segments`): runs of consecutive scans
+each within :data:`REVISIT_RADIUS_M` of a scan passed :data:`REVISIT_MIN_TRAVEL_M` or more
+of travel before. A revisit is *found* when a right, closed loop's query holds one of its
+scans: our keyframe's scan, a peer's local map's scans (:func:`segments_found`). The same
+runs cut into places of :data:`REVISIT_PLACE_M` of travel give a finer count. (The earlier
+unit, a method's own keyframes or local maps that revisit, stays in the JSON as
+``unit_revisits`` and ``unit_recall_pct``.)
 
 :func:`map_closures_relocalize` uses MapClosures as place recognition for
 ``mlsemreg relocalize --baseline map-closures``: each keyframe's points are a database
@@ -62,6 +67,8 @@ RIGHT_ROTATION_DEG = 5.0
 REVISIT_RADIUS_M = 5.0
 REVISIT_MIN_SCANS = 10
 REVISIT_MIN_TRAVEL_M = 30.0  # as map.loop_min_travel
+#: The finer count cuts each revisit into places of at most this much travel.
+REVISIT_PLACE_M = 10.0
 LOCAL_MAP_SPLIT_M = 100.0  # both peers' default: a new local map 100 m from the last start
 
 
@@ -87,7 +94,13 @@ class LocalMapLoops:
     poses_loops: np.ndarray | None = None  # (F, 4, 4), after the loops
     poses_odometry: np.ndarray | None = None  # (F, 4, 4), the odometry alone
     truth: list[np.ndarray | None] = field(default_factory=list)  # per scan
+    stamps_ns: list[int] = field(default_factory=list)  # per scan
     seconds: float = 0.0
+
+    def query_stamps(self, query: int) -> tuple[int, int]:
+        """Return the first and last stamp of local map ``query``'s scans."""
+        end = self.starts[query + 1] - 1 if query + 1 < len(self.starts) else len(self.truth) - 1
+        return self.stamps_ns[self.starts[query]], self.stamps_ns[end]
 
 
 class _DeskewedKissIcp(KissIcpEstimator):
@@ -153,6 +166,7 @@ def _run_kiss_slam(scans: Iterable[Scan], split_m: float) -> LocalMapLoops:
         if slam.local_map_graph.last_id != before:
             run.starts.append(number)
         run.truth.append(scan.pose)
+        run.stamps_ns.append(int(scan.stamp_ns))
     slam.generate_new_node()  # as kiss_slam.pipeline ends a run
     slam.local_map_graph.erase_last_local_map()
     poses, _ = slam.fine_grained_optimization()
@@ -215,6 +229,7 @@ def run_map_closures(
         pose = estimator.odometry.last_pose.copy()
         odometry.append(pose)
         run.truth.append(scan.pose)
+        run.stamps_ns.append(int(scan.stamp_ns))
         T_map_scan = invert_transform(T_world_map) @ pose
         voxels.integrate_frame(np.asarray(estimator.deskewed), T_map_scan)
         if np.linalg.norm(T_map_scan[:3, 3]) > split_m:
@@ -249,8 +264,82 @@ def _optimized(run: LocalMapLoops, map_config: Any) -> np.ndarray:
     )
 
 
-def score_local_map_loops(run: LocalMapLoops) -> dict[str, Any]:
-    """Loops proposed / closed / right / wrong, precision, recall and the ATEs of a peer run."""
+def revisit_segments(
+    stamps_ns: np.ndarray, positions: np.ndarray, place_m: float | None = None
+) -> list[tuple[int, int]]:
+    """
+    Return the ground truth's revisits as ``(first stamp, last stamp)`` of each.
+
+    A revisit is a run of consecutive scans (``stamps_ns`` (F,), true ``positions`` (F, 3),
+    in driving order) each within :data:`REVISIT_RADIUS_M` of a scan passed
+    :data:`REVISIT_MIN_TRAVEL_M` or more of travel before. ``place_m``: each run is cut into
+    pieces of at most this much travel (the places of a revisit).
+    """
+    positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    travel = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
+    revisiting = np.zeros(len(positions), dtype=bool)
+    for i in range(len(positions)):
+        earlier = travel[i] - travel[:i] >= REVISIT_MIN_TRAVEL_M
+        near = np.linalg.norm(positions[:i] - positions[i], axis=1) <= REVISIT_RADIUS_M
+        revisiting[i] = bool(np.any(earlier & near))
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], revisiting.astype(np.int8), [0]])))
+    segments = []
+    for first, end in zip(edges[::2], edges[1::2], strict=True):
+        start = first
+        for i in range(first, end):
+            if place_m is not None and travel[i] - travel[start] >= place_m:
+                segments.append((int(stamps_ns[start]), int(stamps_ns[i - 1])))
+                start = i
+        segments.append((int(stamps_ns[start]), int(stamps_ns[end - 1])))
+    return segments
+
+
+def segments_found(segments: list[tuple[int, int]], queries: Iterable[tuple[int, int]]) -> int:
+    """Return how many ``segments`` (stamp ranges) hold a scan of one of the ``queries``."""
+    spans = list(queries)
+    return sum(
+        any(first <= last_q and first_q <= last for first_q, last_q in spans)
+        for first, last in segments
+    )
+
+
+def revisit_recall(revisits: dict[str, list], queries: list[tuple[int, int]]) -> dict[str, Any]:
+    """
+    Revisits and places found by the right loops' ``queries`` (stamp ranges), and the recall.
+
+    ``revisits``: ``{'segments': ..., 'places': ...}`` of :func:`ground_truth_revisits`.
+    """
+    segments, places = revisits['segments'], revisits['places']
+    found, places_found = segments_found(segments, queries), segments_found(places, queries)
+    return {
+        'revisits': len(segments),
+        'revisits_found': found,
+        'recall_pct': 100.0 * found / len(segments) if segments else None,
+        'places': len(places),
+        'places_found': places_found,
+        'place_recall_pct': 100.0 * places_found / len(places) if places else None,
+    }
+
+
+def ground_truth_revisits(stamps_ns: list[int], truth: list[np.ndarray]) -> dict[str, list]:
+    """Return the revisits of a drive, whole and cut into places (:func:`revisit_segments`)."""
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    positions = np.stack([np.asarray(pose)[:3, 3] for pose in truth])
+    return {
+        'segments': revisit_segments(stamps, positions),
+        'places': revisit_segments(stamps, positions, REVISIT_PLACE_M),
+    }
+
+
+def score_local_map_loops(
+    run: LocalMapLoops, revisits: dict[str, list] | None = None
+) -> dict[str, Any]:
+    """
+    Loops proposed / closed / right / wrong, precision, recall and the ATEs of a peer run.
+
+    ``revisits``: the drive's ground-truth revisits (:func:`ground_truth_revisits`, the same
+    for every method); None: from the run's own scans.
+    """
     from mlsemreg_ros.evaluation.trajectory import ate_rmse
 
     posed = [i for i, pose in enumerate(run.truth) if pose is not None]
@@ -284,16 +373,22 @@ def score_local_map_loops(run: LocalMapLoops) -> dict[str, Any]:
     right = [edge for edge in closed if edge['right']]
     revisiting = [q for q in range(len(run.starts)) if _revisited(run, truth, q)]
     found = {edge['query'] for edge in right}
+    if revisits is None and len(run.stamps_ns) == len(run.truth):
+        revisits = ground_truth_revisits(run.stamps_ns, run.truth)
     summary.update(
         loop_edges=edges,
         right=len(right),
         wrong=len(closed) - len(right),
         precision_pct=100.0 * len(right) / len(closed) if closed else None,
-        revisits=len(revisiting),
-        recall_pct=100.0 * len(found & set(revisiting)) / len(revisiting) if revisiting else None,
+        unit_revisits=len(revisiting),
+        unit_recall_pct=(
+            100.0 * len(found & set(revisiting)) / len(revisiting) if revisiting else None
+        ),
         ate_loops_m=ate_rmse(run.poses_loops, truth),
         ate_odometry_m=ate_rmse(run.poses_odometry, truth),
     )
+    if revisits is not None:
+        summary.update(revisit_recall(revisits, [run.query_stamps(q) for q in sorted(found)]))
     return summary
 
 
@@ -375,11 +470,13 @@ def run_loop_peers(
     max_frames: int | None,
     map_config: Any,
     split_m: float = LOCAL_MAP_SPLIT_M,
+    revisits: dict[str, list] | None = None,
 ) -> dict[str, dict[str, Any]]:
     """
     Run each named peer on a fresh source (``max_frames`` scans); its scored summary.
 
-    ``split_m``: the peers' local-map size (a new one this far from the last start).
+    ``split_m``: the peers' local-map size (a new one this far from the last start);
+    ``revisits``: the ground truth's revisits every method is scored on (None: each run's).
     """
     out = {}
     for name in dict.fromkeys(map(str, names)):
@@ -388,7 +485,7 @@ def run_loop_peers(
             run = LOOP_RUNNERS[name](source.scans(max_frames=max_frames), map_config, split_m)
         finally:
             source.close()
-        out[name] = score_local_map_loops(run)
+        out[name] = score_local_map_loops(run, revisits)
     return out
 
 
@@ -397,7 +494,7 @@ def ours_loop_summary(summary: dict[str, Any], seconds: float) -> dict[str, Any]
     edges = summary.get('loop_edges', [])
     right = [edge for edge in edges if edge['right']]
     revisits = summary.get('revisits', 0)
-    return {
+    out = {
         'method': 'ML-SemReg',
         'scans': summary['scans'],
         'keyframes': summary['keyframes'],
@@ -406,14 +503,18 @@ def ours_loop_summary(summary: dict[str, Any], seconds: float) -> dict[str, Any]
         'right': len(right) if 'loop_edges' in summary else None,
         'wrong': summary.get('loops_wrong'),
         'precision_pct': 100.0 * len(right) / len(edges) if edges else None,
-        'revisits': revisits,
-        'recall_pct': (
+        'unit_revisits': revisits,
+        'unit_recall_pct': (
             100.0 * len({edge['current'] for edge in right}) / revisits if revisits else None
         ),
         'ate_loops_m': summary.get('ate_m'),
         'ate_odometry_m': summary.get('ate_odometry_m'),
         'time_s': seconds,
     }
+    if 'revisit_segments' in summary:
+        stamps = [(edge['current_stamp_ns'],) * 2 for edge in right]
+        out.update(revisit_recall(summary['revisit_segments'], stamps))
+    return out
 
 
 def loop_table(summaries: list[dict[str, Any]]) -> Any:
@@ -432,8 +533,10 @@ def loop_table(summaries: list[dict[str, Any]]) -> Any:
             number(s.get('right'), 'd'),
             number(s.get('wrong'), 'd'),
             number(s.get('precision_pct'), '.1f'),
-            number(s.get('revisits'), 'd'),
+            _found(s, 'revisits'),
             number(s.get('recall_pct'), '.1f'),
+            _found(s, 'places'),
+            number(s.get('place_recall_pct'), '.1f'),
             number(s.get('ate_loops_m'), '.3f'),
             number(s.get('ate_odometry_m'), '.3f'),
             f'{s["time_s"]:.0f}',
@@ -442,6 +545,14 @@ def loop_table(summaries: list[dict[str, Any]]) -> Any:
     ]
     header = (
         'method', 'keyframes / local maps', 'proposed', 'closed', 'right', 'wrong', 'precision %',
-        'revisits', 'recall %', 'ATE loops m', 'ATE odometry m', 'time s',
+        'revisits found', 'recall %', f'{REVISIT_PLACE_M:.0f} m places found', 'recall %',
+        'ATE loops m', 'ATE odometry m', 'time s',
     )  # fmt: skip
     return ResultTable(header, rows, left_columns=1)
+
+
+def _found(summary: dict[str, Any], key: str) -> str:
+    """``found / total`` of a summary's revisits or places, '-' without ground truth."""
+    if summary.get(key) is None:
+        return '-'
+    return f'{summary[f"{key}_found"]} / {summary[key]}'

@@ -107,7 +107,10 @@ def compare_loops(
     from mlsemreg_ros.evaluation.loop_peers import loop_table, ours_loop_summary, run_loop_peers
     from mlsemreg_ros.evaluation.tables import print_table
 
-    results = run_loop_peers(lambda: open_scan_source(bag), peers, max_frames, core.map, split_m)
+    results = run_loop_peers(
+        lambda: open_scan_source(bag), peers, max_frames, core.map, split_m,
+        ours.get('revisit_segments'),
+    )  # fmt: skip
     mine = ours_loop_summary(ours, seconds)
     print_table(loop_table([mine, *results.values()]))
     return {'ours': mine, **results}
@@ -148,7 +151,6 @@ def build_map(
     from mlsemreg_ros.core.maps.mapping import Mapper
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
-    from mlsemreg_ros.evaluation.trajectory import ate_rmse
     import numpy as np
     from tqdm import tqdm
 
@@ -158,6 +160,8 @@ def build_map(
         mapper.store.config = config.replace({'map.loop_closure': False})
     odometry = Odometry(registration) if poses == 'odometry' else None
     truth: dict[int, np.ndarray] = {}  # keyframe id -> ground truth
+    scan_truth: dict[int, np.ndarray] = {}  # stamp -> ground truth, every scan read
+    keyframe_trials: list[dict[str, Any]] = []  # per keyframe: the loop candidates tried
     scans = accepted = trials = 0
     total = len(source) if max_frames is None else min(len(source), max_frames)
     labeled = (
@@ -177,6 +181,8 @@ def build_map(
         labeled = deskewed_by_truth((scan for scan in labeled if scan.pose is not None), config)
     for scan in labeled:
         scans += 1
+        if scan.pose is not None:
+            scan_truth[int(scan.stamp_ns)] = np.asarray(scan.pose)
         if odometry is None:
             labels = label_source(scan.xyz, scan.labels, config).labels
             step = mapper.add(scan.xyz, labels, scan.pose, scan.stamp_ns)
@@ -193,6 +199,15 @@ def build_map(
                 scan.xyz, scan.labels, moved.pose, scan.stamp_ns, prepared=moved.prepared
             )
         trials += bool(step.tried)
+        if step.keyframe is not None:
+            keyframe_trials.append(
+                {
+                    'keyframe': int(step.keyframe.keyframe_id),
+                    'stamp_ns': int(scan.stamp_ns),
+                    'tried': [int(match) for match in step.tried],
+                    'closed': step.loop is not None,
+                }
+            )
         if step.keyframe is not None and scan.pose is not None:
             truth[step.keyframe.keyframe_id] = np.asarray(scan.pose)
     store = mapper.store
@@ -205,20 +220,59 @@ def build_map(
         'loops': len(mapper.loops),
         'loop_trials': trials,
     }
-    ids = [i for i in store.ids if i in truth]
-    if odometry is not None and len(ids) >= 2:
-        gt = np.stack([truth[i] for i in ids])
-        odom = mapper.keyframe_odometry()
-        summary['ate_m'] = ate_rmse(np.stack([store[i].T_map_keyframe for i in ids]), gt)
-        summary['ate_odometry_m'] = ate_rmse(np.stack([odom[i] for i in ids]), gt)
-        loops = [loop_edge(loop, truth, store) for loop in mapper.loops]
-        right = sum(edge['right'] for edge in loops)
-        wrong = len(loops) - right
-        summary['loop_edges'] = loops
-        summary['loops_refused'] = [loop_edge(loop, truth, store) for loop in mapper.refused]
-        summary['loops_true'], summary['loops_wrong'] = right, wrong
-        summary['revisits'] = int(count_revisits(gt, config.map))
+    if odometry is not None:
+        score_loops(summary, mapper, truth, scan_truth, keyframe_trials)
     return {'mapper': mapper, 'summary': summary}
+
+
+def score_loops(
+    summary: dict[str, Any],
+    mapper: Any,
+    truth: dict[int, Any],
+    scan_truth: dict[int, Any],
+    keyframe_trials: list[dict[str, Any]],
+) -> None:
+    """
+    Add to ``summary`` the map's scores against the ground truth (with two posed keyframes).
+
+    The ATE of the keyframes with and without the loops, every loop edge's error
+    (:func:`loop_edge`), the keyframes that revisit a place (:func:`count_revisits`), the
+    ground truth's revisits (``truth`` of the keyframes, ``scan_truth`` of every scan by
+    stamp) and where our loop closure stopped on each (:func:`revisit_diagnosis`, from the
+    ``keyframe_trials``).
+    """
+    from mlsemreg_ros.evaluation.loop_peers import ground_truth_revisits
+    from mlsemreg_ros.evaluation.trajectory import ate_rmse
+    import numpy as np
+
+    store = mapper.store
+    ids = [i for i in store.ids if i in truth]
+    if len(ids) < 2:
+        return
+    gt = np.stack([truth[i] for i in ids])
+    odom = mapper.keyframe_odometry()
+    summary['ate_m'] = ate_rmse(np.stack([store[i].T_map_keyframe for i in ids]), gt)
+    summary['ate_odometry_m'] = ate_rmse(np.stack([odom[i] for i in ids]), gt)
+    loops = [loop_edge(loop, truth, store) for loop in mapper.loops]
+    right = sum(edge['right'] for edge in loops)
+    wrong = len(loops) - right
+    summary['loop_edges'] = loops
+    summary['loops_refused'] = [loop_edge(loop, truth, store) for loop in mapper.refused]
+    summary['loops_true'], summary['loops_wrong'] = right, wrong
+    summary['revisits'] = int(count_revisits(gt, store.config.map))
+    summary['revisit_segments'] = ground_truth_revisits(
+        list(scan_truth), list(scan_truth.values())
+    )
+    for entry in keyframe_trials:  # how far (truly) each tried candidate was
+        here = truth.get(entry['keyframe'])
+        entry['tried_distance_m'] = [
+            None if here is None or m not in truth else float(
+                np.linalg.norm(truth[m][:3, 3] - here[:3, 3])
+            )
+            for m in entry['tried']
+        ]  # fmt: skip
+    summary['keyframe_trials'] = keyframe_trials
+    summary['revisit_diagnosis'] = revisit_diagnosis(summary)
 
 
 def deskewed_by_truth(scans: Any, config: Any) -> Any:
@@ -284,6 +338,47 @@ def loop_edge(loop: Any, truth: dict[int, Any], store: Any) -> dict[str, Any]:
             'reason': loop.check.reason,
         }
     return edge
+
+
+#: A tried loop candidate is of the same place when its keyframe is truly this close.
+SAME_PLACE_M = 10.0
+
+
+def revisit_diagnosis(summary: dict[str, Any]) -> list[dict[str, Any]]:
+    """
+    Per ground-truth revisit, where our loop closure stops: what each of its keyframes got.
+
+    ``keyframes`` in the revisit; ``tried``: with a loop candidate registered onto;
+    ``tried_same_place``: with a candidate truly within :data:`SAME_PLACE_M` (place
+    recognition found the place); ``registered``: the confidence rule accepted the loop
+    registration (closed, or refused by the submap check); ``closed_right`` /
+    ``closed_wrong``: loops closed. A revisit with keyframes but none tried at the same
+    place is missed by place recognition; one tried there but not registered, by the
+    registration; registered but not closed, by the submap check.
+    """
+    edges = summary.get('loop_edges', [])
+    refused = summary.get('loops_refused', [])
+    out = []
+    for first, last in summary['revisit_segments']['segments']:
+        inside = [t for t in summary['keyframe_trials'] if first <= t['stamp_ns'] <= last]
+        ids = {t['keyframe'] for t in inside}
+        closed = [e for e in edges if e['current'] in ids]
+        out.append(
+            {
+                'first_stamp_ns': first,
+                'last_stamp_ns': last,
+                'keyframes': len(inside),
+                'tried': sum(bool(t['tried']) for t in inside),
+                'tried_same_place': sum(
+                    any(d is not None and d <= SAME_PLACE_M for d in t['tried_distance_m'])
+                    for t in inside
+                ),
+                'registered': len(closed) + sum(e['current'] in ids for e in refused),
+                'closed_right': sum(e['right'] for e in closed),
+                'closed_wrong': sum(not e['right'] for e in closed),
+            }
+        )
+    return out
 
 
 def count_revisits(gt: Any, map_config: Any) -> int:

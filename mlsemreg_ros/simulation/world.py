@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections import Counter
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.simulation import primitives as prim
@@ -572,6 +573,16 @@ def _scatter(
     return np.asarray(kept).reshape(-1, 2)
 
 
+class _Block(NamedTuple):
+    """What a block's lot builder works on: the mesh, the block's generator, its curbs."""
+
+    b: _MeshBuilder
+    rng: np.random.Generator
+    sides: list[_Side]  # the four curb sides (:func:`_sides`)
+    sidewalk: float  # m
+    lot: tuple[float, float, float, float]  # x0, x1, y0, y1 inside the sidewalk
+
+
 def _perimeter_fence(
     b: _MeshBuilder,
     rng: np.random.Generator,
@@ -596,14 +607,9 @@ def _perimeter_fence(
         )
 
 
-def _urban(
-    b: _MeshBuilder,
-    rng: np.random.Generator,
-    sides: list[_Side],
-    sidewalk: float,
-    lot: tuple[float, float, float, float],
-) -> None:
+def _urban(block: _Block) -> None:
     """Perimeter rows of buildings with varied widths, depths, heights and setbacks."""
+    b, rng, sides, sidewalk, lot = block
     _lot_ground(b, rng, lot, 'terrain' if rng.random() < 0.6 else 'other-ground')
     half = 0.5 * min(lot[1] - lot[0], lot[3] - lot[2])
     level = rng.uniform(0.6, 1.4)  # low-rise .. high-rise block
@@ -653,14 +659,9 @@ def _urban(
         _tree(b, rng, x, y)
 
 
-def _residential(
-    b: _MeshBuilder,
-    rng: np.random.Generator,
-    sides: list[_Side],
-    sidewalk: float,
-    lot: tuple[float, float, float, float],
-) -> None:
+def _residential(block: _Block) -> None:
     """Parcels with houses (gable roofs), front fences or hedges, garden trees, cars."""
+    b, rng, sides, sidewalk, lot = block
     _lot_ground(b, rng, lot, 'terrain')
     half = 0.5 * min(lot[1] - lot[0], lot[3] - lot[2])
     for side in sides:
@@ -703,14 +704,9 @@ def _residential(
             s += parcel
 
 
-def _park(
-    b: _MeshBuilder,
-    rng: np.random.Generator,
-    sides: list[_Side],
-    sidewalk: float,
-    lot: tuple[float, float, float, float],
-) -> None:
+def _park(block: _Block) -> None:
     """Terrain with trees, bushes, paths, lamps and benches; sometimes fenced."""
+    b, rng, sides, sidewalk, lot = block
     _lot_ground(b, rng, lot, 'terrain')
     x0, x1, y0, y1 = lot
     area = (x1 - x0) * (y1 - y0)
@@ -728,14 +724,9 @@ def _park(
         _perimeter_fence(b, rng, sides, sidewalk, (0.5, 2.0, 2.0))
 
 
-def _parking(
-    b: _MeshBuilder,
-    rng: np.random.Generator,
-    sides: list[_Side],
-    sidewalk: float,
-    lot: tuple[float, float, float, float],
-) -> None:
+def _parking(block: _Block) -> None:
     """Rows of perpendicular parked cars, trucks along one edge, lamps, a perimeter fence."""
+    b, rng, sides, sidewalk, lot = block
     _lot_ground(b, rng, lot, 'parking')
     x0, x1, y0, y1 = lot
     along_x = (x1 - x0) >= (y1 - y0)
@@ -769,14 +760,9 @@ def _parking(
         b.objects['building'] += 1
 
 
-def _industrial(
-    b: _MeshBuilder,
-    rng: np.random.Generator,
-    sides: list[_Side],
-    sidewalk: float,
-    lot: tuple[float, float, float, float],
-) -> None:
+def _industrial(block: _Block) -> None:
     """Warehouses with loading docks, parked trucks, containers and a fence."""
+    b, rng, sides, sidewalk, lot = block
     _lot_ground(b, rng, lot, 'other-ground' if rng.random() < 0.7 else 'terrain')
     x0, x1, y0, y1 = lot
     mx, my = rng.uniform(8.0, 16.0, size=2)
@@ -834,7 +820,7 @@ def _block(b: _MeshBuilder, grid: StreetGrid, i: int, j: int, config: WorldConfi
         b.add(prim.box_between(box[0], box[1], box[2], box[3], 0.0, 0.15), 'sidewalk')
     lot = (x0 + sidewalk, x1 - sidewalk, y0 + sidewalk, y1 - sidewalk)
     sides = _sides(rect, grid, i, j)
-    _BLOCK_BUILDERS[kind](b, rng, sides, sidewalk, lot)
+    _BLOCK_BUILDERS[kind](_Block(b, rng, sides, sidewalk, lot))
     for side in sides:
         _street_side(b, rng, side, sidewalk, kind, config)
     return kind

@@ -115,6 +115,12 @@ class MapGaussians:
             self._cells = CellGrid.build(self.means, cell)
         return self._cells if self._cells.usable else None
 
+    def kernel_map(self, cells: CellGrid, max_distance: float) -> sweep_kernels.SweepMap:
+        """Return the map for the compiled sweep kernels, pairing within ``max_distance``."""
+        return sweep_kernels.SweepMap.of(
+            cells, self.means, self.covariances, max_distance, VOXEL_REGULARIZATION
+        )
+
     def nearest(
         self, points: np.ndarray, within: float | None = None
     ) -> tuple[np.ndarray, np.ndarray]:
@@ -181,21 +187,12 @@ def align_sweep(
     )
     cells = gaussians.cells(config.max_distance) if kernels.use_compiled(compiled) else None
     if cells is not None:
+        schedule = sweep_kernels.SweepSchedule(
+            config.iterations, KERNEL_SCALE_START, STEP_TOLERANCE, SMALL_ANGLE
+        )
+        local_map = gaussians.kernel_map(cells, config.max_distance)
         T, xi, pairs, iteration, change_m = sweep_kernels.align_sweep(
-            points,
-            times,
-            T,
-            xi0,
-            prior,
-            config.iterations,
-            KERNEL_SCALE_START,
-            STEP_TOLERANCE,
-            SMALL_ANGLE,
-            cells,
-            gaussians.means,
-            gaussians.covariances,
-            config.max_distance,
-            VOXEL_REGULARIZATION,
+            points, times, T, xi0, prior, schedule, local_map
         )
         return SweepAlignment(T, SweepMotion(xi[:3], xi[3:]), change_m, pairs, iteration)
     pose_offset = np.zeros(6)  # accumulated (phi, t) of T relative to T_initial
@@ -243,18 +240,9 @@ def linearization(
     """
     cells = gaussians.cells(max_distance) if kernels.enabled() else None
     if cells is not None:
+        local_map = gaussians.kernel_map(cells, max_distance)
         return sweep_kernels.sweep_linearization(
-            points,
-            times,
-            _twist_terms(motion),
-            SMALL_ANGLE,
-            T,
-            cells,
-            gaussians.means,
-            gaussians.covariances,
-            max_distance,
-            VOXEL_REGULARIZATION,
-            scale,
+            points, times, _twist_terms(motion), SMALL_ANGLE, T, local_map, scale
         )
     deskewed = deskew(points, times, motion)
     world = deskewed @ T[:3, :3].T + T[:3, 3]

@@ -25,9 +25,48 @@ checks that both agree.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 from mlsemreg_ros.core.features.cell_grid import _nearest_squared, CellGrid
-from mlsemreg_ros.core.features.kernels import _deskew_piecewise, jit
+from mlsemreg_ros.core.features.kernels import _deskew_piecewise, jit, SegmentRows
 import numpy as np
+
+
+class SweepMap(NamedTuple):
+    """The local map as the sweep kernels read it, one argument (numba passes it whole)."""
+
+    grid: CellGrid  # the means sorted in cells of the pairing distance
+    means: np.ndarray  # (V, 3)
+    covariances: np.ndarray  # (V, 3, 3)
+    max_squared: float  # the pairing distance, squared (m^2)
+    regularization: float  # added to each covariance's diagonal
+
+    @classmethod
+    def of(
+        cls,
+        grid: CellGrid,
+        means: np.ndarray,
+        covariances: np.ndarray,
+        max_distance: float,
+        regularization: float,
+    ) -> SweepMap:
+        """Return the map's arrays as contiguous float64, the distance squared."""
+        return cls(
+            grid,
+            np.ascontiguousarray(means, dtype=np.float64),
+            np.ascontiguousarray(covariances, dtype=np.float64),
+            float(max_distance) ** 2,
+            float(regularization),
+        )
+
+
+class SweepSchedule(NamedTuple):
+    """The Gauss-Newton loop's settings (``sweep_alignment``'s constants and config)."""
+
+    iterations: int
+    kernel_start: float  # the Geman-McClure scale of the first step, decaying to 1
+    step_tolerance: float  # stop when no step component is larger
+    small_angle: float  # the deskew's series bound (rad)
 
 
 @jit
@@ -155,43 +194,16 @@ def normal_equations(
 def _sweep_linearization(
     points: np.ndarray,
     times: np.ndarray,
-    velocity: np.ndarray,
-    rate: np.ndarray,
-    axis: np.ndarray,
-    cross1: np.ndarray,
-    cross2: np.ndarray,
+    motion: SegmentRows,
     small_angle: float,
     rotation: np.ndarray,
     translation: np.ndarray,
-    cell: float,
-    low: np.ndarray,
-    extent: np.ndarray,
-    bottom: np.ndarray,
-    base: np.ndarray,
-    starts: np.ndarray,
-    sorted_means: np.ndarray,
-    order: np.ndarray,
-    means: np.ndarray,
-    covariances: np.ndarray,
-    max_squared: float,
-    regularization: float,
+    local_map: SweepMap,
     scale: float,
 ) -> tuple[np.ndarray, np.ndarray, int]:
+    grid, means, covariances, max_squared, regularization = local_map
     n = points.shape[0]
-    deskewed = _deskew_piecewise(
-        points,
-        times,
-        np.zeros(n, dtype=np.int64),
-        np.zeros(1),
-        velocity,
-        rate,
-        axis,
-        cross1,
-        cross2,
-        np.eye(3).reshape(1, 3, 3),
-        np.zeros((1, 3)),
-        small_angle,
-    )
+    deskewed = _deskew_piecewise(points, times, np.zeros(n, dtype=np.int64), motion, small_angle)
     world = np.empty((n, 3))
     for i in range(n):
         for r in range(3):
@@ -201,19 +213,7 @@ def _sweep_linearization(
                 + rotation[r, 2] * deskewed[i, 2]
                 + translation[r]
             )
-    squared, index = _nearest_squared(
-        world,
-        np.sqrt(max_squared),
-        cell,
-        low,
-        extent,
-        bottom,
-        base,
-        starts,
-        sorted_means,
-        order,
-        False,
-    )
+    squared, index = _nearest_squared(world, np.sqrt(max_squared), grid, False)
     pairs = 0
     for i in range(n):
         if squared[i] < max_squared:
@@ -245,11 +245,7 @@ def sweep_linearization(
     twist_terms: tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray],
     small_angle: float,
     T: np.ndarray,
-    cells: CellGrid,
-    means: np.ndarray,
-    covariances: np.ndarray,
-    max_distance: float,
-    regularization: float,
+    local_map: SweepMap,
     scale: float,
 ) -> tuple[np.ndarray, np.ndarray, int]:
     """
@@ -257,46 +253,28 @@ def sweep_linearization(
 
     Deskews ``points`` (N, 3) taken at ``times`` by the twist (``twist_terms``: velocity,
     rate, axis, axis x velocity, axis x (axis x velocity), as ``deskew._twist_terms``),
-    moves them by ``T`` (4, 4), pairs each with its nearest mean (``means`` (V, 3), sorted
-    in ``cells``: ``core/features/cell_grid.py``) within ``max_distance`` and returns ``H``
-    (12, 12), ``g`` (12,) of the pairs (:func:`normal_equations`) and their count. The same
+    moves them by ``T`` (4, 4), pairs each with its nearest mean of ``local_map`` (sorted in
+    its grid: ``core/features/cell_grid.py``) within its distance and returns ``H`` (12,
+    12), ``g`` (12,) of the pairs (:func:`normal_equations`) and their count. The same
     steps as the NumPy loop of ``sweep_alignment.align_sweep``, without its temporaries.
     """
-    velocity, rate, axis, cross1, cross2 = twist_terms
     f64 = np.float64
     T = np.asarray(T, dtype=f64)
     return _sweep_linearization(
         np.ascontiguousarray(points, dtype=f64),
         np.ascontiguousarray(times, dtype=f64),
-        np.asarray(velocity, dtype=f64).reshape(1, 3),
-        np.array([float(rate)]),
-        np.asarray(axis, dtype=f64).reshape(1, 3),
-        np.asarray(cross1, dtype=f64).reshape(1, 3),
-        np.asarray(cross2, dtype=f64).reshape(1, 3),
+        SegmentRows.constant(*twist_terms),
         float(small_angle),
         np.ascontiguousarray(T[:3, :3]),
         np.ascontiguousarray(T[:3, 3]),
-        cells.cell,
-        cells.low,
-        cells.extent,
-        cells.bottom,
-        cells.base,
-        cells.starts,
-        cells.sorted_points,
-        cells.order,
-        means,
-        covariances,
-        float(max_distance) ** 2,
-        float(regularization),
+        local_map,
         float(scale),
     )
 
 
 @jit
-def _twist_rows(
-    xi: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``deskew._twist_terms`` of ``xi = (omega, v)`` as the kernels' (1, 3) rows and rate."""
+def _twist_rows(xi: np.ndarray) -> SegmentRows:
+    """``deskew._twist_terms`` of ``xi = (omega, v)`` as one segment's rows (identity start)."""
     velocity = xi[3:].copy().reshape(1, 3)
     rate = np.sqrt(xi[0] * xi[0] + xi[1] * xi[1] + xi[2] * xi[2])
     axis = np.zeros((1, 3))
@@ -312,7 +290,10 @@ def _twist_rows(
         cross2[0, 0] = a[1] * c[2] - a[2] * c[1]
         cross2[0, 1] = a[2] * c[0] - a[0] * c[2]
         cross2[0, 2] = a[0] * c[1] - a[1] * c[0]
-    return velocity, np.array([rate]), axis, cross1, cross2
+    identity = np.eye(3).reshape(1, 3, 3)
+    return SegmentRows(
+        np.zeros(1), velocity, np.array([rate]), axis, cross1, cross2, identity, np.zeros((1, 3))
+    )
 
 
 @jit
@@ -365,23 +346,10 @@ def _align_sweep(
     T_initial: np.ndarray,
     xi_initial: np.ndarray,
     prior: np.ndarray,
-    iterations: int,
-    kernel_start: float,
-    step_tolerance: float,
-    small_angle: float,
-    cell: float,
-    low: np.ndarray,
-    extent: np.ndarray,
-    bottom: np.ndarray,
-    base: np.ndarray,
-    starts: np.ndarray,
-    sorted_means: np.ndarray,
-    order: np.ndarray,
-    means: np.ndarray,
-    covariances: np.ndarray,
-    max_squared: float,
-    regularization: float,
+    schedule: SweepSchedule,
+    local_map: SweepMap,
 ) -> tuple[np.ndarray, np.ndarray, int, int, float]:
+    iterations, kernel_start, step_tolerance, small_angle = schedule
     T = T_initial.copy()
     xi = xi_initial.copy()
     pose_offset = np.zeros(6)
@@ -389,30 +357,14 @@ def _align_sweep(
     decay = kernel_start ** (-1.0 / max(iterations - 2, 1))
     for iteration in range(1, iterations + 1):
         scale = max(1.0, kernel_start * decay ** (iteration - 1))
-        velocity, rate, axis, cross1, cross2 = _twist_rows(xi)
         hessian, gradient, pairs = _sweep_linearization(
             points,
             times,
-            velocity,
-            rate,
-            axis,
-            cross1,
-            cross2,
+            _twist_rows(xi),
             small_angle,
             np.ascontiguousarray(T[:3, :3]),
             np.ascontiguousarray(T[:3, 3]),
-            cell,
-            low,
-            extent,
-            bottom,
-            base,
-            starts,
-            sorted_means,
-            order,
-            means,
-            covariances,
-            max_squared,
-            regularization,
+            local_map,
             scale,
         )
         if pairs < 12:
@@ -434,26 +386,8 @@ def _align_sweep(
     change = 0.0
     n = points.shape[0]
     segment = np.zeros(n, dtype=np.int64)
-    moved = []
-    for twist in (xi, xi_initial):
-        velocity, rate, axis, cross1, cross2 = _twist_rows(twist)
-        moved.append(
-            _deskew_piecewise(
-                points,
-                times,
-                segment,
-                np.zeros(1),
-                velocity,
-                rate,
-                axis,
-                cross1,
-                cross2,
-                np.eye(3).reshape(1, 3, 3),
-                np.zeros((1, 3)),
-                small_angle,
-            )
-        )
-    final, initial = moved[0], moved[1]
+    final = _deskew_piecewise(points, times, segment, _twist_rows(xi), small_angle)
+    initial = _deskew_piecewise(points, times, segment, _twist_rows(xi_initial), small_angle)
     for i in range(n):
         d = (
             (final[i, 0] - initial[i, 0]) ** 2
@@ -470,25 +404,18 @@ def align_sweep(
     T_initial: np.ndarray,
     xi_initial: np.ndarray,
     prior: np.ndarray,
-    iterations: int,
-    kernel_start: float,
-    step_tolerance: float,
-    small_angle: float,
-    cells: CellGrid,
-    means: np.ndarray,
-    covariances: np.ndarray,
-    max_distance: float,
-    regularization: float,
+    schedule: SweepSchedule,
+    local_map: SweepMap,
 ) -> tuple[np.ndarray, np.ndarray, int, int, float]:
     """
     Run the whole Gauss-Newton loop of ``sweep_alignment.align_sweep`` in one compiled call.
 
     ``points`` (N, 3) raw, ``times`` (N,), ``T_initial`` (4, 4), ``xi_initial`` (6,) the
     deskew's twist ``(omega, v)``, ``prior`` (12,) the diagonal prior of ``(pose offset,
-    twist - xi_initial)``; the map's ``means`` (V, 3) sorted in ``cells`` and their
-    ``covariances`` (V, 3, 3). Each step is :func:`sweep_linearization`; the 12x12 system is
-    solved by Gaussian elimination with partial pivoting (LAPACK's ``gesv`` without
-    blocking: the same poses to rounding). Returns ``(T, xi, pairs, iterations, change_m)``,
+    twist - xi_initial)``; the map's means sorted in ``local_map``'s grid and their
+    covariances. Each step is :func:`sweep_linearization`; the 12x12 system is solved by
+    Gaussian elimination with partial pivoting (LAPACK's ``gesv`` without blocking: the
+    same poses to rounding). Returns ``(T, xi, pairs, iterations, change_m)``,
     ``change_m`` the largest move of a point between the deskews by ``xi`` and
     ``xi_initial``.
     """
@@ -499,20 +426,11 @@ def align_sweep(
         np.ascontiguousarray(T_initial, dtype=f64),
         np.ascontiguousarray(xi_initial, dtype=f64),
         np.ascontiguousarray(prior, dtype=f64),
-        int(iterations),
-        float(kernel_start),
-        float(step_tolerance),
-        float(small_angle),
-        cells.cell,
-        cells.low,
-        cells.extent,
-        cells.bottom,
-        cells.base,
-        cells.starts,
-        cells.sorted_points,
-        cells.order,
-        np.ascontiguousarray(means, dtype=f64),
-        np.ascontiguousarray(covariances, dtype=f64),
-        float(max_distance) ** 2,
-        float(regularization),
+        SweepSchedule(
+            int(schedule.iterations),
+            float(schedule.kernel_start),
+            float(schedule.step_tolerance),
+            float(schedule.small_angle),
+        ),
+        local_map,
     )

@@ -41,7 +41,7 @@ returns (``inf`` and the point count where nothing lies within ``r``), up to rou
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 from mlsemreg_ros.core.features.kernels import jit
 import numpy as np
@@ -119,23 +119,14 @@ def _build(
 
 @jit
 def _nearest_squared(
-    queries: np.ndarray,
-    radius: float,
-    cell: float,
-    low: np.ndarray,
-    extent: np.ndarray,
-    bottom: np.ndarray,
-    base: np.ndarray,
-    starts: np.ndarray,
-    sorted_points: np.ndarray,
-    order: np.ndarray,
-    first_only: bool,
+    queries: np.ndarray, radius: float, grid: CellGrid, first_only: bool
 ) -> tuple[np.ndarray, np.ndarray]:
     """
     Squared distance (``inf`` if none) and row (-1 if none) of the nearest point within ``radius``.
 
     ``first_only``: stop at the first point within ``radius`` (an answer to "is there one").
     """
+    cell, low, extent, bottom, base, starts, sorted_points, order = grid
     count = queries.shape[0]
     squared = np.full(count, np.inf)
     nearest = np.full(count, -1, dtype=np.int64)
@@ -184,9 +175,13 @@ def _nearest_squared(
     return squared, nearest
 
 
-@dataclass(frozen=True)
-class CellGrid:
-    """The points of one set in cells of one edge (``build``), and the search in them."""
+class CellGrid(NamedTuple):
+    """
+    The points of one set in cells of one edge (``build``), and the search in them.
+
+    A named tuple, so that the compiled kernels take the whole grid as one argument
+    (numba passes a tuple of arrays as it passes the arrays one by one).
+    """
 
     cell: float
     low: np.ndarray  # (3,) int64 cell of the box's lower corner
@@ -208,7 +203,8 @@ class CellGrid:
         """Whether the points are finite and their box fits :data:`MAX_COLUMNS` columns."""
         return self.base.size > 0
 
-    def __len__(self) -> int:
+    @property
+    def size(self) -> int:
         """Points."""
         return len(self.order)
 
@@ -220,19 +216,8 @@ class CellGrid:
 
         ``inf`` and -1 where none lies within ``radius``.
         """
-        return _nearest_squared(
-            np.ascontiguousarray(queries, dtype=np.float64).reshape(-1, 3),
-            float(radius),
-            self.cell,
-            self.low,
-            self.extent,
-            self.bottom,
-            self.base,
-            self.starts,
-            self.sorted_points,
-            self.order,
-            first_only,
-        )
+        queries = np.ascontiguousarray(queries, dtype=np.float64).reshape(-1, 3)
+        return _nearest_squared(queries, float(radius), self, first_only)
 
     def nearest(
         self, queries: np.ndarray, radius: float, first_only: bool = False

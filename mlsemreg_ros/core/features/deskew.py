@@ -295,20 +295,11 @@ def _deskew_piecewise(
         for column in zip(*(_twist_terms(twist) for _, _, twist in segments), strict=True)
     )
     poses = np.stack([pose for _, pose, _ in segments])
-    return kernels.deskew_piecewise_points(
-        points,
-        times,
-        index,
-        np.array([start for start, _, _ in segments]),
-        velocity,
-        rate,
-        axis,
-        cross1,
-        cross2,
-        poses[:, :3, :3],
-        poses[:, :3, 3],
-        SMALL_ANGLE,
+    starts = np.array([start for start, _, _ in segments])
+    rows = kernels.SegmentRows.of(
+        starts, velocity, rate, axis, cross1, cross2, poses[:, :3, :3], poses[:, :3, 3]
     )
+    return kernels.deskew_piecewise_points(points, times, index, rows, SMALL_ANGLE)
 
 
 def _deskew_piecewise_numpy(

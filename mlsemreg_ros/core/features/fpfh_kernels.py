@@ -326,14 +326,7 @@ def eigen_setup(covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     p = np.empty(n)
     numerator = np.empty(n)
     for i in range(n):
-        a00, a01, a02, a11, a12, a22 = (
-            covariance[i, 0],
-            covariance[i, 1],
-            covariance[i, 2],
-            covariance[i, 3],
-            covariance[i, 4],
-            covariance[i, 5],
-        )
+        a00, a01, a02, a11, a12, a22 = covariance[i]
         mean = (a00 + a11 + a22) / 3.0
         b00, b11, b22 = a00 - mean, a11 - mean, a22 - mean
         off = a01 * a01 + a02 * a02 + a12 * a12
@@ -361,14 +354,7 @@ def eigen_vectors(
     normals = np.empty((3, n), dtype=np.float32)
     crosses = np.empty((3, 3))
     for i in range(n):
-        a00, a01, a02, a11, a12, a22 = (
-            covariance[i, 0],
-            covariance[i, 1],
-            covariance[i, 2],
-            covariance[i, 3],
-            covariance[i, 4],
-            covariance[i, 5],
-        )
+        a00, a01, a02, a11, a12, a22 = covariance[i]
         smallest = q[i] + 2.0 * p[i] * cosine[i]
         d00, d11, d22 = a00 - smallest, a11 - smallest, a22 - smallest
         crosses[0, 0] = a01 * a12 - a02 * d11  # r0 x r1

@@ -43,7 +43,7 @@ import os
 from pathlib import Path
 import sys
 import tempfile
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -260,6 +260,52 @@ def majority(
 
 # ----------------------------------------------------------------------------------
 # Deskew: exp(tau * twist) p for every point, in one pass (core/features/deskew.py).
+class SegmentRows(NamedTuple):
+    """
+    A piecewise sweep motion as the deskew kernel reads it: one row per segment (M).
+
+    A named tuple, so that the kernels take the whole motion as one argument. Segment ``k``
+    starts at ``starts[k]`` s with the pose ``(rotation[k], offset[k])`` and moves by the
+    twist of ``velocity[k]`` and ``rate[k]`` about ``axis[k]`` (``cross1 = axis x v``,
+    ``cross2 = axis x cross1``; all zero but ``velocity`` when it does not turn).
+    """
+
+    starts: np.ndarray  # (M,) s
+    velocity: np.ndarray  # (M, 3) m/s
+    rate: np.ndarray  # (M,) rad/s
+    axis: np.ndarray  # (M, 3)
+    cross1: np.ndarray  # (M, 3)
+    cross2: np.ndarray  # (M, 3)
+    rotation: np.ndarray  # (M, 3, 3) the segment's start pose
+    offset: np.ndarray  # (M, 3)
+
+    @classmethod
+    def of(cls, *rows: np.ndarray) -> SegmentRows:
+        """Return the rows (in field order) as contiguous float64 arrays."""
+        return cls(*(np.ascontiguousarray(row, dtype=np.float64) for row in rows))
+
+    @classmethod
+    def constant(
+        cls,
+        velocity: np.ndarray,
+        rate: float,
+        axis: np.ndarray,
+        cross1: np.ndarray,
+        cross2: np.ndarray,
+    ) -> SegmentRows:
+        """One segment from the stamp, at the identity: a constant twist."""
+        return cls.of(
+            np.zeros(1),
+            np.reshape(velocity, (1, 3)),
+            np.array([float(rate)]),
+            np.reshape(axis, (1, 3)),
+            np.reshape(cross1, (1, 3)),
+            np.reshape(cross2, (1, 3)),
+            np.eye(3)[None],
+            np.zeros((1, 3)),
+        )
+
+
 def deskew_points(
     points: np.ndarray,
     times: np.ndarray,
@@ -280,24 +326,9 @@ def deskew_points(
     (exact for finite points). The same operations in the same order as the NumPy code,
     up to the last bit of ``sin``/``cos`` and of the dot product. Returns (N, 3) float64.
     """
-
-    def as_row(values: np.ndarray) -> np.ndarray:
-        return np.asarray(values, dtype=np.float64).reshape(1, 3)
-
-    return deskew_piecewise_points(
-        points,
-        times,
-        np.zeros(len(times), dtype=np.int64),
-        np.zeros(1),
-        as_row(velocity),
-        np.array([float(rate)]),
-        as_row(axis),
-        as_row(cross1),
-        as_row(cross2),
-        np.eye(3)[None],
-        np.zeros((1, 3)),
-        small_angle,
-    )
+    motion = SegmentRows.constant(velocity, rate, axis, cross1, cross2)
+    segment = np.zeros(len(times), dtype=np.int64)
+    return deskew_piecewise_points(points, times, segment, motion, small_angle)
 
 
 @jit
@@ -305,16 +336,10 @@ def _deskew_piecewise(
     points: np.ndarray,
     times: np.ndarray,
     segment: np.ndarray,
-    starts: np.ndarray,
-    velocity: np.ndarray,
-    rate: np.ndarray,
-    axis: np.ndarray,
-    cross1: np.ndarray,
-    cross2: np.ndarray,
-    rotation: np.ndarray,
-    offset: np.ndarray,
+    motion: SegmentRows,
     small_angle: float,
 ) -> np.ndarray:
+    starts, velocity, rate, axis, cross1, cross2, rotation, offset = motion
     n, m = points.shape[0], starts.shape[0]
     # per segment, from its points: any rotation, the translation's series
     longest = np.zeros(m)
@@ -366,40 +391,26 @@ def deskew_piecewise_points(
     points: np.ndarray,
     times: np.ndarray,
     segment: np.ndarray,
-    starts: np.ndarray,
-    velocity: np.ndarray,
-    rate: np.ndarray,
-    axis: np.ndarray,
-    cross1: np.ndarray,
-    cross2: np.ndarray,
-    rotation: np.ndarray,
-    offset: np.ndarray,
+    motion: SegmentRows,
     small_angle: float,
 ) -> np.ndarray:
     """
     Deskew every point by its segment of a piecewise motion, in one loop.
 
-    Point ``i`` belongs to segment ``segment[i]`` (M segments); on segment ``k`` it is
-    mapped by ``exp((tau - starts[k]) twist_k)`` (``velocity``, ``rate``, ``axis``,
-    ``cross1``, ``cross2``: (M, 3) or (M,), as for :func:`deskew_points`), then by the
-    segment's start pose ``(rotation[k] (3, 3), offset[k] (3,))``. Whether a segment
-    rotates and whether its translation takes the series are decided from its own points.
-    The trigonometry and the translation are computed once per run of equal time: a
-    sweep's points come column by column. Returns (N, 3) float64.
+    Point ``i`` belongs to segment ``segment[i]`` (M segments of ``motion``, as
+    :meth:`SegmentRows.of` gives them: contiguous float64); on segment
+    ``k`` it is mapped by ``exp((tau - starts[k]) twist_k)`` (as for :func:`deskew_points`),
+    then by the segment's start pose ``(rotation[k] (3, 3), offset[k] (3,))``. Whether a
+    segment rotates and whether its translation takes the series are decided from its own
+    points. The trigonometry and the translation are computed once per run of equal time:
+    a sweep's points come column by column. Returns (N, 3) float64.
     """
     f64 = np.float64
     return _deskew_piecewise(
         np.ascontiguousarray(points, dtype=f64),
         np.ascontiguousarray(times, dtype=f64),
         np.ascontiguousarray(segment, dtype=np.int64),
-        np.ascontiguousarray(starts, dtype=f64),
-        np.ascontiguousarray(velocity, dtype=f64),
-        np.ascontiguousarray(rate, dtype=f64),
-        np.ascontiguousarray(axis, dtype=f64),
-        np.ascontiguousarray(cross1, dtype=f64),
-        np.ascontiguousarray(cross2, dtype=f64),
-        np.ascontiguousarray(rotation, dtype=f64),
-        np.ascontiguousarray(offset, dtype=f64),
+        motion,
         float(small_angle),
     )
 

@@ -58,20 +58,9 @@ def warm_up() -> dict[str, float]:
     axes = np.eye(3)
     times = np.linspace(0.0, 0.1, 200)
     segment = (times > 0.05).astype(np.int64)  # two segments of a piecewise (gyro) motion
-    kernels.deskew_piecewise_points(
-        points,
-        times,
-        segment,
-        np.array([0.0, 0.05]),
-        axes[:2],
-        np.ones(2),
-        axes[1:],
-        axes[:2],
-        axes[1:],
-        np.stack([axes, axes]),
-        axes[:2],
-        1e-6,
-    )
+    twists = (np.array([0.0, 0.05]), axes[:2], np.ones(2), axes[1:], axes[:2], axes[1:])
+    two = kernels.SegmentRows.of(*twists, np.stack([axes, axes]), axes[:2])
+    kernels.deskew_piecewise_points(points, times, segment, two, 1e-6)
     deskewed = time.perf_counter()
     timings['deskew_ms'] = 1e3 * (deskewed - end)
     covariances = np.broadcast_to(np.eye(3), (200, 3, 3))
@@ -80,9 +69,8 @@ def warm_up() -> dict[str, float]:
     terms = (axes[0], 1.0, axes[2], axes[1], axes[0])
     cells = CellGrid.build(points, 1.0)
     cells.nearest(points, 0.6)  # the dense scores' call
-    sweep_kernels.sweep_linearization(
-        points, times, terms, 1e-6, np.eye(4), cells, points, map_covariances, 1.0, 0.01, 1.0
-    )
+    local_map = sweep_kernels.SweepMap.of(cells, points, map_covariances, 1.0, 0.01)
+    sweep_kernels.sweep_linearization(points, times, terms, 1e-6, np.eye(4), local_map, 1.0)
     timings['sweep_ms'] = 1e3 * (time.perf_counter() - deskewed)
     timings['total_ms'] = 1e3 * (time.perf_counter() - start)
     return timings

@@ -29,21 +29,27 @@ Before the pair is matched its labels are judged (their ceiling and their source
 - never worse, pair by pair: an unlabeled attempt that was accepted (and not vetoed) but
   too weak to be taken first is kept; when the labelled path ends refused, the pose falls
   back to it (:class:`UnlabeledFallbackStage`, before the tilt check): what
-  ``label_source: none`` accepts, the labelled path does not lose.
+  ``label_source: none`` accepts, the labelled path does not lose;
+- never worse, last: a pair of poorer labels still refused after every stage is registered
+  once more as ``label_source: none`` registers it, every stage on the unlabeled views
+  (:class:`UnlabeledRerunStage`), and takes that pose when it is accepted and the labels
+  do not veto it. ``none`` accepts some pairs only in its later stages (the covisible
+  acceptance, stage 9), which the unlabeled attempt does not run.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import fields, replace
 from typing import Any
 
 from mlsemreg_ros.core.estimation import label_model
 from mlsemreg_ros.core.labeling import quality
 from mlsemreg_ros.core.poses import same_pose
 from mlsemreg_ros.core.stages.confidence import ConfidenceStage
-from mlsemreg_ros.core.stages.context import RegistrationContext
+from mlsemreg_ros.core.stages.context import RegistrationContext, Stage
 from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.matching import MatchingStage
+from mlsemreg_ros.core.stages.runner import run_stages
 from mlsemreg_ros.core.stages.verification import VerificationStage
 import numpy as np
 
@@ -129,16 +135,21 @@ def _unlabeled_first(context: RegistrationContext, judged: quality.LabelQuality)
     return True
 
 
-def _attempt(context: RegistrationContext, config: Any) -> RegistrationContext:
-    """Run :data:`UNLABELED_FIRST` on unlabeled views of the pair with ``config``."""
+def _unlabeled(context: RegistrationContext, config: Any) -> RegistrationContext:
+    """Return a fresh context of the pair's unlabeled views with ``config``."""
     wildcard = context.scoring.unlabeled_local_ss
-    attempt = RegistrationContext(
+    return RegistrationContext(
         quality.unlabeled_view(context.source, wildcard),
         quality.unlabeled_view(context.target, wildcard),
         context.refine,
         config,
         replace(context.scoring, config=config),
     )
+
+
+def _attempt(context: RegistrationContext, config: Any) -> RegistrationContext:
+    """Run :data:`UNLABELED_FIRST` on unlabeled views of the pair with ``config``."""
+    attempt = _unlabeled(context, config)
     for stage in UNLABELED_FIRST:
         if stage.wanted(attempt):
             with attempt.timed(f'unlabeled_{stage.name}'):
@@ -236,3 +247,59 @@ class UnlabeledFallbackStage:
         context.searched, context.search_reason = None, ''
         context.doubts.clear()
         context.diagnostics['labels_unlabeled_fallback'] = True
+
+
+#: What the rerun does not hand on: the judged labels and the pair's own timings.
+_NOT_ADOPTED = frozenset({'timings_ms', 'diagnostics', 'label_quality', 'unlabeled_attempt'})
+
+
+class UnlabeledRerunStage:
+    """
+    Never worse, last: a pair of poorer labels still refused is registered as ``none`` would.
+
+    The unlabeled attempt (:class:`LabelQualityStage`) and its fallback
+    (:class:`UnlabeledFallbackStage`) cover what ``label_source: none`` decides up to its
+    confidence rule. ``none`` accepts some pairs later: dev pair 000008_000009 40 m apart,
+    reversed, GEDI, is accepted by its covisible acceptance (stage 9), and with 30 % of its
+    labels flipped the labelled path refused it (docs/labels.md). So when every stage has
+    run and the pair is still refused, the whole registration runs once more on the
+    unlabeled views with the unweighed config (``stages``: the pipeline's default stages
+    before this one, given at construction by ``pipeline.default_stages``; the same
+    ``refine``): exactly what ``label_source: none`` does. Its pose is taken when it is
+    accepted and the labels do not veto it (their information at the pose, as for the
+    unlabeled attempt); ``labels_unlabeled_rerun`` in the diagnostics, its stage times as
+    ``unlabeled_rerun_*``. Costs one unlabeled registration, on refused pairs only.
+    """
+
+    name = 'unlabeled_rerun'
+
+    def __init__(self, stages: list[Stage]) -> None:
+        self.stages = list(stages)  # what ``none`` runs: every stage before this one
+
+    def wanted(self, context: RegistrationContext) -> bool:
+        """Say yes when a pair of poorer labels ends refused."""
+        return context.unlabeled_attempt is not None and bool(context.refusal or context.doubts)
+
+    def run(self, context: RegistrationContext) -> None:
+        """Register the unlabeled views with every stage; adopt an accepted, unvetoed pose."""
+        attempt, judged = context.unlabeled_attempt, context.label_quality
+        assert attempt is not None and judged is not None  # wanted() says so
+        # the config before the labels' weight: the attempt's, with the full-graph retry
+        quick = attempt.config
+        retry = context.config.estimator.graph_retry_inliers
+        config = replace(quick, estimator=replace(quick.estimator, graph_retry_inliers=retry))
+        rerun = _unlabeled(context, config)
+        rerun.label_names = context.label_names
+        run_stages(rerun, self.stages)
+        for name, ms in rerun.timings_ms.items():
+            key = f'unlabeled_rerun_{name}'
+            context.timings_ms[key] = context.timings_ms.get(key, 0.0) + ms
+        accepted = not (rerun.refusal or rerun.doubts)
+        context.diagnostics['labels_unlabeled_rerun_accepted'] = accepted
+        if not accepted or rerun.evidence is None or not _allowed(context, rerun, judged):
+            return
+        for item in fields(rerun):
+            if item.name not in _NOT_ADOPTED:
+                setattr(context, item.name, getattr(rerun, item.name))
+        context.diagnostics.update(rerun.diagnostics)
+        context.diagnostics['labels_unlabeled_rerun'] = True
