@@ -49,6 +49,7 @@ from mlsemreg_ros.core.stages.confidence import ConfidenceStage
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
 from mlsemreg_ros.core.stages.covisibility import CovisibilityStage
 from mlsemreg_ros.core.stages.covisible_acceptance import CovisibleAcceptanceStage
+from mlsemreg_ros.core.stages.early_acceptance import EarlyAcceptanceStage
 from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.far_search import FarSearchStage
 from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
@@ -103,6 +104,23 @@ def default_stages() -> list[Stage]:
     list at its place (docs/extending.md); one that returns candidates is a candidate
     source, like the BEV search: its candidates face the confidence rule.
     """
+    later = [
+        SwappedSearchStage(),  # 5b. still refused: the BEV search from the target's side
+        FarSearchStage(),  # 5c. still refused: the BEV search on the far fields, polished
+        GuidedStage(),  # 6. still refused: guided re-matching around the searched peaks,
+        FullGraphStage(),  # 6. SC2-PCR on the full correspondence graph,
+        PolishStage(),  # 6. the pool's best candidates polished on the dense scans
+    ]
+    end = [
+        CovisibilityStage(),  # 6b. still refused: the best overlap where both scans see
+        UnlabeledFallbackStage(),  # 6b. poorer labels, refused: the unlabeled attempt's pose
+        LevelCheckStage(),  # 6c. a tilt the two ground fits do not allow is refused
+        FineAlignmentStage(),  # 7. GICP of the pair from the chosen pose (refine=True)
+        NearMissStage(),  # 8. accepted and refined: no second basin from perturbed starts
+        CovisibleAcceptanceStage(),  # 9. refused, refined: accepted where both scans see
+    ]
+    # the gate (covisibility.early_accept_gap): the end stages tried on the pool so far
+    skipped = [stage.name for stage in later]
     stages: list[Stage] = [
         LabelQualityStage(),  # 0. the labels' weight: never worse than no labels
         MatchingStage(),  # 1. correspondences: ML-SemReg (GM o MM) or the plain matcher
@@ -111,17 +129,15 @@ def default_stages() -> list[Stage]:
         ConfidenceStage(),  # 4. the choice and the confidence rule's verdict
         ObjectStage(),  # 5a. refused or weak: the object hypotheses, 4-DoF in levelled frames
         BevSearchStage(),  # 5. refused or weak: the semantic bird's-eye-view search
-        SwappedSearchStage(),  # 5b. still refused: the BEV search from the target's side
-        FarSearchStage(),  # 5c. still refused: the BEV search on the far fields, polished
-        GuidedStage(),  # 6. still refused: guided re-matching around the searched peaks,
-        FullGraphStage(),  # 6. SC2-PCR on the full correspondence graph,
-        PolishStage(),  # 6. the pool's best candidates polished on the dense scans
-        CovisibilityStage(),  # 6b. still refused: the best overlap where both scans see
-        UnlabeledFallbackStage(),  # 6b. poorer labels, refused: the unlabeled attempt's pose
-        LevelCheckStage(),  # 6c. a tilt the two ground fits do not allow is refused
-        FineAlignmentStage(),  # 7. GICP of the pair from the chosen pose (refine=True)
-        NearMissStage(),  # 8. accepted and refined: no second basin from perturbed starts
-        CovisibleAcceptanceStage(),  # 9. refused, refined: accepted where both scans see
+        EarlyAcceptanceStage(end, skipped),  # the gate, after the BEV search,
+        later[0],
+        EarlyAcceptanceStage(end, skipped),  # after the swapped search,
+        later[1],
+        EarlyAcceptanceStage(end, skipped),  # after the far search,
+        later[2],
+        EarlyAcceptanceStage(end, skipped),  # and after the guided re-matching
+        *later[3:],
+        *end,
     ]
     # 10. poorer labels, still refused: what `none` accepts (stages 0 to 9 once more)
     return [*stages, UnlabeledRerunStage(stages)]

@@ -146,6 +146,17 @@ class CovisibilityConfig:
         low=0.0,
         high=1.0,
     )
+    early_accept_gap: float = param(
+        0.08,
+        'The gate of the refused path: after the BEV, swapped and far searches and the guided '
+        're-matching, while the pose is refused, the end stages (covisible choice, fine '
+        'alignment, near-miss check, acceptance where both scans see) are tried on the '
+        'candidates found so far; a pose accepted whose covisible overlap (measured as '
+        'stage 9 does) beats the best distinct candidate and slide by this much ends the '
+        'registration there (core/stages/early_acceptance.py, docs/hard_pairs.md); 0: off.',
+        low=0.0,
+        high=1.0,
+    )
     accept_tilt: float = param(
         10.0,
         "Largest tilt (angle between the scans' up axes) of a pose accepted on its "

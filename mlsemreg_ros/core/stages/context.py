@@ -105,6 +105,12 @@ class RegistrationContext:
     # BEV search and the refused path
     searched: VerificationResult | None = None  # the BEV search's candidates
     search_reason: str = ''  # why the search ran ('' = it did not)
+    #: the scans' covisible sides by sample count and scan (``covisible_sides``), made once
+    covisible_sides: dict[tuple[int, int, int], tuple[Any, Any]] = field(default_factory=dict)
+    #: the covisible (overlap, checked) of the pool's first candidates (the pool only grows)
+    covisible_measured: tuple[np.ndarray, np.ndarray] | None = None
+    # the gate (early_acceptance.py): the poses its trials took to the fine alignment
+    early_tried: list[np.ndarray] = field(default_factory=list)
     # covisibility: the pool's covisible (overlap, checked), once the covisible choice ran
     covisible_pool: tuple[np.ndarray, np.ndarray] | None = None
     # fine alignment

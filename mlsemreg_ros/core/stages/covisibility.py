@@ -30,6 +30,7 @@ away cannot reach). Every other rule still applies.
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 from mlsemreg_ros.core.estimation import confidence
 from mlsemreg_ros.core.estimation.covisibility import (
@@ -61,15 +62,9 @@ class CovisibilityStage:
     def run(self, context: RegistrationContext) -> VerificationResult | None:
         """Measure the pool, switch to its best covisible candidate, judge it again."""
         cfg = context.config
-        covis, verification = cfg.covisibility, cfg.verification
+        covis = cfg.covisibility
         transforms = context.pool.transforms()
-        overlap, checked = mutual_covisible_overlap(
-            transforms,
-            covisible_side(context.source, covis.bin_deg, verification),
-            covisible_side(context.target, covis.bin_deg, verification),
-            verification.overlap_distance,
-            covis.margin,
-        )
+        overlap, checked = pool_covisible_overlap(context, transforms)
         pool = context.pool
         context.covisible_pool = (overlap, checked)
         best = covisible_choice(
@@ -105,6 +100,49 @@ class CovisibilityStage:
         )
         context.refusal = confidence.refusal(judged, cfg.confidence, cfg.estimator.min_inliers)
         return None
+
+
+def pool_covisible_overlap(
+    context: RegistrationContext, transforms: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Return the covisible ``(overlap, checked)`` of the pool's ``transforms`` ``(N, 4, 4)``.
+
+    Measured on ``verification.sample_points``; the pool only grows, so the candidates an
+    earlier call measured (the gate's trials, core/stages/early_acceptance.py) are not
+    measured again: each pose's figures do not depend on the others.
+    """
+    cfg = context.config
+    covis, verification = cfg.covisibility, cfg.verification
+    done = context.covisible_measured
+    known = 0 if done is None else len(done[0])
+    if known > len(transforms):
+        known, done = 0, None
+    if known < len(transforms):
+        overlap, checked = mutual_covisible_overlap(
+            transforms[known:],
+            *covisible_sides(context, verification.sample_points),
+            verification.overlap_distance,
+            covis.margin,
+        )
+        if done is not None:
+            overlap = np.concatenate([done[0], overlap])
+            checked = np.concatenate([done[1], checked])
+        context.covisible_measured = (overlap, checked)
+    return context.covisible_measured
+
+
+def covisible_sides(context: RegistrationContext, sample_points: int) -> tuple[Any, Any]:
+    """:func:`covisible_side` of the source and the target on ``sample_points``, made once."""
+    key = (sample_points, id(context.source.points), id(context.target.points))
+    if key not in context.covisible_sides:
+        cfg = context.config
+        check = dataclasses.replace(cfg.verification, sample_points=sample_points)
+        context.covisible_sides[key] = (
+            covisible_side(context.source, cfg.covisibility.bin_deg, check),
+            covisible_side(context.target, cfg.covisibility.bin_deg, check),
+        )
+    return context.covisible_sides[key]
 
 
 def covisible_side(

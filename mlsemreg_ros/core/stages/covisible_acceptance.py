@@ -32,8 +32,6 @@ On the 60 m dev pairs the near-miss check disputed right poses for a second basi
 
 from __future__ import annotations
 
-import dataclasses
-
 from mlsemreg_ros.core.alignment.fine_alignment import correction_refusal, RefinementBounds
 from mlsemreg_ros.core.estimation.confidence import slid_poses, tilt_deg
 from mlsemreg_ros.core.estimation.covisibility import mutual_covisible_overlap
@@ -48,7 +46,7 @@ from mlsemreg_ros.core.estimation.covisible_acceptance import (
 from mlsemreg_ros.core.features.levelling import tilt_refusal as level_refusal
 from mlsemreg_ros.core.results import VerificationResult
 from mlsemreg_ros.core.stages.context import RegistrationContext
-from mlsemreg_ros.core.stages.covisibility import covisible_side
+from mlsemreg_ros.core.stages.covisibility import covisible_sides
 from mlsemreg_ros.core.stages.levelling import ground_fits
 import numpy as np
 
@@ -75,12 +73,7 @@ class CovisibleAcceptanceStage:
         pose = context.transform
         tilt = tilt_deg(pose)
         context.diagnostics['covisible_accept_tilt_deg'] = tilt
-        covis = context.config.covisibility
-        reason = (
-            tilt_refusal(tilt, covis)
-            or self._level_refusal(context)
-            or localizability_refusal(context.diagnostics.get('degeneracy_ratio'), covis)
-        )
+        reason = pose_refusal(context, tilt)
         if not reason:
             evidence = self._measure(context, tilt)
             context.diagnostics.update(evidence.as_diagnostics())
@@ -120,11 +113,9 @@ class CovisibleAcceptanceStage:
             : SLIDES * (conf.slide_distance > 0)
         ]
         transforms = np.concatenate([pose[None], slides, candidates[rivals]])
-        dense = dataclasses.replace(check, sample_points=covis.accept_points)
         overlap, checked = mutual_covisible_overlap(
             transforms,
-            covisible_side(context.source, covis.bin_deg, dense),
-            covisible_side(context.target, covis.bin_deg, dense),
+            *covisible_sides(context, covis.accept_points),
             check.overlap_distance,
             covis.margin,
         )
@@ -155,3 +146,29 @@ class CovisibleAcceptanceStage:
         if source is None or target is None:
             return ''
         return level_refusal(context.transform, source, target, context.config.levelling)
+
+
+def pose_refusal(context: RegistrationContext, tilt: float) -> str:
+    """Stage 9's checks of the refined pose before its measure: tilt, level, localizability."""
+    covis = context.config.covisibility
+    return (
+        tilt_refusal(tilt, covis)
+        or CovisibleAcceptanceStage._level_refusal(context)
+        or localizability_refusal(context.diagnostics.get('degeneracy_ratio'), covis)
+    )
+
+
+def covisible_evidence(context: RegistrationContext) -> tuple[CovisibleEvidence | None, str]:
+    """
+    Judge the context's pose as stage 9 does: ``(evidence, refusal)`` ('' = it passes).
+
+    The refined pose's tilt, level and localizability first (no evidence measured when one
+    refuses: ``(None, reason)``), then its covisible overlap against its slides and the
+    pool's best distinct candidates.
+    """
+    tilt = tilt_deg(context.transform)
+    reason = pose_refusal(context, tilt)
+    if reason:
+        return None, reason
+    evidence = CovisibleAcceptanceStage._measure(context, tilt)
+    return evidence, acceptance_refusal(evidence, context.config.covisibility)

@@ -34,7 +34,7 @@ from mlsemreg_ros.core.alignment.alignment import align_pair, Alignment
 from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud
 from mlsemreg_ros.core.estimation.covisibility import mutual_covisible_overlap
 from mlsemreg_ros.core.stages.context import RegistrationContext
-from mlsemreg_ros.core.stages.covisibility import covisible_side
+from mlsemreg_ros.core.stages.covisibility import covisible_sides
 import numpy as np
 
 
@@ -70,8 +70,7 @@ def refine_where_both_see(
         return None
     overlap, checked = mutual_covisible_overlap(
         transforms,
-        covisible_side(context.source, covis.bin_deg, check),
-        covisible_side(context.target, covis.bin_deg, check),
+        *covisible_sides(context, check.sample_points),
         check.overlap_distance,
         covis.margin,
     )
