@@ -107,3 +107,37 @@ def test_the_bev_search_finds_000007_and_confidence_still_decides():
         assert 'label agreement' in result.message
     _, without = _register(paths[0], True, **{'bev_search.enabled': False})
     assert not without.success  # the estimator's own pose is a slide along the street
+
+
+def test_000006_with_geometric_labels_measures_the_pool_it_judges(tmp_path):
+    """
+    The gate judges a replaced pool on its own covisible figures (regression, session 13).
+
+    ``eval-pairs --descriptor fpfh --labels geometric`` on 000006: the labelled pool (67
+    candidates) was measured by the covisible choice, then the pool was replaced by a
+    smaller one (3); the gate's stage-9 measure read the old figures and raised (shapes
+    (3,) and (67,)).
+    """
+    import json
+    import os
+    from pathlib import Path
+    import subprocess
+    import sys
+
+    paths = [p for p in dev_pair_files() if p.stem == '000006']
+    if not paths:
+        pytest.skip('dev pair 000006 not present')
+    folder = tmp_path / 'pairs'
+    folder.mkdir()
+    (folder / paths[0].name).symlink_to(paths[0].resolve())
+    report = tmp_path / 'report.json'
+    command = [sys.executable, '-m', 'mlsemreg_ros.tools.cli', 'eval-pairs', str(folder)]
+    command += ['--descriptor', 'fpfh', '--labels', 'geometric', '--json', str(report)]
+    root = str(Path(__file__).resolve().parents[1])  # the package as checked out
+    env = {**os.environ, 'PYTHONPATH': os.pathsep.join([root, os.environ.get('PYTHONPATH', '')])}
+    done = subprocess.run(
+        [*command, '--quiet'], capture_output=True, text=True, timeout=600, env=env
+    )
+    assert done.returncode == 0, done.stderr[-2000:]
+    (row,) = json.loads(report.read_text())['pairs']
+    assert not row['accepted'] or row['success']  # never a wrong accepted pose

@@ -107,8 +107,8 @@ class RegistrationContext:
     search_reason: str = ''  # why the search ran ('' = it did not)
     #: the scans' covisible sides by sample count and scan (``covisible_sides``), made once
     covisible_sides: dict[tuple[int, int, int], tuple[Any, Any]] = field(default_factory=dict)
-    #: the covisible (overlap, checked) of the pool's first candidates (the pool only grows)
-    covisible_measured: tuple[np.ndarray, np.ndarray] | None = None
+    #: the covisible (overlap, checked) of the pool's first candidates, and those candidates
+    covisible_measured: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     # the gate (early_acceptance.py): the poses its trials took to the fine alignment
     early_tried: list[np.ndarray] = field(default_factory=list)
     # covisibility: the pool's covisible (overlap, checked), once the covisible choice ran

@@ -108,17 +108,20 @@ def pool_covisible_overlap(
     """
     Return the covisible ``(overlap, checked)`` of the pool's ``transforms`` ``(N, 4, 4)``.
 
-    Measured on ``verification.sample_points``; the pool only grows, so the candidates an
-    earlier call measured (the gate's trials, core/stages/early_acceptance.py) are not
-    measured again: each pose's figures do not depend on the others.
+    Measured on ``verification.sample_points``. The candidates an earlier call measured
+    (the gate's trials, core/stages/early_acceptance.py) are not measured again when the
+    pool grew from them (each pose's figures do not depend on the others); a pool that was
+    replaced (the unlabeled fallback adopts its attempt's pool) is measured afresh.
     """
     cfg = context.config
     covis, verification = cfg.covisibility, cfg.verification
     done = context.covisible_measured
     known = 0 if done is None else len(done[0])
-    if known > len(transforms):
+    if done is not None and (
+        known > len(transforms) or not np.array_equal(done[2], transforms[:known])
+    ):
         known, done = 0, None
-    if known < len(transforms):
+    if done is None or known < len(transforms):
         overlap, checked = mutual_covisible_overlap(
             transforms[known:],
             *covisible_sides(context, verification.sample_points),
@@ -128,8 +131,9 @@ def pool_covisible_overlap(
         if done is not None:
             overlap = np.concatenate([done[0], overlap])
             checked = np.concatenate([done[1], checked])
-        context.covisible_measured = (overlap, checked)
-    return context.covisible_measured
+        context.covisible_measured = (overlap, checked, transforms.copy())
+    overlap, checked, _ = context.covisible_measured
+    return overlap, checked
 
 
 def covisible_sides(context: RegistrationContext, sample_points: int) -> tuple[Any, Any]:

@@ -46,7 +46,7 @@ from mlsemreg_ros.core.estimation.covisible_acceptance import (
 from mlsemreg_ros.core.features.levelling import tilt_refusal as level_refusal
 from mlsemreg_ros.core.results import VerificationResult
 from mlsemreg_ros.core.stages.context import RegistrationContext
-from mlsemreg_ros.core.stages.covisibility import covisible_sides
+from mlsemreg_ros.core.stages.covisibility import covisible_sides, pool_covisible_overlap
 from mlsemreg_ros.core.stages.levelling import ground_fits
 import numpy as np
 
@@ -103,7 +103,7 @@ class CovisibleAcceptanceStage:
         rivals = best_rivals(
             pose,
             candidates,
-            *context.covisible_pool,
+            *pool_covisible_overlap(context, candidates),  # the pool now, not a replaced one
             covis.min_checked,
             conf.rival_rotation,
             conf.rival_translation,
