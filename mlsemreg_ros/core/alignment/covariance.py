@@ -64,7 +64,7 @@ class CovarianceConfig:
     """Calibration of the fine alignment's pose covariance (docs/covariance.md)."""
 
     floor_translation: float = param(
-        0.024,
+        0.018,
         'Standard deviation added to every axis of the pose covariance (errors the '
         'Hessian does not see: deskew, labels, the keyframe).',
         unit='m',
@@ -72,14 +72,14 @@ class CovarianceConfig:
         high=100.0,
     )
     floor_rotation: float = param(
-        0.016,
+        0.02,
         'Standard deviation added to every rotation axis of the pose covariance.',
         unit='deg',
         low=0.0,
         high=180.0,
     )
     per_metre_translation: float = param(
-        0.0004,
+        0.002,
         'Standard deviation added to every translation axis per metre of the motion the '
         'covariance describes (from the keyframe to the scan).',
         unit='m/m',
@@ -87,14 +87,14 @@ class CovarianceConfig:
         high=10.0,
     )
     per_metre_rotation: float = param(
-        0.001,
+        0.003,
         'Standard deviation added to every rotation axis per metre of that motion.',
         unit='deg/m',
         low=0.0,
         high=100.0,
     )
     per_degree_translation: float = param(
-        0.0023,
+        0.004,
         'Standard deviation added to every translation axis per degree the motion turned '
         '(deskew and timing errors grow in turns).',
         unit='m/deg',
@@ -102,7 +102,7 @@ class CovarianceConfig:
         high=10.0,
     )
     per_degree_rotation: float = param(
-        0.045,
+        0.007,
         'Standard deviation added to every rotation axis per degree the motion turned.',
         unit='deg/deg',
         low=0.0,
@@ -120,7 +120,7 @@ class CovarianceConfig:
         high=10.0,
     )
     per_correction_rotation: float = param(
-        0.48,
+        0.44,
         'Standard deviation added to every rotation axis per degree that the accepted pose '
         'turned from the prediction (times the sweep share) beyond correction_free_rotation. '
         '0: off.',
@@ -129,7 +129,7 @@ class CovarianceConfig:
         high=10.0,
     )
     correction_free_translation: float = param(
-        0.5,
+        0.36,
         'The part of the distance from the prediction (times the sweep share) that adds '
         'nothing (per_correction_translation).',
         unit='m',
@@ -137,14 +137,14 @@ class CovarianceConfig:
         high=100.0,
     )
     correction_free_rotation: float = param(
-        1.8,
+        0.2,
         'The part of the turn from the prediction that adds nothing (per_correction_rotation).',
         unit='deg',
         low=0.0,
         high=180.0,
     )
     correction_sweep: float = param(
-        0.19,
+        0.135,
         "The sweep time over which the prediction's velocity error bends the scan: the "
         'correction counts times min(1, correction_sweep / horizon), the horizon being the '
         'time since the last accepted scan (a prediction 3 m off after 1 s bends a sweep as '
