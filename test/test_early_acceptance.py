@@ -17,7 +17,8 @@ The gate of the refused path (core/stages/early_acceptance.py, issue 30 part 5).
 The end stages are stand-ins that record their calls and set what the real ones set, so
 each rule of the gate is checked on its own: a pose stage 9 accepts beyond doubt ends the
 search, one it accepts by less than ``covisibility.early_accept_gap`` does not, a distinct
-candidate within the gap stops the trial before the fine alignment, a pose is tried once.
+candidate within the gap stops the trial before the fine alignment, a pose is tried once (each
+trial's covisible choice is kept in the diagnostics).
 The pool's covisible overlaps measured in parts equal one measurement of the whole pool.
 """
 
@@ -183,6 +184,8 @@ def test_a_pose_is_taken_to_stage_9_once():
     stage.run(context)
     stage.run(context)
     assert accept.calls == 1 and context.diagnostics['covisible_early_tries'] == 2
+    # each trial's covisible choice, for the study of an early refusal (docs/hard_pairs.md)
+    assert context.diagnostics['covisible_early_overlaps'] == [0.99, 0.99]
 
 
 def test_the_pool_measured_in_parts_equals_one_measurement():

@@ -101,6 +101,7 @@ def test_the_default_stages_run_in_order_and_each_is_timed_by_the_loop(prepared)
         'early_accept',
         'guided',
         'early_accept',
+        'early_refuse',
         'full_graph',
         'polish',
         'covisibility',

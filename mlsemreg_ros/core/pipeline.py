@@ -50,6 +50,7 @@ from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
 from mlsemreg_ros.core.stages.covisibility import CovisibilityStage
 from mlsemreg_ros.core.stages.covisible_acceptance import CovisibleAcceptanceStage
 from mlsemreg_ros.core.stages.early_acceptance import EarlyAcceptanceStage
+from mlsemreg_ros.core.stages.early_refusal import EarlyRefusalStage
 from mlsemreg_ros.core.stages.estimation import EstimationStage
 from mlsemreg_ros.core.stages.far_search import FarSearchStage
 from mlsemreg_ros.core.stages.fine_alignment import FineAlignmentStage
@@ -136,6 +137,8 @@ def default_stages() -> list[Stage]:
         EarlyAcceptanceStage(end, skipped),  # after the far search,
         later[2],
         EarlyAcceptanceStage(end, skipped),  # and after the guided re-matching
+        # hopeless after the searches (covisibility.early_refuse_overlap): refused there
+        EarlyRefusalStage([stage.name for stage in [*later[3:], *end]]),
         *later[3:],
         *end,
     ]

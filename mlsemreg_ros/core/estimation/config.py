@@ -320,11 +320,12 @@ class BevSearchConfig:
         high=64,
     )
     full_graph: bool = param(
-        True,
+        False,
         'When the best pose is still refused after the guided re-matching and the estimator '
         'built its graph on a sample (estimator.graph_size): SC2-PCR again on every '
         'correspondence, verified (a 60 m dev pair keeps 5 of its 79 true correspondences '
-        'in the sample).',
+        'in the sample). Off: since the far search it has given no accepted pose on the dev '
+        'pairs, and the same verdicts without it (docs/hard_pairs.md, session 14).',
     )
     polish_candidates: int = param(
         16,

@@ -157,6 +157,17 @@ class CovisibilityConfig:
         low=0.0,
         high=1.0,
     )
+    early_refuse_overlap: float = param(
+        0.70,
+        'The early refusal of the refused path: after the guided re-matching, a pose still '
+        "refused whose best covisible overlap in the gate's last trial "
+        '(covisibility.early_accept_gap) is below this is refused there, without the full '
+        'graph, the polishing and the end stages. There, accepted poses measured 0.878 and '
+        'more, right refused ones 0.738 and more, and 16 of 78 wrong refused ones less '
+        '(core/stages/early_refusal.py, docs/hard_pairs.md); 0: off.',
+        low=0.0,
+        high=1.0,
+    )
     accept_tilt: float = param(
         10.0,
         "Largest tilt (angle between the scans' up axes) of a pose accepted on its "

@@ -96,6 +96,9 @@ class EarlyAcceptanceStage:
                 consider(trial, found)
             if stage.name == CovisibilityStage.name:
                 context.covisible_measured = trial.covisible_measured  # the pool is the same
+                context.diagnostics.setdefault('covisible_early_overlaps', []).append(
+                    float(trial.diagnostics.get('covisible_overlap', float('nan')))
+                )
                 if not _worth_refining(context, trial):
                     return None  # no fine alignment for nothing
         if trial.refusal or trial.doubts:

@@ -19,7 +19,8 @@ Two scans 60 m apart share only a lens of space far from both sensors; their nea
 On the 60 m dev pairs, a peak within 8 deg and 4 m of the truth ranked in the top three
 for 7 of 16 pair directions with the points nearer than 20 m left out, and for 1 of 16
 with them (``covisibility.far_min_range``). The best ``covisibility.far_peaks`` peaks of
-each direction (the swapped one inverted) are polished on the dense scans (the yaw-only
+each direction (the swapped one inverted; the two directions searched at once on two
+threads when ``threads`` allows) are polished on the dense scans (the yaw-only
 ICP of core/estimation/polish.py) and verified (origin ``far_search``); the covisible
 overlap (core/stages/covisibility.py) then tells the right one from the rest.
 """
@@ -33,7 +34,11 @@ from mlsemreg_ros.core.estimation.polish import polish_poses, radius_schedule
 from mlsemreg_ros.core.estimation.verification import score_hypotheses
 from mlsemreg_ros.core.results import PreparedScan, VerificationResult
 from mlsemreg_ros.core.stages.context import RegistrationContext
+from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
+
+#: the far search's two directions, one per worker (``threads``; one worker: in turn)
+_DIRECTIONS = LazyPool('far_search')
 
 
 class FarSearchStage:
@@ -56,8 +61,11 @@ class FarSearchStage:
         source = _far(context.source, covis.far_min_range)
         target = _far(context.target, covis.far_min_range)
         lookup = context.scoring.bev_channels
-        forward, _ = bev_hypotheses(*source, *target, lookup, search)
-        backward, _ = bev_hypotheses(*target, *source, lookup, search)
+        # the two directions are independent: both cores (the kernels and FFTs free the GIL)
+        (forward, _), (backward, _) = _DIRECTIONS.run(
+            lambda scans: bev_hypotheses(*scans[0], *scans[1], lookup, search),
+            [(source, target), (target, source)],
+        )
         starts = [forward[: covis.far_peaks]]
         if len(backward):
             starts.append(np.linalg.inv(backward[: covis.far_peaks]))
