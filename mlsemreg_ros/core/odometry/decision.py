@@ -98,14 +98,12 @@ def decide(
             candidates=candidates,
             timings_ms=timings,
         )
-    alignment = chosen.alignment
-    return Decision(
-        source=source,
-        reason='; '.join(notes),
+    return Decision.of_alignment(
+        source,
+        '; '.join(notes),
+        chosen.alignment,
+        odometry.covariance_scale,
         result=result,
-        pose=alignment.T_target_source,
-        frame_covariance=alignment.covariance(odometry.covariance_scale, axes='source'),
-        inlier_fraction=alignment.inlier_fraction,
         candidates=candidates,
         timings_ms=timings,
     )

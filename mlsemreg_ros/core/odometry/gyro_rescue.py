@@ -114,15 +114,4 @@ def rescue_by_gyro(
         f'the refused global pose confirmed by the gyro ({before:.2f} deg from its rotation, '
         f'{after:.2f} refined; motion_prior.gyro_rescue)'
     )
-    return Decision(
-        source='global',
-        reason='; '.join(r for r in (chosen.reason, note) if r),
-        result=result,
-        pose=alignment.T_target_source,
-        frame_covariance=alignment.covariance(
-            odometry.config.odometry.covariance_scale, axes='source'
-        ),
-        inlier_fraction=alignment.inlier_fraction,
-        candidates=[*chosen.candidates, candidate],
-        timings_ms=chosen.timings_ms,
-    )
+    return chosen.rescued(candidate, note, odometry.config.odometry.covariance_scale)

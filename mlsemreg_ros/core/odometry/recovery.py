@@ -95,16 +95,12 @@ class PastKeyframes:
                 if not candidate.acceptable:
                     said.append(f'keyframe {keyframe.index}: {candidate.refusal}')
                     continue
-                alignment = candidate.alignment
-                return Decision(
-                    source='relocalized',
-                    reason=f'relocalized onto the past keyframe {keyframe.index}',
+                return Decision.of_alignment(
+                    'relocalized',
+                    f'relocalized onto the past keyframe {keyframe.index}',
+                    candidate.alignment,
+                    cfg.odometry.covariance_scale,
                     result=estimate.result,
-                    pose=alignment.T_target_source,
-                    frame_covariance=alignment.covariance(
-                        cfg.odometry.covariance_scale, axes='source'
-                    ),
-                    inlier_fraction=alignment.inlier_fraction,
                     candidates=[candidate],
                 ), '; '.join(said)
             return None, '; '.join(said) or 'no past keyframe'

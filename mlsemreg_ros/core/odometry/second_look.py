@@ -233,13 +233,12 @@ def _rescue(
         )
         if weak:  # tracking.py's Tracker.align_accepted: the sweep alignment must confirm
             note = f'{note}, if the sweep alignment confirms it ({weak})'
-        return Decision(
-            source=candidate.name,
-            reason='; '.join(r for r in (chosen.reason.split('; ')[0], note) if r),
+        return Decision.of_alignment(
+            candidate.name,
+            '; '.join(r for r in (chosen.reason.split('; ')[0], note) if r),
+            alignment,
+            cfg.odometry.covariance_scale,
             result=chosen.result,
-            pose=alignment.T_target_source,
-            frame_covariance=alignment.covariance(cfg.odometry.covariance_scale, axes='source'),
-            inlier_fraction=alignment.inlier_fraction,
             candidates=chosen.candidates,
             timings_ms=chosen.timings_ms,
             confirm_weak=bool(weak),

@@ -131,21 +131,11 @@ def search_around_prediction(
     if place is None:
         note = f'seeded search: {refusal}'
         return replace(chosen, reason='; '.join(r for r in (chosen.reason, note) if r))
-    alignment = place.candidate.alignment
     note = (
         f'accepted by the seeded search around the prediction (covisible overlap '
         f'{place.overlap:.3f} of {place.checked:.2f} checked; {refusal})'
     )
-    return Decision(
-        source='global',
-        reason='; '.join(r for r in (chosen.reason, note) if r),
-        result=chosen.result,
-        pose=alignment.T_target_source,
-        frame_covariance=alignment.covariance(cfg.odometry.covariance_scale, axes='source'),
-        inlier_fraction=alignment.inlier_fraction,
-        candidates=[*chosen.candidates, place.candidate],
-        timings_ms=chosen.timings_ms,
-    )
+    return chosen.rescued(place.candidate, note, cfg.odometry.covariance_scale)
 
 
 def _search(

@@ -27,7 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from mlsemreg_ros.core.alignment.alignment import UNKNOWN_VARIANCE
+from mlsemreg_ros.core.alignment.alignment import Alignment, UNKNOWN_VARIANCE
 from mlsemreg_ros.core.odometry.trust import Candidate
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform
@@ -104,6 +104,55 @@ class Decision:
     def accepted(self) -> bool:
         """Whether the scan moves the pose."""
         return self.pose is not None
+
+    @classmethod
+    def of_alignment(
+        cls,
+        source: str,
+        reason: str,
+        alignment: Alignment,
+        covariance_scale: float,
+        *,
+        result: RegistrationResult | None = None,
+        candidates: list[Candidate] | None = None,
+        timings_ms: dict[str, float] | None = None,
+        confirm_weak: bool = False,
+    ) -> Decision:
+        """
+        Accept the pose a fine alignment refined (``alignment.T_target_source``).
+
+        The frame covariance is the alignment's own in the current frame's axes, scaled by
+        ``odometry.covariance_scale`` (``covariance_scale``), and the inlier fraction is
+        kept for the relative-inlier rule of ``core/odometry/decision.py``.
+        """
+        return cls(
+            source=source,
+            reason=reason,
+            result=result,
+            pose=alignment.T_target_source,
+            frame_covariance=alignment.covariance(covariance_scale, axes='source'),
+            inlier_fraction=alignment.inlier_fraction,
+            candidates=candidates if candidates is not None else [],
+            timings_ms=timings_ms if timings_ms is not None else {},
+            confirm_weak=confirm_weak,
+        )
+
+    def rescued(self, candidate: Candidate, note: str, covariance_scale: float) -> Decision:
+        """
+        Accept this refused decision by ``candidate``, a global pose a rescue confirmed.
+
+        The rescue's ``note`` joins the refusal's reason; the registration result and the
+        timings stay, and ``candidate`` joins the candidates (source ``global``).
+        """
+        return Decision.of_alignment(
+            'global',
+            '; '.join(r for r in (self.reason, note) if r),
+            candidate.alignment,
+            covariance_scale,
+            result=self.result,
+            candidates=[*self.candidates, candidate],
+            timings_ms=self.timings_ms,
+        )
 
 
 def odom_covariance(pose: np.ndarray, frame_covariance: np.ndarray) -> np.ndarray:

@@ -242,13 +242,11 @@ class Tracker:
     def track(self, predicted: Candidate, cfg: RegistrationConfig) -> Decision:
         """Accept the scan by its refined prediction (no global registration)."""
         self.trust.tracked_in_a_row += 1
-        alignment = predicted.alignment
-        return Decision(
-            source='prediction',
-            reason=f'tracked ({self.trust.tracked_in_a_row} in a row)',
-            pose=alignment.T_target_source,
-            frame_covariance=alignment.covariance(cfg.odometry.covariance_scale, axes='source'),
-            inlier_fraction=alignment.inlier_fraction,
+        return Decision.of_alignment(
+            'prediction',
+            f'tracked ({self.trust.tracked_in_a_row} in a row)',
+            predicted.alignment,
+            cfg.odometry.covariance_scale,
             candidates=[predicted],
         )
 
