@@ -48,9 +48,7 @@ def test_of_alignment_known_answer():
     decision = Decision.of_alignment('global', 'note', alignment, 2.0)
     assert decision.accepted and decision.source == 'global' and decision.reason == 'note'
     np.testing.assert_array_equal(decision.pose, alignment.T_target_source)
-    np.testing.assert_allclose(
-        decision.frame_covariance, alignment.covariance(2.0, axes='source')
-    )
+    np.testing.assert_allclose(decision.frame_covariance, alignment.covariance(2.0, axes='source'))
     np.testing.assert_allclose(
         decision.frame_covariance, 2.0 * alignment.covariance(1.0, axes='source')
     )
