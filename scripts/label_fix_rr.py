@@ -28,6 +28,9 @@ trunk + sign, 1 vehicle), ``all``, or one of the partial fixes:
 - ``bv``: only the building <-> vegetation swaps (true and geometric class both building or
   vegetation) are made right;
 - ``bgnd``: only the true building points that the labeler calls ground;
+- ``bunl``: only the true building points that the labeler leaves unlabeled;
+- ``pfp``: only the false poles (geometric pole / trunk / sign, truly something else);
+- ``pfn``: only the missed poles (true pole / trunk / sign, labelled something else);
 - ``merge``: no truth at all, building labelled vegetation (one class for both).
 
 Usage (docs/labels.md)::
@@ -49,7 +52,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from label_ir import collapse
 
-BUILDING, VEGETATION, GROUND = 13, 15, 9
+BUILDING, VEGETATION, GROUND, POLE = 13, 15, 9, 18
 ALL = (9, 13, 15, 18, 1)
 
 
@@ -65,6 +68,12 @@ def fixed_labels(geometric: np.ndarray, field: np.ndarray, fix: str) -> np.ndarr
         chosen = np.isin(truth, (BUILDING, VEGETATION)) & np.isin(ours, (BUILDING, VEGETATION))
     elif fix == 'bgnd':
         chosen = (truth == BUILDING) & (ours == GROUND)
+    elif fix == 'bunl':
+        chosen = (truth == BUILDING) & (ours == 0)
+    elif fix == 'pfp':
+        chosen = (ours == POLE) & (truth != POLE) & (truth > 0)
+    elif fix == 'pfn':
+        chosen = (truth == POLE) & (ours != POLE)
     else:
         classes = ALL if fix == 'all' else tuple(int(c) for c in fix.split(','))
         chosen = (np.isin(truth, classes) | np.isin(ours, classes)) & (truth > 0)
@@ -94,7 +103,9 @@ def main() -> None:
         sys.exit('usage: label_fix_rr.py --fix CLASSES -- eval-pairs DIR ... --labels geometric')
     split = argv.index('--')
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[1])
-    parser.add_argument('--fix', required=True, help='collapsed ids, all, bv, bgnd or merge')
+    parser.add_argument(
+        '--fix', required=True, help='collapsed ids, all, bv, bgnd, bunl, pfp, pfn or merge'
+    )
     args = parser.parse_args(argv[:split])
     patch(args.fix)
     from mlsemreg_ros.tools.cli import main as cli

@@ -75,5 +75,10 @@ def test_a_fixed_class_takes_its_true_class_and_nothing_else_moves():
     assert fixed('13') == [15, 13, 13, 18, 13, 1, 15]
     assert fixed('bv') == [15, 13, 9, 18, 13, 1, 15]
     assert fixed('bgnd') == [13, 15, 13, 18, 13, 1, 15]
+    assert fixed('bunl') == [13, 15, 9, 18, 13, 1, 15]  # no building left unlabeled here
+    assert fixed('pfp') == [13, 15, 9, 15, 13, 1, 15]
+    assert fixed('pfn') == [13, 15, 9, 18, 13, 1, 15]  # no true pole here
+    missed = label_fix_rr.fixed_labels(np.array([13, 15]), np.array([18, 15]), 'pfn')
+    assert missed.tolist() == [18, 15]
     assert fixed('merge') == [15, 15, 9, 18, 15, 1, 15]
     assert fixed('all') == [15, 13, 13, 15, 13, 1, 15]
