@@ -28,7 +28,8 @@ Without it a first pair short of ``estimator.min_inliers`` is refused, the keyfr
 at the first scan and every later scan is farther from it: the simulated field drive seed 1
 at stride 20 with geometric labels refused all 9 scans (its first pair, 18 m apart, has 26
 inliers of 40); with it, 9 of 9 right, 0 wrong (docs/labels.md). Later keyframes keep
-``refine=False``: refining every global registration cost 2-5x the p50 latency.
+``refine=False``: their map holds more than the keyframe, and refining every global
+registration would run the refused path's end stages on every refused one.
 """
 
 from __future__ import annotations
