@@ -41,7 +41,8 @@ from mlsemreg_ros.core.odometry.local_map import Keyframe
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 import numpy as np
 
-#: The frame counter of the drive's first keyframe (``Keyframe.index``).
+#: The frame counter (``Keyframe.index``) of the first keyframe after a start or ``reset()``;
+#: a re-initialisation after lost scans keeps its own counter and is not refined here.
 FIRST_KEYFRAME = 0
 
 
