@@ -142,9 +142,10 @@ def judged(
     chosen_offset: np.ndarray,
     pool_offsets: list[np.ndarray],
     degeneracy_ratio: float | None = None,
+    config: RegistrationConfig | None = None,
 ):
     """Run the stage on a refused 60 m pose (truth moved by ``chosen_offset``); its context."""
-    registration = Registration(RegistrationConfig())
+    registration = Registration(config if config is not None else RegistrationConfig())
     T_ws, T_wt = pose(0.0, 0.0, 1.7, 0.0), pose(60.0, -1.0, 1.7, 175.0)
     source = registration.prepare(*scan(world, labels, T_ws))
     target = registration.prepare(*scan(world, labels, T_wt))
@@ -281,3 +282,36 @@ def test_slides_of_a_straight_street_fit_as_well_as_the_truth():
         1.0,
     )
     assert overlap[0] > 0.97 and overlap[1:].max() > overlap[0] - 0.03
+
+
+@pytest.mark.parametrize('share, accepted', [(0.25, True), (0.0, False)])
+def test_a_rival_both_scans_barely_see_does_not_count(monkeypatch, share, accepted):
+    """
+    The first pair of the simulated field drive seed 1 at stride 20 (geometric labels).
+
+    The right pose measured 0.978 on 0.39 of the surface, its best slide 0.777 on 0.155, and
+    a distinct candidate 0.961 on only 0.036: that rival overlaps on next to nothing, and
+    with ``covisibility.accept_rival_share`` (0.25 of the pose's checked share) it does not
+    count; without the share (0) it refuses the right pose.
+    """
+    from mlsemreg_ros.core.stages import covisible_acceptance as stage_module
+
+    def measured(transforms, *_args):
+        count = len(transforms)
+        overlap = np.array([0.978] + [0.777] * 8 + [0.961] * (count - 9))
+        checked = np.array([0.39] + [0.155] * 8 + [0.036] * (count - 9))
+        return overlap, checked
+
+    world, labels = facade_street()
+    config = RegistrationConfig()
+    config.covisibility.accept_rival_share = share
+    monkeypatch.setattr(stage_module, 'mutual_covisible_overlap', measured)
+    monkeypatch.setattr(stage_module, 'covisible_sides', lambda *_args: (None, None))
+    context = judged(world, labels, np.eye(4), [pose(0, 0, 0, 30.0)], config=config)
+    diagnostics = context.diagnostics
+    assert (context.refusal == '') is accepted, diagnostics
+    if accepted:
+        assert diagnostics['covisible_accept_rival_overlap'] == 0.0  # none counted
+        assert diagnostics['covisible_accept_slide_overlap'] == pytest.approx(0.777)
+    else:
+        assert 'a distinct candidate' in diagnostics['covisible_accept_refusal']

@@ -33,6 +33,7 @@ def _script(name: str):
 
 label_confusion = _script('label_confusion')
 label_ir = _script('label_ir')
+label_fix_rr = _script('label_fix_rr')
 
 
 def test_counts_fall_in_their_class_cells_and_range_bands():
@@ -59,3 +60,25 @@ def test_ids_outside_the_five_classes_count_as_unlabeled():
 def test_the_collapse_maps_learning_ids_onto_the_five_classes():
     labels = np.array([9, 17, 14, 15, 16, 19, 3, 6, 0])
     assert label_ir.collapse(labels).tolist() == [9, 9, 13, 15, 18, 18, 1, 0, 0]
+
+
+def test_a_fixed_class_takes_its_true_class_and_nothing_else_moves():
+    # learning ids: 9 road, 13 building, 15 vegetation, 18 pole, 1 car, 0 unlabeled
+    geometric = np.array([13, 15, 9, 18, 13, 1, 15])
+    field = np.array([15, 13, 13, 15, 13, 1, 0])
+
+    def fixed(fix: str) -> list[int]:
+        return label_fix_rr.fixed_labels(geometric, field, fix).tolist()
+
+    # every point whose true or geometric class is building takes its true class; the
+    # point the pair file leaves unlabeled keeps the geometric label
+    assert fixed('13') == [15, 13, 13, 18, 13, 1, 15]
+    assert fixed('bv') == [15, 13, 9, 18, 13, 1, 15]
+    assert fixed('bgnd') == [13, 15, 13, 18, 13, 1, 15]
+    assert fixed('bunl') == [13, 15, 9, 18, 13, 1, 15]  # no building left unlabeled here
+    assert fixed('pfp') == [13, 15, 9, 15, 13, 1, 15]
+    assert fixed('pfn') == [13, 15, 9, 18, 13, 1, 15]  # no true pole here
+    missed = label_fix_rr.fixed_labels(np.array([13, 15]), np.array([18, 15]), 'pfn')
+    assert missed.tolist() == [18, 15]
+    assert fixed('merge') == [15, 15, 9, 18, 15, 1, 15]
+    assert fixed('all') == [15, 13, 13, 15, 13, 1, 15]

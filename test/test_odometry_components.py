@@ -91,3 +91,23 @@ def test_point_times_reach_the_deskew_hook() -> None:
         with pytest.raises(RuntimeError, match='prepared'):
             odometry.process(np.zeros((4, 3)), np.zeros(4, np.int64), point_times=given)
     assert odometry.preprocessor.seen[0] is times and odometry.preprocessor.seen[1] is None
+
+
+def test_only_the_first_keyframe_s_pair_refines_itself() -> None:
+    """Onto the first keyframe the pair's own fine alignment runs (stage 9 can then judge)."""
+    from types import SimpleNamespace
+
+    from mlsemreg_ros.core.odometry import GlobalRegistration, Keyframe
+
+    asked: list[bool] = []
+
+    def register(current: Any, target: Any, *, refine: bool) -> Any:
+        asked.append(refine)
+        return SimpleNamespace(success=False, transform=np.eye(4))
+
+    registration = GlobalRegistration(SimpleNamespace(register=register))
+    for index in (0, 1, 7):
+        keyframe = Keyframe(index, 0, np.zeros((1, 3)), np.zeros(1), None, np.eye(4))
+        estimate = registration(None, keyframe)
+        assert not estimate.usable  # a refused registration is never a pose
+    assert asked == [True, False, False]

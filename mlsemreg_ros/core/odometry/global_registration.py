@@ -19,6 +19,17 @@ The global registration of a scan onto the keyframe (what makes the odometry rob
 hypothesis verification -> BEV search -> confidence (``core/pipeline.py``); the fine
 alignment is the odometry's own, against its map. This component composes the result
 with the keyframe pose: ``T_odom_current = T_odom_keyframe @ T_keyframe_current``.
+
+Onto the drive's **first keyframe** the registration refines the pair itself
+(``refine=True``, as ``eval-pairs`` does). The odometry's map is then that one scan, so the
+pair's fine alignment is the refinement the map would give, and with it the refused path's
+last stages can judge the pose (the covisible acceptance, stage 9, needs a refined pose).
+Without it a first pair short of ``estimator.min_inliers`` is refused, the keyframe stays
+at the first scan and every later scan is farther from it: the simulated field drive seed 1
+at stride 20 with geometric labels refused all 9 scans (its first pair, 18 m apart, has 26
+inliers of 40); with it, 9 of 9 right, 0 wrong (docs/labels.md). Later keyframes keep
+``refine=False``: their map holds more than the keyframe, and refining every global
+registration would run the refused path's end stages on every refused one.
 """
 
 from __future__ import annotations
@@ -29,6 +40,10 @@ from typing import Any
 from mlsemreg_ros.core.odometry.local_map import Keyframe
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 import numpy as np
+
+#: The frame counter (``Keyframe.index``) of the first keyframe after a start or ``reset()``;
+#: a re-initialisation after lost scans keeps its own counter and is not refined here.
+FIRST_KEYFRAME = 0
 
 
 @dataclass
@@ -53,6 +68,7 @@ class GlobalRegistration:
 
     def __call__(self, current: PreparedScan, keyframe: Keyframe) -> GlobalEstimate:
         """Return the estimate of ``current`` onto ``keyframe`` (completes both lazily)."""
-        result = self.registration.register(current, keyframe.prepared, refine=False)
+        first = keyframe.index == FIRST_KEYFRAME  # the pair refines itself (module docstring)
+        result = self.registration.register(current, keyframe.prepared, refine=first)
         usable = bool(result.success) and bool(np.all(np.isfinite(result.transform)))
         return GlobalEstimate(result, keyframe.pose @ result.transform if usable else None)

@@ -120,11 +120,13 @@ class CovisibleAcceptanceStage:
             covis.margin,
         )
         end = 1 + len(slides)
+        # a rival counts only where both scans see enough of it (covisibility.accept_rival_share)
+        floor = max(covis.min_checked, covis.accept_rival_share * float(checked[0]))
         return CovisibleEvidence(
             float(overlap[0]),
             float(checked[0]),
-            *best_eligible(overlap[end:], checked[end:], covis.min_checked),
-            *best_eligible(overlap[1:end], checked[1:end], covis.min_checked),
+            *best_eligible(overlap[end:], checked[end:], floor),
+            *best_eligible(overlap[1:end], checked[1:end], floor),
             tilt,
         )
 
