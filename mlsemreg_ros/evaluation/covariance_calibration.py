@@ -25,7 +25,7 @@ The samples are kept, so a calibration is scored without registering again.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 import itertools
 from typing import Any
 
@@ -55,6 +55,10 @@ class CovarianceSample:
     correction_m: float = 0.0  # m, the accepted pose from the motion model's prediction
     correction_deg: float = 0.0  # deg, the rotation between them
     gap_s: float = 0.0  # s, from the last accepted scan (the prediction's horizon); 0: none
+    #: (6,) ``[t, rotvec]`` of ``inv(T_predicted) T_estimate``, the scan's axes (zeros: none)
+    correction_vector: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    scan_points: int = 0  # points of the scan as the odometry kept them (0: unknown)
+    inliers: int = 0  # inliers of the accepted fine alignment (0: unknown)
 
 
 def pose_error(T_estimate: np.ndarray, T_truth: np.ndarray) -> np.ndarray:
@@ -124,22 +128,58 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
         T_truth = relative_transform(truth[keyframe], truth[scan.index])
         error = pose_error(estimate.relative, T_truth)
         size = motion_size(estimate.relative)
-        correction = prediction_correction(estimator.last_step)
+        step = estimator.last_step
+        correction = prediction_correction(step)
         gap_s = 0.0 if previous_ns is None else (scan.stamp_ns - previous_ns) * 1e-9
         samples.append(
-            CovarianceSample(error, estimate.frame_covariance, *size, *correction, gap_s)
+            CovarianceSample(
+                error,
+                estimate.frame_covariance,
+                *size,
+                *correction,
+                gap_s,
+                correction_vector(step),
+                0 if step.points is None else len(step.points),
+                accepted_inliers(step),
+            )
         )
     return samples
+
+
+def _predicted_pose(step: Any) -> np.ndarray | None:
+    """The motion model's prediction ``T_odom_current`` of a step (None: none)."""
+    predicted = [c.T_initial for c in getattr(step, 'candidates', []) if c.name == 'prediction']
+    return predicted[0] if predicted else None
+
+
+def correction_vector(step: Any) -> np.ndarray:
+    """``[t, rotvec]`` of an accepted step's pose from its prediction (zeros: none)."""
+    predicted = _predicted_pose(step)
+    if predicted is None or step.pose is None:
+        return np.zeros(6)
+    return pose_error(step.pose, predicted)
+
+
+def accepted_inliers(step: Any) -> int:
+    """Inliers of the acceptable candidate's alignment nearest the step's pose (0: none)."""
+    usable = [c for c in getattr(step, 'candidates', []) if c.acceptable]
+    if not usable or step.pose is None:
+        return 0
+    nearest = min(
+        usable,
+        key=lambda c: np.linalg.norm(c.alignment.T_target_source[:3, 3] - step.pose[:3, 3]),
+    )
+    return int(nearest.alignment.num_inliers)
 
 
 def prediction_correction(step: Any) -> tuple[float, float]:
     """Distance (m) and angle (deg) of an accepted step's pose from its prediction (or 0, 0)."""
     from mlsemreg_ros.core.rigid import invert_transform
 
-    predicted = [c.T_initial for c in getattr(step, 'candidates', []) if c.name == 'prediction']
-    if not predicted or step.pose is None:
+    predicted = _predicted_pose(step)
+    if predicted is None or step.pose is None:
         return 0.0, 0.0
-    return motion_size(invert_transform(predicted[0]) @ step.pose)
+    return motion_size(invert_transform(predicted) @ step.pose)
 
 
 def nees_values(
@@ -402,6 +442,8 @@ def save_samples(path: Any, samples: list[CovarianceSample]) -> None:
         corrections=np.array(
             [(s.correction_m, s.correction_deg, s.gap_s) for s in samples], dtype=np.float64
         ).reshape(-1, 3),
+        correction_vectors=np.array([s.correction_vector for s in samples]).reshape(-1, 6),
+        scan_points=np.array([(s.scan_points, s.inliers) for s in samples]).reshape(-1, 2),
     )
 
 
@@ -411,10 +453,24 @@ def load_samples(path: Any) -> list[CovarianceSample]:
         count = len(data['errors'])
         turns = data['turns_deg'] if 'turns_deg' in data.files else np.zeros(count)
         more = data['corrections'] if 'corrections' in data.files else np.zeros((count, 3))
+        vectors = _column(data, 'correction_vectors', (count, 6))
+        sizes = _column(data, 'scan_points', (count, 2)).astype(int)
         rows = zip(
-            data['errors'], data['covariances'], data['distances'], turns, more, strict=True
+            data['errors'],
+            data['covariances'],
+            data['distances'],
+            turns,
+            more,
+            vectors,
+            sizes,
+            strict=True,
         )
         return [
-            CovarianceSample(e, c, float(d), float(a), *(float(x) for x in m))
-            for e, c, d, a, m in rows
+            CovarianceSample(e, c, float(d), float(a), *(float(x) for x in m), v, *map(int, n))
+            for e, c, d, a, m, v, n in rows
         ]
+
+
+def _column(data: Any, name: str, shape: tuple[int, int]) -> np.ndarray:
+    """A column of a samples file, zeros in files written before it was kept."""
+    return np.asarray(data[name]) if name in data.files else np.zeros(shape)
