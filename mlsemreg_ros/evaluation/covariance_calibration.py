@@ -18,7 +18,7 @@ NEES of the pose covariance on real pairs and drives, and its calibration (docs/
 A sample is one accepted estimate: its error ``e = log(T_truth^-1 T_estimate)``
 (``[t, rotvec]``, the estimate's axes) and its Hessian covariance ``C_H`` (scale 1, no
 calibration). The NEES of a calibration is ``e^T inv(C) e`` with ``C`` from
-:func:`~mlsemreg_ros.core.alignment.covariance.calibrated_covariance`; a consistent
+:func:`~mlsemreg_ros.core.alignment.covariance.calibrated_covariances`; a consistent
 covariance gives chi-square values with 6 degrees of freedom: mean 6, 95 % below 12.59.
 The samples are kept, so a calibration is scored without registering again.
 """
@@ -30,9 +30,11 @@ import itertools
 from typing import Any
 
 from mlsemreg_ros.core.alignment.covariance import (
-    calibrated_covariance,
+    BlockEigen,
+    calibrated_covariances,
     CovarianceConfig,
-    floor_shape,
+    CovarianceInputs,
+    hessian_eigen,
     motion_size,
     no_calibration,
 )
@@ -147,7 +149,7 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
 
 
 def _predicted_pose(step: Any) -> np.ndarray | None:
-    """The motion model's prediction ``T_odom_current`` of a step (None: none)."""
+    """Return the motion model's prediction ``T_odom_current`` of a step (None: none)."""
     predicted = [c.T_initial for c in getattr(step, 'candidates', []) if c.name == 'prediction']
     return predicted[0] if predicted else None
 
@@ -186,62 +188,30 @@ def nees_values(
     samples: list[CovarianceSample], scale: float, cfg: CovarianceConfig
 ) -> np.ndarray:
     """Return the NEES of every sample under a calibration (NaN: a singular covariance)."""
+    if not samples:
+        return np.zeros(0)
+    errors, covariances, inputs, eigen = _stack(samples)
+    calibrated = calibrated_covariances(covariances, scale, cfg, inputs, eigen)
     values = np.full(len(samples), np.nan)
-    for index, sample in enumerate(samples):
-        covariance = calibrated_covariance(
-            sample.hessian_covariance,
-            scale,
-            cfg,
-            sample.distance,
-            sample.turn_deg,
-            correction=(sample.correction_m, sample.correction_deg),
-            horizon_s=sample.gap_s,
-        )
-        try:
-            values[index] = float(sample.error @ np.linalg.solve(covariance, sample.error))
-        except np.linalg.LinAlgError:
-            continue
+    usable = np.all(np.isfinite(calibrated), axis=(1, 2))
+    usable[usable] = np.linalg.matrix_rank(calibrated[usable]) == 6
+    if np.any(usable):
+        solved = np.linalg.solve(calibrated[usable], errors[usable][:, :, None])[:, :, 0]
+        values[usable] = np.einsum('ki,ki->k', errors[usable], solved)
     return values
 
 
 def _batch_nees(
     errors: np.ndarray,
     covariances: np.ndarray,
-    distances: np.ndarray,
-    turns: np.ndarray,
-    corrections: np.ndarray,
+    inputs: CovarianceInputs,
+    eigen: tuple[BlockEigen, BlockEigen],
     scale: float,
     cfg: CovarianceConfig,
 ) -> np.ndarray:
-    """
-    :func:`nees_values` for stacked samples without degenerate inflation (the fit).
-
-    ``corrections``: (K, 3) of the correction (m, deg) and the prediction's horizon (s).
-    """
-    horizon = corrections[:, 2]
-    share = np.ones_like(horizon)
-    if cfg.correction_sweep > 0:
-        timed = horizon > 0
-        share[timed] = np.minimum(1.0, cfg.correction_sweep / horizon[timed])
-    moved = np.maximum(share * corrections[:, 0] - cfg.correction_free_translation, 0.0)
-    turned = np.maximum(share * corrections[:, 1] - cfg.correction_free_rotation, 0.0)
-    sigma_t = (
-        cfg.floor_translation
-        + cfg.per_metre_translation * distances
-        + cfg.per_degree_translation * turns
-        + cfg.per_correction_translation * moved
-    )
-    sigma_r = np.radians(
-        cfg.floor_rotation
-        + cfg.per_metre_rotation * distances
-        + cfg.per_degree_rotation * turns
-        + cfg.per_correction_rotation * turned
-    )
-    floor = np.zeros_like(covariances)
-    floor[:, [0, 1, 2], [0, 1, 2]] = (sigma_t**2)[:, None]
-    shape = floor_shape(covariances[:, 3:, 3:], cfg.rotation_floor_shape)
-    floor[:, 3:, 3:] = (sigma_r**2)[:, None, None] * shape
-    solved = np.linalg.solve(scale * covariances + floor, errors[:, :, None])[:, :, 0]
+    """:func:`nees_values` of stacked samples (:func:`_stack`), for the fits."""
+    calibrated = calibrated_covariances(covariances, scale, cfg, inputs, eigen)
+    solved = np.linalg.solve(calibrated, errors[:, :, None])[:, :, 0]
     return np.einsum('ki,ki->k', errors, solved)
 
 
@@ -304,21 +274,26 @@ def fit_calibration(
     return best
 
 
-def _stacks(datasets: dict[str, list[CovarianceSample]]) -> list[tuple[np.ndarray, ...]]:
+def _stacks(datasets: dict[str, list[CovarianceSample]]) -> list[tuple[Any, ...]]:
     """Stack each data set's samples for :func:`_batch_nees`."""
-    return [
-        (
-            np.array([s.error for s in samples]).reshape(-1, 6),
-            np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
+    return [_stack(samples) for samples in datasets.values() if samples]
+
+
+def _stack(samples: list[CovarianceSample]) -> tuple[Any, ...]:
+    """Errors (K, 6), Hessian covariances (K, 6, 6), the calibration's inputs, the eigen."""
+    covariances = np.array([s.hessian_covariance for s in samples], dtype=np.float64)
+    return (
+        np.array([s.error for s in samples], dtype=np.float64).reshape(-1, 6),
+        covariances.reshape(-1, 6, 6),
+        CovarianceInputs(
             np.array([s.distance for s in samples], dtype=np.float64),
             np.array([s.turn_deg for s in samples], dtype=np.float64),
-            np.array(
-                [(s.correction_m, s.correction_deg, s.gap_s) for s in samples], dtype=np.float64
-            ).reshape(-1, 3),
-        )
-        for samples in datasets.values()
-        if samples
-    ]
+            np.array([(s.correction_m, s.correction_deg) for s in samples]).reshape(-1, 2),
+            np.array([s.gap_s for s in samples], dtype=np.float64),
+            np.array([s.correction_vector[:3] for s in samples]).reshape(-1, 3),
+        ),
+        hessian_eigen(covariances.reshape(-1, 6, 6)),
+    )
 
 
 def target_violation(values: list[np.ndarray], spread_weight: float = 0.1) -> float:
@@ -472,5 +447,5 @@ def load_samples(path: Any) -> list[CovarianceSample]:
 
 
 def _column(data: Any, name: str, shape: tuple[int, int]) -> np.ndarray:
-    """A column of a samples file, zeros in files written before it was kept."""
+    """Return a column of a samples file (zeros in files written before it was kept)."""
     return np.asarray(data[name]) if name in data.files else np.zeros(shape)

@@ -58,6 +58,14 @@ import numpy as np
 #: variance.
 MAX_FLOOR_STRETCH = 100.0
 
+#: The Hessian standard deviations (m, rad; geometric means over a block) at which
+#: ``covariance.hessian_size_exponent`` leaves the scale as it is: about a simulated HDL-64
+#: scan's at ``odometry.covariance_scale`` 5 (docs/covariance.md).
+REFERENCE_SIGMAS = (0.002, float(np.radians(0.005)))
+
+#: The most ``covariance.hessian_size_exponent`` multiplies or divides a block's variance by.
+MAX_SIZE_FACTOR = 1000.0
+
 
 @dataclass
 class CovarianceConfig:
@@ -163,6 +171,34 @@ class CovarianceConfig:
         low=0.0,
         high=2.0,
     )
+    translation_floor_shape: float = param(
+        0.0,
+        "The translation floor follows the shape of the Hessian's translation block, as "
+        'rotation_floor_shape does the rotation: a direction the scene constrains worse '
+        '(along a straight road) gets more of it. 0: isotropic (docs/covariance.md).',
+        low=0.0,
+        high=2.0,
+    )
+    hessian_size_exponent: float = param(
+        0.0,
+        'The scale follows the size of the Hessian covariance: each block (translation, '
+        'rotation) is multiplied by (its geometric-mean variance / a reference) to minus this '
+        'power, so a dense scan, whose many correlated residuals make the Hessian claim too '
+        'much, gets a larger scale than a sparse one. 0: one scale for every scan '
+        '(docs/covariance.md).',
+        low=0.0,
+        high=1.0,
+    )
+    along_correction: float = param(
+        0.0,
+        'Standard deviation added along the direction from the prediction to the accepted '
+        'pose, per metre of that correction (times the sweep share, correction_sweep): a '
+        'scan deskewed by a prediction that was off stays off along it. 0: off '
+        '(docs/covariance.md).',
+        unit='m/m',
+        low=0.0,
+        high=10.0,
+    )
     degenerate_ratio: float = param(
         100.0,
         'An eigen-direction of the translation or rotation block of the Hessian covariance '
@@ -193,19 +229,29 @@ def no_calibration() -> CovarianceConfig:
 
 
 def degenerate_inflation(covariance: np.ndarray, cfg: CovarianceConfig) -> np.ndarray:
-    """Return the inflation ``D`` (6, 6) of ``covariance`` (ROS order) along weak directions."""
-    inflation = np.zeros((6, 6))
+    """Return the inflation ``D`` (..., 6, 6) of ``covariance`` (..., 6, 6, ROS order)."""
+    covariance = np.asarray(covariance, dtype=np.float64)
+    flat = covariance.reshape(-1, 6, 6)
+    eigen = (BlockEigen.of(flat[:, :3, :3]), BlockEigen.of(flat[:, 3:, 3:]))
+    return _degenerate_inflation(eigen, cfg).reshape(covariance.shape)
+
+
+def _degenerate_inflation(
+    eigen: tuple[BlockEigen, BlockEigen], cfg: CovarianceConfig
+) -> np.ndarray:
+    """:func:`degenerate_inflation` from the blocks' eigen-decompositions (K samples)."""
+    inflation = np.zeros((len(eigen[0].values), 6, 6))
     if cfg.degenerate_ratio <= 0:
         return inflation
     sigmas = (cfg.degenerate_translation, np.radians(cfg.degenerate_rotation))
-    for block, sigma in zip((slice(0, 3), slice(3, 6)), sigmas, strict=True):
+    for block, sigma, decomposed in zip((slice(0, 3), slice(3, 6)), sigmas, eigen, strict=True):
         if sigma <= 0:
             continue
-        values, vectors = np.linalg.eigh(covariance[block, block])
-        weak = values > cfg.degenerate_ratio * max(values[0], 1e-300)
-        if np.any(weak):
-            directions = vectors[:, weak]
-            inflation[block, block] = sigma**2 * directions @ directions.T
+        values = decomposed.values
+        weak = values > cfg.degenerate_ratio * np.maximum(values[:, :1], 1e-300)
+        inflation[:, block, block] = sigma**2 * np.einsum(
+            'kij,kj,klj->kil', decomposed.vectors, weak.astype(np.float64), decomposed.vectors
+        )
     return inflation
 
 
@@ -217,35 +263,169 @@ def calibrated_covariance(
     turn_deg: float = 0.0,
     correction: tuple[float, float] = (0.0, 0.0),
     horizon_s: float = 0.0,
+    correction_direction: np.ndarray | None = None,
 ) -> np.ndarray:
     """
     Return ``s * C_H + D + floor(d)`` (module docstring) of a covariance (6, 6), ROS order.
 
     ``hessian_covariance``: ``inv(H) * 2E / (n - 6)`` (``scale`` 1) in either axes: the
-    floor is isotropic and the inflation follows the eigen-directions, so the result
-    rotates with the input. ``correction``: the distance (m) and angle (deg) between the
-    accepted pose and the motion model's prediction (the ``per_correction_*`` terms);
-    ``horizon_s``: the time the prediction spanned, from the last accepted scan (0: unknown,
-    the correction counts whole).
+    floors follow the Hessian's eigen-directions or are isotropic, so the result rotates
+    with the input. ``correction``: the distance (m) and angle (deg) between the accepted
+    pose and the motion model's prediction (the ``per_correction_*`` terms); ``horizon_s``:
+    the time the prediction spanned, from the last accepted scan (0: unknown, the
+    correction counts whole); ``correction_direction``: the translation (3,) from the
+    prediction to the accepted pose in the covariance's axes (``along_correction``; None:
+    that term is off). One sample of :func:`calibrated_covariances`.
     """
-    scaled = np.asarray(hessian_covariance, dtype=np.float64) * scale
-    moved_m, turned_deg = np.multiply(correction, sweep_share(horizon_s, cfg))
+    return calibrated_covariances(
+        np.asarray(hessian_covariance, dtype=np.float64)[None],
+        scale,
+        cfg,
+        CovarianceInputs.single(distance, turn_deg, correction, horizon_s, correction_direction),
+    )[0]
+
+
+@dataclass
+class CovarianceInputs:
+    """What the calibration reads besides the Hessian, for K samples (docs/covariance.md)."""
+
+    distances: np.ndarray  # (K,) m, the motion the covariance describes
+    turns_deg: np.ndarray  # (K,) deg, its rotation angle
+    corrections: np.ndarray  # (K, 2) m and deg of the accepted pose from the prediction
+    horizons_s: np.ndarray  # (K,) s, the prediction's horizon (0: unknown)
+    directions: np.ndarray  # (K, 3) translation from the prediction (zeros: none)
+
+    @classmethod
+    def single(
+        cls,
+        distance: float,
+        turn_deg: float,
+        correction: tuple[float, float],
+        horizon_s: float,
+        direction: np.ndarray | None,
+    ) -> CovarianceInputs:
+        """Return the inputs of one sample."""
+        return cls(
+            np.array([distance], dtype=np.float64),
+            np.array([turn_deg], dtype=np.float64),
+            np.array([correction], dtype=np.float64).reshape(1, 2),
+            np.array([horizon_s], dtype=np.float64),
+            np.zeros((1, 3)) if direction is None else np.asarray(direction, np.float64)[None, :3],
+        )
+
+
+@dataclass
+class BlockEigen:
+    """Eigen-decompositions of K covariance blocks (3, 3); ``usable``: finite and not zero."""
+
+    values: np.ndarray  # (K, 3) ascending
+    vectors: np.ndarray  # (K, 3, 3) columns
+    usable: np.ndarray  # (K,) bool
+
+    @classmethod
+    def of(cls, blocks: np.ndarray) -> BlockEigen:
+        """Decompose ``blocks`` (K, 3, 3); a block that is zero or not finite: the identity."""
+        blocks = np.asarray(blocks, dtype=np.float64).reshape(-1, 3, 3)
+        usable = np.all(np.isfinite(blocks), axis=(1, 2)) & np.any(blocks != 0.0, axis=(1, 2))
+        safe = np.where(usable[:, None, None], blocks, np.eye(3))
+        values, vectors = np.linalg.eigh(safe)  # its lower triangle
+        return cls(values, vectors, usable)
+
+    def log_volume(self) -> np.ndarray:
+        """Return the log of the eigenvalues' geometric mean (K,); 0 where not positive."""
+        positive = self.usable & np.all(self.values > 0.0, axis=1)
+        logs = np.log(np.where(positive[:, None], self.values, 1.0))
+        return logs.mean(axis=1)
+
+
+def hessian_eigen(hessian_covariances: np.ndarray) -> tuple[BlockEigen, BlockEigen]:
+    """Return the translation and rotation blocks' :class:`BlockEigen` of (K, 6, 6)."""
+    covariances = np.asarray(hessian_covariances, dtype=np.float64)
+    return BlockEigen.of(covariances[:, :3, :3]), BlockEigen.of(covariances[:, 3:, 3:])
+
+
+def calibrated_covariances(
+    hessian_covariances: np.ndarray,
+    scale: float,
+    cfg: CovarianceConfig,
+    inputs: CovarianceInputs,
+    eigen: tuple[BlockEigen, BlockEigen] | None = None,
+) -> np.ndarray:
+    """
+    Return the calibrated covariances (K, 6, 6) of K Hessian covariances (K, 6, 6).
+
+    ``eigen``: :func:`hessian_eigen` of the Hessian covariances, when known (a fit scores
+    many calibrations on the same samples; the floors' shapes, the degenerate directions
+    and the size do not change with the scale).
+    """
+    hessian_covariances = np.asarray(hessian_covariances, np.float64)
+    eigen = hessian_eigen(hessian_covariances) if eigen is None else eigen
+    scaled = follow_hessian_size(hessian_covariances * scale, scale, eigen, cfg)
+    share = sweep_shares(inputs.horizons_s, cfg)
+    moved_m, turned_deg = inputs.corrections[:, 0] * share, inputs.corrections[:, 1] * share
     sigma_t = (
         cfg.floor_translation
-        + cfg.per_metre_translation * distance
-        + cfg.per_degree_translation * turn_deg
-        + cfg.per_correction_translation * max(moved_m - cfg.correction_free_translation, 0.0)
+        + cfg.per_metre_translation * inputs.distances
+        + cfg.per_degree_translation * inputs.turns_deg
+        + cfg.per_correction_translation
+        * np.maximum(moved_m - cfg.correction_free_translation, 0.0)
     )
     sigma_r = np.radians(
         cfg.floor_rotation
-        + cfg.per_metre_rotation * distance
-        + cfg.per_degree_rotation * turn_deg
-        + cfg.per_correction_rotation * max(turned_deg - cfg.correction_free_rotation, 0.0)
+        + cfg.per_metre_rotation * inputs.distances
+        + cfg.per_degree_rotation * inputs.turns_deg
+        + cfg.per_correction_rotation * np.maximum(turned_deg - cfg.correction_free_rotation, 0.0)
     )
-    floor = np.diag([sigma_t**2] * 3 + [0.0] * 3)
-    floor[3:, 3:] = sigma_r**2 * floor_shape(scaled[3:, 3:], cfg.rotation_floor_shape)
-    covariance = scaled + degenerate_inflation(scaled, cfg) + floor
-    return 0.5 * (covariance + covariance.T)
+    floor = np.zeros(scaled.shape)
+    floor[:, :3, :3] = (sigma_t**2)[:, None, None] * _shape(eigen[0], cfg.translation_floor_shape)
+    floor[:, 3:, 3:] = (sigma_r**2)[:, None, None] * _shape(eigen[1], cfg.rotation_floor_shape)
+    floor[:, :3, :3] += along_correction(inputs.directions, share, cfg)
+    covariance = scaled + _degenerate_inflation(eigen, cfg) + floor
+    return 0.5 * (covariance + np.swapaxes(covariance, -1, -2))
+
+
+def follow_hessian_size(
+    scaled: np.ndarray, scale: float, eigen: tuple[BlockEigen, BlockEigen], cfg: CovarianceConfig
+) -> np.ndarray:
+    """
+    ``scaled`` (K, 6, 6) times ``(g / g_ref) ** -hessian_size_exponent`` per block.
+
+    ``g``: the geometric mean of the eigenvalues of the block (translation, rotation) of
+    ``scaled`` (``scale`` times the Hessian covariance of ``eigen``), ``g_ref`` the square
+    of :data:`REFERENCE_SIGMAS`. Fewer or worse spread points give a larger Hessian
+    covariance, and their residuals are less correlated than a dense scan's: with the
+    exponent, a block's scale grows as the Hessian tightens (capped at
+    :data:`MAX_SIZE_FACTOR` either way).
+    """
+    exponent = cfg.hessian_size_exponent
+    if exponent == 0.0:
+        return scaled
+    root = np.ones(scaled.shape[:-1])
+    for block, reference, decomposed in zip(
+        (slice(0, 3), slice(3, 6)), REFERENCE_SIGMAS, eigen, strict=True
+    ):
+        log_ratio = decomposed.log_volume() + np.log(scale) - 2.0 * np.log(reference)
+        factor = np.clip(np.exp(-exponent * log_ratio), 1 / MAX_SIZE_FACTOR, MAX_SIZE_FACTOR)
+        root[:, block] = np.sqrt(np.where(decomposed.usable, factor, 1.0))[:, None]
+    return scaled * root[:, :, None] * root[:, None, :]
+
+
+def along_correction(
+    directions: np.ndarray, share: np.ndarray, cfg: CovarianceConfig
+) -> np.ndarray:
+    """
+    Return the translation variance (K, 3, 3) along each correction's direction.
+
+    ``(along_correction * k * |c|)^2 u u^T``, ``c`` the translation from the prediction to
+    the accepted pose, ``u = c / |c|`` and ``k`` the sweep share (:func:`sweep_shares`): a
+    scan deskewed by a prediction that was off stays off in the same direction (the field
+    drives' and the solid-state sensor's largest errors point along their correction).
+    """
+    if cfg.along_correction <= 0.0:
+        return np.zeros((len(directions), 3, 3))
+    return (cfg.along_correction * share[:, None, None]) ** 2 * np.einsum(
+        'ki,kj->kij', directions, directions
+    )
 
 
 def floor_shape(blocks: np.ndarray, exponent: float) -> np.ndarray:
@@ -258,26 +438,33 @@ def floor_shape(blocks: np.ndarray, exponent: float) -> np.ndarray:
     ``MAX_FLOOR_STRETCH``. Exponent 0, or a block that is zero or not finite: the identity.
     """
     blocks = np.asarray(blocks, dtype=np.float64)
-    identity = np.broadcast_to(np.eye(3), blocks.shape).copy()
+    return _shape(BlockEigen.of(blocks), exponent).reshape(blocks.shape)
+
+
+def _shape(eigen: BlockEigen, exponent: float) -> np.ndarray:
+    """:func:`floor_shape` from the blocks' eigen-decompositions (K, 3, 3)."""
+    identity = np.broadcast_to(np.eye(3), eigen.vectors.shape)
     if exponent <= 0.0:
-        return identity
-    usable = np.all(np.isfinite(blocks), axis=(-2, -1))
-    safe = np.where(usable[..., None, None], blocks, np.eye(3))
-    values, vectors = np.linalg.eigh(0.5 * (safe + np.swapaxes(safe, -1, -2)))
-    values = np.maximum(values, 1e-30)
-    logs = np.log(values)
+        return identity.copy()
+    logs = np.log(np.maximum(eigen.values, 1e-30))
     weights = np.exp(exponent * (logs - logs.mean(axis=-1, keepdims=True)))
     weights = np.minimum(weights, MAX_FLOOR_STRETCH)
-    shaped = np.einsum('...ij,...j,...kj->...ik', vectors, weights, vectors)
-    usable &= np.any(blocks != 0.0, axis=(-2, -1))
-    return np.where(usable[..., None, None], shaped, identity)
+    shaped = np.einsum('kij,kj,klj->kil', eigen.vectors, weights, eigen.vectors)
+    return np.where(eigen.usable[:, None, None], shaped, identity)
 
 
 def sweep_share(horizon_s: float, cfg: CovarianceConfig) -> float:
     """Return ``min(1, correction_sweep / horizon)``: the share of a correction in the sweep."""
-    if horizon_s <= 0.0 or cfg.correction_sweep <= 0.0:
-        return 1.0
-    return min(1.0, cfg.correction_sweep / horizon_s)
+    return float(sweep_shares(np.array([horizon_s], dtype=np.float64), cfg)[0])
+
+
+def sweep_shares(horizons_s: np.ndarray, cfg: CovarianceConfig) -> np.ndarray:
+    """:func:`sweep_share` of K horizons (K,): 1 where the horizon is unknown (0)."""
+    share = np.ones(horizons_s.shape)
+    if cfg.correction_sweep > 0.0:
+        timed = horizons_s > 0.0
+        share[timed] = np.minimum(1.0, cfg.correction_sweep / horizons_s[timed])
+    return share
 
 
 def motion_size(motion: np.ndarray) -> tuple[float, float]:
