@@ -40,7 +40,9 @@ from mlsemreg_ros.evaluation.covariance_calibration import (
     CovarianceSample,
     fit_calibration,
     fit_calibration_continuous,
+    FIT_GRID,
     load_samples,
+    meets_target,
     NEES_BOUND_95,
     nees_summary,
     nees_values,
@@ -345,3 +347,36 @@ def test_samples_keep_the_correction_direction_and_the_scan_size(tmp_path) -> No
              distances=np.ones(1))  # fmt: skip
     (old,) = load_samples(tmp_path / 'old.npz')
     assert np.array_equal(old.correction_vector, np.zeros(6)) and old.scan_points == 0
+
+
+def test_the_fit_finds_the_size_exponent_two_sensors_need() -> None:
+    """
+    A dense sensor's Hessian claims 100 times too little, a sparse one's 10 times.
+
+    The sparse Hessian covariance is 100 times the dense one, so no single scale meets both
+    (it would leave one at a mean of 60 or 0.6), while ``hessian_size_exponent`` 0.5 does:
+    the size is the scaled block's, so the factor is ``s^(1 - b) (g_H / g_ref)^-b``, 100 and
+    10 with ``s`` 1000.
+    """
+    rng = np.random.default_rng(4)
+    reference_t, reference_r = REFERENCE_SIGMAS
+    unit = np.diag([reference_t**2] * 3 + [reference_r**2] * 3)
+    datasets = {}
+    for name, hessian, claims_too_little in (
+        ('dense', unit / 10, 100.0),
+        ('sparse', unit * 10, 10.0),
+    ):
+        truth = hessian * claims_too_little
+        errors = rng.multivariate_normal(np.zeros(6), truth, size=300)
+        datasets[name] = [CovarianceSample(error, hessian) for error in errors]
+    grid = {name: (0.0,) for name in FIT_GRID if name != 'scale'}
+    grid |= {'scale': (1.0, 10.0, 30.0, 100.0, 1000.0), 'correction_sweep': (0.1,)}
+    scale, cfg, _ = fit_calibration(datasets, grid)
+    assert cfg.hessian_size_exponent == 0.0
+    summaries = [nees_summary(nees_values(s, scale, cfg)) for s in datasets.values()]
+    assert not all(meets_target(summary) for summary in summaries)
+    grid['hessian_size_exponent'] = (0.0, 0.25, 0.5, 0.75)
+    scale, cfg, _ = fit_calibration(datasets, grid)
+    assert (scale, cfg.hessian_size_exponent) == (1000.0, 0.5)
+    for samples in datasets.values():
+        assert meets_target(nees_summary(nees_values(samples, scale, cfg)))

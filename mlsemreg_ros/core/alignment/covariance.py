@@ -189,6 +189,16 @@ class CovarianceConfig:
         low=0.0,
         high=1.0,
     )
+    floor_size_exponent: float = param(
+        0.0,
+        'The floors follow the size of the Hessian covariance too: each block\'s floor '
+        'variance (every term above, translation and rotation apart) is multiplied by (the '
+        "block's geometric-mean variance / the reference of hessian_size_exponent) to this "
+        'power: a sparse scan (VLP-16, solid state) drifts more than a dense one per metre. '
+        '0: the same floors for every scan (docs/covariance.md).',
+        low=0.0,
+        high=2.0,
+    )
     along_correction: float = param(
         0.0,
         'Standard deviation added along the direction from the prediction to the accepted '
@@ -360,7 +370,8 @@ def calibrated_covariances(
     """
     hessian_covariances = np.asarray(hessian_covariances, np.float64)
     eigen = hessian_eigen(hessian_covariances) if eigen is None else eigen
-    scaled = follow_hessian_size(hessian_covariances * scale, scale, eigen, cfg)
+    log_ratios = size_log_ratios(eigen, scale)
+    scaled = follow_hessian_size(hessian_covariances * scale, log_ratios, cfg)
     share = sweep_shares(inputs.horizons_s, cfg)
     moved_m, turned_deg = inputs.corrections[:, 0] * share, inputs.corrections[:, 1] * share
     sigma_t = (
@@ -376,6 +387,9 @@ def calibrated_covariances(
         + cfg.per_degree_rotation * inputs.turns_deg
         + cfg.per_correction_rotation * np.maximum(turned_deg - cfg.correction_free_rotation, 0.0)
     )
+    if cfg.floor_size_exponent != 0.0:  # a sparse scan's errors no Hessian sees are larger
+        factors = size_factors(log_ratios, 0.5 * cfg.floor_size_exponent)
+        sigma_t, sigma_r = sigma_t * factors[:, 0], sigma_r * factors[:, 1]
     floor = np.zeros(scaled.shape)
     floor[:, :3, :3] = (sigma_t**2)[:, None, None] * _shape(eigen[0], cfg.translation_floor_shape)
     floor[:, 3:, 3:] = (sigma_r**2)[:, None, None] * _shape(eigen[1], cfg.rotation_floor_shape)
@@ -384,29 +398,39 @@ def calibrated_covariances(
     return 0.5 * (covariance + np.swapaxes(covariance, -1, -2))
 
 
+def size_log_ratios(eigen: tuple[BlockEigen, BlockEigen], scale: float) -> np.ndarray:
+    """
+    Return ``log(g / g_ref)`` (K, 2) of the translation and the rotation block.
+
+    ``g``: the geometric mean of the eigenvalues of the block of ``scale`` times the
+    Hessian covariance of ``eigen``, ``g_ref`` the square of :data:`REFERENCE_SIGMAS`; 0 for
+    a block that is zero, singular or not finite.
+    """
+    ratios = np.zeros((len(eigen[0].values), 2))
+    for index, (reference, decomposed) in enumerate(zip(REFERENCE_SIGMAS, eigen, strict=True)):
+        ratio = decomposed.log_volume() + np.log(scale) - 2.0 * np.log(reference)
+        ratios[:, index] = np.where(decomposed.usable, ratio, 0.0)
+    return ratios
+
+
+def size_factors(log_ratios: np.ndarray, exponent: float) -> np.ndarray:
+    """Return ``(g / g_ref) ** exponent`` (K, 2), within 1 / and :data:`MAX_SIZE_FACTOR`."""
+    return np.clip(np.exp(exponent * log_ratios), 1 / MAX_SIZE_FACTOR, MAX_SIZE_FACTOR)
+
+
 def follow_hessian_size(
-    scaled: np.ndarray, scale: float, eigen: tuple[BlockEigen, BlockEigen], cfg: CovarianceConfig
+    scaled: np.ndarray, log_ratios: np.ndarray, cfg: CovarianceConfig
 ) -> np.ndarray:
     """
     ``scaled`` (K, 6, 6) times ``(g / g_ref) ** -hessian_size_exponent`` per block.
 
-    ``g``: the geometric mean of the eigenvalues of the block (translation, rotation) of
-    ``scaled`` (``scale`` times the Hessian covariance of ``eigen``), ``g_ref`` the square
-    of :data:`REFERENCE_SIGMAS`. Fewer or worse spread points give a larger Hessian
-    covariance, and their residuals are less correlated than a dense scan's: with the
-    exponent, a block's scale grows as the Hessian tightens (capped at
-    :data:`MAX_SIZE_FACTOR` either way).
+    ``log_ratios``: :func:`size_log_ratios` of ``scaled``. Fewer or worse spread points
+    give a larger Hessian covariance, and their residuals are less correlated than a dense
+    scan's: with the exponent, a block's scale grows as the Hessian tightens.
     """
-    exponent = cfg.hessian_size_exponent
-    if exponent == 0.0:
+    if cfg.hessian_size_exponent == 0.0:
         return scaled
-    root = np.ones(scaled.shape[:-1])
-    for block, reference, decomposed in zip(
-        (slice(0, 3), slice(3, 6)), REFERENCE_SIGMAS, eigen, strict=True
-    ):
-        log_ratio = decomposed.log_volume() + np.log(scale) - 2.0 * np.log(reference)
-        factor = np.clip(np.exp(-exponent * log_ratio), 1 / MAX_SIZE_FACTOR, MAX_SIZE_FACTOR)
-        root[:, block] = np.sqrt(np.where(decomposed.usable, factor, 1.0))[:, None]
+    root = np.sqrt(np.repeat(size_factors(log_ratios, -cfg.hessian_size_exponent), 3, axis=1))
     return scaled * root[:, :, None] * root[:, None, :]
 
 
