@@ -40,10 +40,19 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   0)`` (and the rotation likewise), ``c`` the distance of the accepted pose from the motion
   model's prediction and ``k = min(1, correction_sweep / horizon)`` the share of it that
   fell within one sweep (``horizon``: the time since the last accepted scan): the
-  prediction deskewed the scan, and a velocity it got wrong bends the sweep.
+  prediction deskewed the scan, and a velocity it got wrong bends the sweep;
+- plus ``(covariance.along_correction * k * |c|)^2`` along the direction of that correction
+  (:func:`along_correction`): the scan stays off along it.
+
+What differs between sensors is followed through the Hessian's own size, not a table per
+sensor: ``covariance.hessian_size_exponent`` grows the scale of a block as its Hessian
+covariance tightens (a dense scan's many residuals are correlated, so its Hessian
+understates the error more), and ``covariance.floor_size_exponent`` grows the floors of a
+block with it (a sparse scan drifts more per metre): :func:`follow_hessian_size`. The
+translation floor can take the Hessian's shape too (``covariance.translation_floor_shape``).
 
 The odometry applies it to every accepted scan's frame covariance
-(``core/odometry/odometry.py``), so the pose covariance, the twist covariance and the
+(``core/odometry/advance.py``), so the pose covariance, the twist covariance and the
 NEES of ``mlsemreg eval-bag`` use it. ``mlsemreg covariance-nees`` measures it.
 """
 
@@ -183,8 +192,8 @@ class CovarianceConfig:
         0.0,
         'The scale follows the size of the Hessian covariance: each block (translation, '
         'rotation) is multiplied by (its geometric-mean variance / a reference) to minus this '
-        'power, so a dense scan, whose many correlated residuals make the Hessian claim too '
-        'much, gets a larger scale than a sparse one. 0: one scale for every scan '
+        'power, so a dense scan, whose many correlated residuals make the Hessian understate '
+        'the error more, gets a larger scale than a sparse one. 0: one scale for every scan '
         '(docs/covariance.md).',
         low=0.0,
         high=1.0,
