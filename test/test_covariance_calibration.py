@@ -157,6 +157,9 @@ def test_errors_drawn_from_the_true_covariance_have_a_chi_square_nees(seed: int)
             'correction_free_translation': (0.0,),
             'correction_free_rotation': (0.0,),
             'correction_sweep': (0.1,),
+            'hessian_size_exponent': (0.0,),
+            'floor_size_exponent': (0.0,),
+            'along_correction': (0.0,),
         },
     )
     assert scale == 20.0 and cfg.floor_translation == 0.0

@@ -412,6 +412,11 @@ FIT_GRID: dict[str, tuple[float, ...]] = {
     'correction_free_translation': (0.1, 0.2),
     'correction_free_rotation': (0.5, 1.0),
     'correction_sweep': (0.1,),
+    # the terms that follow the Hessian's size and the correction's direction: the defaults
+    'hessian_size_exponent': (0.549,),
+    'floor_size_exponent': (0.374,),
+    'along_correction': (0.161,),
+    'translation_floor_shape': (0.0,),
 }
 
 

@@ -81,7 +81,7 @@ class CovarianceConfig:
     """Calibration of the fine alignment's pose covariance (docs/covariance.md)."""
 
     floor_translation: float = param(
-        0.018,
+        0.00523,
         'Standard deviation added to every axis of the pose covariance (errors the '
         'Hessian does not see: deskew, labels, the keyframe).',
         unit='m',
@@ -89,14 +89,14 @@ class CovarianceConfig:
         high=100.0,
     )
     floor_rotation: float = param(
-        0.02,
+        0.0643,
         'Standard deviation added to every rotation axis of the pose covariance.',
         unit='deg',
         low=0.0,
         high=180.0,
     )
     per_metre_translation: float = param(
-        0.002,
+        0.0018,
         'Standard deviation added to every translation axis per metre of the motion the '
         'covariance describes (from the keyframe to the scan).',
         unit='m/m',
@@ -104,14 +104,14 @@ class CovarianceConfig:
         high=10.0,
     )
     per_metre_rotation: float = param(
-        0.003,
+        0.000251,
         'Standard deviation added to every rotation axis per metre of that motion.',
         unit='deg/m',
         low=0.0,
         high=100.0,
     )
     per_degree_translation: float = param(
-        0.004,
+        0.000239,
         'Standard deviation added to every translation axis per degree the motion turned '
         '(deskew and timing errors grow in turns).',
         unit='m/deg',
@@ -119,14 +119,14 @@ class CovarianceConfig:
         high=10.0,
     )
     per_degree_rotation: float = param(
-        0.007,
+        0.00155,
         'Standard deviation added to every rotation axis per degree the motion turned.',
         unit='deg/deg',
         low=0.0,
         high=10.0,
     )
     per_correction_translation: float = param(
-        1.8,
+        1.47,
         'Standard deviation added to every translation axis per metre that the accepted pose '
         "lies from the motion model's prediction (times the sweep share, correction_sweep) "
         'beyond correction_free_translation: the scan was deskewed by that prediction, so a '
@@ -137,7 +137,7 @@ class CovarianceConfig:
         high=10.0,
     )
     per_correction_rotation: float = param(
-        0.44,
+        0.434,
         'Standard deviation added to every rotation axis per degree that the accepted pose '
         'turned from the prediction (times the sweep share) beyond correction_free_rotation. '
         '0: off.',
@@ -146,7 +146,7 @@ class CovarianceConfig:
         high=10.0,
     )
     correction_free_translation: float = param(
-        0.36,
+        0.0752,
         'The part of the distance from the prediction (times the sweep share) that adds '
         'nothing (per_correction_translation).',
         unit='m',
@@ -154,14 +154,14 @@ class CovarianceConfig:
         high=100.0,
     )
     correction_free_rotation: float = param(
-        0.2,
+        2.81,
         'The part of the turn from the prediction that adds nothing (per_correction_rotation).',
         unit='deg',
         low=0.0,
         high=180.0,
     )
     correction_sweep: float = param(
-        0.135,
+        0.0775,
         "The sweep time over which the prediction's velocity error bends the scan: the "
         'correction counts times min(1, correction_sweep / horizon), the horizon being the '
         'time since the last accepted scan (a prediction 3 m off after 1 s bends a sweep as '
@@ -171,7 +171,7 @@ class CovarianceConfig:
         high=10.0,
     )
     rotation_floor_shape: float = param(
-        0.5,
+        0.26,
         "The rotation floor follows the shape of the Hessian's rotation block: along each of "
         'its eigen-directions the floor variance is multiplied by (variance / geometric mean '
         'of the three) to this power, capped at 100 (the product stays 1). A roll the scene '
@@ -189,7 +189,7 @@ class CovarianceConfig:
         high=2.0,
     )
     hessian_size_exponent: float = param(
-        0.0,
+        0.549,
         'The scale follows the size of the Hessian covariance: each block (translation, '
         'rotation) is multiplied by (its geometric-mean variance / a reference) to minus this '
         'power, so a dense scan, whose many correlated residuals make the Hessian understate '
@@ -199,7 +199,7 @@ class CovarianceConfig:
         high=1.0,
     )
     floor_size_exponent: float = param(
-        0.0,
+        0.374,
         'The floors follow the size of the Hessian covariance too: each block\'s floor '
         'variance (every term above, translation and rotation apart) is multiplied by (the '
         "block's geometric-mean variance / the reference of hessian_size_exponent) to this "
@@ -209,7 +209,7 @@ class CovarianceConfig:
         high=2.0,
     )
     along_correction: float = param(
-        0.0,
+        0.161,
         'Standard deviation added along the direction from the prediction to the accepted '
         'pose, per metre of that correction (times the sweep share, correction_sweep): a '
         'scan deskewed by a prediction that was off stays off along it. 0: off '
