@@ -200,7 +200,7 @@ class CovarianceConfig:
     )
     floor_size_exponent: float = param(
         0.374,
-        'The floors follow the size of the Hessian covariance too: each block\'s floor '
+        "The floors follow the size of the Hessian covariance too: each block's floor "
         'variance (every term above, translation and rotation apart) is multiplied by (the '
         "block's geometric-mean variance / the reference of hessian_size_exponent) to this "
         'power: a sparse scan (VLP-16, solid state) drifts more than a dense one per metre. '
