@@ -48,6 +48,7 @@ from mlsemreg_ros.evaluation.covariance_calibration import (
     nees_values,
     save_samples,
     stream_samples,
+    target_violation,
 )
 import numpy as np
 import pytest
@@ -383,3 +384,15 @@ def test_the_fit_finds_the_size_exponent_two_sensors_need() -> None:
     assert (scale, cfg.hessian_size_exponent) == (1000.0, 0.5)
     for samples in datasets.values():
         assert meets_target(nees_summary(nees_values(samples, scale, cfg)))
+
+
+def test_the_continuous_fit_is_no_worse_than_its_start() -> None:
+    """The configured calibration is in the first population: a short search keeps or beats it."""
+    rng = np.random.default_rng(6)
+    truth = np.diag([1e-4] * 3 + [1e-6] * 3)
+    errors = rng.multivariate_normal(np.zeros(6), truth, size=100)
+    datasets = {'set': [CovarianceSample(error, truth / 30.0, 1.0) for error in errors]}
+    start = (30.0, OFF)
+    start_violation = target_violation([nees_values(datasets['set'], *start)])
+    _, _, violation = fit_calibration_continuous(datasets, iterations=2, start=start)
+    assert violation <= start_violation + 1e-6  # the start is nudged 1e-9 inside its bounds

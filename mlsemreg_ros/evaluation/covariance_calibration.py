@@ -362,7 +362,9 @@ def fit_calibration_continuous(
     first = None
     if start is not None:
         values = [start[0] if n == 'scale' else getattr(start[1], n) for n in names]
-        first = np.clip(values, *np.array(list(FIT_BOUNDS.values())).T)
+        low, high = np.array(list(FIT_BOUNDS.values())).T
+        share = np.clip((np.asarray(values) - low) / (high - low), 1e-9, 1.0 - 1e-9)
+        first = low + share * (high - low)  # inside: scipy rounds a bound out of its box
     result = differential_evolution(
         violation,
         list(FIT_BOUNDS.values()),
