@@ -20,12 +20,15 @@ from dataclasses import replace
 
 from mlsemreg_ros.core.alignment.covariance import (
     calibrated_covariance,
+    calibrated_covariances,
     CovarianceConfig,
+    CovarianceInputs,
     degenerate_inflation,
     floor_shape,
     MAX_FLOOR_STRETCH,
     motion_size,
     no_calibration,
+    REFERENCE_SIGMAS,
 )
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry import Odometry
@@ -37,12 +40,15 @@ from mlsemreg_ros.evaluation.covariance_calibration import (
     CovarianceSample,
     fit_calibration,
     fit_calibration_continuous,
+    FIT_GRID,
     load_samples,
+    meets_target,
     NEES_BOUND_95,
     nees_summary,
     nees_values,
     save_samples,
     stream_samples,
+    target_violation,
 )
 import numpy as np
 import pytest
@@ -152,6 +158,9 @@ def test_errors_drawn_from_the_true_covariance_have_a_chi_square_nees(seed: int)
             'correction_free_translation': (0.0,),
             'correction_free_rotation': (0.0,),
             'correction_sweep': (0.1,),
+            'hessian_size_exponent': (0.0,),
+            'floor_size_exponent': (0.0,),
+            'along_correction': (0.0,),
         },
     )
     assert scale == 20.0 and cfg.floor_translation == 0.0
@@ -247,3 +256,143 @@ def test_the_odometry_publishes_the_calibrated_covariance() -> None:
     plain, calibrated = steps['plain'].frame_covariance, steps['calibrated'].frame_covariance
     added = np.diag([0.05**2] * 3 + [np.radians(0.5) ** 2] * 3)
     assert np.allclose(calibrated, plain + added, rtol=1e-3, atol=1e-9)
+
+
+def test_the_translation_floor_follows_the_shape_of_the_hessian() -> None:
+    """Along a straight road the Hessian's weak translation gets the floor's larger part."""
+    heading = motion(25.0, (0, 0, 0))[:3, :3]
+    covariance = np.zeros((6, 6))
+    covariance[:3, :3] = heading @ np.diag([8e-6, 1e-6, 1e-6]) @ heading.T
+    covariance[3:, 3:] = np.eye(3) * 1e-8
+    cfg = replace(OFF, floor_translation=0.02, translation_floor_shape=0.5)
+    added = calibrated_covariance(covariance, 1.0, cfg)[:3, :3] - covariance[:3, :3]
+    along, across = heading[:, 0], heading[:, 1]
+    assert np.isclose(along @ added @ along, 0.02**2 * 8 ** (1 / 3))
+    assert np.isclose(across @ added @ across, 0.02**2 * 8 ** (-1 / 6))
+    assert np.isclose(np.linalg.det(added), (0.02**2) ** 3)
+    assert np.allclose(calibrated_covariance(covariance, 1.0, OFF), covariance)
+
+
+def test_a_correction_adds_variance_along_its_direction_only() -> None:
+    """The error of a scan deskewed by a prediction 2 m off at stride 10 lies along it."""
+    cfg = replace(OFF, along_correction=0.5, correction_sweep=0.1)
+    direction = np.array([2.0, 0.5, 0.0])
+    zero = np.zeros((6, 6))
+    added = calibrated_covariance(
+        zero, 1.0, cfg, correction=(2.06, 0.0), horizon_s=1.0, correction_direction=direction
+    )
+    unit = direction / np.linalg.norm(direction)
+    sideways = np.array([-unit[1], unit[0], 0.0])
+    assert np.isclose(unit @ added[:3, :3] @ unit, (0.5 * 0.1 * np.linalg.norm(direction)) ** 2)
+    assert np.isclose(sideways @ added[:3, :3] @ sideways, 0.0)
+    assert np.allclose(added[3:, :], 0.0)
+    # without a direction (a pair, the first scans) the term adds nothing
+    assert np.allclose(calibrated_covariance(zero, 1.0, cfg, correction=(2.06, 0.0)), 0.0)
+
+
+def test_a_tighter_hessian_gets_a_larger_scale_with_the_size_exponent() -> None:
+    """A block 100 times smaller in variance is scaled up 100^b: the NEES follows less the size."""
+    reference_t, reference_r = REFERENCE_SIGMAS
+    at_reference = np.diag([reference_t**2] * 3 + [reference_r**2] * 3)
+    cfg = replace(OFF, hessian_size_exponent=0.5)
+    assert np.allclose(calibrated_covariance(at_reference, 1.0, cfg), at_reference)
+    tight = at_reference / 100.0
+    assert np.allclose(calibrated_covariance(tight, 1.0, cfg), tight * 10.0)
+    loose = at_reference * 4.0
+    assert np.allclose(calibrated_covariance(loose, 1.0, cfg), loose / 2.0)
+    # the scale counts in the size: scale 4 on the reference is the loose block
+    assert np.allclose(calibrated_covariance(at_reference, 4.0, cfg), loose / 2.0)
+    # the cross terms follow both blocks' factors, so the result stays positive definite
+    rng = np.random.default_rng(2)
+    mixed = rng.normal(size=(6, 6))
+    mixed = mixed @ mixed.T * 1e-7
+    assert np.all(np.linalg.eigvalsh(calibrated_covariance(mixed, 1.0, cfg)) > 0)
+
+
+def test_stacked_samples_calibrate_as_each_one_alone() -> None:
+    """calibrated_covariances (the fit's) gives calibrated_covariance (the odometry's)."""
+    rng = np.random.default_rng(5)
+    cfg = replace(
+        CovarianceConfig(),
+        hessian_size_exponent=0.3,
+        translation_floor_shape=0.4,
+        along_correction=0.7,
+        degenerate_ratio=20.0,
+    )
+    covariances, rows = [], []
+    for _ in range(6):
+        axes = np.linalg.qr(rng.normal(size=(6, 6)))[0]
+        covariances.append(axes @ np.diag(rng.uniform(1e-8, 1e-5, 6)) @ axes.T)
+        rows.append((*rng.uniform(0, 10, 2), *rng.uniform(0, 2, 2), rng.choice([0.0, 0.1, 1.0])))
+    directions = rng.normal(size=(6, 3))
+    inputs = CovarianceInputs(
+        *(np.array([row[i] for row in rows]) for i in (0, 1)),
+        np.array([row[2:4] for row in rows]),
+        np.array([row[4] for row in rows]),
+        directions,
+    )
+    stacked = calibrated_covariances(np.array(covariances), 3.0, cfg, inputs)
+    for k, (covariance, row) in enumerate(zip(covariances, rows, strict=True)):
+        alone = calibrated_covariance(
+            covariance, 3.0, cfg, *row[:2], row[2:4], row[4], correction_direction=directions[k]
+        )
+        assert np.allclose(stacked[k], alone, rtol=1e-12, atol=1e-20)
+
+
+def test_samples_keep_the_correction_direction_and_the_scan_size(tmp_path) -> None:
+    vector = np.array([0.3, -0.1, 0.0, 0.0, 0.0, 0.01])
+    sample = CovarianceSample(np.ones(6), np.eye(6), 1.0, 2.0, 0.32, 0.6, 0.1, vector, 23000, 2100)
+    save_samples(tmp_path / 's.npz', [sample])
+    (back,) = load_samples(tmp_path / 's.npz')
+    assert np.array_equal(back.correction_vector, vector)
+    assert (back.scan_points, back.inliers) == (23000, 2100)
+    # a file written before they were kept loads with zeros
+    np.savez(tmp_path / 'old.npz', errors=np.ones((1, 6)), covariances=np.eye(6)[None],
+             distances=np.ones(1))  # fmt: skip
+    (old,) = load_samples(tmp_path / 'old.npz')
+    assert np.array_equal(old.correction_vector, np.zeros(6)) and old.scan_points == 0
+
+
+def test_the_fit_finds_the_size_exponent_two_sensors_need() -> None:
+    """
+    A dense sensor's Hessian claims 100 times too little, a sparse one's 10 times.
+
+    The sparse Hessian covariance is 100 times the dense one, so no single scale meets both
+    (it would leave one at a mean of 60 or 0.6), while ``hessian_size_exponent`` 0.5 does:
+    the size is the scaled block's, so the factor is ``s^(1 - b) (g_H / g_ref)^-b``, 100 and
+    10 with ``s`` 1000.
+    """
+    rng = np.random.default_rng(4)
+    reference_t, reference_r = REFERENCE_SIGMAS
+    unit = np.diag([reference_t**2] * 3 + [reference_r**2] * 3)
+    datasets = {}
+    for name, hessian, claims_too_little in (
+        ('dense', unit / 10, 100.0),
+        ('sparse', unit * 10, 10.0),
+    ):
+        truth = hessian * claims_too_little
+        errors = rng.multivariate_normal(np.zeros(6), truth, size=300)
+        datasets[name] = [CovarianceSample(error, hessian) for error in errors]
+    grid = {name: (0.0,) for name in FIT_GRID if name != 'scale'}
+    grid |= {'scale': (1.0, 10.0, 30.0, 100.0, 1000.0), 'correction_sweep': (0.1,)}
+    scale, cfg, _ = fit_calibration(datasets, grid)
+    assert cfg.hessian_size_exponent == 0.0
+    summaries = [nees_summary(nees_values(s, scale, cfg)) for s in datasets.values()]
+    assert not all(meets_target(summary) for summary in summaries)
+    grid['hessian_size_exponent'] = (0.0, 0.25, 0.5, 0.75)
+    scale, cfg, _ = fit_calibration(datasets, grid)
+    assert (scale, cfg.hessian_size_exponent) == (1000.0, 0.5)
+    for samples in datasets.values():
+        assert meets_target(nees_summary(nees_values(samples, scale, cfg)))
+
+
+def test_the_continuous_fit_is_no_worse_than_its_start() -> None:
+    """The configured calibration is in the first population: a short search keeps or beats it."""
+    rng = np.random.default_rng(6)
+    truth = np.diag([1e-4] * 3 + [1e-6] * 3)
+    errors = rng.multivariate_normal(np.zeros(6), truth, size=100)
+    datasets = {'set': [CovarianceSample(error, truth / 30.0, 1.0) for error in errors]}
+    start = (30.0, OFF)
+    start_violation = target_violation([nees_values(datasets['set'], *start)])
+    _, _, violation = fit_calibration_continuous(datasets, iterations=2, start=start)
+    assert violation <= start_violation + 1e-6  # the start is nudged 1e-9 inside its bounds

@@ -18,21 +18,23 @@ NEES of the pose covariance on real pairs and drives, and its calibration (docs/
 A sample is one accepted estimate: its error ``e = log(T_truth^-1 T_estimate)``
 (``[t, rotvec]``, the estimate's axes) and its Hessian covariance ``C_H`` (scale 1, no
 calibration). The NEES of a calibration is ``e^T inv(C) e`` with ``C`` from
-:func:`~mlsemreg_ros.core.alignment.covariance.calibrated_covariance`; a consistent
+:func:`~mlsemreg_ros.core.alignment.covariance.calibrated_covariances`; a consistent
 covariance gives chi-square values with 6 degrees of freedom: mean 6, 95 % below 12.59.
 The samples are kept, so a calibration is scored without registering again.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 import itertools
 from typing import Any
 
 from mlsemreg_ros.core.alignment.covariance import (
-    calibrated_covariance,
+    BlockEigen,
+    calibrated_covariances,
     CovarianceConfig,
-    floor_shape,
+    CovarianceInputs,
+    hessian_eigen,
     motion_size,
     no_calibration,
 )
@@ -42,6 +44,18 @@ from scipy.stats import chi2
 
 #: The 95 % bound of a chi-square with 6 degrees of freedom.
 NEES_BOUND_95 = float(chi2.ppf(0.95, 6))
+
+#: The target per data set: a NEES mean within these bounds (6 is ideal) ...
+TARGET_MEAN = (3.0, 9.0)
+#: ... and at least this share (percent) of the values inside the 95 % bound.
+TARGET_INSIDE_PCT = 90.0
+
+
+def meets_target(summary: dict[str, float]) -> bool:
+    """Whether a data set's :func:`nees_summary` meets the target (docs/covariance.md)."""
+    mean, inside = summary['nees_mean'], summary['inside_95_pct']
+    low, high = TARGET_MEAN
+    return bool(low <= mean <= high and inside >= TARGET_INSIDE_PCT)
 
 
 @dataclass
@@ -55,6 +69,10 @@ class CovarianceSample:
     correction_m: float = 0.0  # m, the accepted pose from the motion model's prediction
     correction_deg: float = 0.0  # deg, the rotation between them
     gap_s: float = 0.0  # s, from the last accepted scan (the prediction's horizon); 0: none
+    #: (6,) ``[t, rotvec]`` of ``inv(T_predicted) T_estimate``, the scan's axes (zeros: none)
+    correction_vector: np.ndarray = field(default_factory=lambda: np.zeros(6))
+    scan_points: int = 0  # points of the scan as the odometry kept them (0: unknown)
+    inliers: int = 0  # inliers of the accepted fine alignment (0: unknown)
 
 
 def pose_error(T_estimate: np.ndarray, T_truth: np.ndarray) -> np.ndarray:
@@ -124,84 +142,88 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
         T_truth = relative_transform(truth[keyframe], truth[scan.index])
         error = pose_error(estimate.relative, T_truth)
         size = motion_size(estimate.relative)
-        correction = prediction_correction(estimator.last_step)
+        step = estimator.last_step
+        correction = prediction_correction(step)
         gap_s = 0.0 if previous_ns is None else (scan.stamp_ns - previous_ns) * 1e-9
         samples.append(
-            CovarianceSample(error, estimate.frame_covariance, *size, *correction, gap_s)
+            CovarianceSample(
+                error,
+                estimate.frame_covariance,
+                *size,
+                *correction,
+                gap_s,
+                correction_vector(step),
+                0 if step.points is None else len(step.points),
+                accepted_inliers(step),
+            )
         )
     return samples
+
+
+def _predicted_pose(step: Any) -> np.ndarray | None:
+    """Return the motion model's prediction ``T_odom_current`` of a step (None: none)."""
+    predicted = [c.T_initial for c in getattr(step, 'candidates', []) if c.name == 'prediction']
+    return predicted[0] if predicted else None
+
+
+def correction_vector(step: Any) -> np.ndarray:
+    """``[t, rotvec]`` of an accepted step's pose from its prediction (zeros: none)."""
+    predicted = _predicted_pose(step)
+    if predicted is None or step.pose is None:
+        return np.zeros(6)
+    return pose_error(step.pose, predicted)
+
+
+def accepted_inliers(step: Any) -> int:
+    """Inliers of the acceptable candidate's alignment nearest the step's pose (0: none)."""
+    usable = [c for c in getattr(step, 'candidates', []) if c.acceptable]
+    if not usable or step.pose is None:
+        return 0
+    nearest = min(
+        usable,
+        key=lambda c: np.linalg.norm(c.alignment.T_target_source[:3, 3] - step.pose[:3, 3]),
+    )
+    return int(nearest.alignment.num_inliers)
 
 
 def prediction_correction(step: Any) -> tuple[float, float]:
     """Distance (m) and angle (deg) of an accepted step's pose from its prediction (or 0, 0)."""
     from mlsemreg_ros.core.rigid import invert_transform
 
-    predicted = [c.T_initial for c in getattr(step, 'candidates', []) if c.name == 'prediction']
-    if not predicted or step.pose is None:
+    predicted = _predicted_pose(step)
+    if predicted is None or step.pose is None:
         return 0.0, 0.0
-    return motion_size(invert_transform(predicted[0]) @ step.pose)
+    return motion_size(invert_transform(predicted) @ step.pose)
 
 
 def nees_values(
     samples: list[CovarianceSample], scale: float, cfg: CovarianceConfig
 ) -> np.ndarray:
     """Return the NEES of every sample under a calibration (NaN: a singular covariance)."""
+    if not samples:
+        return np.zeros(0)
+    errors, covariances, inputs, eigen = _stack(samples)
+    calibrated = calibrated_covariances(covariances, scale, cfg, inputs, eigen)
     values = np.full(len(samples), np.nan)
-    for index, sample in enumerate(samples):
-        covariance = calibrated_covariance(
-            sample.hessian_covariance,
-            scale,
-            cfg,
-            sample.distance,
-            sample.turn_deg,
-            correction=(sample.correction_m, sample.correction_deg),
-            horizon_s=sample.gap_s,
-        )
-        try:
-            values[index] = float(sample.error @ np.linalg.solve(covariance, sample.error))
-        except np.linalg.LinAlgError:
-            continue
+    usable = np.all(np.isfinite(calibrated), axis=(1, 2))
+    usable[usable] = np.linalg.matrix_rank(calibrated[usable]) == 6
+    if np.any(usable):
+        solved = np.linalg.solve(calibrated[usable], errors[usable][:, :, None])[:, :, 0]
+        values[usable] = np.einsum('ki,ki->k', errors[usable], solved)
     return values
 
 
 def _batch_nees(
     errors: np.ndarray,
     covariances: np.ndarray,
-    distances: np.ndarray,
-    turns: np.ndarray,
-    corrections: np.ndarray,
+    inputs: CovarianceInputs,
+    eigen: tuple[BlockEigen, BlockEigen],
     scale: float,
     cfg: CovarianceConfig,
 ) -> np.ndarray:
-    """
-    :func:`nees_values` for stacked samples without degenerate inflation (the fit).
-
-    ``corrections``: (K, 3) of the correction (m, deg) and the prediction's horizon (s).
-    """
-    horizon = corrections[:, 2]
-    share = np.ones_like(horizon)
-    if cfg.correction_sweep > 0:
-        timed = horizon > 0
-        share[timed] = np.minimum(1.0, cfg.correction_sweep / horizon[timed])
-    moved = np.maximum(share * corrections[:, 0] - cfg.correction_free_translation, 0.0)
-    turned = np.maximum(share * corrections[:, 1] - cfg.correction_free_rotation, 0.0)
-    sigma_t = (
-        cfg.floor_translation
-        + cfg.per_metre_translation * distances
-        + cfg.per_degree_translation * turns
-        + cfg.per_correction_translation * moved
-    )
-    sigma_r = np.radians(
-        cfg.floor_rotation
-        + cfg.per_metre_rotation * distances
-        + cfg.per_degree_rotation * turns
-        + cfg.per_correction_rotation * turned
-    )
-    floor = np.zeros_like(covariances)
-    floor[:, [0, 1, 2], [0, 1, 2]] = (sigma_t**2)[:, None]
-    shape = floor_shape(covariances[:, 3:, 3:], cfg.rotation_floor_shape)
-    floor[:, 3:, 3:] = (sigma_r**2)[:, None, None] * shape
-    solved = np.linalg.solve(scale * covariances + floor, errors[:, :, None])[:, :, 0]
+    """:func:`nees_values` of stacked samples (:func:`_stack`), for the fits."""
+    calibrated = calibrated_covariances(covariances, scale, cfg, inputs, eigen)
+    solved = np.linalg.solve(calibrated, errors[:, :, None])[:, :, 0]
     return np.einsum('ki,ki->k', errors, solved)
 
 
@@ -222,16 +244,16 @@ def calibration_cost(summaries: list[dict[str, float]]) -> float:
     """
     How far a calibration is from consistent on the data sets (0 is ideal).
 
-    Each data set that misses the target (a mean within 3-12 and at least 85 % inside the
-    95 % bound) counts 1; then the mean over the data sets of ``|log(mean / 6)|`` breaks
-    the ties (below 1 unless a mean is 16 times off).
+    Each data set that misses the target (:func:`meets_target`) counts 1; then the mean
+    over the data sets of ``|log(mean / 6)|`` breaks the ties (below 1 unless a mean is 16
+    times off).
     """
     misses, spread = 0, 0.0
     for s in summaries:
-        mean, inside = s['nees_mean'], s['inside_95_pct']
+        mean = s['nees_mean']
         if not np.isfinite(mean) or mean <= 0:
             return np.inf
-        misses += not (3.0 <= mean <= 12.0 and inside >= 85.0)
+        misses += not meets_target(s)
         spread += abs(np.log(mean / 6.0)) / len(summaries)
     return misses + min(spread, 0.999)
 
@@ -264,50 +286,62 @@ def fit_calibration(
     return best
 
 
-def _stacks(datasets: dict[str, list[CovarianceSample]]) -> list[tuple[np.ndarray, ...]]:
+def _stacks(datasets: dict[str, list[CovarianceSample]]) -> list[tuple[Any, ...]]:
     """Stack each data set's samples for :func:`_batch_nees`."""
-    return [
-        (
-            np.array([s.error for s in samples]).reshape(-1, 6),
-            np.array([s.hessian_covariance for s in samples]).reshape(-1, 6, 6),
+    return [_stack(samples) for samples in datasets.values() if samples]
+
+
+def _stack(samples: list[CovarianceSample]) -> tuple[Any, ...]:
+    """Errors (K, 6), Hessian covariances (K, 6, 6), the calibration's inputs, the eigen."""
+    covariances = np.array([s.hessian_covariance for s in samples], dtype=np.float64)
+    return (
+        np.array([s.error for s in samples], dtype=np.float64).reshape(-1, 6),
+        covariances.reshape(-1, 6, 6),
+        CovarianceInputs(
             np.array([s.distance for s in samples], dtype=np.float64),
             np.array([s.turn_deg for s in samples], dtype=np.float64),
-            np.array(
-                [(s.correction_m, s.correction_deg, s.gap_s) for s in samples], dtype=np.float64
-            ).reshape(-1, 3),
-        )
-        for samples in datasets.values()
-        if samples
-    ]
+            np.array([(s.correction_m, s.correction_deg) for s in samples]).reshape(-1, 2),
+            np.array([s.gap_s for s in samples], dtype=np.float64),
+            np.array([s.correction_vector[:3] for s in samples]).reshape(-1, 3),
+        ),
+        hessian_eigen(covariances.reshape(-1, 6, 6)),
+    )
 
 
 def target_violation(values: list[np.ndarray], spread_weight: float = 0.1) -> float:
     """
     How far NEES values are from the target, smoothly (0: met with every mean at 6).
 
-    Per data set: the distance of the mean below 3 or above 12, a tenth of the percentage
-    points below 85 % inside the 95 % bound, and ``spread_weight * |log(mean / 6)|``.
+    Per data set: the distance of the mean outside :data:`TARGET_MEAN`, a tenth of the
+    percentage points below :data:`TARGET_INSIDE_PCT` inside the 95 % bound, and
+    ``spread_weight * |log(mean / 6)|``.
     """
-    total = 0.0
+    total, (low, high) = 0.0, TARGET_MEAN
     for nees in values:
         mean = float(np.mean(nees))
         if not np.isfinite(mean) or mean <= 0:
             return np.inf
         inside = 100.0 * float(np.mean(nees <= NEES_BOUND_95))
-        total += max(3.0 - mean, 0.0) + max(mean - 12.0, 0.0) + max(85.0 - inside, 0.0) / 10
+        total += max(low - mean, 0.0) + max(mean - high, 0.0)
+        total += max(TARGET_INSIDE_PCT - inside, 0.0) / 10
         total += spread_weight * abs(np.log(mean / 6.0))
     return total
 
 
 def fit_calibration_continuous(
-    datasets: dict[str, list[CovarianceSample]], seed: int = 0, iterations: int = 300
+    datasets: dict[str, list[CovarianceSample]],
+    seed: int = 0,
+    iterations: int = 150,
+    start: tuple[float, CovarianceConfig] | None = None,
 ) -> tuple[float, CovarianceConfig, float]:
     """
     ``(scale, CovarianceConfig, violation)`` minimising :func:`target_violation`.
 
-    A continuous search (scipy's differential evolution) within :data:`FIT_BOUNDS`, where
-    the grid of :func:`fit_calibration` holds no calibration meeting every data set. The
-    degenerate-direction inflation is not fitted.
+    A continuous search (scipy's differential evolution, ``popsize`` 15) within
+    :data:`FIT_BOUNDS`, where the grid of :func:`fit_calibration` holds no calibration
+    meeting every data set; ``start``: a calibration in the first population (the
+    configured one), clipped to the bounds. The degenerate-direction inflation is not
+    fitted.
     """
     from scipy.optimize import differential_evolution
 
@@ -325,23 +359,30 @@ def fit_calibration_continuous(
         except np.linalg.LinAlgError:
             return np.inf
 
+    first = None
+    if start is not None:
+        values = [start[0] if n == 'scale' else getattr(start[1], n) for n in names]
+        low, high = np.array(list(FIT_BOUNDS.values())).T
+        share = np.clip((np.asarray(values) - low) / (high - low), 1e-9, 1.0 - 1e-9)
+        first = low + share * (high - low)  # inside: scipy rounds a bound out of its box
     result = differential_evolution(
         violation,
         list(FIT_BOUNDS.values()),
         seed=seed,
         maxiter=iterations,
-        popsize=20,
+        popsize=15,
         tol=1e-8,
         polish=False,
+        x0=first,
     )
     return (*calibration(result.x), float(result.fun))
 
 
 #: The ranges :func:`fit_calibration_continuous` searches.
 FIT_BOUNDS: dict[str, tuple[float, float]] = {
-    'scale': (1.0, 10.0),
-    'floor_translation': (0.0, 0.03),
-    'floor_rotation': (0.0, 0.1),
+    'scale': (1.0, 40.0),
+    'floor_translation': (0.0, 0.04),
+    'floor_rotation': (0.0, 0.2),
     'per_metre_translation': (0.0, 0.005),
     'per_metre_rotation': (0.0, 0.03),
     'per_degree_translation': (0.0, 0.006),
@@ -351,6 +392,11 @@ FIT_BOUNDS: dict[str, tuple[float, float]] = {
     'correction_free_translation': (0.0, 0.5),
     'correction_free_rotation': (0.0, 3.0),
     'correction_sweep': (0.02, 0.5),
+    'rotation_floor_shape': (0.0, 1.0),
+    'translation_floor_shape': (0.0, 1.0),
+    'hessian_size_exponent': (0.0, 1.0),
+    'floor_size_exponent': (0.0, 1.0),
+    'along_correction': (0.0, 2.0),
 }
 
 
@@ -368,6 +414,11 @@ FIT_GRID: dict[str, tuple[float, ...]] = {
     'correction_free_translation': (0.1, 0.2),
     'correction_free_rotation': (0.5, 1.0),
     'correction_sweep': (0.1,),
+    # the terms that follow the Hessian's size and the correction's direction: the defaults
+    'hessian_size_exponent': (0.549,),
+    'floor_size_exponent': (0.374,),
+    'along_correction': (0.161,),
+    'translation_floor_shape': (0.0,),
 }
 
 
@@ -402,6 +453,8 @@ def save_samples(path: Any, samples: list[CovarianceSample]) -> None:
         corrections=np.array(
             [(s.correction_m, s.correction_deg, s.gap_s) for s in samples], dtype=np.float64
         ).reshape(-1, 3),
+        correction_vectors=np.array([s.correction_vector for s in samples]).reshape(-1, 6),
+        scan_points=np.array([(s.scan_points, s.inliers) for s in samples]).reshape(-1, 2),
     )
 
 
@@ -411,10 +464,24 @@ def load_samples(path: Any) -> list[CovarianceSample]:
         count = len(data['errors'])
         turns = data['turns_deg'] if 'turns_deg' in data.files else np.zeros(count)
         more = data['corrections'] if 'corrections' in data.files else np.zeros((count, 3))
+        vectors = _column(data, 'correction_vectors', (count, 6))
+        sizes = _column(data, 'scan_points', (count, 2)).astype(int)
         rows = zip(
-            data['errors'], data['covariances'], data['distances'], turns, more, strict=True
+            data['errors'],
+            data['covariances'],
+            data['distances'],
+            turns,
+            more,
+            vectors,
+            sizes,
+            strict=True,
         )
         return [
-            CovarianceSample(e, c, float(d), float(a), *(float(x) for x in m))
-            for e, c, d, a, m in rows
+            CovarianceSample(e, c, float(d), float(a), *(float(x) for x in m), v, *map(int, n))
+            for e, c, d, a, m, v, n in rows
         ]
+
+
+def _column(data: Any, name: str, shape: tuple[int, int]) -> np.ndarray:
+    """Return a column of a samples file (zeros in files written before it was kept)."""
+    return np.asarray(data[name]) if name in data.files else np.zeros(shape)

@@ -120,8 +120,12 @@ def covariance_nees(options: NeesOptions, core: Any) -> NeesReport:
         report['datasets'][name] = {'before': before, 'after': after}
     fitted = {name: data for name, data in datasets.items() if not options.held_out(name)}
     if options.fit and fitted:
-        fitter = cc.fit_calibration_continuous if options.continuous else cc.fit_calibration
-        best_scale, best, cost = fitter(fitted)
+        if options.continuous:
+            best_scale, best, cost = cc.fit_calibration_continuous(
+                fitted, start=(scale, calibration)
+            )
+        else:
+            best_scale, best, cost = cc.fit_calibration(fitted)
         report['fit'] = {
             'scale': best_scale,
             'covariance': vars(best),
@@ -158,7 +162,8 @@ def print_nees(result: NeesReport) -> None:
     fit = result.report.get('fit')
     if fit is not None:
         best = fit['covariance']
-        grid = [name for name in cc.FIT_GRID if name != 'scale']
+        fitted = cc.FIT_BOUNDS if result.options.continuous else cc.FIT_GRID
+        grid = [name for name in fitted if name != 'scale']
         values = ' '.join(f'covariance.{name}={best[name]:g}' for name in grid)
         print_text(
             f'fit: odometry.covariance_scale={fit["scale"]:g} {values} (cost {fit["cost"]:.3f})'

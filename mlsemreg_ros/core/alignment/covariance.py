@@ -40,10 +40,19 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   0)`` (and the rotation likewise), ``c`` the distance of the accepted pose from the motion
   model's prediction and ``k = min(1, correction_sweep / horizon)`` the share of it that
   fell within one sweep (``horizon``: the time since the last accepted scan): the
-  prediction deskewed the scan, and a velocity it got wrong bends the sweep.
+  prediction deskewed the scan, and a velocity it got wrong bends the sweep;
+- plus ``(covariance.along_correction * k * |c|)^2`` along the direction of that correction
+  (:func:`along_correction`): the scan stays off along it.
+
+What differs between sensors is followed through the Hessian's own size, not a table per
+sensor: ``covariance.hessian_size_exponent`` grows the scale of a block as its Hessian
+covariance tightens (a dense scan's many residuals are correlated, so its Hessian
+understates the error more), and ``covariance.floor_size_exponent`` grows the floors of a
+block with it (a sparse scan drifts more per metre): :func:`follow_hessian_size`. The
+translation floor can take the Hessian's shape too (``covariance.translation_floor_shape``).
 
 The odometry applies it to every accepted scan's frame covariance
-(``core/odometry/odometry.py``), so the pose covariance, the twist covariance and the
+(``core/odometry/advance.py``), so the pose covariance, the twist covariance and the
 NEES of ``mlsemreg eval-bag`` use it. ``mlsemreg covariance-nees`` measures it.
 """
 
@@ -58,13 +67,21 @@ import numpy as np
 #: variance.
 MAX_FLOOR_STRETCH = 100.0
 
+#: The Hessian standard deviations (m, rad; geometric means over a block) at which
+#: ``covariance.hessian_size_exponent`` leaves the scale as it is: about a simulated HDL-64
+#: scan's at ``odometry.covariance_scale`` 5 (docs/covariance.md).
+REFERENCE_SIGMAS = (0.002, float(np.radians(0.005)))
+
+#: The most ``covariance.hessian_size_exponent`` multiplies or divides a block's variance by.
+MAX_SIZE_FACTOR = 1000.0
+
 
 @dataclass
 class CovarianceConfig:
     """Calibration of the fine alignment's pose covariance (docs/covariance.md)."""
 
     floor_translation: float = param(
-        0.018,
+        0.00523,
         'Standard deviation added to every axis of the pose covariance (errors the '
         'Hessian does not see: deskew, labels, the keyframe).',
         unit='m',
@@ -72,14 +89,14 @@ class CovarianceConfig:
         high=100.0,
     )
     floor_rotation: float = param(
-        0.02,
+        0.0643,
         'Standard deviation added to every rotation axis of the pose covariance.',
         unit='deg',
         low=0.0,
         high=180.0,
     )
     per_metre_translation: float = param(
-        0.002,
+        0.0018,
         'Standard deviation added to every translation axis per metre of the motion the '
         'covariance describes (from the keyframe to the scan).',
         unit='m/m',
@@ -87,14 +104,14 @@ class CovarianceConfig:
         high=10.0,
     )
     per_metre_rotation: float = param(
-        0.003,
+        0.000251,
         'Standard deviation added to every rotation axis per metre of that motion.',
         unit='deg/m',
         low=0.0,
         high=100.0,
     )
     per_degree_translation: float = param(
-        0.004,
+        0.000239,
         'Standard deviation added to every translation axis per degree the motion turned '
         '(deskew and timing errors grow in turns).',
         unit='m/deg',
@@ -102,14 +119,14 @@ class CovarianceConfig:
         high=10.0,
     )
     per_degree_rotation: float = param(
-        0.007,
+        0.00155,
         'Standard deviation added to every rotation axis per degree the motion turned.',
         unit='deg/deg',
         low=0.0,
         high=10.0,
     )
     per_correction_translation: float = param(
-        1.8,
+        1.47,
         'Standard deviation added to every translation axis per metre that the accepted pose '
         "lies from the motion model's prediction (times the sweep share, correction_sweep) "
         'beyond correction_free_translation: the scan was deskewed by that prediction, so a '
@@ -120,7 +137,7 @@ class CovarianceConfig:
         high=10.0,
     )
     per_correction_rotation: float = param(
-        0.44,
+        0.434,
         'Standard deviation added to every rotation axis per degree that the accepted pose '
         'turned from the prediction (times the sweep share) beyond correction_free_rotation. '
         '0: off.',
@@ -129,7 +146,7 @@ class CovarianceConfig:
         high=10.0,
     )
     correction_free_translation: float = param(
-        0.36,
+        0.0752,
         'The part of the distance from the prediction (times the sweep share) that adds '
         'nothing (per_correction_translation).',
         unit='m',
@@ -137,14 +154,14 @@ class CovarianceConfig:
         high=100.0,
     )
     correction_free_rotation: float = param(
-        0.2,
+        2.81,
         'The part of the turn from the prediction that adds nothing (per_correction_rotation).',
         unit='deg',
         low=0.0,
         high=180.0,
     )
     correction_sweep: float = param(
-        0.135,
+        0.0775,
         "The sweep time over which the prediction's velocity error bends the scan: the "
         'correction counts times min(1, correction_sweep / horizon), the horizon being the '
         'time since the last accepted scan (a prediction 3 m off after 1 s bends a sweep as '
@@ -154,7 +171,7 @@ class CovarianceConfig:
         high=10.0,
     )
     rotation_floor_shape: float = param(
-        0.5,
+        0.26,
         "The rotation floor follows the shape of the Hessian's rotation block: along each of "
         'its eigen-directions the floor variance is multiplied by (variance / geometric mean '
         'of the three) to this power, capped at 100 (the product stays 1). A roll the scene '
@@ -162,6 +179,44 @@ class CovarianceConfig:
         'more of the floor. 0: isotropic (docs/covariance.md).',
         low=0.0,
         high=2.0,
+    )
+    translation_floor_shape: float = param(
+        0.0,
+        "The translation floor follows the shape of the Hessian's translation block, as "
+        'rotation_floor_shape does the rotation: a direction the scene constrains worse '
+        '(along a straight road) gets more of it. 0: isotropic (docs/covariance.md).',
+        low=0.0,
+        high=2.0,
+    )
+    hessian_size_exponent: float = param(
+        0.549,
+        'The scale follows the size of the Hessian covariance: each block (translation, '
+        'rotation) is multiplied by (its geometric-mean variance / a reference) to minus this '
+        'power, so a dense scan, whose many correlated residuals make the Hessian understate '
+        'the error more, gets a larger scale than a sparse one. 0: one scale for every scan '
+        '(docs/covariance.md).',
+        low=0.0,
+        high=1.0,
+    )
+    floor_size_exponent: float = param(
+        0.374,
+        "The floors follow the size of the Hessian covariance too: each block's floor "
+        'variance (every term above, translation and rotation apart) is multiplied by (the '
+        "block's geometric-mean variance / the reference of hessian_size_exponent) to this "
+        'power: a sparse scan (VLP-16, solid state) drifts more than a dense one per metre. '
+        '0: the same floors for every scan (docs/covariance.md).',
+        low=0.0,
+        high=2.0,
+    )
+    along_correction: float = param(
+        0.161,
+        'Standard deviation added along the direction from the prediction to the accepted '
+        'pose, per metre of that correction (times the sweep share, correction_sweep): a '
+        'scan deskewed by a prediction that was off stays off along it. 0: off '
+        '(docs/covariance.md).',
+        unit='m/m',
+        low=0.0,
+        high=10.0,
     )
     degenerate_ratio: float = param(
         100.0,
@@ -193,19 +248,29 @@ def no_calibration() -> CovarianceConfig:
 
 
 def degenerate_inflation(covariance: np.ndarray, cfg: CovarianceConfig) -> np.ndarray:
-    """Return the inflation ``D`` (6, 6) of ``covariance`` (ROS order) along weak directions."""
-    inflation = np.zeros((6, 6))
+    """Return the inflation ``D`` (..., 6, 6) of ``covariance`` (..., 6, 6, ROS order)."""
+    covariance = np.asarray(covariance, dtype=np.float64)
+    flat = covariance.reshape(-1, 6, 6)
+    eigen = (BlockEigen.of(flat[:, :3, :3]), BlockEigen.of(flat[:, 3:, 3:]))
+    return _degenerate_inflation(eigen, cfg).reshape(covariance.shape)
+
+
+def _degenerate_inflation(
+    eigen: tuple[BlockEigen, BlockEigen], cfg: CovarianceConfig
+) -> np.ndarray:
+    """:func:`degenerate_inflation` from the blocks' eigen-decompositions (K samples)."""
+    inflation = np.zeros((len(eigen[0].values), 6, 6))
     if cfg.degenerate_ratio <= 0:
         return inflation
     sigmas = (cfg.degenerate_translation, np.radians(cfg.degenerate_rotation))
-    for block, sigma in zip((slice(0, 3), slice(3, 6)), sigmas, strict=True):
+    for block, sigma, decomposed in zip((slice(0, 3), slice(3, 6)), sigmas, eigen, strict=True):
         if sigma <= 0:
             continue
-        values, vectors = np.linalg.eigh(covariance[block, block])
-        weak = values > cfg.degenerate_ratio * max(values[0], 1e-300)
-        if np.any(weak):
-            directions = vectors[:, weak]
-            inflation[block, block] = sigma**2 * directions @ directions.T
+        values = decomposed.values
+        weak = values > cfg.degenerate_ratio * np.maximum(values[:, :1], 1e-300)
+        inflation[:, block, block] = sigma**2 * np.einsum(
+            'kij,kj,klj->kil', decomposed.vectors, weak.astype(np.float64), decomposed.vectors
+        )
     return inflation
 
 
@@ -217,35 +282,183 @@ def calibrated_covariance(
     turn_deg: float = 0.0,
     correction: tuple[float, float] = (0.0, 0.0),
     horizon_s: float = 0.0,
+    correction_direction: np.ndarray | None = None,
 ) -> np.ndarray:
     """
     Return ``s * C_H + D + floor(d)`` (module docstring) of a covariance (6, 6), ROS order.
 
     ``hessian_covariance``: ``inv(H) * 2E / (n - 6)`` (``scale`` 1) in either axes: the
-    floor is isotropic and the inflation follows the eigen-directions, so the result
-    rotates with the input. ``correction``: the distance (m) and angle (deg) between the
-    accepted pose and the motion model's prediction (the ``per_correction_*`` terms);
-    ``horizon_s``: the time the prediction spanned, from the last accepted scan (0: unknown,
-    the correction counts whole).
+    floors follow the Hessian's eigen-directions or are isotropic, so the result rotates
+    with the input. ``correction``: the distance (m) and angle (deg) between the accepted
+    pose and the motion model's prediction (the ``per_correction_*`` terms); ``horizon_s``:
+    the time the prediction spanned, from the last accepted scan (0: unknown, the
+    correction counts whole); ``correction_direction``: the translation (3,) from the
+    prediction to the accepted pose in the covariance's axes (``along_correction``; None:
+    that term is off). One sample of :func:`calibrated_covariances`.
     """
-    scaled = np.asarray(hessian_covariance, dtype=np.float64) * scale
-    moved_m, turned_deg = np.multiply(correction, sweep_share(horizon_s, cfg))
+    return calibrated_covariances(
+        np.asarray(hessian_covariance, dtype=np.float64)[None],
+        scale,
+        cfg,
+        CovarianceInputs.single(distance, turn_deg, correction, horizon_s, correction_direction),
+    )[0]
+
+
+@dataclass
+class CovarianceInputs:
+    """What the calibration reads besides the Hessian, for K samples (docs/covariance.md)."""
+
+    distances: np.ndarray  # (K,) m, the motion the covariance describes
+    turns_deg: np.ndarray  # (K,) deg, its rotation angle
+    corrections: np.ndarray  # (K, 2) m and deg of the accepted pose from the prediction
+    horizons_s: np.ndarray  # (K,) s, the prediction's horizon (0: unknown)
+    directions: np.ndarray  # (K, 3) translation from the prediction (zeros: none)
+
+    @classmethod
+    def single(
+        cls,
+        distance: float,
+        turn_deg: float,
+        correction: tuple[float, float],
+        horizon_s: float,
+        direction: np.ndarray | None,
+    ) -> CovarianceInputs:
+        """Return the inputs of one sample."""
+        return cls(
+            np.array([distance], dtype=np.float64),
+            np.array([turn_deg], dtype=np.float64),
+            np.array([correction], dtype=np.float64).reshape(1, 2),
+            np.array([horizon_s], dtype=np.float64),
+            np.zeros((1, 3)) if direction is None else np.asarray(direction, np.float64)[None, :3],
+        )
+
+
+@dataclass
+class BlockEigen:
+    """Eigen-decompositions of K covariance blocks (3, 3); ``usable``: finite and not zero."""
+
+    values: np.ndarray  # (K, 3) ascending
+    vectors: np.ndarray  # (K, 3, 3) columns
+    usable: np.ndarray  # (K,) bool
+
+    @classmethod
+    def of(cls, blocks: np.ndarray) -> BlockEigen:
+        """Decompose ``blocks`` (K, 3, 3); a block that is zero or not finite: the identity."""
+        blocks = np.asarray(blocks, dtype=np.float64).reshape(-1, 3, 3)
+        usable = np.all(np.isfinite(blocks), axis=(1, 2)) & np.any(blocks != 0.0, axis=(1, 2))
+        safe = np.where(usable[:, None, None], blocks, np.eye(3))
+        values, vectors = np.linalg.eigh(safe)  # its lower triangle
+        return cls(values, vectors, usable)
+
+    def log_volume(self) -> np.ndarray:
+        """Return the log of the eigenvalues' geometric mean (K,); 0 where not positive."""
+        positive = self.usable & np.all(self.values > 0.0, axis=1)
+        logs = np.log(np.where(positive[:, None], self.values, 1.0))
+        return logs.mean(axis=1)
+
+
+def hessian_eigen(hessian_covariances: np.ndarray) -> tuple[BlockEigen, BlockEigen]:
+    """Return the translation and rotation blocks' :class:`BlockEigen` of (K, 6, 6)."""
+    covariances = np.asarray(hessian_covariances, dtype=np.float64)
+    return BlockEigen.of(covariances[:, :3, :3]), BlockEigen.of(covariances[:, 3:, 3:])
+
+
+def calibrated_covariances(
+    hessian_covariances: np.ndarray,
+    scale: float,
+    cfg: CovarianceConfig,
+    inputs: CovarianceInputs,
+    eigen: tuple[BlockEigen, BlockEigen] | None = None,
+) -> np.ndarray:
+    """
+    Return the calibrated covariances (K, 6, 6) of K Hessian covariances (K, 6, 6).
+
+    ``eigen``: :func:`hessian_eigen` of the Hessian covariances, when known (a fit scores
+    many calibrations on the same samples; the floors' shapes, the degenerate directions
+    and the size do not change with the scale).
+    """
+    hessian_covariances = np.asarray(hessian_covariances, np.float64)
+    eigen = hessian_eigen(hessian_covariances) if eigen is None else eigen
+    log_ratios = size_log_ratios(eigen, scale)
+    scaled = follow_hessian_size(hessian_covariances * scale, log_ratios, cfg)
+    share = sweep_shares(inputs.horizons_s, cfg)
+    moved_m, turned_deg = inputs.corrections[:, 0] * share, inputs.corrections[:, 1] * share
     sigma_t = (
         cfg.floor_translation
-        + cfg.per_metre_translation * distance
-        + cfg.per_degree_translation * turn_deg
-        + cfg.per_correction_translation * max(moved_m - cfg.correction_free_translation, 0.0)
+        + cfg.per_metre_translation * inputs.distances
+        + cfg.per_degree_translation * inputs.turns_deg
+        + cfg.per_correction_translation
+        * np.maximum(moved_m - cfg.correction_free_translation, 0.0)
     )
     sigma_r = np.radians(
         cfg.floor_rotation
-        + cfg.per_metre_rotation * distance
-        + cfg.per_degree_rotation * turn_deg
-        + cfg.per_correction_rotation * max(turned_deg - cfg.correction_free_rotation, 0.0)
+        + cfg.per_metre_rotation * inputs.distances
+        + cfg.per_degree_rotation * inputs.turns_deg
+        + cfg.per_correction_rotation * np.maximum(turned_deg - cfg.correction_free_rotation, 0.0)
     )
-    floor = np.diag([sigma_t**2] * 3 + [0.0] * 3)
-    floor[3:, 3:] = sigma_r**2 * floor_shape(scaled[3:, 3:], cfg.rotation_floor_shape)
-    covariance = scaled + degenerate_inflation(scaled, cfg) + floor
-    return 0.5 * (covariance + covariance.T)
+    if cfg.floor_size_exponent != 0.0:  # a sparse scan's errors no Hessian sees are larger
+        factors = size_factors(log_ratios, 0.5 * cfg.floor_size_exponent)
+        sigma_t, sigma_r = sigma_t * factors[:, 0], sigma_r * factors[:, 1]
+    floor = np.zeros(scaled.shape)
+    floor[:, :3, :3] = (sigma_t**2)[:, None, None] * _shape(eigen[0], cfg.translation_floor_shape)
+    floor[:, 3:, 3:] = (sigma_r**2)[:, None, None] * _shape(eigen[1], cfg.rotation_floor_shape)
+    floor[:, :3, :3] += along_correction(inputs.directions, share, cfg)
+    covariance = scaled + _degenerate_inflation(eigen, cfg) + floor
+    return 0.5 * (covariance + np.swapaxes(covariance, -1, -2))
+
+
+def size_log_ratios(eigen: tuple[BlockEigen, BlockEigen], scale: float) -> np.ndarray:
+    """
+    Return ``log(g / g_ref)`` (K, 2) of the translation and the rotation block.
+
+    ``g``: the geometric mean of the eigenvalues of the block of ``scale`` times the
+    Hessian covariance of ``eigen``, ``g_ref`` the square of :data:`REFERENCE_SIGMAS`; 0 for
+    a block that is zero, singular or not finite.
+    """
+    ratios = np.zeros((len(eigen[0].values), 2))
+    for index, (reference, decomposed) in enumerate(zip(REFERENCE_SIGMAS, eigen, strict=True)):
+        ratio = decomposed.log_volume() + np.log(scale) - 2.0 * np.log(reference)
+        ratios[:, index] = np.where(decomposed.usable, ratio, 0.0)
+    return ratios
+
+
+def size_factors(log_ratios: np.ndarray, exponent: float) -> np.ndarray:
+    """Return ``(g / g_ref) ** exponent`` (K, 2), within 1 / and :data:`MAX_SIZE_FACTOR`."""
+    return np.clip(np.exp(exponent * log_ratios), 1 / MAX_SIZE_FACTOR, MAX_SIZE_FACTOR)
+
+
+def follow_hessian_size(
+    scaled: np.ndarray, log_ratios: np.ndarray, cfg: CovarianceConfig
+) -> np.ndarray:
+    """
+    ``scaled`` (K, 6, 6) times ``(g / g_ref) ** -hessian_size_exponent`` per block.
+
+    ``log_ratios``: :func:`size_log_ratios` of ``scaled``. Fewer or worse spread points
+    give a larger Hessian covariance, and their residuals are less correlated than a dense
+    scan's: with the exponent, a block's scale grows as the Hessian tightens.
+    """
+    if cfg.hessian_size_exponent == 0.0:
+        return scaled
+    root = np.sqrt(np.repeat(size_factors(log_ratios, -cfg.hessian_size_exponent), 3, axis=1))
+    return scaled * root[:, :, None] * root[:, None, :]
+
+
+def along_correction(
+    directions: np.ndarray, share: np.ndarray, cfg: CovarianceConfig
+) -> np.ndarray:
+    """
+    Return the translation variance (K, 3, 3) along each correction's direction.
+
+    ``(along_correction * k * |c|)^2 u u^T``, ``c`` the translation from the prediction to
+    the accepted pose, ``u = c / |c|`` and ``k`` the sweep share (:func:`sweep_shares`): a
+    scan deskewed by a prediction that was off stays off in the same direction (the field
+    drives' and the solid-state sensor's largest errors point along their correction).
+    """
+    if cfg.along_correction <= 0.0:
+        return np.zeros((len(directions), 3, 3))
+    return (cfg.along_correction * share[:, None, None]) ** 2 * np.einsum(
+        'ki,kj->kij', directions, directions
+    )
 
 
 def floor_shape(blocks: np.ndarray, exponent: float) -> np.ndarray:
@@ -258,26 +471,33 @@ def floor_shape(blocks: np.ndarray, exponent: float) -> np.ndarray:
     ``MAX_FLOOR_STRETCH``. Exponent 0, or a block that is zero or not finite: the identity.
     """
     blocks = np.asarray(blocks, dtype=np.float64)
-    identity = np.broadcast_to(np.eye(3), blocks.shape).copy()
+    return _shape(BlockEigen.of(blocks), exponent).reshape(blocks.shape)
+
+
+def _shape(eigen: BlockEigen, exponent: float) -> np.ndarray:
+    """:func:`floor_shape` from the blocks' eigen-decompositions (K, 3, 3)."""
+    identity = np.broadcast_to(np.eye(3), eigen.vectors.shape)
     if exponent <= 0.0:
-        return identity
-    usable = np.all(np.isfinite(blocks), axis=(-2, -1))
-    safe = np.where(usable[..., None, None], blocks, np.eye(3))
-    values, vectors = np.linalg.eigh(0.5 * (safe + np.swapaxes(safe, -1, -2)))
-    values = np.maximum(values, 1e-30)
-    logs = np.log(values)
+        return identity.copy()
+    logs = np.log(np.maximum(eigen.values, 1e-30))
     weights = np.exp(exponent * (logs - logs.mean(axis=-1, keepdims=True)))
     weights = np.minimum(weights, MAX_FLOOR_STRETCH)
-    shaped = np.einsum('...ij,...j,...kj->...ik', vectors, weights, vectors)
-    usable &= np.any(blocks != 0.0, axis=(-2, -1))
-    return np.where(usable[..., None, None], shaped, identity)
+    shaped = np.einsum('kij,kj,klj->kil', eigen.vectors, weights, eigen.vectors)
+    return np.where(eigen.usable[:, None, None], shaped, identity)
 
 
 def sweep_share(horizon_s: float, cfg: CovarianceConfig) -> float:
     """Return ``min(1, correction_sweep / horizon)``: the share of a correction in the sweep."""
-    if horizon_s <= 0.0 or cfg.correction_sweep <= 0.0:
-        return 1.0
-    return min(1.0, cfg.correction_sweep / horizon_s)
+    return float(sweep_shares(np.array([horizon_s], dtype=np.float64), cfg)[0])
+
+
+def sweep_shares(horizons_s: np.ndarray, cfg: CovarianceConfig) -> np.ndarray:
+    """:func:`sweep_share` of K horizons (K,): 1 where the horizon is unknown (0)."""
+    share = np.ones(horizons_s.shape)
+    if cfg.correction_sweep > 0.0:
+        timed = horizons_s > 0.0
+        share[timed] = np.minimum(1.0, cfg.correction_sweep / horizons_s[timed])
+    return share
 
 
 def motion_size(motion: np.ndarray) -> tuple[float, float]:

@@ -62,16 +62,17 @@ def accept_scan(
         odometry._sweep_twist = (sweep_twist, stamp_ns)
     current, relative = raw.scan, invert_transform(keyframe.pose) @ pose
     predicted = [c.T_initial for c in chosen.candidates if c.name == 'prediction']
-    correction = motion_size(invert_transform(predicted[0]) @ pose) if predicted else (0, 0)
+    moved = invert_transform(predicted[0]) @ pose if predicted else np.eye(4)
     chosen.frame_covariance = calibrated_covariance(  # docs/covariance.md
         chosen.frame_covariance,
         1.0,
         odometry.config.covariance,
         *motion_size(relative),
-        correction=correction,
+        correction=motion_size(moved),
         horizon_s=(
             (stamp_ns - odometry._last_accepted[1]) * 1e-9 if odometry._last_accepted else 0.0
         ),
+        correction_direction=moved[:3, 3],
     )
     last, odometry._last_accepted = odometry._last_accepted, (pose.copy(), stamp_ns)
     odometry._accepted.append(odometry._last_accepted)

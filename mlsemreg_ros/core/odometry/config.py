@@ -235,7 +235,7 @@ class OdometryConfig:
         'second basin (core/odometry/seeded_search.py).',
     )
     covariance_scale: float = param(
-        5.0,
+        13.1,
         'Factor on the pose covariance inv(H) * 2E / (n - 6) of the fine alignment '
         '(H Hessian, E final error, n inliers), before the covariance section adds its '
         'floors (docs/covariance.md). Fitted with them by mlsemreg covariance-nees on real '
