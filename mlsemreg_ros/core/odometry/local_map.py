@@ -209,10 +209,14 @@ class LocalMap:
 
 
 def voxel_gaussians(voxels: small_gicp.GaussianVoxelMap) -> Gaussians:
-    """Return the means (V, 3) and covariances (V, 3, 3) of a Gaussian voxel map's voxels."""
+    """
+    Return the means (V, 3) and covariances (V, 3, 3) of a Gaussian voxel map's voxels.
+
+    Contiguous, as the sweep alignment's kernels take them (copied here, on the prefetch).
+    """
     means = np.asarray(voxels.voxel_points(), dtype=np.float64)[:, :3]
-    covariances = np.asarray(voxels.voxel_covs(), dtype=np.float64)
-    return means, covariances.reshape(-1, 4, 4)[:, :3, :3]
+    covariances = np.asarray(voxels.voxel_covs(), dtype=np.float64).reshape(-1, 4, 4)
+    return np.ascontiguousarray(means), np.ascontiguousarray(covariances[:, :3, :3])
 
 
 def make_map(config: RegistrationConfig) -> LocalMap:
