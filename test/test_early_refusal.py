@@ -107,6 +107,7 @@ def test_it_sits_after_the_last_gate_and_skips_every_later_stage_but_the_rerun()
     at = names.index('early_refuse')
     assert names[at - 1] == 'early_accept' and names[at - 2] == 'guided'
     rule = default_stages()[at]
-    assert rule.skipped == set(names[at + 1 : -1])
+    after = at + 1
+    assert rule.skipped == set(names[after:-1])
     assert names[-1] == 'unlabeled_rerun' and 'unlabeled_rerun' not in rule.skipped
     assert RegistrationConfig().covisibility.early_refuse_overlap == 0.70  # on by default

@@ -353,12 +353,18 @@ def test_failure_keeps_the_keyframe_and_does_not_move_the_odometry(
     probe: NodeProbe, scene: Any
 ) -> None:
     dst_stamp, _ = send(probe, scene.pts_dst, scene.label_dst)
-    assert all(r.successful for r in probe.set_parameters({'estimator.min_inliers': 100000}))
+    # the first keyframe's pair would refine itself and stage 9 could accept it on its own
+    # evidence (odometry.refine_first_keyframe): this test forces the refusal
+    forced = {'estimator.min_inliers': 100000, 'odometry.refine_first_keyframe': False}
+    assert all(r.successful for r in probe.set_parameters(forced))
     try:
         failed_stamp, status = send(probe, scene.pts_src, scene.label_src)
     finally:
-        default = RegistrationConfig().estimator.min_inliers
-        assert all(r.successful for r in probe.set_parameters({'estimator.min_inliers': default}))
+        defaults = {
+            'estimator.min_inliers': RegistrationConfig().estimator.min_inliers,
+            'odometry.refine_first_keyframe': True,
+        }
+        assert all(r.successful for r in probe.set_parameters(defaults))
     assert status['level'] == 1 and 'registration failed' in status['message']
     assert 'estimator.min_inliers' in status['message']
     # a refused estimate goes on to the BEV search, which is reported and refused too

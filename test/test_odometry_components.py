@@ -105,9 +105,13 @@ def test_only_the_first_keyframe_s_pair_refines_itself() -> None:
         asked.append(refine)
         return SimpleNamespace(success=False, transform=np.eye(4))
 
-    registration = GlobalRegistration(SimpleNamespace(register=register))
+    config = RegistrationConfig()
+    registration = GlobalRegistration(SimpleNamespace(register=register, config=config))
     for index in (0, 1, 7):
         keyframe = Keyframe(index, 0, np.zeros((1, 3)), np.zeros(1), None, np.eye(4))
         estimate = registration(None, keyframe)
         assert not estimate.usable  # a refused registration is never a pose
     assert asked == [True, False, False]
+    config.odometry.refine_first_keyframe = False  # live: read at every registration
+    registration(None, Keyframe(0, 0, np.zeros((1, 3)), np.zeros(1), None, np.eye(4)))
+    assert asked[-1] is False

@@ -234,6 +234,14 @@ class OdometryConfig:
         'distinct place and slide by covisibility.accept_gap, the best dense score, and no '
         'second basin (core/odometry/seeded_search.py).',
     )
+    refine_first_keyframe: bool = param(
+        True,
+        'The global registration onto the first keyframe after a start or reset refines the '
+        "pair itself, as eval-pairs does, so the refused path's last stages (the covisible "
+        'acceptance, stage 9) can judge it: the simulated field drive seed 1 at stride 20 with '
+        'geometric labels went from 0 to 100 %, 0 wrong (core/odometry/global_registration.py, '
+        'docs/labels.md); false: every global registration leaves the refinement to the map.',
+    )
     covariance_scale: float = param(
         13.1,
         'Factor on the pose covariance inv(H) * 2E / (n - 6) of the fine alignment '

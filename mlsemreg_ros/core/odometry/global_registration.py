@@ -30,6 +30,7 @@ at stride 20 with geometric labels refused all 9 scans (its first pair, 18 m apa
 inliers of 40); with it, 9 of 9 right, 0 wrong (docs/labels.md). Later keyframes keep
 ``refine=False``: their map holds more than the keyframe, and refining every global
 registration would run the refused path's end stages on every refused one.
+``odometry.refine_first_keyframe`` (on) turns it off.
 """
 
 from __future__ import annotations
@@ -69,6 +70,7 @@ class GlobalRegistration:
     def __call__(self, current: PreparedScan, keyframe: Keyframe) -> GlobalEstimate:
         """Return the estimate of ``current`` onto ``keyframe`` (completes both lazily)."""
         first = keyframe.index == FIRST_KEYFRAME  # the pair refines itself (module docstring)
+        first = first and self.registration.config.odometry.refine_first_keyframe
         result = self.registration.register(current, keyframe.prepared, refine=first)
         usable = bool(result.success) and bool(np.all(np.isfinite(result.transform)))
         return GlobalEstimate(result, keyframe.pose @ result.transform if usable else None)
