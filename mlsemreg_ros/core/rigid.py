@@ -22,6 +22,8 @@ Conventions: a transform ``T`` is a ``(4, 4)`` homogeneous matrix with
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 #: A batch whose weights sum to at most this is solved with uniform weights.
@@ -129,10 +131,57 @@ def scale_motion(motion: np.ndarray, factor: float) -> np.ndarray:
     The constant-velocity prediction of a motion observed over ``dt`` for ``factor * dt``
     (first order in the rotation: exact for pure rotations and pure translations).
     """
-    from scipy.spatial.transform import Rotation
-
     out = np.eye(4)
-    rotvec = Rotation.from_matrix(np.asarray(motion, dtype=np.float64)[:3, :3]).as_rotvec()
-    out[:3, :3] = Rotation.from_rotvec(rotvec * factor).as_matrix()
+    rotvec = rotation_vector(np.asarray(motion, dtype=np.float64)[:3, :3])
+    out[:3, :3] = rotation_matrix(rotvec * factor)
     out[:3, 3] = np.asarray(motion, dtype=np.float64)[:3, 3] * factor
     return out
+
+
+def rotation_vector(rotation: np.ndarray) -> np.ndarray:
+    """
+    Rotation vector (3,) of one rotation matrix (3, 3): SO(3)'s logarithm.
+
+    SciPy's ``Rotation.from_matrix(R).as_rotvec()`` (the same quaternion by Shepperd's
+    method, the same small-angle series, equal to rounding) on plain floats: the per-scan
+    steps call it a few times on one matrix, where SciPy's array checks cost 0.2 ms a call.
+    The matrix is taken as a rotation (not orthonormalised).
+    """
+    (a, b, c), (d, e, f), (g, h, i) = np.asarray(rotation, dtype=np.float64)[:3, :3].tolist()
+    trace = a + e + i
+    largest = max(a, e, i, trace)
+    if largest == trace:
+        w, x, y, z = 1.0 + trace, h - f, c - g, d - b
+    elif largest == a:
+        w, x, y, z = h - f, 1.0 + 2.0 * a - trace, d + b, c + g
+    elif largest == e:
+        w, x, y, z = c - g, d + b, 1.0 + 2.0 * e - trace, h + f
+    else:
+        w, x, y, z = d - b, c + g, h + f, 1.0 + 2.0 * i - trace
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    if w < 0.0:
+        norm = -norm
+    w, x, y, z = w / norm, x / norm, y / norm, z / norm
+    angle = 2.0 * math.atan2(math.sqrt(x * x + y * y + z * z), w)
+    if angle <= 1e-3:
+        scale = 2.0 + angle**2 / 12.0 + 7.0 * angle**4 / 2880.0
+    else:
+        scale = angle / math.sin(0.5 * angle)
+    return np.array([scale * x, scale * y, scale * z])
+
+
+def rotation_matrix(rotvec: np.ndarray) -> np.ndarray:
+    """Rotation matrix (3, 3) of one rotation vector (3,): SO(3)'s exponential (Rodrigues)."""
+    x, y, z = np.asarray(rotvec, dtype=np.float64).reshape(3).tolist()
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle < 1e-8:  # sin(t)/t and (1 - cos t)/t^2 to second order: exact to rounding
+        k, q = 1.0 - angle**2 / 6.0, 0.5 - angle**2 / 24.0
+    else:
+        k, q = math.sin(angle) / angle, (1.0 - math.cos(angle)) / angle**2
+    return np.array(
+        [
+            [1.0 - q * (y * y + z * z), q * x * y - k * z, q * x * z + k * y],
+            [q * x * y + k * z, 1.0 - q * (x * x + z * z), q * y * z - k * x],
+            [q * x * z - k * y, q * y * z + k * x, 1.0 - q * (x * x + y * y)],
+        ]
+    )

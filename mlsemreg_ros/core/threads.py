@@ -33,7 +33,7 @@ alignment to the local map took 580 ms instead of 145 ms (``docs/field.md#speed`
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 import os
 import threading
 from typing import Any, ClassVar, TypeVar
@@ -86,6 +86,17 @@ class LazyPool:
         size = workers()
         if min(len(items), size) <= 1:
             return [function(x) for x in items]
+        return list(self._executor(size).map(function, items))
+
+    def submit(self, function: Callable[[], Result]) -> Future[Result] | None:
+        """Start ``function()`` on the pool and return its future (None with one worker)."""
+        size = workers()
+        if size <= 1:
+            return None
+        return self._executor(size).submit(function)
+
+    def _executor(self, size: int) -> ThreadPoolExecutor:
+        """Return the pool, created (or resized) to ``size`` threads."""
         with self._lock:
             if self._pool is None or self._size != size:
                 if self._pool is not None:  # resized: running tasks finish on the old one
@@ -94,8 +105,7 @@ class LazyPool:
                     ThreadPoolExecutor(size, thread_name_prefix=self.name),
                     size,
                 )
-            pool = self._pool
-        return list(pool.map(function, items))
+            return self._pool
 
     def _forget(self) -> None:
         self._pool, self._lock = None, threading.Lock()

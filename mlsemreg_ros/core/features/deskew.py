@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import itertools
 
 from mlsemreg_ros.core.features import kernels
+from mlsemreg_ros.core.rigid import rotation_matrix, rotation_vector
 from mlsemreg_ros.core.settings import param
 import numpy as np
 
@@ -189,10 +190,8 @@ class PiecewiseSweepMotion:
 
 def se3_log(transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Return the SE(3) logarithm ``(phi, rho)`` of ``transform`` (4, 4): rotation vector, rho."""
-    from scipy.spatial.transform import Rotation
-
     transform = np.asarray(transform, dtype=np.float64)
-    phi = Rotation.from_matrix(transform[:3, :3]).as_rotvec()
+    phi = rotation_vector(transform[:3, :3])
     theta = float(np.linalg.norm(phi))
     hat = _hat(phi)
     if theta < SMALL_ANGLE:
@@ -223,13 +222,11 @@ def sweep_motion(
 
 def se3_exp(motion: SweepMotion, duration: float) -> np.ndarray:
     """Return ``exp(duration * twist)`` (4, 4)."""
-    from scipy.spatial.transform import Rotation
-
     angles, translations = motion_at(motion, np.array([duration]))
     out = np.eye(4)
     rate = float(np.linalg.norm(motion.omega))
     if rate > 0.0:
-        out[:3, :3] = Rotation.from_rotvec(motion.omega / rate * angles[0]).as_matrix()
+        out[:3, :3] = rotation_matrix(motion.omega / rate * angles[0])
     out[:3, 3] = translations[0]
     return out
 

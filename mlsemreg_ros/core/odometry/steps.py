@@ -30,9 +30,8 @@ from typing import Any
 from mlsemreg_ros.core.alignment.alignment import Alignment, UNKNOWN_VARIANCE
 from mlsemreg_ros.core.odometry.trust import Candidate
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
-from mlsemreg_ros.core.rigid import invert_transform
+from mlsemreg_ros.core.rigid import invert_transform, rotation_vector
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 #: Variance (m^2, rad^2) added to the pose covariance when the odometry re-initialises.
 REINITIALIZATION_VARIANCE = 1e2
@@ -183,7 +182,7 @@ def prediction_covariance(
     gap = max(float(stamp_gap), 1.0)
     motion = invert_transform(last_pose) @ predicted
     translation = float(np.linalg.norm(motion[:3, 3]))
-    rotation = float(np.linalg.norm(Rotation.from_matrix(motion[:3, :3]).as_rotvec()))
+    rotation = float(np.linalg.norm(rotation_vector(motion[:3, :3])))
     sigma_t = max(PREDICTION_MODEL_ERROR * translation, MIN_PREDICTION_SIGMA[0] * gap)
     sigma_r = max(PREDICTION_MODEL_ERROR * rotation, MIN_PREDICTION_SIGMA[1] * gap)
     body = np.diag([sigma_t**2] * 3 + [sigma_r**2] * 3)
@@ -200,7 +199,7 @@ def twist_between(
         return np.zeros(6), np.eye(6) * UNKNOWN_VARIANCE
     dt = 1e-9 * (stamp_ns - last_stamp_ns)
     motion = invert_transform(last) @ pose
-    twist = np.concatenate([motion[:3, 3], Rotation.from_matrix(motion[:3, :3]).as_rotvec()])
+    twist = np.concatenate([motion[:3, 3], rotation_vector(motion[:3, :3])])
     return twist / dt, body_cov / dt**2
 
 

@@ -40,6 +40,7 @@ from dataclasses import replace
 import time
 from typing import Any
 
+from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.alignment.config import SweepAlignmentConfig
 from mlsemreg_ros.core.alignment.sweep_alignment import (
     align_sweep,
@@ -51,6 +52,9 @@ from mlsemreg_ros.core.alignment.sweep_alignment import (
 from mlsemreg_ros.core.features.deskew import deskew, sweep_motion, SweepMotion
 from mlsemreg_ros.core.odometry.prior_guard import prior_used
 import numpy as np
+
+#: The first start's alignment and the bend run side by side (:func:`align_from_starts`).
+_POOL = threads.LazyPool('mlsemreg-sweep-starts')
 
 #: The second start's result replaces the first only when it fits the map this much better
 #: (relative cost): within 1-2 % both are the same basin seen through the pose-twist
@@ -132,12 +136,19 @@ def align_from_starts(
     result's ``change_m`` is measured against ``motion``, as the caller's
     ``sweep_alignment.min_change`` test expects.
     """
-    first = align_sweep(points, times, gaussians, pose, motion, config)
     if implied is None or not np.all(
         np.isfinite(np.concatenate([implied.omega, implied.velocity]))
     ):
-        return first
-    if bend_m(points, times, implied, motion) <= second_start_bend(config):
+        return align_sweep(points, times, gaussians, pose, motion, config)
+    # the first start and the bend are independent compiled passes (no GIL): both cores
+    first, bend = _POOL.run(
+        lambda task: task(),
+        (
+            lambda: align_sweep(points, times, gaussians, pose, motion, config),
+            lambda: bend_m(points, times, implied, motion),
+        ),
+    )
+    if bend <= second_start_bend(config):
         return first  # within the first start's reach: one start is enough
     second = align_sweep(points, times, gaussians, pose, implied, config)
     if not np.all(np.isfinite(second.T_target_source)):
