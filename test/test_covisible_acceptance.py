@@ -74,6 +74,22 @@ def test_the_rule_refuses(changed, word):
     assert word in reason
 
 
+@pytest.mark.parametrize(
+    ('overlap', 'near', 'checked', 'refused'),
+    [
+        (0.989, 0.998, 0.25, True),  # 40 m FPFH 000006_000007, 1.55 m off: 0.0025 more
+        (0.987, 0.998, 0.05, False),  # a right 60 m pose (000010_000012): 0.0006, noise
+        (0.992, 0.994, 0.14, False),  # a right 60 m pose (000009_000011)
+        (1.000, 0.996, 0.46, False),  # the slides fit worse
+        (0.989, 0.0, 0.25, False),  # no slides measured
+    ],
+)
+def test_a_pose_a_near_slide_fits_better_is_refused(overlap, near, checked, refused):
+    found = CovisibleEvidence(overlap, checked, 0.9, 0.1, 0.9, 0.1, 2.0, near)
+    reason = acceptance_refusal(found, RegistrationConfig().covisibility)
+    assert ('accept_climb' in reason) == refused, reason
+
+
 def test_the_rule_is_off_at_zero():
     covis = RegistrationConfig().covisibility
     covis.accept_overlap = 0.0
@@ -199,11 +215,16 @@ def test_a_pose_slid_along_a_weak_direction_is_not_accepted():
     """
     world, labels = facade_street()
     slid = pose(0.9, 0.0, 0.0, 0.0)  # along the street
-    context = judged(world, labels, slid, [pose(0, 0, 0, 30.0)])
+    no_climb = RegistrationConfig().replace({'covisibility.accept_near_slide': 0.0})
+    context = judged(world, labels, slid, [pose(0, 0, 0, 30.0)], config=no_climb)
     assert context.refusal == '' and context.diagnostics['covisible_accept_overlap'] >= 0.97
-    context = judged(world, labels, slid, [pose(0, 0, 0, 30.0)], degeneracy_ratio=0.006)
+    context = judged(world, labels, slid, [pose(0, 0, 0, 30.0)], 0.006, no_climb)
     assert context.refusal == REFUSED
     assert 'accept_localizability' in context.diagnostics['covisible_accept_refusal']
+    # the near slides see it too: slid back by a metre, the pose fits more of the surface
+    context = judged(world, labels, slid, [pose(0, 0, 0, 30.0)])
+    assert context.refusal == REFUSED
+    assert 'accept_climb' in context.diagnostics['covisible_accept_refusal']
     right = judged(world, labels, np.eye(4), [pose(0, 0, 0, 30.0)], degeneracy_ratio=0.023)
     assert right.refusal == ''  # the least localizable right KITTI 60 m pose
 

@@ -157,6 +157,27 @@ class CovisibilityConfig:
         low=0.0,
         high=1.0,
     )
+    accept_near_slide: float = param(
+        1.0,
+        'A pose judged on its covisible overlap is also measured slid by this distance and by '
+        '1.5 times it, along 8 horizontal directions; a slide that fits more than '
+        'covisibility.accept_climb of the surface better refuses it: the pose is not where '
+        'the scans fit best. A real KITTI 40 m FPFH pose 1.55 m off along the street '
+        'measured 0.989 on 0.25 of the surface, slid 1-1.5 m 0.998, the truth 1.000 '
+        '(docs/hard_pairs.md); 0: off.',
+        unit='m',
+        low=0.0,
+        high=10.0,
+    )
+    accept_climb: float = param(
+        0.0012,
+        'How much more of the surface a slide of covisibility.accept_near_slide may fit than '
+        'a pose accepted on its covisible overlap: (slide overlap - pose overlap) times the '
+        'checked share. A gain in overlap on little checked surface is noise: right 60 m '
+        'poses gained 0.011 on 0.05 (0.0006), the wrong 40 m pose 0.010 on 0.25 (0.0025).',
+        low=0.0,
+        high=1.0,
+    )
     early_accept_gap: float = param(
         0.08,
         'The gate of the refused path: after the BEV, swapped and far searches and the guided '

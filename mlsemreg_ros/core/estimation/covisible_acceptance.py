@@ -59,6 +59,7 @@ class CovisibleEvidence:
     slide_overlap: float  # best of the pose slid along 8 directions (0: no slides)
     slide_checked: float  # its checked share
     tilt_deg: float  # angle between the scans' up axes under the pose
+    near_overlap: float = 0.0  # best of the pose slid by a metre or so (0: not measured)
 
     def as_diagnostics(self) -> dict[str, float]:
         """Flat values for the result's diagnostics (``covisible_accept_*``)."""
@@ -101,6 +102,15 @@ def acceptance_refusal(evidence: CovisibleEvidence, covis: CovisibilityConfig) -
                 f'{what} reaches a covisible overlap {value:.3f} > {evidence.overlap:.3f} - '
                 f'covisibility.accept_gap={covis.accept_gap:g}'
             )
+    climb = (evidence.near_overlap - evidence.overlap) * evidence.checked
+    if climb > covis.accept_climb:
+        reasons.append(
+            f'a slide of {covis.accept_near_slide:g}-{1.5 * covis.accept_near_slide:g} m fits '
+            f'{climb:.4f} more of the surface ({evidence.near_overlap:.3f} against '
+            f'{evidence.overlap:.3f} on {evidence.checked:.2f} checked) > '
+            f'covisibility.accept_climb={covis.accept_climb:g}: the pose is not where the '
+            'scans fit best'
+        )
     return '; '.join(reasons)
 
 

@@ -112,7 +112,10 @@ class CovisibleAcceptanceStage:
         slides = slid_poses(pose, conf.slide_distance, SLIDES)[
             : SLIDES * (conf.slide_distance > 0)
         ]
-        transforms = np.concatenate([pose[None], slides, candidates[rivals]])
+        near = np.concatenate(
+            [slid_poses(pose, scale * covis.accept_near_slide, SLIDES) for scale in (1.0, 1.5)]
+        )[: 2 * SLIDES * (covis.accept_near_slide > 0)]
+        transforms = np.concatenate([pose[None], slides, near, candidates[rivals]])
         overlap, checked = mutual_covisible_overlap(
             transforms,
             *covisible_sides(context, covis.accept_points),
@@ -120,14 +123,16 @@ class CovisibleAcceptanceStage:
             covis.margin,
         )
         end = 1 + len(slides)
+        near_end = end + len(near)
         # a rival counts only where both scans see enough of it (covisibility.accept_rival_share)
         floor = max(covis.min_checked, covis.accept_rival_share * float(checked[0]))
         return CovisibleEvidence(
             float(overlap[0]),
             float(checked[0]),
-            *best_eligible(overlap[end:], checked[end:], floor),
+            *best_eligible(overlap[near_end:], checked[near_end:], floor),
             *best_eligible(overlap[1:end], checked[1:end], floor),
             tilt,
+            best_eligible(overlap[end:near_end], checked[end:near_end], floor)[0],
         )
 
     @staticmethod
