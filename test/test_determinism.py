@@ -91,7 +91,8 @@ def _walk(bag: Path, stride: int) -> np.ndarray:
 def test_a_handheld_walk_gives_the_same_poses_twice_and_on_one_thread(
     tmp_path: Path, restore_threads: None
 ) -> None:
-    """The same walk, twice on 2 threads and once on 1, publishes identical poses.
+    """
+    The same walk, twice on 2 threads and once on 1, publishes identical poses.
 
     Before the fix the runs on 2 threads differed (5e-5 m by the 10th scan).
     """
