@@ -67,12 +67,15 @@ class AlignmentCloud:
 
         With resolution 0 the points are used as they are (they are voxelized already).
         Normals and covariances from ``num_neighbors`` neighbours. ``num_threads``
-        defaults to :func:`threads.workers`; 1 inside a pool task.
+        (the KD-tree and the covariances, each point's own result whatever the count)
+        defaults to :func:`threads.workers`; 1 inside a pool task. The downsampling runs
+        on :data:`DETERMINISTIC_THREADS`.
         """
         points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
         n = num_threads or threads.workers()
         if resolution > 0 and points.shape[0]:
-            cloud = small_gicp.voxelgrid_sampling(points, resolution, n)
+            # one thread: the OpenMP sampling's point count and order vary run to run
+            cloud = small_gicp.voxelgrid_sampling(points, resolution, DETERMINISTIC_THREADS)
         else:
             cloud = small_gicp.PointCloud(points)
         tree = small_gicp.KdTree(cloud, n)
@@ -144,11 +147,22 @@ class Alignment:
 UNKNOWN_VARIANCE = 1e6
 
 
-def _solver_settings(cfg: FineAlignmentConfig, num_threads: int) -> dict[str, float]:
+#: small_gicp's thread count where its OpenMP result depends on the thread timing. Its
+#: Gauss-Newton sums each thread's share of the factors (``schedule(guided)``: which
+#: thread gets which factors changes run to run) and then adds the shares, so the
+#: Hessian's last bits change with the timing and the thread count; its parallel voxel
+#: sampling collects the voxels in completion order (the count and order vary). Last-bit
+#: changes grow through the iterations and the acceptance tests: on the handheld VLP-16
+#: walk, runs of the same input differed from the 6th scan on, by up to 5 cm (docs/sensors.md).
+#: One thread makes both a function of the input alone.
+DETERMINISTIC_THREADS = 1
+
+
+def _solver_settings(cfg: FineAlignmentConfig) -> dict[str, float]:
     """Keyword arguments of ``small_gicp.align`` shared by every method."""
     return {
         'max_correspondence_distance': cfg.max_correspondence_distance,
-        'num_threads': num_threads,
+        'num_threads': DETERMINISTIC_THREADS,
         'max_iterations': cfg.max_iterations,
         'rotation_epsilon': float(np.radians(cfg.rotation_epsilon)),
         'translation_epsilon': cfg.translation_epsilon,
@@ -193,8 +207,7 @@ def align_pair(
     method = method or cfg.pair_method
     if len(source) < 6 or len(target) < 6:
         return _failed(T_initial, len(source))
-    n = threads.workers()
-    common = _solver_settings(cfg, n)
+    common = _solver_settings(cfg)
     init = np.asarray(T_initial, dtype=np.float64)
     if method == 'vgicp':
         voxels = small_gicp.GaussianVoxelMap(cfg.voxel_size)

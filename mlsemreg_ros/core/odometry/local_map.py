@@ -184,14 +184,12 @@ class LocalMap:
         prefetch, self._prefetch = self._prefetch, None
         return None if prefetch is None else prefetch.result()
 
-    def align(
-        self, scan: AlignmentCloud, T_initial: np.ndarray, num_threads: int | None = None
-    ) -> Alignment:
+    def align(self, scan: AlignmentCloud, T_initial: np.ndarray) -> Alignment:
         """Refine ``T_map_scan`` from ``T_initial`` against the map."""
         if len(scan) < 6 or len(self) == 0:
             return _failed(T_initial, len(scan))
         init = np.asarray(T_initial, dtype=np.float64)
-        common = _solver_settings(self.fine, num_threads or threads.workers())
+        common = _solver_settings(self.fine)
         if isinstance(self._map, small_gicp.GaussianVoxelMap):
             result = small_gicp.align(self._map, scan.cloud, init, **common)
         else:
