@@ -219,7 +219,7 @@ class CovarianceConfig:
         high=10.0,
     )
     jerk_along: float = param(
-        0.5,
+        0.3,
         'Standard deviation added along the direction from the prediction to the accepted '
         'pose, per metre of that correction (times min(1, jerk_window / horizon)) beyond '
         'jerk_free: a hand that jerks between scans a few sweeps apart leaves the scan off '
@@ -230,7 +230,7 @@ class CovarianceConfig:
         high=10.0,
     )
     jerk_free: float = param(
-        0.12,
+        0.13,
         'The part of the correction (times the jerk_window share) that adds nothing to '
         'jerk_along.',
         unit='m',
