@@ -302,7 +302,7 @@ def test_a_jerk_between_scans_adds_variance_along_it_and_for_a_missed_turn() -> 
         jerk_free=0.1,
         jerk_window=0.3,
         jerk_per_degree=0.02,
-        correction_free_rotation=2.0,
+        jerk_free_turn=2.0,
         jerk_max_turn=30.0,
     )
     direction = np.array([0.0, 0.3, 0.0])

@@ -247,15 +247,24 @@ class CovarianceConfig:
         high=10.0,
     )
     jerk_per_degree: float = param(
-        0.02,
+        0.03,
         'Standard deviation added to every translation axis per degree that the accepted '
         'pose turned from the prediction (times the jerk_window share) beyond '
-        'correction_free_rotation: a turn the prediction missed bends the sweep, and the '
-        'scan lands off by centimetres (the handheld walk at stride 3: 7-10 cm off after '
-        '5-13 deg). 0: off (docs/covariance.md).',
+        'jerk_free_turn: a turn the prediction missed bends the sweep, and the '
+        'scan lands off by centimetres (the handheld walk at stride 3: up to 14 cm off after '
+        '13 deg). 0: off (docs/covariance.md).',
         unit='m/deg',
         low=0.0,
         high=10.0,
+    )
+    jerk_free_turn: float = param(
+        8.5,
+        'The part of the turn from the prediction (times the jerk_window share) that adds '
+        'nothing to jerk_per_degree (a car at stride 3 missing a turn by 4-8 deg stays '
+        'within 6 cm).',
+        unit='deg',
+        low=0.0,
+        high=180.0,
     )
     jerk_max_turn: float = param(
         30.0,
@@ -515,7 +524,7 @@ def jerk_along(inputs: CovarianceInputs, cfg: CovarianceConfig) -> np.ndarray:
 
     ``(jerk_along * max(k |c| - jerk_free, 0))^2 u u^T`` with ``c`` the translation from
     the prediction to the accepted pose, ``u = c / |c|``, ``k = min(1, jerk_window /
-    horizon)``, plus ``(jerk_per_degree * max(k a - correction_free_rotation, 0))^2 I3``
+    horizon)``, plus ``(jerk_per_degree * max(k a - jerk_free_turn, 0))^2 I3``
     with ``a`` the angle (deg) between the prediction and the accepted pose; 0 where that
     angle exceeds ``jerk_max_turn`` (the registration replaced the prediction). A hand's
     motion a few sweeps apart changes faster than the constant-velocity prediction
@@ -528,7 +537,7 @@ def jerk_along(inputs: CovarianceInputs, cfg: CovarianceConfig) -> np.ndarray:
     share = sweep_shares(inputs.horizons_s, cfg, cfg.jerk_window)
     sigma = cfg.jerk_along * np.maximum(share * lengths - cfg.jerk_free, 0.0)
     turned = inputs.corrections[:, 1]
-    beyond_deg = np.maximum(share * turned - cfg.correction_free_rotation, 0.0)
+    beyond_deg = np.maximum(share * turned - cfg.jerk_free_turn, 0.0)
     sigma_turn = cfg.jerk_per_degree * beyond_deg
     replaced = turned > cfg.jerk_max_turn
     sigma[replaced], sigma_turn[replaced] = 0.0, 0.0
