@@ -290,6 +290,44 @@ def test_a_correction_adds_variance_along_its_direction_only() -> None:
     assert np.allclose(calibrated_covariance(zero, 1.0, cfg, correction=(2.06, 0.0)), 0.0)
 
 
+def test_a_jerk_between_scans_adds_variance_along_it_and_for_a_missed_turn() -> None:
+    """
+    A hand's 0.3 m correction over 0.3 s (stride 3) counts whole.
+
+    One that replaced the prediction (a 40 deg turn) or came after 1 s counts less or not at all.
+    """
+    cfg = replace(
+        OFF,
+        jerk_along=0.5,
+        jerk_free=0.1,
+        jerk_window=0.3,
+        jerk_per_degree=0.02,
+        jerk_free_turn=2.0,
+        jerk_max_turn=30.0,
+    )
+    direction = np.array([0.0, 0.3, 0.0])
+    zero = np.zeros((6, 6))
+
+    def added(turn_deg: float, horizon_s: float) -> np.ndarray:
+        return calibrated_covariance(
+            zero,
+            1.0,
+            cfg,
+            correction=(0.3, turn_deg),
+            horizon_s=horizon_s,
+            correction_direction=direction,
+        )
+
+    along = added(0.0, 0.3)
+    assert np.isclose(along[1, 1], (0.5 * (0.3 - 0.1)) ** 2)
+    assert np.isclose(along[0, 0], 0.0) and np.allclose(along[3:, :], 0.0)
+    turned = added(12.0, 0.3)  # a turn the prediction missed: every translation axis
+    assert np.isclose(turned[0, 0], (0.02 * (12.0 - 2.0)) ** 2)
+    assert np.isclose(turned[1, 1], (0.5 * 0.2) ** 2 + (0.02 * 10.0) ** 2)
+    assert np.allclose(added(40.0, 0.3), 0.0)  # the registration replaced the prediction
+    assert np.allclose(added(0.0, 1.0), 0.0)  # 0.3 m after 1 s: 0.09 m, within jerk_free
+
+
 def test_a_tighter_hessian_gets_a_larger_scale_with_the_size_exponent() -> None:
     """A block 100 times smaller in variance is scaled up 100^b: the NEES follows less the size."""
     reference_t, reference_r = REFERENCE_SIGMAS

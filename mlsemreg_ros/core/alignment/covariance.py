@@ -218,6 +218,62 @@ class CovarianceConfig:
         low=0.0,
         high=10.0,
     )
+    jerk_along: float = param(
+        0.3,
+        'Standard deviation added along the direction from the prediction to the accepted '
+        'pose, per metre of that correction (times min(1, jerk_window / horizon)) beyond '
+        'jerk_free: a hand that jerks between scans a few sweeps apart leaves the scan off '
+        'along the correction by a third to a whole of it (the handheld walk at stride 3: '
+        '10-25 cm off for 15-30 cm corrections). 0: off (docs/covariance.md).',
+        unit='m/m',
+        low=0.0,
+        high=10.0,
+    )
+    jerk_free: float = param(
+        0.13,
+        'The part of the correction (times the jerk_window share) that adds nothing to '
+        'jerk_along.',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
+    jerk_window: float = param(
+        0.3,
+        'The time over which jerk_along counts the whole correction: beyond it the '
+        'correction counts times jerk_window / horizon (a prediction over a second is a '
+        'guess the registration replaces, not a bend of the scan).',
+        unit='s',
+        low=0.0,
+        high=10.0,
+    )
+    jerk_per_degree: float = param(
+        0.03,
+        'Standard deviation added to every translation axis per degree that the accepted '
+        'pose turned from the prediction (times the jerk_window share) beyond '
+        'jerk_free_turn: a turn the prediction missed bends the sweep, and the '
+        'scan lands off by centimetres (the handheld walk at stride 3: up to 14 cm off after '
+        '13 deg). 0: off (docs/covariance.md).',
+        unit='m/deg',
+        low=0.0,
+        high=10.0,
+    )
+    jerk_free_turn: float = param(
+        8.5,
+        'The part of the turn from the prediction (times the jerk_window share) that adds '
+        'nothing to jerk_per_degree (a car at stride 3 missing a turn by 4-8 deg stays '
+        'within 6 cm).',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
+    jerk_max_turn: float = param(
+        30.0,
+        'jerk_along is off when the accepted pose turned more than this from the prediction '
+        '(the registration replaced the prediction instead of refining it).',
+        unit='deg',
+        low=0.0,
+        high=180.0,
+    )
     degenerate_ratio: float = param(
         100.0,
         'An eigen-direction of the translation or rotation block of the Hessian covariance '
@@ -403,6 +459,7 @@ def calibrated_covariances(
     floor[:, :3, :3] = (sigma_t**2)[:, None, None] * _shape(eigen[0], cfg.translation_floor_shape)
     floor[:, 3:, 3:] = (sigma_r**2)[:, None, None] * _shape(eigen[1], cfg.rotation_floor_shape)
     floor[:, :3, :3] += along_correction(inputs.directions, share, cfg)
+    floor[:, :3, :3] += jerk_along(inputs, cfg)
     covariance = scaled + _degenerate_inflation(eigen, cfg) + floor
     return 0.5 * (covariance + np.swapaxes(covariance, -1, -2))
 
@@ -461,6 +518,34 @@ def along_correction(
     )
 
 
+def jerk_along(inputs: CovarianceInputs, cfg: CovarianceConfig) -> np.ndarray:
+    """
+    Return the translation variance (K, 3, 3) of a jerk of the motion between the scans.
+
+    ``(jerk_along * max(k |c| - jerk_free, 0))^2 u u^T`` with ``c`` the translation from
+    the prediction to the accepted pose, ``u = c / |c|``, ``k = min(1, jerk_window /
+    horizon)``, plus ``(jerk_per_degree * max(k a - jerk_free_turn, 0))^2 I3``
+    with ``a`` the angle (deg) between the prediction and the accepted pose; 0 where that
+    angle exceeds ``jerk_max_turn`` (the registration replaced the prediction). A hand's
+    motion a few sweeps apart changes faster than the constant-velocity prediction
+    follows, and the accepted scan stays off along the correction (docs/covariance.md).
+    """
+    directions = inputs.directions
+    if cfg.jerk_along <= 0.0 and cfg.jerk_per_degree <= 0.0:
+        return np.zeros((len(directions), 3, 3))
+    lengths = np.linalg.norm(directions, axis=1)
+    share = sweep_shares(inputs.horizons_s, cfg, cfg.jerk_window)
+    sigma = cfg.jerk_along * np.maximum(share * lengths - cfg.jerk_free, 0.0)
+    turned = inputs.corrections[:, 1]
+    beyond_deg = np.maximum(share * turned - cfg.jerk_free_turn, 0.0)
+    sigma_turn = cfg.jerk_per_degree * beyond_deg
+    replaced = turned > cfg.jerk_max_turn
+    sigma[replaced], sigma_turn[replaced] = 0.0, 0.0
+    unit = directions / np.maximum(lengths, 1e-12)[:, None]
+    variance = (sigma**2)[:, None, None] * np.einsum('ki,kj->kij', unit, unit)
+    return variance + (sigma_turn**2)[:, None, None] * np.eye(3)
+
+
 def floor_shape(blocks: np.ndarray, exponent: float) -> np.ndarray:
     """
     Return the shape (..., 3, 3) of a floor that follows covariance ``blocks`` (..., 3, 3).
@@ -491,12 +576,19 @@ def sweep_share(horizon_s: float, cfg: CovarianceConfig) -> float:
     return float(sweep_shares(np.array([horizon_s], dtype=np.float64), cfg)[0])
 
 
-def sweep_shares(horizons_s: np.ndarray, cfg: CovarianceConfig) -> np.ndarray:
-    """:func:`sweep_share` of K horizons (K,): 1 where the horizon is unknown (0)."""
+def sweep_shares(
+    horizons_s: np.ndarray, cfg: CovarianceConfig, sweep_s: float | None = None
+) -> np.ndarray:
+    """
+    :func:`sweep_share` of K horizons (K,): 1 where the horizon is unknown (0).
+
+    ``sweep_s``: the time that counts whole (None: ``correction_sweep``).
+    """
+    sweep_s = cfg.correction_sweep if sweep_s is None else sweep_s
     share = np.ones(horizons_s.shape)
-    if cfg.correction_sweep > 0.0:
+    if sweep_s > 0.0:
         timed = horizons_s > 0.0
-        share[timed] = np.minimum(1.0, cfg.correction_sweep / horizons_s[timed])
+        share[timed] = np.minimum(1.0, sweep_s / horizons_s[timed])
     return share
 
 
