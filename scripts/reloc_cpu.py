@@ -44,7 +44,7 @@ from mlsemreg_ros.core.maps.map_io import load_map
 from mlsemreg_ros.core.maps.relocalization import Relocalizer
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.evaluation.relocalization import (
-    duplicated,
+    duplicate_map,
     read_query,
     relocalization_config,
     score,
@@ -77,14 +77,7 @@ def main() -> None:
     cpu = time.process_time()
     data = load_map(args.map)
     core = relocalization_config(data.config, None, args.overrides)
-    if args.duplicate > 1:
-        data.keyframes = duplicated(data.keyframes, args.duplicate)
-        core = core.replace(
-            {
-                'map.max_keyframes': max(core.map.max_keyframes, len(data.keyframes)),
-                'map.max_memory_mb': 1e6,
-            }
-        )
+    core = duplicate_map(data, core, args.duplicate)
     registration = Registration(core)
     label_source = LabelSource(registration.label_map)
     labels = [label_source(q['points'], q['labels'], core).labels for q in queries]

@@ -22,6 +22,19 @@ from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 import pytest
 
 STREET_SEED = 3
+#: Keyframe positions along the synthetic street (x, m).
+KEYFRAME_X = (-30.0, -15.0, 0.0, 15.0, 30.0)
+
+
+def street_keyframe_store(config: RegistrationConfig | None = None) -> KeyframeStore:
+    """Return a store with keyframes along the synthetic street (learning ids)."""
+    store = KeyframeStore(config or RegistrationConfig())
+    world, labels = street_scene(seed=STREET_SEED)
+    for k, x in enumerate(KEYFRAME_X):
+        pose = motion(5.0 * k, (x, 0.3 * k, 0.0))
+        points, scan_labels = scan_at(world, labels, pose, seed=200 + k, max_points=15000)
+        store.add(points, scan_labels, pose, 1_000_000_000 * k)
+    return store
 
 
 def write_street_map(folder: Path) -> Path:

@@ -29,31 +29,17 @@ from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 import numpy as np
 import pytest
+from street_map import KEYFRAME_X, street_keyframe_store, STREET_SEED
 import yaml
-
-STREET_SEED = 3
-#: Keyframe positions along the synthetic street (x, m).
-KEYFRAME_X = (-30.0, -15.0, 0.0, 15.0, 30.0)
-
-
-def _store(config: RegistrationConfig | None = None) -> KeyframeStore:
-    """Return a store with keyframes along the synthetic street (learning ids)."""
-    store = KeyframeStore(config or RegistrationConfig())
-    world, labels = street_scene(seed=STREET_SEED)
-    for k, x in enumerate(KEYFRAME_X):
-        pose = motion(5.0 * k, (x, 0.3 * k, 0.0))
-        points, scan_labels = scan_at(world, labels, pose, seed=200 + k, max_points=15000)
-        store.add(points, scan_labels, pose, 1_000_000_000 * k)
-    return store
 
 
 @pytest.fixture(scope='module')
 def street_store() -> KeyframeStore:
-    return _store()
+    return street_keyframe_store()
 
 
 def test_a_saved_map_loads_with_identical_keyframes(tmp_path: Path) -> None:
-    store = _store()
+    store = street_keyframe_store()
     save_map(tmp_path / 'm', store, 'world')
     loaded, data = load_store(tmp_path / 'm')
     assert data.frame_id == 'world' and data.config == store.config

@@ -20,7 +20,6 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from mlsemreg_ros.core.alignment.alignment import AlignmentCloud
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
 from mlsemreg_ros.core.maps.place_recognition import (
     Candidate,
     context_similarity,
@@ -33,19 +32,7 @@ from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 import numpy as np
 import pytest
-
-STREET_SEED = 3
-KEYFRAME_X = (-30.0, -15.0, 0.0, 15.0, 30.0)
-
-
-def _store(config: RegistrationConfig) -> KeyframeStore:
-    store = KeyframeStore(config)
-    world, labels = street_scene(seed=STREET_SEED)
-    for k, x in enumerate(KEYFRAME_X):
-        pose = motion(5.0 * k, (x, 0.3 * k, 0.0))
-        points, scan_labels = scan_at(world, labels, pose, seed=200 + k, max_points=15000)
-        store.add(points, scan_labels, pose, 1_000_000_000 * k)
-    return store
+from street_map import street_keyframe_store, STREET_SEED
 
 
 def _query() -> tuple[np.ndarray, np.ndarray]:
@@ -120,7 +107,7 @@ def test_a_prepared_map_answers_as_before_and_a_prepared_keyframe_costs_no_prepa
     points, labels = _query()
     answers = []
     for ahead in (False, True):
-        store = _store(config)
+        store = street_keyframe_store(config)
         registration = _CountingRegistration(config, store.label_map)
         relocalizer = Relocalizer(registration, store)
         if ahead:
@@ -147,8 +134,10 @@ def test_a_background_preparation_stops_and_a_query_meanwhile_answers_the_same(
     config: RegistrationConfig,
 ) -> None:
     points, labels = _query()
-    reference = Relocalizer(Registration(config), _store(config)).relocalize(points, labels)
-    store = _store(config)
+    reference = Relocalizer(Registration(config), street_keyframe_store(config)).relocalize(
+        points, labels
+    )
+    store = street_keyframe_store(config)
     relocalizer = Relocalizer(Registration(config, store.label_map), store)
     thread = relocalizer.prepare_map(background=True)
     assert thread is not None
@@ -160,7 +149,7 @@ def test_a_background_preparation_stops_and_a_query_meanwhile_answers_the_same(
 
 
 def test_a_cached_submap_is_dropped_when_the_map_changes(config: RegistrationConfig) -> None:
-    store = _store(config)
+    store = street_keyframe_store(config)
     everyone = set(store.ids)
     first, used = submap_cloud(store, store.ids[2], 3, everyone, config.fine)
     again, _ = submap_cloud(store, store.ids[2], 3, everyone, config.fine)
@@ -186,7 +175,7 @@ def test_a_cached_submap_is_dropped_when_the_map_changes(config: RegistrationCon
 
 
 def _relocalize(config: RegistrationConfig, points, labels):
-    store = _store(config)
+    store = street_keyframe_store(config)
     return Relocalizer(Registration(config, store.label_map), store).relocalize(points, labels)
 
 

@@ -120,14 +120,7 @@ def relocalize_queries(
     options = options or RelocalizeOptions()
     data = load_map(map_path)
     core = relocalization_config(data.config, config_path, overrides)
-    if options.duplicate > 1:
-        data.keyframes = duplicated(data.keyframes, options.duplicate)
-        core = core.replace(
-            {
-                'map.max_keyframes': max(core.map.max_keyframes, len(data.keyframes)),
-                'map.max_memory_mb': 1e6,
-            }
-        )
+    core = duplicate_map(data, core, options.duplicate)
     registration = Registration(core)
     store = data.store(core, registration.label_map)
     files = sorted(queries.glob('*.npz'))[: options.max_queries]
@@ -299,6 +292,19 @@ def summarize(records: list[dict[str, Any]]) -> dict[str, Any]:
         'time_ms_mean': float(times.mean()),
         'registrations_mean': float(np.mean([r['candidates'] for r in records])),
     }
+
+
+def duplicate_map(data: Any, core: Any, copies: int) -> Any:
+    """Repeat the map's keyframes ``copies`` times in place; the config that holds them all."""
+    if copies <= 1:
+        return core
+    data.keyframes = duplicated(data.keyframes, copies)
+    return core.replace(
+        {
+            'map.max_keyframes': max(core.map.max_keyframes, len(data.keyframes)),
+            'map.max_memory_mb': 1e6,
+        }
+    )
 
 
 def duplicated(keyframes: list[Any], copies: int) -> list[Any]:
