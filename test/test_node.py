@@ -355,7 +355,13 @@ def test_failure_keeps_the_keyframe_and_does_not_move_the_odometry(
     dst_stamp, _ = send(probe, scene.pts_dst, scene.label_dst)
     # the first keyframe's pair would refine itself and stage 9 could accept it on its own
     # evidence (odometry.refine_first_keyframe): this test forces the refusal
-    forced = {'estimator.min_inliers': 100000, 'odometry.refine_first_keyframe': False}
+    # (and keyframe.max_failures 0: a refused first pair would otherwise make the refused
+    # scan the keyframe at once, issue 29; failures.py)
+    forced = {
+        'estimator.min_inliers': 100000,
+        'odometry.refine_first_keyframe': False,
+        'keyframe.max_failures': 0,
+    }
     assert all(r.successful for r in probe.set_parameters(forced))
     try:
         failed_stamp, status = send(probe, scene.pts_src, scene.label_src)
@@ -363,6 +369,7 @@ def test_failure_keeps_the_keyframe_and_does_not_move_the_odometry(
         defaults = {
             'estimator.min_inliers': RegistrationConfig().estimator.min_inliers,
             'odometry.refine_first_keyframe': True,
+            'keyframe.max_failures': RegistrationConfig().keyframe.max_failures,
         }
         assert all(r.successful for r in probe.set_parameters(defaults))
     assert status['level'] == 1 and 'registration failed' in status['message']

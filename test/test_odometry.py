@@ -194,6 +194,23 @@ def test_a_run_of_failures_reinitialises_at_the_last_pose() -> None:
     assert steps[2].source == steps[3].source == ''
 
 
+def test_a_refused_first_pair_makes_the_newer_scan_the_keyframe_at_once() -> None:
+    """Issue 29 item 2: with no motion known, later scans do not face an ever older keyframe."""
+    script = [(transform(9.0), False), (transform(2.0), True), (transform(9.0), False)]
+    config = CHAIN.replace({'keyframe.max_failures': 3})
+    odometry = Odometry(ScriptedRegistration(script, config))
+    steps = [odometry.process(*scan(k), stamp_ns=10 * (k + 1)) for k in range(4)]
+    assert [s.accepted for s in steps] == [True, False, True, False]
+    refused = steps[1]
+    assert refused.source == 'reinitialized' and refused.new_keyframe
+    assert 'no motion known' in refused.reason and refused.keyframe_index == 1
+    np.testing.assert_allclose(refused.pose, np.eye(4))  # held: nothing wrong published
+    assert refused.covariance[0, 0] >= 100.0  # the jump is flagged
+    assert steps[2].keyframe_index == 1  # one step from the newer keyframe
+    np.testing.assert_allclose(steps[2].pose, transform(2.0))
+    assert steps[3].source == ''  # a pair was accepted: back to keyframe.max_failures
+
+
 def test_duplicate_stamps_are_skipped_and_backward_stamps_reset() -> None:
     registration = ScriptedRegistration([(transform(1.0), True), (transform(1.0), True)])
     odometry = Odometry(registration)

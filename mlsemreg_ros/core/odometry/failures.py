@@ -18,7 +18,9 @@ Rejections in a row: relocalize, then re-initialise; the prediction a rejected s
 
 At the ``keyframe.max_failures``-th rejection in a row the scan is relocalized onto the
 past keyframes (recovery.py), and only if that fails does the odometry re-initialise on
-the scan at the last accepted pose (a jump it flags by the covariance).
+the scan at the last accepted pose (a jump it flags by the covariance). While no pair
+has been accepted since the keyframe started (no motion known), the first rejection
+re-initialises at once: the refused, newer scan becomes the keyframe.
 """
 
 from __future__ import annotations
@@ -99,6 +101,9 @@ def count_failure(odometry: Odometry, step: OdometryStep, raw: PreprocessedScan)
         return
     odometry._failures += 1
     limit = odometry.config.keyframe.max_failures
+    first = no_motion_known(odometry)
+    if first and limit:  # waiting keeps every later scan facing an ever older keyframe
+        limit = 1
     if not limit or odometry._failures < limit or odometry.keyframe_refusal(raw.scan):
         return
     start_keyframe(odometry, step.index, step.stamp_ns, raw, odometry.pose)
@@ -106,7 +111,26 @@ def count_failure(odometry: Odometry, step: OdometryStep, raw: PreprocessedScan)
     step.covariance = odometry.covariance.copy()  # the jump is flagged
     step.new_keyframe, step.source = True, 'reinitialized'
     step.keyframe_index, step.map_voxels = step.index, len(odometry.map)
+    if first:
+        step.reason += (
+            '; no pair accepted since the keyframe (no motion known): re-initialised on '
+            'this scan, the newer keyframe, at the last accepted pose'
+        )
+        return
     step.reason += (
         f'; {limit} frames rejected in a row: re-initialised on this scan at '
         'the last accepted pose (the motion since is unknown)'
     )
+
+
+def no_motion_known(odometry: Odometry) -> bool:
+    """
+    Whether no pair was accepted since the keyframe started (issue 29 item 2).
+
+    Then there is no prediction to carry a refused scan's successors, no map beyond the
+    keyframe and no past keyframe to relocalize onto: each later scan would face the
+    keyframe from ever farther away (a VLP-16 drive at stride 20 saw it 37-92 m back).
+    The refused scan becomes the keyframe at once instead, flagged like any
+    re-initialisation, so that the next scan is one stride from it.
+    """
+    return odometry.keyframe is not None and len(odometry._accepted) < 2
