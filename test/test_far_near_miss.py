@@ -40,7 +40,10 @@ def test_stage_9_refuses_the_80_m_pose_slid_along_the_street(tmp_path: Path) -> 
     drive = tmp_path / 'f3'
     arguments = [str(drive), '--realism', 'field', '--frames', '200', '--seed', '3', '--quiet']
     assert simulate.main(arguments) == 0
-    frames = {frame.index: frame for frame in read_frames(drive, 0.3, 60.0, progress=False)}
+    frames = {
+        frame.index: frame
+        for frame in read_frames(drive, 0.3, 60.0, progress=False, deskew='none')
+    }
     pair = make_pair(
         [frames[25], frames[112]], PairChoice('stride', 0, 1, 80.0, 0.0, 0.0), 'p', 5000, 7
     )

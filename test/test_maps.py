@@ -443,8 +443,8 @@ def test_a_timed_scan_the_odometry_left_skewed_is_not_mapped_or_relocalized() ->
 
 def test_a_ground_truth_map_deskews_every_scan_with_its_true_motion() -> None:
     """Deskew each scan by its own sweep's motion; the last one by the motion before it."""
+    from mlsemreg_ros.datasets.deskewing import deskewed_by_truth
     from mlsemreg_ros.datasets.source import Scan
-    from mlsemreg_ros.evaluation.map_build import deskewed_by_truth
 
     config = RegistrationConfig()
     points, times = np.array([[10.0, 0.0, 0.0], [0.0, 5.0, 0.0]]), np.array([0.1, 0.0])

@@ -35,15 +35,19 @@ with its kind, frames, distance, rotation and overlap.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 import sys
 from typing import Any
 
+from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.rigid import relative_transform
+from mlsemreg_ros.datasets.deskewing import deskewed_by_odometry, deskewed_by_truth
 import numpy as np
 
 OVERLAP_DISTANCE_M = 0.6  # the KITTI inlier threshold
+DESKEW_CHOICES = ('truth', 'odometry', 'none')  # how read_frames motion-compensates sweeps
 
 
 @dataclass
@@ -84,28 +88,42 @@ class PairChoice:
 
 
 def read_frames(
-    bag: Path, voxel_size: float, max_range: float, progress: bool = True
+    bag: Path,
+    voxel_size: float,
+    max_range: float,
+    progress: bool = True,
+    deskew: str = 'truth',
 ) -> list[Frame]:
-    """Read every scan of ``bag`` with ground truth: cropped, voxelized, in learning ids."""
+    """
+    Read every scan of ``bag`` with ground truth: cropped, voxelized, in learning ids.
+
+    ``deskew`` (:data:`DESKEW_CHOICES`) says how a sweep with per-point times is
+    motion-compensated to its stamp first (:mod:`mlsemreg_ros.datasets.deskewing`):
+    ``truth`` as a ground-truth map's keyframes, ``odometry`` as the odometry's keyframes,
+    ``none`` not at all (raw sweeps: the truth refers to the sweep's start, and its points
+    spread over the sweep's motion).
+    """
     from mlsemreg_ros.core.features.features import voxel_downsample
     from mlsemreg_ros.core.matching.labels import LabelMap
     from mlsemreg_ros.datasets.factory import open_scan_source
     from tqdm import tqdm
 
+    if deskew not in DESKEW_CHOICES:
+        raise ValueError(f'deskew must be one of {", ".join(DESKEW_CHOICES)}, not {deskew!r}')
     label_map = LabelMap.load()
     source = open_scan_source(bag)
     frames: list[Frame] = []
     try:
-        for scan in tqdm(
+        scans = tqdm(
             source.scans(),
             total=len(source),
             desc='read',
             unit='scan',
             file=sys.stderr,
             disable=not progress,
-        ):
-            if scan.pose is None or scan.labels is None:
-                continue
+        )
+        posed = (scan for scan in scans if scan.pose is not None and scan.labels is not None)
+        for scan in DESKEWERS[deskew](posed):
             keep = np.linalg.norm(scan.xyz, axis=1) <= max_range
             labels = label_map.to_learning(scan.labels[keep])
             points, labels = voxel_downsample(scan.xyz[keep], labels, voxel_size)
@@ -113,6 +131,13 @@ def read_frames(
     finally:
         source.close()
     return frames
+
+
+DESKEWERS: dict[str, Callable[[Iterator[Any]], Iterator[Any]]] = {
+    'truth': lambda scans: deskewed_by_truth(scans, RegistrationConfig()),
+    'odometry': deskewed_by_odometry,
+    'none': lambda scans: scans,
+}
 
 
 def relative_motion(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -268,16 +293,18 @@ def cut_hard_pairs(
     keypoints: int = 5000,
     prefix: str | None = None,
     progress: bool = True,
+    deskew: str = 'truth',
 ) -> CutReport:
     """
     Cut hard pairs out of ``bag`` into pair files in ``out`` (``mlsemreg cut-pairs``).
 
-    Reads the labeled scans with ground truth (:func:`read_frames`), draws the pairs
+    Reads the labeled scans with ground truth (:func:`read_frames`, motion-compensated as
+    ``deskew`` says), draws the pairs
     (:func:`choose_pairs`) and writes them (:func:`write_pair_files`), named
     ``<prefix>_<source>_<target>`` (prefix: the bag's name). Raises :class:`TooFewFrames`
     below two scans, and the reader's errors (``SourceError``, ``OSError``, ``ValueError``).
     """
-    frames = read_frames(bag, voxel_size, max_range, progress=progress)
+    frames = read_frames(bag, voxel_size, max_range, progress=progress, deskew=deskew)
     if len(frames) < 2:
         raise TooFewFrames(
             f'{bag} has {len(frames)} labeled scans with ground truth; at least 2 are needed'

@@ -16,7 +16,7 @@
 A keyframe map built from a scan source (``mlsemreg map build``, docs/maps.md).
 
 :func:`build_map` runs the odometry (with loop closures) or takes the ground-truth poses
-(deskewed by the true motion, :func:`deskewed_by_truth`), adds the keyframes to a
+(deskewed by the true motion, :mod:`mlsemreg_ros.datasets.deskewing`), adds the keyframes to a
 :class:`~mlsemreg_ros.core.maps.mapping.Mapper` and summarises the map: keyframes, memory,
 loops and, with ground truth, the ATE with and without the loop closures and each loop
 edge's error (:func:`loop_edge`) against the keyframes that revisit a place
@@ -151,6 +151,7 @@ def build_map(
     from mlsemreg_ros.core.maps.mapping import Mapper
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
+    from mlsemreg_ros.datasets.deskewing import deskewed_by_truth
     import numpy as np
     from tqdm import tqdm
 
@@ -178,7 +179,8 @@ def build_map(
     )
     label_source = LabelSource(registration.label_map)  # --labels (label_source)
     if odometry is None:  # ground truth: only the posed scans, deskewed by the truth
-        labeled = deskewed_by_truth((scan for scan in labeled if scan.pose is not None), config)
+        posed = (scan for scan in labeled if scan.pose is not None)
+        labeled = deskewed_by_truth(posed, config)
     for scan in labeled:
         scans += 1
         if scan.pose is not None:
@@ -273,37 +275,6 @@ def score_loops(
         ]  # fmt: skip
     summary['keyframe_trials'] = keyframe_trials
     summary['revisit_diagnosis'] = revisit_diagnosis(summary)
-
-
-def deskewed_by_truth(scans: Any, config: Any) -> Any:
-    """
-    Yield the posed scans with their points deskewed to their stamps by the true motion.
-
-    A map with ground-truth poses gets the motion compensation that the odometry gives
-    its keyframes (``preprocess.deskew``, ``core/features/deskew.py``), with the true
-    motion: the constant twist from the scan's pose to the next scan's (its own sweep);
-    the last scan takes the twist from the one before. Scans without point times stay as
-    they are.
-    """
-    from dataclasses import replace
-
-    from mlsemreg_ros.core.features.deskew import deskew, sweep_motion
-
-    def moved(scan: Any, a: Any, b: Any) -> Any:
-        if config.preprocess.deskew == 'off' or scan.point_times is None:
-            return scan
-        motion = sweep_motion(a.pose, a.stamp_ns, b.pose, b.stamp_ns)
-        if motion is None:
-            return scan
-        return replace(scan, xyz=deskew(scan.xyz, scan.point_times, motion))
-
-    before = held = None
-    for scan in scans:
-        if held is not None:
-            yield moved(held, held, scan)  # the motion over its own sweep, to the next stamp
-        before, held = held, scan
-    if held is not None:  # the last scan: the motion from the one before (none: as it is)
-        yield held if before is None else moved(held, before, held)
 
 
 def loop_edge(loop: Any, truth: dict[int, Any], store: Any) -> dict[str, Any]:

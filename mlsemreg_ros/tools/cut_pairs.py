@@ -92,6 +92,14 @@ MaxRange = Annotated[float, typer.Option(min=0.0, help='crop radius, m')]
 Keypoints = Annotated[int, typer.Option(min=0, help='random keypoints per scan')]
 Seed = Annotated[int, typer.Option(min=0, help='seed of the pair draw and keypoints')]
 Prefix = Annotated[str | None, typer.Option(help='pair name prefix (default: bag name)')]
+Deskew = Annotated[
+    str,
+    typer.Option(
+        help='motion compensation of sweeps with per-point times: truth (the true motion, as '
+        "a ground-truth map), odometry (the odometry's own estimate, as its keyframes) or "
+        'none (raw sweeps)'
+    ),
+]
 
 
 def cut_pairs(
@@ -110,13 +118,21 @@ def cut_pairs(
     keypoints: Keypoints = 5000,
     seed: Seed = 0,
     prefix: Prefix = None,
+    deskew: Deskew = 'truth',
     quiet: QuietOption = False,
 ) -> int:
     """Cut hard registration pairs out of a labeled bag (alias mlsemreg-cut-pairs)."""
-    from mlsemreg_ros.datasets.hard_pairs import cut_hard_pairs, CutOptions, TooFewFrames
+    from mlsemreg_ros.datasets.hard_pairs import (
+        cut_hard_pairs,
+        CutOptions,
+        DESKEW_CHOICES,
+        TooFewFrames,
+    )
     from mlsemreg_ros.datasets.source import SourceError
     from mlsemreg_ros.evaluation.tables import print_text
 
+    if deskew not in DESKEW_CHOICES:
+        raise CommandError(f'--deskew must be one of {", ".join(DESKEW_CHOICES)}, not {deskew}')
     options = CutOptions(
         stride_pairs,
         turn_pairs,
@@ -130,7 +146,15 @@ def cut_pairs(
     )
     try:
         report = cut_hard_pairs(
-            bag, out, options, voxel_size, max_range, keypoints, prefix, progress=not quiet
+            bag,
+            out,
+            options,
+            voxel_size,
+            max_range,
+            keypoints,
+            prefix,
+            progress=not quiet,
+            deskew=deskew,
         )
     except TooFewFrames as error:
         raise CommandError(str(error)) from None
@@ -139,7 +163,7 @@ def cut_pairs(
     counts = report.counts()
     print_text(
         f'wrote {len(report.choices)} pairs to {out} ({counts["stride"]} stride, '
-        f'{counts["turn"]} turn) from {report.frames} scans of {bag}'
+        f'{counts["turn"]} turn) from {report.frames} scans of {bag} (deskew: {deskew})'
     )
     return 0
 
