@@ -197,7 +197,7 @@ def test_a_run_of_failures_reinitialises_at_the_last_pose() -> None:
 def test_a_refused_first_pair_makes_the_newer_scan_the_keyframe_at_once() -> None:
     """Issue 29 item 2: with no motion known, later scans do not face an ever older keyframe."""
     script = [(transform(9.0), False), (transform(2.0), True), (transform(9.0), False)]
-    config = CHAIN.replace({'keyframe.max_failures': 3})
+    config = CHAIN.replace({'keyframe.max_failures': 3, 'keyframe.restart_gap': 0.0})
     odometry = Odometry(ScriptedRegistration(script, config))
     steps = [odometry.process(*scan(k), stamp_ns=10 * (k + 1)) for k in range(4)]
     assert [s.accepted for s in steps] == [True, False, True, False]
@@ -209,6 +209,19 @@ def test_a_refused_first_pair_makes_the_newer_scan_the_keyframe_at_once() -> Non
     assert steps[2].keyframe_index == 1  # one step from the newer keyframe
     np.testing.assert_allclose(steps[2].pose, transform(2.0))
     assert steps[3].source == ''  # a pair was accepted: back to keyframe.max_failures
+
+
+@pytest.mark.parametrize('gap_s', [0.1, 2.0])
+def test_a_refused_scan_soon_after_the_keyframe_keeps_it(gap_s: float) -> None:
+    """``keyframe.restart_gap``: a refused first pair restarts only when far in time."""
+    script = [(transform(9.0), False), (transform(2.0), True)]
+    odometry = Odometry(ScriptedRegistration(script, CHAIN.replace({'keyframe.max_failures': 3})))
+    period = int(gap_s * 1e9)
+    steps = [odometry.process(*scan(k), stamp_ns=period * (k + 1)) for k in range(3)]
+    assert [s.accepted for s in steps] == [True, False, True]
+    restarted = steps[1].source == 'reinitialized'
+    assert restarted == (gap_s >= 1.0)
+    assert steps[2].keyframe_index == (1 if restarted else 0)
 
 
 def test_duplicate_stamps_are_skipped_and_backward_stamps_reset() -> None:

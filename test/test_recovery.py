@@ -205,9 +205,10 @@ def test_a_prediction_refused_only_by_its_correction_is_judged_on_its_basin(driv
     assert step.accepted and step.source == 'prediction', step.reason
     assert 'prediction accepted on its own evidence' in step.reason
     assert 'perturbed starts came back to it' in step.reason
-    # the first pair moved 0.07 m > 0.05 m: refused, so scan 1 became the keyframe (issue 29)
-    assert steps[1].source == 'reinitialized' and steps[2].keyframe_index == 1
-    assert _right(step, invert_transform(drive[1][2]) @ drive[3][2])
+    # the first pair moved 0.07 m > 0.05 m: refused, and scan 0 stays the keyframe
+    # (0.1 s after it, within keyframe.restart_gap)
+    assert steps[1].source == '' and steps[2].keyframe_index == 0
+    assert _right(step, invert_transform(drive[0][2]) @ drive[3][2])
     unchecked = _blind_from(config.replace({'near_miss.enabled': False}), drive, 3, 4)
     assert not unchecked[3].accepted and 'own evidence' not in unchecked[3].reason
 

@@ -110,6 +110,19 @@ class KeyframeConfig:
         low=0,
         high=100000,
     )
+    restart_gap: float = param(
+        1.0,
+        'While no pair was accepted since the keyframe began (no motion known), a refused '
+        'scan at least this long after the keyframe becomes the keyframe at once, so that the '
+        'next scan is one stride from it (a VLP-16 drive at stride 20 faced the first scan '
+        '37-92 m back); a refused scan closer in time waits for keyframe.max_failures as any '
+        'other, so that the next scan still faces the keyframe (a solid-state drive at '
+        'stride 1 went from 97 % to 0 % with every refused scan restarting; '
+        'docs/evaluation.md). 0: every refused first pair restarts; unstamped scans restart.',
+        unit='s',
+        low=0.0,
+        high=3600.0,
+    )
 
 
 @dataclass

@@ -101,7 +101,7 @@ def count_failure(odometry: Odometry, step: OdometryStep, raw: PreprocessedScan)
         return
     odometry._failures += 1
     limit = odometry.config.keyframe.max_failures
-    first = no_motion_known(odometry)
+    first = no_motion_known(odometry) and long_after_keyframe(odometry, step.stamp_ns)
     if first and limit:  # waiting keeps every later scan facing an ever older keyframe
         limit = 1
     if not limit or odometry._failures < limit or odometry.keyframe_refusal(raw.scan):
@@ -121,6 +121,22 @@ def count_failure(odometry: Odometry, step: OdometryStep, raw: PreprocessedScan)
         f'; {limit} frames rejected in a row: re-initialised on this scan at '
         'the last accepted pose (the motion since is unknown)'
     )
+
+
+def long_after_keyframe(odometry: Odometry, stamp_ns: int) -> bool:
+    """
+    Whether a scan at ``stamp_ns`` is ``keyframe.restart_gap`` or more after the keyframe.
+
+    True for unstamped scans (a stamp of 0) and a gap of 0. A scan refused shortly after the
+    keyframe leaves the next one near it too: at stride 1 the solid-state drive's second scan
+    was refused and its third registered onto the first; restarting on each refused scan
+    made every pair a first pair, registered globally, and RR fell from 97 % to 0 %.
+    """
+    gap_s = odometry.config.keyframe.restart_gap
+    keyframe = odometry.keyframe
+    if gap_s <= 0.0 or keyframe is None or not stamp_ns or not keyframe.stamp_ns:
+        return True
+    return 1e-9 * (stamp_ns - keyframe.stamp_ns) >= gap_s
 
 
 def no_motion_known(odometry: Odometry) -> bool:
