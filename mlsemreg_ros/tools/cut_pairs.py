@@ -22,7 +22,7 @@ The selection (stride pairs far apart, low-overlap turn pairs) and the writing a
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Literal
 
 from mlsemreg_ros.tools.common import alias, CommandError, QuietOption
 import typer
@@ -93,7 +93,7 @@ Keypoints = Annotated[int, typer.Option(min=0, help='random keypoints per scan')
 Seed = Annotated[int, typer.Option(min=0, help='seed of the pair draw and keypoints')]
 Prefix = Annotated[str | None, typer.Option(help='pair name prefix (default: bag name)')]
 Deskew = Annotated[
-    str,
+    Literal['truth', 'odometry', 'none'],
     typer.Option(
         help='motion compensation of sweeps with per-point times: truth (the true motion, as '
         "a ground-truth map), odometry (the odometry's own estimate, as its keyframes) or "
@@ -122,17 +122,10 @@ def cut_pairs(
     quiet: QuietOption = False,
 ) -> int:
     """Cut hard registration pairs out of a labeled bag (alias mlsemreg-cut-pairs)."""
-    from mlsemreg_ros.datasets.hard_pairs import (
-        cut_hard_pairs,
-        CutOptions,
-        DESKEW_CHOICES,
-        TooFewFrames,
-    )
+    from mlsemreg_ros.datasets.hard_pairs import cut_hard_pairs, CutOptions, TooFewFrames
     from mlsemreg_ros.datasets.source import SourceError
     from mlsemreg_ros.evaluation.tables import print_text
 
-    if deskew not in DESKEW_CHOICES:
-        raise CommandError(f'--deskew must be one of {", ".join(DESKEW_CHOICES)}, not {deskew}')
     options = CutOptions(
         stride_pairs,
         turn_pairs,

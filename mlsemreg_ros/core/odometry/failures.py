@@ -19,8 +19,9 @@ Rejections in a row: relocalize, then re-initialise; the prediction a rejected s
 At the ``keyframe.max_failures``-th rejection in a row the scan is relocalized onto the
 past keyframes (recovery.py), and only if that fails does the odometry re-initialise on
 the scan at the last accepted pose (a jump it flags by the covariance). While no pair
-has been accepted since the keyframe started (no motion known), the first rejection
-re-initialises at once: the refused, newer scan becomes the keyframe.
+has been accepted since the keyframe started (no motion known), the first rejection of a
+scan ``keyframe.restart_gap`` or more after the keyframe re-initialises at once: the
+refused, newer scan becomes the keyframe.
 """
 
 from __future__ import annotations
