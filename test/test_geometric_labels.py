@@ -233,3 +233,46 @@ def test_vertical_lines_are_poles_only_near_the_sensor() -> None:
     _, (_, near, far), _ = labeled([ground(rng), held(8.0, 3.0), held(24.0, 7.0)])
     assert majority(near) == g.POLE
     assert share(far, g.POLE) == 0.0
+
+
+def test_support_counts_equal_the_kd_tree_counts() -> None:
+    """The compiled counts of the support test are the KD-tree's, point for point."""
+    from mlsemreg_ros.core.features.cell_grid import CellGrid
+    from mlsemreg_ros.core.labeling import geometric_kernels as gk
+    from mlsemreg_ros.core.matching import landmarks
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(4)
+    # a clump, and points exactly 0.6 m apart: a tie at the radius counts on both sides
+    ties = np.array([[0.0, 0, 0], [0.6, 0, 0], [1.2, 0, 0], [0, 0.6, 0], [0, 0, -0.6]])
+    points = np.concatenate([rng.normal(10.0, 1.0, (3000, 3)), ties])
+    raw = rng.choice(np.array([g.POLE, g.TRUNK, g.CAR, g.BUILDING], dtype=np.uint32), len(points))
+    raw[-5:] = g.POLE
+    objects = np.isin(raw, g.OBJECT_IDS)
+    rows = np.flatnonzero(objects)
+    grid = CellGrid.build(points, g.SUPPORT_RADIUS)
+    total, same = gk.support_counts(points, rows, raw, objects, g.SUPPORT_RADIUS, grid)
+    expected = landmarks.confident_points(
+        points, raw, objects, g.LANDMARK_SUPPORT, g.SUPPORT_RADIUS
+    )
+    assert np.array_equal(same >= g.LANDMARK_SUPPORT * total, expected)
+    within = cKDTree(points).query_ball_point(points[rows], g.SUPPORT_RADIUS, return_length=True)
+    assert np.array_equal(total, within)
+    assert np.all(total >= 1) and np.all(same >= 1)  # each point counts itself
+
+
+def test_the_label_source_leaves_non_finite_points_unlabeled() -> None:
+    """A NaN row gets label 0; the finite rows get the labels of the scan without it."""
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.labeling.source import LabelSource
+
+    rng = np.random.default_rng(5)
+    scene = np.concatenate([ground(rng), pole(8.0, 3.0), wall(-14.0), box(7.0, -8.0)])
+    config = RegistrationConfig()
+    config.label_source = 'geometric'
+    clean = LabelSource()(scene, None, config).labels
+    dirty = np.insert(scene, 100, np.nan, axis=0)
+    labels = LabelSource()(dirty, None, config).labels
+    assert labels[100] == 0
+    assert np.array_equal(np.delete(labels, 100), clean)
+    assert np.unique(clean).size >= 3
