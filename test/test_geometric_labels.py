@@ -276,3 +276,21 @@ def test_the_label_source_leaves_non_finite_points_unlabeled() -> None:
     assert labels[100] == 0
     assert np.array_equal(np.delete(labels, 100), clean)
     assert np.unique(clean).size >= 3
+
+
+def test_window_sums_of_sparse_columns() -> None:
+    """The compiled window sum equals a dense raster's box sum on random occupied columns."""
+    from scipy.ndimage import convolve
+
+    rng = np.random.default_rng(6)
+    cells = rng.integers(0, 12, (60, 2))
+    points = np.c_[(cells + 0.5) * 0.5, np.zeros(len(cells))]
+    columns = g.Columns.of(points, 0.5)
+    values = rng.integers(1, 9, columns.count).astype(np.float64)
+    raster = np.zeros((12, 12))
+    raster[columns.cells[:, 0], columns.cells[:, 1]] = values
+    for radius in (1, 2):
+        kernel = np.ones((2 * radius + 1,) * 2)
+        box = convolve(raster, kernel, mode='constant')
+        expected = box[columns.cells[:, 0], columns.cells[:, 1]]
+        assert np.array_equal(columns.window_sum(values, radius), expected)

@@ -417,3 +417,28 @@ def support_counts(
                         if select[j] and labels[j] == own:
                             same[i] += 1
     return total, same
+
+
+@jit
+def window_sum(keys: np.ndarray, span: int, values: np.ndarray, radius: int) -> np.ndarray:
+    """
+    Sum of ``values`` (M,) over each occupied column's (2 radius + 1)^2 window.
+
+    ``keys`` (M,) the columns' sorted linear keys ``ix * span + iy`` (``geometric.Columns``).
+    The keys moved by one offset are sorted too, so each offset's neighbours are found by
+    one merge walk over the keys; an unoccupied neighbour adds nothing. The terms are added
+    in the order of the NumPy loop (dx, then dy), so the sums are the same.
+    """
+    count = keys.shape[0]
+    total = np.zeros(count)
+    for dx in range(-radius, radius + 1):
+        for dy in range(-radius, radius + 1):
+            offset = dx * span + dy
+            j = 0
+            for m in range(count):
+                wanted = keys[m] + offset
+                while j < count and keys[j] < wanted:
+                    j += 1
+                if j < count and keys[j] == wanted:
+                    total[m] += values[j]
+    return total
