@@ -233,3 +233,64 @@ def test_vertical_lines_are_poles_only_near_the_sensor() -> None:
     _, (_, near, far), _ = labeled([ground(rng), held(8.0, 3.0), held(24.0, 7.0)])
     assert majority(near) == g.POLE
     assert share(far, g.POLE) == 0.0
+
+
+def test_support_counts_equal_the_kd_tree_counts() -> None:
+    """The compiled counts of the support test are the KD-tree's, point for point."""
+    from mlsemreg_ros.core.features.cell_grid import CellGrid
+    from mlsemreg_ros.core.labeling import geometric_kernels as gk
+    from mlsemreg_ros.core.matching import landmarks
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(4)
+    # a clump, and points exactly 0.6 m apart: a tie at the radius counts on both sides
+    ties = np.array([[0.0, 0, 0], [0.6, 0, 0], [1.2, 0, 0], [0, 0.6, 0], [0, 0, -0.6]])
+    points = np.concatenate([rng.normal(10.0, 1.0, (3000, 3)), ties])
+    raw = rng.choice(np.array([g.POLE, g.TRUNK, g.CAR, g.BUILDING], dtype=np.uint32), len(points))
+    raw[-5:] = g.POLE
+    objects = np.isin(raw, g.OBJECT_IDS)
+    rows = np.flatnonzero(objects)
+    grid = CellGrid.build(points, g.SUPPORT_RADIUS)
+    total, same = gk.support_counts(points, rows, raw, objects, g.SUPPORT_RADIUS, grid)
+    expected = landmarks.confident_points(
+        points, raw, objects, g.LANDMARK_SUPPORT, g.SUPPORT_RADIUS
+    )
+    assert np.array_equal(same >= g.LANDMARK_SUPPORT * total, expected)
+    within = cKDTree(points).query_ball_point(points[rows], g.SUPPORT_RADIUS, return_length=True)
+    assert np.array_equal(total, within)
+    assert np.all(total >= 1) and np.all(same >= 1)  # each point counts itself
+
+
+def test_the_label_source_leaves_non_finite_points_unlabeled() -> None:
+    """A NaN row gets label 0; the finite rows get the labels of the scan without it."""
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.labeling.source import LabelSource
+
+    rng = np.random.default_rng(5)
+    scene = np.concatenate([ground(rng), pole(8.0, 3.0), wall(-14.0), box(7.0, -8.0)])
+    config = RegistrationConfig()
+    config.label_source = 'geometric'
+    clean = LabelSource()(scene, None, config).labels
+    dirty = np.insert(scene, 100, np.nan, axis=0)
+    labels = LabelSource()(dirty, None, config).labels
+    assert labels[100] == 0
+    assert np.array_equal(np.delete(labels, 100), clean)
+    assert np.unique(clean).size >= 3
+
+
+def test_window_sums_of_sparse_columns() -> None:
+    """The compiled window sum equals a dense raster's box sum on random occupied columns."""
+    from scipy.ndimage import convolve
+
+    rng = np.random.default_rng(6)
+    cells = rng.integers(0, 12, (60, 2))
+    points = np.c_[(cells + 0.5) * 0.5, np.zeros(len(cells))]
+    columns = g.Columns.of(points, 0.5)
+    values = rng.integers(1, 9, columns.count).astype(np.float64)
+    raster = np.zeros((12, 12))
+    raster[columns.cells[:, 0], columns.cells[:, 1]] = values
+    for radius in (1, 2):
+        kernel = np.ones((2 * radius + 1,) * 2)
+        box = convolve(raster, kernel, mode='constant')
+        expected = box[columns.cells[:, 0], columns.cells[:, 1]]
+        assert np.array_equal(columns.window_sum(values, radius), expected)

@@ -59,6 +59,7 @@ import math
 import time
 
 from mlsemreg_ros.core.features import kernels
+from mlsemreg_ros.core.features.cell_grid import CellGrid
 from mlsemreg_ros.core.labeling import geometric_kernels as gk
 from mlsemreg_ros.core.labeling.geometric_config import GeometricLabelsConfig
 from mlsemreg_ros.core.matching import landmarks
@@ -368,20 +369,28 @@ def _drop_unsupported(points: np.ndarray, raw: np.ndarray, second: np.ndarray) -
     objects = np.isin(raw, OBJECT_IDS)
     if not objects.any():
         return
-    # only points in the cells next to an object point can be its neighbours
-    cell = np.floor(points / SUPPORT_RADIUS).astype(np.int64)
-    cell -= cell.min(axis=0) - 1
-    span = cell.max(axis=0) + 2
-    key = (cell[:, 0] * span[1] + cell[:, 1]) * span[2] + cell[:, 2]
-    steps = np.array([-1, 0, 1])
-    offsets = (
-        steps[:, None, None] * span[1] * span[2] + steps[None, :, None] * span[2] + steps
-    ).reshape(-1)
-    near = np.isin(key, np.unique(key[objects][:, None] + offsets))
-    local = landmarks.confident_points(
-        points[near], raw[near], objects[near], LANDMARK_SUPPORT, SUPPORT_RADIUS
+    # only the points in the objects' box (grown by the radius) can be their neighbours
+    low = points[objects].min(axis=0) - SUPPORT_RADIUS
+    high = points[objects].max(axis=0) + SUPPORT_RADIUS
+    box = np.flatnonzero(
+        (points[:, 0] >= low[0])
+        & (points[:, 0] <= high[0])
+        & (points[:, 1] >= low[1])
+        & (points[:, 1] <= high[1])
+        & (points[:, 2] >= low[2])
+        & (points[:, 2] <= high[2])
     )
-    rows = np.flatnonzero(objects)[~local]
+    near, labels, selected = points[box], raw[box], objects[box]
+    rows = np.flatnonzero(selected)
+    grid = CellGrid.build(near, SUPPORT_RADIUS)
+    if grid.base.shape[0] == 0:  # a box too large for cells: the KD-tree counts
+        local = landmarks.confident_points(
+            near, labels, selected, LANDMARK_SUPPORT, SUPPORT_RADIUS
+        )
+    else:
+        total, same = gk.support_counts(near, rows, labels, selected, SUPPORT_RADIUS, grid)
+        local = same >= LANDMARK_SUPPORT * total
+    rows = box[rows[~local]]
     raw[rows] = second[rows]
 
 
@@ -421,13 +430,10 @@ class Columns:
         return known
 
     def window_sum(self, values: np.ndarray, radius: int) -> np.ndarray:
-        """Sum of ``values`` (M,) over each column's (2 radius + 1)^2 window."""
-        total = np.zeros(self.count)
-        for dx in range(-radius, radius + 1):
-            for dy in range(-radius, radius + 1):
-                neighbour = self._neighbour(dx, dy)
-                total += np.where(neighbour >= 0, values[np.maximum(neighbour, 0)], 0.0)
-        return total
+        """Sum of ``values`` (M,) over each column's (2 radius + 1)^2 window (compiled)."""
+        return gk.window_sum(
+            self.keys, self.span, np.ascontiguousarray(values, dtype=np.float64), radius
+        )
 
     def clusters(self, member: np.ndarray) -> np.ndarray:
         """8-connected clusters of the ``member`` columns: (M,) cluster id, -1 for others."""

@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import math
 
+from mlsemreg_ros.core.features.cell_grid import CellGrid
 from mlsemreg_ros.core.features.kernels import jit
 import numpy as np
 
@@ -364,3 +365,80 @@ def column_extent(
             top[c] = max(top[c], height[i])
             base[c] = min(base[c], height[i])
     return top, base
+
+
+@jit
+def support_counts(
+    points: np.ndarray,
+    rows: np.ndarray,
+    labels: np.ndarray,
+    select: np.ndarray,
+    radius: float,
+    grid: CellGrid,
+) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Neighbour counts of the ``rows`` of ``points`` (N, 3) within ``radius`` (each counts itself).
+
+    ``grid``: the same ``points`` in cells of edge ``radius`` (``CellGrid.build``);
+    ``labels`` (N,) and ``select`` (N,) bool. Returns, per row, the count of
+    all points within ``radius`` and the count of the selected points of its own label
+    (the two ``cKDTree.query_ball_point`` counts of ``landmarks.confident_points``).
+    """
+    cell, low, extent, bottom, base, starts, sorted_points, order = grid
+    count = rows.shape[0]
+    total = np.zeros(count, dtype=np.int64)
+    same = np.zeros(count, dtype=np.int64)
+    reach = np.int64(np.ceil(radius / cell))
+    limit = radius * radius
+    for i in range(count):
+        own = labels[rows[i]]
+        x, y, z = points[rows[i], 0], points[rows[i], 1], points[rows[i], 2]
+        cx = np.int64(np.floor(x / cell)) - low[0]
+        cy = np.int64(np.floor(y / cell)) - low[1]
+        cz = np.int64(np.floor(z / cell)) - low[2]
+        for ix in range(max(cx - reach, 0), min(cx + reach + 1, extent[0])):
+            for iy in range(max(cy - reach, 0), min(cy + reach + 1, extent[1])):
+                c = ix * extent[1] + iy
+                lowest = max(cz - reach, bottom[c])
+                highest = min(cz + reach, bottom[c] + base[c + 1] - base[c] - 1)
+                if highest < lowest:
+                    continue
+                first = starts[base[c] + lowest - bottom[c]]
+                last = starts[base[c] + highest - bottom[c] + 1]
+                for k in range(first, last):
+                    d2 = (
+                        (x - sorted_points[k, 0]) ** 2
+                        + (y - sorted_points[k, 1]) ** 2
+                        + (z - sorted_points[k, 2]) ** 2
+                    )
+                    if d2 <= limit:
+                        total[i] += 1
+                        j = order[k]
+                        if select[j] and labels[j] == own:
+                            same[i] += 1
+    return total, same
+
+
+@jit
+def window_sum(keys: np.ndarray, span: int, values: np.ndarray, radius: int) -> np.ndarray:
+    """
+    Sum of ``values`` (M,) over each occupied column's (2 radius + 1)^2 window.
+
+    ``keys`` (M,) the columns' sorted linear keys ``ix * span + iy`` (``geometric.Columns``).
+    The keys moved by one offset are sorted too, so each offset's neighbours are found by
+    one merge walk over the keys; an unoccupied neighbour adds nothing. The terms are added
+    in the order of the NumPy loop (dx, then dy), so the sums are the same.
+    """
+    count = keys.shape[0]
+    total = np.zeros(count)
+    for dx in range(-radius, radius + 1):
+        for dy in range(-radius, radius + 1):
+            offset = dx * span + dy
+            j = 0
+            for m in range(count):
+                wanted = keys[m] + offset
+                while j < count and keys[j] < wanted:
+                    j += 1
+                if j < count and keys[j] == wanted:
+                    total[m] += values[j]
+    return total

@@ -134,7 +134,8 @@ class LabelSource:
         if raw.shape[0] == 0:
             return raw
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        finite = np.flatnonzero(np.isfinite(points).all(axis=1))
+        # a whole-array test first: the per-row test and the copy cost 2 ms on 125k points
+        finite = slice(None) if np.isfinite(points).all() else np.isfinite(points).all(axis=1)
         usable = points[finite]
         voxel = config.features.voxel_size or DEFAULT_LABEL_VOXEL
         grid = kernels.voxel_grid(usable, voxel)
