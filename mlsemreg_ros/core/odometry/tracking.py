@@ -154,9 +154,10 @@ class Tracker:
         """
         if cfg.fine.method == 'off':
             return chain(register(current, keyframe), cfg)
-        self.trust.motion_bound.predicted(
-            None if prediction is None else prediction.T_odom_current,
-            None if prediction is None else prediction.sigmas,
+        known = None if prediction is None or prediction.still else prediction
+        self.trust.motion_bound.predicted(  # a still start is no motion model's error
+            None if known is None else known.T_odom_current,
+            None if known is None else known.sigmas,
         )
         predicted = self.refine_prediction(current, prediction, cfg, timings)
         gap = prediction.stamp_gap if prediction is not None else 1.0
