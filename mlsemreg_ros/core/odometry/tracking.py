@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import copy
+import dataclasses
 import time
 from typing import Any, TYPE_CHECKING
 
@@ -238,7 +239,7 @@ class Tracker:
         tic = time.perf_counter()
         candidate = self.candidate('prediction', prediction.T_odom_current, scan, cfg)
         timings['fine_prediction_ms'] = 1e3 * (time.perf_counter() - tic)
-        return candidate
+        return dataclasses.replace(candidate, still=True) if prediction.still else candidate
 
     def track(self, predicted: Candidate, cfg: RegistrationConfig) -> Decision:
         """Accept the scan by its refined prediction (no global registration)."""
