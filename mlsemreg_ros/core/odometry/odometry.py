@@ -252,7 +252,7 @@ class Odometry:
 
     def _still_start(self, stamp_ns: int) -> Prediction | None:
         """
-        The last accepted pose as a guess while no motion is known (``odometry.still_start``).
+        Return the last accepted pose as a guess while no motion is known (``still_start``).
 
         Only for a scan close in time to that pose: a sweep or two later the scans overlap
         and the fine alignment's basin holds the motion (KISS-ICP starts so). None when off,
