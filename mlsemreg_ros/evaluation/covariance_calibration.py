@@ -162,7 +162,11 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
 
 def _predicted_pose(step: Any) -> np.ndarray | None:
     """Return the motion model's prediction ``T_odom_current`` of a step (None: none)."""
-    predicted = [c.T_initial for c in getattr(step, 'candidates', []) if c.name == 'prediction']
+    predicted = [
+        c.T_initial
+        for c in getattr(step, 'candidates', [])
+        if c.name == 'prediction' and not getattr(c, 'still', False)
+    ]
     return predicted[0] if predicted else None
 
 

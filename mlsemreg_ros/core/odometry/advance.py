@@ -61,7 +61,9 @@ def accept_scan(
     if sweep_twist is not None:
         odometry._sweep_twist = (sweep_twist, stamp_ns)
     current, relative = raw.scan, invert_transform(keyframe.pose) @ pose
-    predicted = [c.T_initial for c in chosen.candidates if c.name == 'prediction']
+    predicted = [  # a still start predicts no motion: no correction from it
+        c.T_initial for c in chosen.candidates if c.name == 'prediction' and not c.still
+    ]
     moved = invert_transform(predicted[0]) @ pose if predicted else np.eye(4)
     chosen.frame_covariance = calibrated_covariance(  # docs/covariance.md
         chosen.frame_covariance,

@@ -142,6 +142,16 @@ class OdometryConfig:
         'with the global estimate only one alignment is paid for, and when the global '
         'estimate fails the prediction can still be accepted.',
     )
+    still_start: float = param(
+        0.15,
+        'Before any motion is known (the first pairs), a scan at most this long after the '
+        'last accepted one is also aligned from that pose (a still start, as KISS-ICP '
+        'starts): judged as a prediction, with the global registration beside it when '
+        'it is not trusted alone (0: off; a car at 10 Hz moves about 1 m a scan).',
+        unit='s',
+        low=0.0,
+        high=10.0,
+    )
     global_registration: str = param(
         'on_demand',
         'always: ML-SemReg + SC2-PCR onto the keyframe for every scan (the '

@@ -50,6 +50,7 @@ class Prediction:
     #                   (1 when the stamps cannot tell); the tracking trust rule reads it
     sigmas: tuple[float, float] | None = None  # a prior's stated (m, deg) standard deviations
     #                   (None: constant velocity); widen the correction bounds (motion_bound)
+    still: bool = False  # the last accepted pose itself, no motion known (odometry.still_start)
 
 
 class MotionModel(Protocol):

@@ -217,7 +217,7 @@ class Odometry:
         redeskew = Redeskew(self, given, raw)  # core/odometry/rotated_starts.py
         chosen = self.tracker.estimate(
             raw.scan,
-            prediction,
+            prediction or self._still_start(stamp_ns),
             self.keyframe,
             self.global_registration,
             self.config,
@@ -249,6 +249,22 @@ class Odometry:
         if self.keyframe is None or not self.config.odometry.constant_velocity:
             return None
         return self.motion_model.predict(stamp_ns)
+
+    def _still_start(self, stamp_ns: int) -> Prediction | None:
+        """
+        Return the last accepted pose as a guess while no motion is known (``still_start``).
+
+        Only for a scan close in time to that pose: a sweep or two later the scans overlap
+        and the fine alignment's basin holds the motion (KISS-ICP starts so). None when off,
+        without stamps or a pose, or when the scan is further in time.
+        """
+        limit = self.config.odometry.still_start
+        last = self._last_accepted if self.keyframe is not None else None
+        if limit <= 0.0 or last is None or not stamp_ns or not last[1]:
+            return None
+        if not 0 < stamp_ns - last[1] <= limit * 1e9:
+            return None
+        return Prediction(last[0].copy(), 1.0, still=True)
 
     def _stream_rules(self, stamp_ns: int) -> tuple[str, list[str]]:
         """Return why the scan is skipped ('' if not) and notes; reset on a backward stamp."""

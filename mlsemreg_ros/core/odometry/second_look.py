@@ -161,7 +161,8 @@ def _own_evidence(
     :data:`GLOBAL_INLIER_FLOOR` of it (a scan far from the last ones overlaps the map less
     than they did); the refined prediction, when the global registration
     failed, refused only by the correction bounds (a prediction over a gap is rougher
-    than they assume).
+    than they assume); never a still start (``odometry.still_start``), which predicts
+    nothing.
     """
     alignment, odometry = candidate.alignment, cfg.odometry
     bounds = RefinementBounds.of(odometry)
@@ -174,6 +175,7 @@ def _own_evidence(
         return estimate.usable and not refinement_refusal(alignment, floor)
     return (
         candidate.name == 'prediction'
+        and not candidate.still  # a still start has no motion model's roughness to excuse
         and not estimate.usable
         and bool(correction_refusal(alignment, bounds))
         and alignment.inlier_fraction >= bounds.min_inlier_fraction

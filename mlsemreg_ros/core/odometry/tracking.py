@@ -33,6 +33,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 import copy
+import dataclasses
 import time
 from typing import Any, TYPE_CHECKING
 
@@ -154,9 +155,10 @@ class Tracker:
         """
         if cfg.fine.method == 'off':
             return chain(register(current, keyframe), cfg)
-        self.trust.motion_bound.predicted(
-            None if prediction is None else prediction.T_odom_current,
-            None if prediction is None else prediction.sigmas,
+        known = None if prediction is None or prediction.still else prediction
+        self.trust.motion_bound.predicted(  # a still start is no motion model's error
+            None if known is None else known.T_odom_current,
+            None if known is None else known.sigmas,
         )
         predicted = self.refine_prediction(current, prediction, cfg, timings)
         gap = prediction.stamp_gap if prediction is not None else 1.0
@@ -237,7 +239,7 @@ class Tracker:
         tic = time.perf_counter()
         candidate = self.candidate('prediction', prediction.T_odom_current, scan, cfg)
         timings['fine_prediction_ms'] = 1e3 * (time.perf_counter() - tic)
-        return candidate
+        return dataclasses.replace(candidate, still=True) if prediction.still else candidate
 
     def track(self, predicted: Candidate, cfg: RegistrationConfig) -> Decision:
         """Accept the scan by its refined prediction (no global registration)."""

@@ -106,6 +106,7 @@ class Candidate:
     T_initial: np.ndarray  # (4, 4) T_odom_current guess
     alignment: Alignment
     refusal: str  # why it is not acceptable ('' if it is)
+    still: bool = False  # a prediction from the last pose itself (odometry.still_start)
 
     @property
     def acceptable(self) -> bool:
