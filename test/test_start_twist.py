@@ -80,7 +80,7 @@ def _drive(yaw_deg: float) -> tuple[list[tuple[Any, ...]], np.ndarray]:
 
 @pytest.fixture(scope='module')
 def turn() -> tuple[list[tuple[Any, ...]], np.ndarray]:
-    """The car turns by 80 deg after its straight first sweep (the mean twist: -40 deg/s)."""
+    """Return the drive of a car turning 80 deg after its straight first sweep (-40 deg/s)."""
     return _drive(-80.0)
 
 
