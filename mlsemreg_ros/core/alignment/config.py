@@ -305,6 +305,27 @@ class NearMissConfig:
         low=0.0,
         high=5.0,
     )
+    start_twist_spread: float = param(
+        0.4,
+        'The odometry, without a gyro: the first pair is aligned once more onto its first '
+        'scan deskewed with no rotation rate (its twist is unknown); a pose that moves more '
+        'than this is judged by near_miss.start_twist_action '
+        '(core/odometry/start_twist.py; 0: not checked). The HDL-64 field drive (seed 0) '
+        'accepted its first pair 0.57 and 0.54 m off at strides 20 and 30, moving 0.56 m; '
+        'right first pairs of the field drives moved 0.01-0.33 m (docs/confidence.md).',
+        unit='m',
+        low=0.0,
+        high=5.0,
+    )
+    start_twist_action: str = param(
+        'inflate',
+        'A first pair beyond near_miss.start_twist_spread: its frame covariance grows along '
+        'the gap between the two poses until its standard deviation there covers it '
+        '(inflate), or it is refused and the odometry restarts on the newer scan (refuse: '
+        'on the HDL-64 field drive the restarted pair then lost a right pose at stride 20 '
+        'and published one 0.72 m off at stride 30, docs/confidence.md).',
+        choices=('inflate', 'refuse'),
+    )
     max_residual: float = param(
         0.0,
         'Refuse a refined pose whose mean point-to-distribution residual (squared '

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING
 from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, motion_size
 from mlsemreg_ros.core.odometry.local_map import insert_accepted, Keyframe
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
+from mlsemreg_ros.core.odometry.start_twist import inflated_covariance
 from mlsemreg_ros.core.odometry.steps import accepted_step, Decision, OdometryStep
 from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
@@ -76,6 +77,9 @@ def accept_scan(
         ),
         correction_direction=moved[:3, 3],
     )
+    disputed = odometry.tracker.start_dispute  # the first scan's unknown twist
+    if disputed is not None:
+        chosen.frame_covariance = inflated_covariance(chosen.frame_covariance, disputed)
     last, odometry._last_accepted = odometry._last_accepted, (pose.copy(), stamp_ns)
     odometry._accepted.append(odometry._last_accepted)
     odometry.pose = pose.copy()

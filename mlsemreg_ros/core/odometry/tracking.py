@@ -51,6 +51,11 @@ from mlsemreg_ros.core.odometry.rotated_starts import (
     worth_rotating,
 )
 from mlsemreg_ros.core.odometry.second_look import second_look
+from mlsemreg_ros.core.odometry.start_twist import (
+    disputed_motion,
+    no_rotation_pose,
+    start_twist_verdict,
+)
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.sweep_starts import align_from_starts, implied_twist
 from mlsemreg_ros.core.odometry.trust import Candidate, InlierHistory, Trust
@@ -99,6 +104,11 @@ class Tracker:
         self.map = local_map
         self.trust = trust if trust is not None else Trust()
         self._gaussians: tuple[tuple[np.ndarray, np.ndarray], MapGaussians] | None = None
+        #: the first pair's pose with its first scan deskewed without a rotation rate
+        self.start_other: np.ndarray | None = None
+        #: the motion (6,) between the first pair's two twists' poses, in the pose's axes,
+        #: when its covariance is to be inflated along it (core/odometry/start_twist.py)
+        self.start_dispute: np.ndarray | None = None
 
     def map_gaussians(self) -> MapGaussians | None:
         """
@@ -279,11 +289,22 @@ class Tracker:
         not get it (:func:`weak_confirmation_refusal`) returns the pose None: the map, the
         keyframe and the history are as they were, and ``chosen.reason`` says why.
         """
+        history = copy.deepcopy(self.trust.history) if start is not None else None
         before = (copy.deepcopy(self.trust.history), raw) if chosen.confirm_weak else None
+        unaligned = raw
         self.trust.accepted(chosen.inlier_fraction)
+        self.start_other, self.start_dispute = None, None
         raw, pose = self.deskew_start(
             start, raw, chosen.pose, stamp_ns, keyframe, preprocessor, motion_model, cfg
         )
+        said, refuse = start_twist_verdict(pose, self.start_other, cfg)  # start_twist.py
+        chosen.reason = '; '.join(r for r in (chosen.reason, said) if r)
+        if refuse and history is not None:
+            self.trust.history = history
+            self.undo_start(start, keyframe)
+            return unaligned, None, None
+        if said.startswith('covariance inflated') and self.start_other is not None:
+            self.start_dispute = disputed_motion(pose, self.start_other)
         tic = time.perf_counter()
         implied = implied_twist(motion_model, pose, stamp_ns)  # core/odometry/sweep_starts.py
         deskewed = raw
@@ -359,17 +380,18 @@ class Tracker:
             raw.points, raw.point_times, still
         ):
             return raw, pose  # no times (the clean world), deskew off: nothing to redo
-        redone, current = (first, raw), pose
+        redone, current, gyro = (first, raw), pose, False
         for _ in range(START_DESKEW_ROUNDS):
             twist = sweep_motion(first_pose, first_stamp, current, stamp_ns)
             if twist is None:
                 break
             attempt = []
             for scan, stamp in ((first, first_stamp), (raw, stamp_ns)):
-                motion = (
-                    preprocessor.gyro_motion(motion_model, stamp, scan.point_times, twist.velocity)
-                    or twist
+                measured = preprocessor.gyro_motion(
+                    motion_model, stamp, scan.point_times, twist.velocity
                 )
+                gyro = gyro or measured is not None
+                motion = measured or twist
                 points = scan.input_points if scan.input_points is not None else scan.points
                 attempt.append(preprocessor.scan(points, scan.labels, scan.point_times, motion))
             if not all(r.deskewed for r in attempt):
@@ -386,6 +408,10 @@ class Tracker:
                 break
         if redone[0] is first:
             return raw, pose
+        if not gyro and cfg.near_miss.start_twist_spread > 0.0:  # start_twist.py
+            self.start_other = no_rotation_pose(
+                self, start, redone[1], pose, current, stamp_ns, preprocessor
+            )
         if self.map.empty or redone[1] is raw:
             self.map.clear()
             self.map.insert_scan(redone[0].scan, first_pose)
