@@ -23,7 +23,7 @@ from scipy.spatial.transform import Rotation
 
 
 def _tracked(shift_m: float, turn_deg: float, held: bool = True) -> Decision:
-    """A scan tracked by its prediction, which the fine alignment moved by shift and turn."""
+    """Return a scan tracked by its prediction, which the alignment moved by shift and turn."""
     moved = np.eye(4)
     moved[:3, :3] = Rotation.from_euler('z', turn_deg, degrees=True).as_matrix()
     moved[0, 3] = shift_m
