@@ -208,3 +208,20 @@ def test_a_cloud_voxelized_before_it_came_is_not_scaled() -> None:
     assert sensor_scale.voxelized(grid)
     assert sensor_scale.angular_spacing_deg(np.vstack([raw, near_raw]))[0] > 0.5
     assert sensor_scale.angular_spacing_deg(np.vstack([raw, grid]))[0] == 0.0
+
+
+def test_a_partial_view_keeps_the_sweep_alignment_on_every_tracked_scan() -> None:
+    """A 70 deg pattern sets sweep_alignment.steady_correction to 0; a full ring keeps it."""
+    config = RegistrationConfig()
+    ring = _shell(0.7)
+    azimuth = np.degrees(np.arctan2(ring[:, 1], ring[:, 0]))
+    view = ring[np.abs(azimuth) <= 35.0]
+    partial = sensor_scale.measure(view, config)
+    assert partial.azimuth_share == pytest.approx(70 / 360, abs=0.01)
+    assert sensor_scale.apply(config, partial).sweep_alignment.steady_correction == 0.0
+    full = sensor_scale.measure(ring, config)
+    assert full.azimuth_share == 1.0
+    kept = sensor_scale.apply(config, full).sweep_alignment.steady_correction
+    assert kept == config.sweep_alignment.steady_correction > 0
+    by_user = config.replace({'sweep_alignment.steady_correction': 0.1})
+    assert sensor_scale.apply(by_user, partial).sweep_alignment.steady_correction == 0.1

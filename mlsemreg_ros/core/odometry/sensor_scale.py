@@ -34,6 +34,12 @@ What scales, by ``k = clip(spacing / REFERENCE_SPACING_DEG, 1, MAX_SCALE)``:
                                     metre: 1000 -> 250 voxels on a VLP-16, whose real scans
                                     keep 900-1000 voxels of 0.3 m)
 
+A partial view (the scan occupies less than :data:`FULL_RING_SHARE` of the azimuth circle,
+a solid-state pattern) keeps the sweep alignment on every tracked scan
+(``sweep_alignment.steady_correction`` 0): on the 70 deg pattern skipping it on steady scans
+cost right poses (docs/sensors.md, session 17), while a full ring's map alignment alone pins
+the motion.
+
 A parameter the user set (its value differs from the default) is never scaled; so is
 none with ``fine.scale_with_sensor: false``. Nothing scales below the reference: a denser
 sensor keeps the defaults. Nor does a cloud voxelized before it came: its median
@@ -67,6 +73,7 @@ NEIGHBOUR_RANGE_M = 10.0  # near points: a raw scan's neighbours are close there
 MIN_NEAR_POINTS = 200
 #: The parameters that scale: (section, field, power): the default times ``k ** power``.
 SCALED = (('fine', 'downsampling_resolution', 1), ('keyframe', 'min_points', -2))
+FULL_RING_SHARE = 0.9  # of the 360 one-degree azimuth bins: a spinning sensor's full ring
 
 
 @dataclass(frozen=True)
@@ -75,6 +82,7 @@ class SensorScale:
 
     spacing_deg: float  # sqrt(solid angle / points), degrees
     points: int  # points the spacing was measured on
+    azimuth_share: float = 1.0  # occupied share of the 360 one-degree azimuth bins
     picked: dict[str, Any] = field(default_factory=dict)  # 'section.field' -> value
 
     @property
@@ -128,23 +136,44 @@ def voxelized(xyz: np.ndarray) -> bool:
     return bool(np.median(distances[:, 1]) >= VOXELIZED_SPACING_M)
 
 
+def azimuth_share(points: np.ndarray) -> float:
+    """Return the share of the 360 one-degree azimuth bins the scan's points occupy (0-1)."""
+    xyz = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    xyz = xyz[np.all(np.isfinite(xyz), axis=1)]
+    xyz = xyz[np.einsum('ij,ij->i', xyz[:, :2], xyz[:, :2]) > MIN_RANGE**2]
+    if len(xyz) == 0:
+        return 0.0
+    azimuth = np.degrees(np.arctan2(xyz[:, 1], xyz[:, 0]))
+    return len(np.unique(np.floor(azimuth).astype(np.int64) % 360)) / 360.0
+
+
 def measure(points: np.ndarray, config: Any) -> SensorScale:
     """Measure a scan and return the values the scaling picks for ``config``."""
     spacing, count = angular_spacing_deg(points)
-    scale = SensorScale(spacing, count)
-    return SensorScale(spacing, count, picked(config, scale.factor))
+    scale = SensorScale(spacing, count, azimuth_share=azimuth_share(points))
+    values = picked(config, scale.factor, scale.azimuth_share)
+    return SensorScale(spacing, count, scale.azimuth_share, values)
 
 
-def picked(config: Any, factor: float) -> dict[str, Any]:
+def picked(config: Any, factor: float, azimuth: float = 1.0) -> dict[str, Any]:
     """
     Return ``{'section.field': value}`` scaled by ``factor`` for ``config``.
 
     Only the :data:`SCALED` fields still at their defaults (a value the user set wins),
-    only with ``fine.scale_with_sensor``, and only when ``factor`` exceeds 1.
+    only with ``fine.scale_with_sensor``, and only when ``factor`` exceeds 1; and, for a
+    partial view (``azimuth`` share under :data:`FULL_RING_SHARE`), the sweep alignment on
+    every tracked scan (``sweep_alignment.steady_correction`` 0, if still at its default).
     """
-    if factor <= 1.0 or not getattr(config.fine, 'scale_with_sensor', False):
+    if not getattr(config.fine, 'scale_with_sensor', False):
         return {}
     out: dict[str, Any] = {}
+    steady = getattr(config, 'sweep_alignment', None)
+    if steady is not None and azimuth < FULL_RING_SHARE:
+        default = _default(type(steady), 'steady_correction')
+        if steady.steady_correction == default and default > 0:
+            out['sweep_alignment.steady_correction'] = 0.0
+    if factor <= 1.0:
+        return out
     for section_name, name, power in SCALED:
         section = getattr(config, section_name)
         default = _default(type(section), name)
@@ -161,7 +190,7 @@ def apply(config: Any, scale: SensorScale | None) -> Any:
     """Return ``config`` with the values ``scale`` picks for it (itself when none)."""
     if scale is None:
         return config
-    values = picked(config, scale.factor)
+    values = picked(config, scale.factor, scale.azimuth_share)
     return config.replace(values) if values else config
 
 

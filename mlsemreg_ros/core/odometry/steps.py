@@ -98,6 +98,8 @@ class Decision:
     timings_ms: dict[str, float] = field(default_factory=dict)
     #: accepted only if the sweep alignment confirms the pose (near_miss.weak_confirmation)
     confirm_weak: bool = False
+    #: tracked by the motion model's own prediction (no rotated start, no global estimate)
+    held: bool = False
 
     @property
     def accepted(self) -> bool:

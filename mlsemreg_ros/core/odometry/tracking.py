@@ -60,6 +60,7 @@ from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.sweep_starts import align_from_starts, implied_twist
 from mlsemreg_ros.core.odometry.trust import Candidate, InlierHistory, Trust
 from mlsemreg_ros.core.results import PreparedScan
+from mlsemreg_ros.core.rigid import rotation_angle_deg
 import numpy as np
 
 if TYPE_CHECKING:
@@ -94,6 +95,25 @@ def weak_confirmation_refusal(
             f'near_miss.weak_confirmation={bound:g} m'
         )
     return ''
+
+
+def steady(chosen: Decision, cfg: RegistrationConfig) -> bool:
+    """
+    Whether a tracked scan's motion model held (``sweep_alignment.steady_*``).
+
+    Tracked by its motion model's prediction alone (``Decision.held``), which the fine
+    alignment moved by less than
+    ``sweep_alignment.steady_correction`` and ``steady_rotation``: the sweep's motion is the
+    one it was deskewed with, and the sweep alignment is not run.
+    """
+    bound = cfg.sweep_alignment.steady_correction
+    if bound <= 0 or not chosen.held or len(chosen.candidates) != 1:
+        return False
+    moved = chosen.candidates[0].alignment.correction
+    return bool(
+        np.linalg.norm(moved[:3, 3]) < bound
+        and rotation_angle_deg(moved) < cfg.sweep_alignment.steady_rotation
+    )
 
 
 class Tracker:
@@ -174,7 +194,9 @@ class Tracker:
         gap = prediction.stamp_gap if prediction is not None else 1.0
         why_global = self.trust.tracking_refusal(predicted, gap, cfg.odometry)
         if not why_global:  # tracking: no global registration needed
-            return self.track(predicted, cfg)
+            tracked = self.track(predicted, cfg)
+            tracked.held = prediction is not None and not prediction.still
+            return tracked
         rotated = self.rotated_start(current, prediction, cfg, timings, redeskew)
         if rotated is not None:  # core/odometry/rotated_starts.py
             decision = self.track(rotated, cfg)
@@ -306,15 +328,19 @@ class Tracker:
         if said.startswith('covariance inflated') and self.start_other is not None:
             self.start_dispute = disputed_motion(pose, self.start_other)
         tic = time.perf_counter()
-        implied = implied_twist(motion_model, pose, stamp_ns)  # core/odometry/sweep_starts.py
         deskewed = raw
-        redone, moved, note, sweep_twist = self.align_sweep(raw, pose, preprocessor, cfg, implied)
-        if redone is not raw:  # deskewed again: aligned once more from there
-            again = self.align_sweep(redone, moved, preprocessor, cfg)
-            if again[0] is not redone:
-                redone, moved, sweep_twist = again[0], again[1], again[3]
-                note = f'{note}; again: {again[2]}'
-        raw, pose = redone, moved
+        note, sweep_twist = '', None
+        if not steady(chosen, cfg):
+            implied = implied_twist(motion_model, pose, stamp_ns)  # sweep_starts.py
+            redone, moved, note, sweep_twist = self.align_sweep(
+                raw, pose, preprocessor, cfg, implied
+            )
+            if redone is not raw:  # deskewed again: aligned once more from there
+                again = self.align_sweep(redone, moved, preprocessor, cfg)
+                if again[0] is not redone:
+                    redone, moved, sweep_twist = again[0], again[1], again[3]
+                    note = f'{note}; again: {again[2]}'
+            raw, pose = redone, moved
         chosen.timings_ms['sweep_alignment_ms'] = 1e3 * (time.perf_counter() - tic)
         if note:
             chosen.reason = '; '.join(r for r in (chosen.reason, note) if r)
