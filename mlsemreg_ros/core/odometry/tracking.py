@@ -102,9 +102,9 @@ def steady(chosen: Decision, cfg: RegistrationConfig) -> bool:
     Whether a tracked scan's motion model held (``sweep_alignment.steady_*``).
 
     Tracked by its motion model's prediction alone (``Decision.held``), which the fine
-    alignment moved by less than
-    ``sweep_alignment.steady_correction`` and ``steady_rotation``: the sweep's motion is the
-    one it was deskewed with, and the sweep alignment is not run.
+    alignment moved by less than ``sweep_alignment.steady_correction`` and
+    ``steady_rotation``: the sweep's motion is the one it was deskewed with, and the sweep
+    alignment is not run (docs/sensors.md, session 17).
     """
     bound = cfg.sweep_alignment.steady_correction
     if bound <= 0 or not chosen.held or len(chosen.candidates) != 1:
