@@ -31,11 +31,9 @@ accepted scan becomes the :class:`Keyframe`.
 
 from __future__ import annotations
 
-from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
 
-from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.alignment.alignment import (
     _alignment,
     _failed,
@@ -59,10 +57,6 @@ import small_gicp
 #: A map's Gaussians: means (V, 3) and covariances (V, 3, 3), odom frame.
 Gaussians = tuple[np.ndarray, np.ndarray]
 
-#: Reads the map's Gaussians after an insertion, for the next scan's sweep alignment: the
-#: copy (0.4-1.1 ms, holding the GIL) overlaps the next scan's compiled deskew and voxel grid.
-_PREFETCH = threads.LazyPool('mlsemreg-map-prefetch')
-
 
 class LocalMap:
     """
@@ -81,7 +75,6 @@ class LocalMap:
         self._indexed: AlignmentCloud | None = None  # point maps: the map as a target
         self.insertions = 0
         self._version = 0  # changes at every insertion and clear
-        self._prefetch: Future[tuple[int, Gaussians]] | None = None
         self.clear()
 
     def clear(self) -> None:
@@ -94,7 +87,7 @@ class LocalMap:
         self._indexed = None
         self._gaussians = None
         self.insertions = 0
-        self._version += 1  # a prefetch of the old map is dropped when read
+        self._version += 1
 
     def reconfigure(self, fine: FineAlignmentConfig, local_map: LocalMapConfig) -> bool:
         """Take new settings; the map is cleared when its structure changed (returns True)."""
@@ -103,7 +96,6 @@ class LocalMap:
             self.config.horizon,
             self.config.clear_cycle,
         )
-        self._settle()
         self.fine, self.config = fine, local_map
         if rebuild:
             self.clear()
@@ -131,15 +123,15 @@ class LocalMap:
         Return the map's Gaussians: means (V, 3) and covariances (V, 3, 3), odom frame.
 
         ``vgicp``: the voxels' own; point maps: the indexed points' (None when empty). The
-        same arrays until the map changes (an insertion, a clear): do not modify them.
+        same arrays until the map changes (an insertion, a clear): do not modify them. Read
+        when first asked after a change, not after every insertion: since the sweep
+        alignment skips steady scans (``sweep_alignment.steady_*``) most scans never ask,
+        and a copy started on the pool after each insertion held the GIL while the scan's
+        own work went on (docs/sensors.md, session 17).
         """
         if len(self) == 0:
             return None
         if self._gaussians is not None:  # the map did not change since they were copied
-            return self._gaussians
-        prefetched = self._settle()
-        if prefetched is not None and prefetched[0] == self._version:
-            self._gaussians = prefetched[1]
             return self._gaussians
         if isinstance(self._map, small_gicp.GaussianVoxelMap):
             self._gaussians = voxel_gaussians(self._map)
@@ -169,20 +161,11 @@ class LocalMap:
         """Add an aligned scan at its pose ``T_map_scan`` (also advances the LRU clock)."""
         if len(scan) == 0:
             return
-        self._settle()  # a running prefetch reads the map: let it finish first
         self._map.insert(scan.cloud, np.asarray(T_map_scan, dtype=np.float64))
         self._indexed = None
         self._gaussians = None
         self.insertions += 1
         self._version += 1
-        if isinstance(self._map, small_gicp.GaussianVoxelMap):
-            voxels, version = self._map, self._version
-            self._prefetch = _PREFETCH.submit(lambda: (version, voxel_gaussians(voxels)))
-
-    def _settle(self) -> tuple[int, Gaussians] | None:
-        """Wait for the prefetch of the map's Gaussians, if any; return it (version, arrays)."""
-        prefetch, self._prefetch = self._prefetch, None
-        return None if prefetch is None else prefetch.result()
 
     def align(self, scan: AlignmentCloud, T_initial: np.ndarray) -> Alignment:
         """Refine ``T_map_scan`` from ``T_initial`` against the map."""
@@ -210,7 +193,7 @@ def voxel_gaussians(voxels: small_gicp.GaussianVoxelMap) -> Gaussians:
     """
     Return the means (V, 3) and covariances (V, 3, 3) of a Gaussian voxel map's voxels.
 
-    Contiguous, as the sweep alignment's kernels take them (copied here, on the prefetch).
+    Contiguous, as the sweep alignment's kernels take them (copied here).
     """
     means = np.asarray(voxels.voxel_points(), dtype=np.float64)[:, :3]
     covariances = np.asarray(voxels.voxel_covs(), dtype=np.float64).reshape(-1, 4, 4)
