@@ -118,6 +118,22 @@ def _build(
 
 
 @jit
+def column_run(grid: CellGrid, c: int, cz: int, reach: int) -> tuple[int, int]:
+    """
+    Return the sorted rows ``first:last`` of column ``c``'s cells ``cz - reach .. cz + reach``.
+
+    The cells of a column within a height span are one contiguous run of sorted points;
+    ``first >= last`` when the column holds none of them.
+    """
+    bottom, base, starts = grid[3], grid[4], grid[5]
+    lowest = max(cz - reach, bottom[c])
+    highest = min(cz + reach, bottom[c] + base[c + 1] - base[c] - 1)
+    if highest < lowest:
+        return 0, 0
+    return starts[base[c] + lowest - bottom[c]], starts[base[c] + highest - bottom[c] + 1]
+
+
+@jit
 def _nearest_squared(
     queries: np.ndarray, radius: float, grid: CellGrid, first_only: bool
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -126,7 +142,7 @@ def _nearest_squared(
 
     ``first_only``: stop at the first point within ``radius`` (an answer to "is there one").
     """
-    cell, low, extent, bottom, base, starts, sorted_points, order = grid
+    cell, low, extent, sorted_points, order = grid[0], grid[1], grid[2], grid[6], grid[7]
     count = queries.shape[0]
     squared = np.full(count, np.inf)
     nearest = np.full(count, -1, dtype=np.int64)
@@ -147,13 +163,7 @@ def _nearest_squared(
         done = False
         for ix in range(max(cx - reach, 0), min(cx + reach + 1, extent[0])):
             for iy in range(max(cy - reach, 0), min(cy + reach + 1, extent[1])):
-                c = ix * extent[1] + iy
-                lowest = max(cz - reach, bottom[c])
-                highest = min(cz + reach, bottom[c] + base[c + 1] - base[c] - 1)
-                if highest < lowest:
-                    continue
-                first = starts[base[c] + lowest - bottom[c]]
-                last = starts[base[c] + highest - bottom[c] + 1]
+                first, last = column_run(grid, ix * extent[1] + iy, cz, reach)
                 for k in range(first, last):
                     d2 = (
                         (x - sorted_points[k, 0]) ** 2

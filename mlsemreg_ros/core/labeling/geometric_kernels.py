@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 
-from mlsemreg_ros.core.features.cell_grid import CellGrid
+from mlsemreg_ros.core.features.cell_grid import CellGrid, column_run
 from mlsemreg_ros.core.features.kernels import jit
 import numpy as np
 
@@ -384,7 +384,7 @@ def support_counts(
     all points within ``radius`` and the count of the selected points of its own label
     (the two ``cKDTree.query_ball_point`` counts of ``landmarks.confident_points``).
     """
-    cell, low, extent, bottom, base, starts, sorted_points, order = grid
+    cell, low, extent, sorted_points, order = grid[0], grid[1], grid[2], grid[6], grid[7]
     count = rows.shape[0]
     total = np.zeros(count, dtype=np.int64)
     same = np.zeros(count, dtype=np.int64)
@@ -398,13 +398,7 @@ def support_counts(
         cz = np.int64(np.floor(z / cell)) - low[2]
         for ix in range(max(cx - reach, 0), min(cx + reach + 1, extent[0])):
             for iy in range(max(cy - reach, 0), min(cy + reach + 1, extent[1])):
-                c = ix * extent[1] + iy
-                lowest = max(cz - reach, bottom[c])
-                highest = min(cz + reach, bottom[c] + base[c + 1] - base[c] - 1)
-                if highest < lowest:
-                    continue
-                first = starts[base[c] + lowest - bottom[c]]
-                last = starts[base[c] + highest - bottom[c] + 1]
+                first, last = column_run(grid, ix * extent[1] + iy, cz, reach)
                 for k in range(first, last):
                     d2 = (
                         (x - sorted_points[k, 0]) ** 2
