@@ -54,3 +54,25 @@ def test_a_cleared_map_has_none_then_the_new_maps_own() -> None:
     new = local_map.gaussians()
     assert _same(new, voxel_gaussians(local_map._map))
     assert not _same(new, old)
+
+
+def test_an_insertion_does_not_copy_the_gaussians(monkeypatch) -> None:
+    """They are read when asked, not after every insertion (most steady scans never ask)."""
+    from mlsemreg_ros.core import threads
+    from mlsemreg_ros.core.odometry import local_map as module
+
+    calls = []
+    original = module.voxel_gaussians
+    monkeypatch.setattr(module, 'voxel_gaussians', lambda v: calls.append(1) or original(v))
+    before = threads.workers()
+    threads.configure(2)  # a pool to copy on, were the map to prefetch
+    try:
+        local_map = make_map(RegistrationConfig())
+        for seed in range(3):
+            local_map.insert(_cloud(seed), np.eye(4))
+        assert calls == []
+        local_map.gaussians()
+        local_map.gaussians()
+        assert calls == [1]
+    finally:
+        threads.configure(before)
