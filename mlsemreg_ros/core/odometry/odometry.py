@@ -200,7 +200,8 @@ class Odometry:
             if measured.points >= sensor_scale.MIN_POINTS:
                 self.sensor_scale = measured
                 self.reconfigure(self.config)
-        labelled = self.label_source.when_read(points, labels, self.config, intensity)
+        source = getattr(self.label_source, 'when_read', self.label_source)  # or a callable
+        labelled = source(points, labels, self.config, intensity)  # None: no label field
         labels = labelled.labels
         self.preprocessor.labelled = labelled  # noted at every preprocessing of this scan
         skipped, notes = self._stream_rules(stamp_ns)
