@@ -112,6 +112,15 @@ class RegistrationConfig(Settings):
         'network), none (unlabeled: matched and judged without labels). docs/labels.md.',
         choices=LABEL_SOURCES,
     )
+    label_timing: str = param(
+        'read',
+        'When the odometry computes geometric labels: read (when something first reads '
+        'them: a global registration, a map, the registered cloud; a scan tracked by the fine '
+        'alignment alone never needs them) or scan (on every scan). Labels from the field, '
+        'from onnx, and with moving_objects.map_filter movable are always made at once. '
+        'docs/labels.md.',
+        choices=('read', 'scan'),
+    )
     geometric_labels: GeometricLabelsConfig = field(default_factory=GeometricLabelsConfig)
     onnx_labels: OnnxLabelsConfig = field(default_factory=OnnxLabelsConfig)
     preprocess: PreprocessConfig = field(default_factory=PreprocessConfig)

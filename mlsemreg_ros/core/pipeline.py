@@ -32,6 +32,7 @@ from typing import Any
 
 from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.deferred import Deferred
 from mlsemreg_ros.core.estimation import bev_search, confidence, label_model
 from mlsemreg_ros.core.estimation.candidates import CandidatePool
 from mlsemreg_ros.core.estimation.verification import (
@@ -245,6 +246,8 @@ class Registration:
         odometry tracks most scans without one). :meth:`register` completes its scans.
         """
         cfg, timings = self.config, {}
+        if isinstance(labels, Deferred):  # labels computed when first read (core/deferred.py)
+            return self._prepare_deferred(points, labels, voxelize, lazy, keypoints, descriptors)
         with timed(timings, 'labels_ms'):
             # non-finite and out-of-range points out first (they would wreck the voxel grid)
             scan = sanitize_scan_for(points, labels, cfg.features)
@@ -260,6 +263,62 @@ class Registration:
         if voxelize and cfg.features.voxel_size > 0:
             with timed(timings, 'voxelize_ms'):
                 points, labels = features.voxel_downsample(points, labels, cfg.features.voxel_size)
+        return self._prepared(points, labels, keypoints, descriptors, timings, input_stats, lazy)
+
+    def _prepare_deferred(
+        self,
+        points: np.ndarray,
+        labels: Deferred[np.ndarray],
+        voxelize: bool,
+        lazy: bool,
+        keypoints: np.ndarray | None,
+        descriptors: np.ndarray | None,
+    ) -> PreparedScan:
+        """
+        :meth:`prepare` with labels that arrive later: the points now, the labels when read.
+
+        The same points, and on first read the same labels, as :meth:`prepare` with the
+        computed labels: the voxels' majority of the kept points' converted labels.
+        """
+        cfg, timings = self.config, {}
+        with timed(timings, 'labels_ms'):
+            scan = sanitize_scan_for(points, None, cfg.features)
+        points, keep, scheme = scan.points, scan.keep, cfg.semantic.label_scheme
+        input_stats = {
+            'dropped_nonfinite': scan.dropped_nonfinite,
+            'dropped_far': scan.dropped_far,
+            'dropped_near': scan.dropped_near,
+        }
+        voxelized = voxelize and cfg.features.voxel_size > 0
+        inverse, count = None, 0
+        if voxelized and points.shape[0]:
+            with timed(timings, 'voxelize_ms'):
+                points, inverse = features.voxel_centroids(points, cfg.features.voxel_size)
+            count = points.shape[0]
+
+        def prepared_labels(raw: np.ndarray) -> np.ndarray:
+            conversion = self.label_map.convert(np.asarray(raw).reshape(-1)[keep], scheme)
+            input_stats['label_scheme'] = conversion.scheme
+            input_stats['labels_out_of_scheme'] = conversion.out_of_scheme
+            if inverse is None:  # as voxel_downsample: int32 for an empty scan
+                return conversion.ids.astype(np.int32) if voxelized else conversion.ids
+            return features.voxel_majority(inverse, count, conversion.ids)
+
+        labels = labels.then(prepared_labels)
+        return self._prepared(points, labels, keypoints, descriptors, timings, input_stats, lazy)
+
+    def _prepared(
+        self,
+        points: np.ndarray,
+        labels: np.ndarray | Deferred[np.ndarray],
+        keypoints: np.ndarray | None,
+        descriptors: np.ndarray | None,
+        timings: dict[str, float],
+        input_stats: dict[str, Any],
+        lazy: bool,
+    ) -> PreparedScan:
+        """Sample the keypoints and make the (lazy) prepared scan of :meth:`prepare`."""
+        cfg = self.config
         tree = None
         with timed(timings, 'keypoints_ms'):
             if keypoints is None:

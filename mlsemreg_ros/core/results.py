@@ -20,6 +20,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, TYPE_CHECKING
 
+from mlsemreg_ros.core.deferred import deferred_attribute
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -57,7 +58,7 @@ class PreparedScan:
     """
 
     points: np.ndarray  # (N, 3) float64 downsampled scan, sensor frame, metres
-    labels: np.ndarray  # (N,) int32 learning ids
+    labels: np.ndarray  # (N,) int32 learning ids (may be given as a Deferred: core/deferred.py)
     keypoints: np.ndarray  # (M, 3) float64
     keypoint_indices: np.ndarray  # (M,) int64 rows of points (-1 if given externally)
     descriptors: np.ndarray  # (M, D) float32
@@ -94,6 +95,9 @@ class PreparedScan:
     def build_points_tree(points: np.ndarray) -> cKDTree:
         """KD-tree of a scan: sliding-midpoint splits, no node shrinking (~40 % cheaper)."""
         return cKDTree(points, balanced_tree=False, compact_nodes=False)
+
+
+deferred_attribute(PreparedScan, 'labels')
 
 
 @dataclass

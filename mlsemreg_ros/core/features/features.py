@@ -123,19 +123,32 @@ def voxel_downsample(
         return points, labels.astype(np.int32)
     compiled = kernels.use_compiled(compiled)
     centroids, inverse = voxel_centroids(points, voxel_size, compiled=compiled)
-    count = centroids.shape[0]
-    # Majority label per voxel (ties to the smallest id): a dense (voxel, label) count
-    # table when the ids are small, as learning ids are; else count the distinct pairs.
+    return centroids, voxel_majority(inverse, centroids.shape[0], labels, compiled)
+
+
+def voxel_majority(
+    inverse: np.ndarray, count: int, labels: np.ndarray, compiled: bool | None = None
+) -> np.ndarray:
+    """
+    Return the majority label of each of ``count`` voxels: (count,) int32, smallest id on ties.
+
+    ``inverse`` (N,) is each point's voxel (:func:`voxel_centroids`), ``labels`` (N,) its
+    label. :func:`voxel_downsample`'s labels; the odometry calls it alone when a scan's
+    labels arrive after its points were voxelized (core/deferred.py).
+    """
+    labels = np.asarray(labels).reshape(-1)
+    compiled = kernels.use_compiled(compiled)
+    # A dense (voxel, label) count table when the ids are small, as learning ids are;
+    # else count the distinct pairs.
     label_ids, label_inverse = _small_unique(labels)
-    if count * len(label_ids) <= 64 * points.shape[0]:
+    if count * len(label_ids) <= 64 * labels.shape[0]:
         if compiled:
             winner = kernels.majority(inverse, label_inverse, count, len(label_ids))
-            return centroids, label_ids[winner].astype(np.int32)
+            return label_ids[winner].astype(np.int32)
         table = np.bincount(
             inverse * len(label_ids) + label_inverse, minlength=count * len(label_ids)
         ).reshape(count, len(label_ids))
-        voxel_labels = label_ids[table.argmax(axis=1)].astype(np.int32)
-        return centroids, voxel_labels
+        return label_ids[table.argmax(axis=1)].astype(np.int32)
     pair = inverse * len(label_ids) + label_inverse
     pairs, pair_counts = np.unique(pair, return_counts=True)
     pair_voxel, pair_label = np.divmod(pairs, len(label_ids))
@@ -144,8 +157,7 @@ def voxel_downsample(
     first = np.ones(order.shape[0], dtype=bool)
     first[1:] = pair_voxel[order][1:] != pair_voxel[order][:-1]
     winners = order[first]
-    voxel_labels = label_ids[pair_label[winners]].astype(np.int32)
-    return centroids, voxel_labels
+    return label_ids[pair_label[winners]].astype(np.int32)
 
 
 def _small_unique(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import time
 from typing import Any
 
+from mlsemreg_ros.core.deferred import Deferred
 from mlsemreg_ros.core.features import kernels
 from mlsemreg_ros.core.labeling.geometric import GeometricLabeler
 from mlsemreg_ros.core.labeling.geometric_config import GeometricLabelsConfig, LABEL_SOURCES
@@ -50,15 +51,19 @@ DEFAULT_LABEL_VOXEL = 0.3
 class LabeledScan:
     """A scan's labels and where they came from."""
 
-    labels: np.ndarray  # (N,) labels, as read from the field or learning / raw ids
+    #: (N,) labels, as read from the field or learning / raw ids; a Deferred when they are
+    #: made on first read (``label_timing: read``, core/deferred.py)
+    labels: np.ndarray | Deferred[np.ndarray]
     source: str  # 'field', 'geometric', 'onnx' or 'none'
-    labeling_ms: float  # time spent making them (0 for the field)
+    labeling_ms: float  # time spent making them (0 for the field and until made)
 
     def note(self, scan: Any) -> None:
         """Record the source in ``scan.input_stats`` and the time in its ``timings_ms``."""
         stats, timings = getattr(scan, 'input_stats', None), getattr(scan, 'timings_ms', None)
         if isinstance(stats, dict):
             stats['label_source'] = self.source
+            if isinstance(self.labels, Deferred):
+                stats['labels_made'] = 'when read'
         if isinstance(timings, dict):
             timings['labeling_ms'] = self.labeling_ms
 
@@ -113,6 +118,32 @@ class LabelSource:
         else:
             ids = self._to_scheme(self._onnx_raw(points, intensity, config), config)
         return LabeledScan(ids, source, 1e3 * (time.perf_counter() - start))
+
+    def when_read(
+        self,
+        points: np.ndarray,
+        labels: np.ndarray | None,
+        config: Any,
+        intensity: np.ndarray | None = None,
+    ) -> LabeledScan:
+        """
+        :meth:`__call__`, with geometric labels made when first read (``label_timing: read``).
+
+        The odometry's choice: the fine alignment that tracks most scans reads no labels,
+        and the geometric labeler costs about a third of a sparse sensor's scan
+        (docs/labels.md). Labels that can filter points before the alignment
+        (``moving_objects.map_filter: movable``) and the other sources are made at once.
+        """
+        source = resolve(getattr(config, 'label_source', 'auto'), labels is not None)
+        if (
+            source != 'geometric'
+            or getattr(config, 'label_timing', 'scan') != 'read'
+            or config.moving_objects.map_filter == 'movable'
+        ):
+            return self(points, labels, config, intensity)
+        points = np.asarray(points)
+        deferred = Deferred(lambda: self(points, None, config).labels)
+        return LabeledScan(deferred, source, 0.0)
 
     # ------------------------------------------------------------------------------
     def _to_scheme(self, raw: np.ndarray, config: Any) -> np.ndarray:

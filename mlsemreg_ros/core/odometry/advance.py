@@ -28,6 +28,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, motion_size
+from mlsemreg_ros.core.deferred import stored
 from mlsemreg_ros.core.odometry.local_map import insert_accepted, Keyframe
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
 from mlsemreg_ros.core.odometry.start_twist import inflated_covariance
@@ -105,7 +106,8 @@ def start_keyframe(
     odometry: Odometry, index: int, stamp_ns: int, raw: PreprocessedScan, pose: np.ndarray
 ) -> None:
     """Make ``raw`` the keyframe at ``pose`` and the first scan of a new map."""
-    odometry.keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, raw.scan, pose.copy())
+    labels = stored(raw, 'labels')
+    odometry.keyframe = Keyframe(index, stamp_ns, raw.points, labels, raw.scan, pose.copy())
     odometry.past_keyframes.clear()  # their map is gone
     odometry.map.clear()
     odometry.map.insert_scan(raw.scan, pose)

@@ -49,6 +49,7 @@ from mlsemreg_ros.core.config import (
     LocalMapConfig,
     RegistrationConfig,
 )
+from mlsemreg_ros.core.deferred import deferred_attribute, stored
 from mlsemreg_ros.core.results import PreparedScan
 from mlsemreg_ros.core.rigid import rotation_angle_deg
 import numpy as np
@@ -212,9 +213,12 @@ class Keyframe:
     index: int  # frame counter of the keyframe scan
     stamp_ns: int
     points: np.ndarray  # (N, 3) raw scan
-    labels: np.ndarray  # (N,) raw labels
+    labels: np.ndarray  # (N,) raw labels (may be given as a Deferred: core/deferred.py)
     prepared: PreparedScan
     pose: np.ndarray  # (4, 4) T_odom_keyframe
+
+
+deferred_attribute(Keyframe, 'labels')
 
 
 def is_new_keyframe(policy: KeyframeConfig, T_keyframe_current: np.ndarray) -> bool:
@@ -247,7 +251,8 @@ def insert_accepted(
     """
     local_map.insert_scan(raw.scan, pose)
     if is_new_keyframe(config.keyframe, relative) and not keyframe_refusal(config, raw.scan):
-        keyframe = Keyframe(index, stamp_ns, raw.points, raw.labels, raw.scan, pose.copy())
+        labels = stored(raw, 'labels')
+        keyframe = Keyframe(index, stamp_ns, raw.points, labels, raw.scan, pose.copy())
     return keyframe, len(local_map)
 
 

@@ -50,6 +50,7 @@ import time
 from typing import Any
 
 from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.deferred import stored
 from mlsemreg_ros.core.features.deskew import MAX_DESKEW_WINDOW, SweepMotion
 from mlsemreg_ros.core.labeling.source import LabelSource
 from mlsemreg_ros.core.odometry import sensor_scale
@@ -199,7 +200,8 @@ class Odometry:
             if measured.points >= sensor_scale.MIN_POINTS:
                 self.sensor_scale = measured
                 self.reconfigure(self.config)
-        labelled = self.label_source(points, labels, self.config, intensity)  # None: no field
+        source = getattr(self.label_source, 'when_read', self.label_source)  # or a callable
+        labelled = source(points, labels, self.config, intensity)  # None: no label field
         labels = labelled.labels
         self.preprocessor.labelled = labelled  # noted at every preprocessing of this scan
         skipped, notes = self._stream_rules(stamp_ns)
@@ -335,7 +337,7 @@ class Odometry:
         if raw is not None:
             step.deskewed = raw.deskewed
             if step.points is None:  # accept_scan set the scan it aligned (perhaps redone)
-                step.points, step.labels = raw.points, raw.labels
+                step.points, step.labels = raw.points, stored(raw, 'labels')
             if raw.deskew_note:
                 step.reason = '; '.join(r for r in (step.reason, raw.deskew_note) if r)
         step.latency_ms = 1e3 * (time.perf_counter() - start)

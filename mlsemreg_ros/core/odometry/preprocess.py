@@ -34,6 +34,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, TYPE_CHECKING
 
+from mlsemreg_ros.core.deferred import Deferred, deferred_attribute
 from mlsemreg_ros.core.features import deskew
 from mlsemreg_ros.core.features.deskew import PiecewiseSweepMotion, sweep_motion, SweepMotion
 from mlsemreg_ros.core.features.moving_objects import MovingObjectFilter
@@ -51,7 +52,7 @@ class PreprocessedScan:
     """A scan as the odometry uses it: the raw arrays (to re-prepare it) and the prepared."""
 
     points: np.ndarray  # (N, 3) raw (deskewed) points, metres
-    labels: np.ndarray  # (N,) raw labels
+    labels: np.ndarray  # (N,) raw labels (may be given as a Deferred: core/deferred.py)
     scan: PreparedScan
     deskewed: bool = False  # the points were motion-compensated
     point_times: np.ndarray | None = None  # (N,) s after the stamp, as given
@@ -59,6 +60,9 @@ class PreprocessedScan:
     input_points: np.ndarray | None = None  # (N, 3) as given, when deskewed
     rotation_only: bool = False  # deskewed by the gyro's rotation alone (no velocity yet)
     motion: Any = None  # the SweepMotion / PiecewiseSweepMotion it was deskewed with
+
+
+deferred_attribute(PreprocessedScan, 'labels')
 
 
 class Preprocessor:
@@ -120,7 +124,7 @@ class Preprocessor:
         on = self.registration.config.preprocess.deskew == 'on'
         return PreprocessedScan(
             np.asarray(points),
-            np.asarray(labels),
+            labels if isinstance(labels, Deferred) else np.asarray(labels),
             scan,
             deskewed=not why,
             point_times=point_times,
@@ -249,8 +253,8 @@ class Preprocessor:
 
     def moving_mask(self, points: np.ndarray, labels: np.ndarray) -> np.ndarray | None:
         """Return the raw points ``moving_objects`` filters (N,) bool, or None if none."""
-        if self.moving_objects is None:
-            return None
+        if self.moving_objects is None or isinstance(labels, Deferred):
+            return None  # labels made when read filter nothing (LabelSource.when_read)
         shape, labels = np.shape(points), np.asarray(labels).reshape(-1)
         if len(shape) != 2 or shape[1] != 3 or shape[0] != len(labels):
             return None  # preparation says what is wrong with the scan

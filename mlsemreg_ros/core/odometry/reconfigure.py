@@ -27,6 +27,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.deferred import stored
 from mlsemreg_ros.core.odometry import sensor_scale
 from mlsemreg_ros.core.odometry.motion_model import make_motion_model
 from mlsemreg_ros.core.odometry.prior_model import motion_model_name
@@ -48,10 +49,10 @@ def reconfigure(odometry: Odometry, config: RegistrationConfig) -> None:
         if any(getattr(old, s) != getattr(config, s) for s in PREPARE_SECTIONS):
             keyframe = odometry.keyframe
             keyframe.prepared = odometry.registration.prepare(
-                keyframe.points, keyframe.labels, lazy=True
+                keyframe.points, stored(keyframe, 'labels'), lazy=True
             )
             odometry.preprocessor.exclude_moving(
-                keyframe.prepared, keyframe.points, keyframe.labels
+                keyframe.prepared, keyframe.points, stored(keyframe, 'labels')
             )
         elif old.fine != config.fine:
             odometry.keyframe.prepared.alignment_clouds.clear()  # rebuilt when needed

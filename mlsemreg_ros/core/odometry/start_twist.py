@@ -44,6 +44,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+from mlsemreg_ros.core.deferred import stored
 from mlsemreg_ros.core.features.deskew import sweep_motion, SweepMotion
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
 from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg, rotation_vector
@@ -79,7 +80,8 @@ def no_rotation_pose(
         return None
     points = first.input_points if first.input_points is not None else first.points
     straight = SweepMotion(np.zeros(3), np.asarray(twist.velocity, dtype=float))
-    redone = preprocessor.scan(points, first.labels, first.point_times, straight)
+    labels = stored(first, 'labels')
+    redone = preprocessor.scan(points, labels, first.point_times, straight)
     if not redone.deskewed:
         return None
     tracker.map.clear()

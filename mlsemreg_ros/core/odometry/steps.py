@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from mlsemreg_ros.core.alignment.alignment import Alignment, UNKNOWN_VARIANCE
+from mlsemreg_ros.core.deferred import deferred_attribute, stored
 from mlsemreg_ros.core.odometry.trust import Candidate
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform, rotation_vector
@@ -74,13 +75,16 @@ class OdometryStep:
     points: np.ndarray | None = None  # (N, 3) the scan's points as the odometry kept them:
     #                             deskewed (by the sweep twist if it bent them), moving objects
     #                             dropped (moving_objects.matching): the input of ``prepared``
-    labels: np.ndarray | None = None  # (N,) their raw labels
+    labels: np.ndarray | None = None  # (N,) their raw labels (computed when first read)
     prior_refusal: str = ''  # the prior disagreed with the scan: what was done, and why
     deskew_refusal: str = ''  # the deskewed scan aligned worse than the raw one (deskew_guard)
     predicted_pose: np.ndarray | None = None  # (4, 4) rejected scans: the motion model's
     #                             (or IMU's) T_odom_current at the stamp; None without one
     predicted_covariance: np.ndarray | None = None  # (6, 6) odom axes: the pose's covariance
     #                             inflated by the prediction's (:func:`prediction_covariance`)
+
+
+deferred_attribute(OdometryStep, 'labels')
 
 
 @dataclass
@@ -264,7 +268,7 @@ def accepted_step(
         twist_covariance=twist_cov,
         map_voxels=map_voxels,
         points=raw.points,
-        labels=raw.labels,
+        labels=stored(raw, 'labels'),
     )
 
 

@@ -38,6 +38,7 @@ import time
 from typing import Any, TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.sweep_alignment import MapGaussians, sweep_subset
+from mlsemreg_ros.core.deferred import stored
 from mlsemreg_ros.core.features.deskew import sweep_motion, SweepMotion
 from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
@@ -368,7 +369,7 @@ class Tracker:
         if keyframe.stamp_ns == first_stamp:
             keyframe.points, keyframe.labels, keyframe.prepared = (
                 first.points,
-                first.labels,
+                stored(first, 'labels'),
                 first.scan,
             )
 
@@ -419,7 +420,8 @@ class Tracker:
                 gyro = gyro or measured is not None
                 motion = measured or twist
                 points = scan.input_points if scan.input_points is not None else scan.points
-                attempt.append(preprocessor.scan(points, scan.labels, scan.point_times, motion))
+                labels = stored(scan, 'labels')
+                attempt.append(preprocessor.scan(points, labels, scan.point_times, motion))
             if not all(r.deskewed for r in attempt):
                 break
             redone = tuple(attempt)
@@ -443,7 +445,8 @@ class Tracker:
             self.map.insert_scan(redone[0].scan, first_pose)
         if keyframe.stamp_ns == first_stamp:
             r = redone[0]
-            keyframe.points, keyframe.labels, keyframe.prepared = r.points, r.labels, r.scan
+            keyframe.points, keyframe.prepared = r.points, r.scan
+            keyframe.labels = stored(r, 'labels')
         return redone[1], current
 
     def align_sweep(
@@ -480,7 +483,7 @@ class Tracker:
             return raw, pose, '', None
         points, times = raw.input_points, np.asarray(raw.point_times, dtype=np.float64)
         if cfg.moving_objects.matching != 'drop':  # 'drop' took them out before the deskew
-            moving = preprocessor.moving_mask(points, raw.labels)
+            moving = preprocessor.moving_mask(points, stored(raw, 'labels'))
             if moving is not None and len(moving) == len(points):
                 points, times = points[~moving], times[~moving]
         points, times = sweep_subset(points, times, cfg.sweep_alignment.points)
@@ -494,7 +497,8 @@ class Tracker:
             return raw, pose, 'sweep alignment diverged: the deskew twist is kept', None
         if result.change_m <= cfg.sweep_alignment.min_change:
             return raw, pose, '', result.motion
-        redone = preprocessor.scan(raw.input_points, raw.labels, raw.point_times, result.motion)
+        labels = stored(raw, 'labels')
+        redone = preprocessor.scan(raw.input_points, labels, raw.point_times, result.motion)
         if not redone.deskewed:
             return raw, pose, '', None
         again = self.candidate('sweep', result.T_target_source, redone.scan, cfg)
