@@ -139,12 +139,12 @@ def from_prediction(candidate: Candidate, T_predicted: np.ndarray) -> Candidate:
     """
     Return ``candidate`` as if refined from the prediction (its move judged from it).
 
-    The tracking rules then bound the move from the prediction. A start deskewed again by its own twist is a new scan: its points moved by up to metres at
-    range, so its refinement moves the pose from the start's refined pose by 0.5-0.85 m on the
-    handheld VLP-16 walk at stride 3 while the prediction was within 0.1-0.3 m of the truth
-    (docs/sensors.md, session 18). The start's pose was never a guess of this scan; the
-    prediction is the motion model's, and ``odometry.tracking_translation`` bounds the
-    move from it, as for a refined prediction.
+    A start deskewed again by its own twist is a new scan: its points moved by up to metres
+    at range, so its refinement moves the pose from the start's refined pose by 0.5-0.85 m on
+    the handheld VLP-16 walk at stride 3 while the prediction was within 0.1-0.3 m of the
+    truth (docs/sensors.md, session 18). The start's pose was never a guess of this scan; the
+    prediction is the motion model's, and ``odometry.tracking_translation`` bounds the move
+    from it, as for a refined prediction.
     """
     alignment = dataclasses.replace(
         candidate.alignment, T_initial=np.asarray(T_predicted, dtype=np.float64)
