@@ -18,7 +18,8 @@ Issue 35: yaw-rotated starts of the map alignment (core/odometry/rotated_starts.
 A map alignment that converges to the true pose only from starts within its basin (6 deg of
 yaw here), judged by the real trust rules: a car's tight bound tries no rotated start; a
 hand's widened bound finds the true pose from a rotated start; two basins give none; a start
-refused only for its bent sweep is deskewed again and tracked.
+refused only for its bent sweep is deskewed again and tracked, its move judged from the
+prediction (session 18).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from __future__ import annotations
 from mlsemreg_ros.core.alignment.alignment import Alignment
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry import rotated_starts
+from mlsemreg_ros.core.odometry.motion_bound import GAIN
 from mlsemreg_ros.core.odometry.rotated_starts import best_rotated_start, yaw_rotated
 from mlsemreg_ros.core.odometry.trust import Candidate, Trust
 from mlsemreg_ros.core.rigid import rotation_angle_deg
@@ -43,9 +45,14 @@ def _yaw_of(T: np.ndarray) -> float:
 class _World:
     """A map alignment that reaches a true yaw only from within :data:`BASIN_DEG` of it."""
 
-    def __init__(self, truths_deg: list[float], inliers: float = 0.85) -> None:
+    def __init__(
+        self, truths_deg: list[float], inliers: float = 0.85, bound_deg: float = 0.0
+    ) -> None:
         self.truths, self.inliers, self.starts = truths_deg, inliers, []
         self.trust = Trust()
+        if bound_deg:  # a hand's recent prediction error: the bounds widen to bound_deg
+            self.trust.motion_bound.predicted(np.eye(4))
+            self.trust.motion_bound.accepted(yaw_rotated(np.eye(4), bound_deg / GAIN))
 
     def refine(self, T_start: np.ndarray, inliers: float | None = None) -> Candidate:
         self.starts.append(_yaw_of(T_start))
@@ -90,7 +97,7 @@ def test_two_basins_give_no_rotated_start() -> None:
 
 
 def test_a_start_refused_for_its_bent_sweep_is_deskewed_again_and_tracked() -> None:
-    world = _World([-12.0], inliers=0.6)  # under odometry.tracking_min_inlier_fraction
+    world = _World([-12.0], inliers=0.6, bound_deg=18.0)  # under tracking_min_inlier_fraction
     assert best_rotated_start(np.eye(4), 18.0, world.refine, world.refusal) is None
     redone = []
 
@@ -106,6 +113,46 @@ def test_a_start_refused_for_its_bent_sweep_is_deskewed_again_and_tracked() -> N
         np.eye(4), 18.0, world.refine, world.refusal, lambda T: world.refine(T, inliers=0.6)
     )
     assert stays is None
+
+
+def _shifted(T: np.ndarray, metres: float) -> np.ndarray:
+    moved = np.array(T, dtype=np.float64)
+    moved[:3, 3] += moved[:3, :3] @ np.array([metres, 0.0, 0.0])
+    return moved
+
+
+def test_a_start_deskewed_again_is_judged_from_the_prediction_not_from_its_start() -> None:
+    """
+    The scan deskewed again moves the pose from the rotated start's refined pose.
+
+    Here the first pass lands 0.45 m aside along x, the second pass comes back to within
+    0.1 m of the prediction's place: 0.55 m from its start (over
+    ``odometry.tracking_translation`` 0.5 m), 0.1 m from the prediction. Judged from its
+    start it was refused (the code before session 18); judged from the prediction it is
+    tracked. A second pass that lands 0.7 m from the prediction stays refused.
+    """
+    world = _World([-12.0], inliers=0.6, bound_deg=18.0)
+    first_pass = world.refine
+
+    def aside(T: np.ndarray, inliers: float | None = None) -> Candidate:
+        candidate = first_pass(T, inliers)
+        alignment = candidate.alignment
+        alignment.T_target_source = _shifted(alignment.T_target_source, 0.45)
+        return world.trust.judge('prediction', alignment.T_initial, alignment, ODOMETRY)
+
+    def redeskewed(T: np.ndarray, back: float) -> Candidate:
+        alignment = first_pass(T, inliers=0.85).alignment
+        alignment.T_initial = np.array(T)
+        alignment.T_target_source = _shifted(alignment.T_target_source, back)
+        return world.trust.judge('prediction', T, alignment, ODOMETRY)
+
+    chosen = best_rotated_start(
+        np.eye(4), 18.0, aside, world.refusal, lambda T: redeskewed(T, -0.1)
+    )
+    assert chosen is not None
+    assert np.linalg.norm(chosen.alignment.T_target_source[:3, 3]) == pytest.approx(0.1, abs=1e-6)
+    far = best_rotated_start(np.eye(4), 18.0, aside, world.refusal, lambda T: redeskewed(T, 0.7))
+    assert far is None
 
 
 def test_a_hand_turn_at_stride_3_is_tracked_from_a_rotated_start_and_right() -> None:
