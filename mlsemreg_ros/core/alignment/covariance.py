@@ -42,7 +42,13 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   fell within one sweep (``horizon``: the time since the last accepted scan): the
   prediction deskewed the scan, and a velocity it got wrong bends the sweep;
 - plus ``(covariance.along_correction * k * |c|)^2`` along the direction of that correction
-  (:func:`along_correction`): the scan stays off along it.
+  (:func:`along_correction`): the scan stays off along it;
+- the sweep alignment's **bend** ``b`` (how far its twist moved the points of a scan it
+  deskewed again, ``Decision.sweep_bend_m``): ``covariance.per_bend_translation`` and
+  ``per_bend_rotation`` times ``max(k_b * b - bend_free, 0)`` (``k_b = min(1, bend_window /
+  horizon)``) join the floors, and ``covariance.bend_relief`` takes that share off the
+  correction terms of a bent scan (:func:`correction_relief`). Off by default: no fit found
+  a setting that keeps every data set (docs/covariance.md, session 18).
 
 What differs between sensors is followed through the Hessian's own size, not a table per
 sensor: ``covariance.hessian_size_exponent`` grows the scale of a block as its Hessian
