@@ -446,7 +446,7 @@ class CovarianceInputs:
         )
 
     def bends(self) -> np.ndarray:
-        """Return the bends (K,) in m, zeros where not given."""
+        """Return the sweep alignment's bend of each sample (K,) in m, zeros where not given."""
         if self.bends_m is None:
             return np.zeros(len(self.distances))
         return np.asarray(self.bends_m, dtype=np.float64)
@@ -539,8 +539,10 @@ def calibrated_covariances(
 
 def correction_relief(inputs: CovarianceInputs, cfg: CovarianceConfig) -> np.ndarray:
     """
-    Return the factor (K,) of the correction terms' standard deviations: ``1 - bend_relief``
-    on a scan the sweep alignment deskewed again (its bend above 0), 1 elsewhere.
+    Return the factor (K,) of the correction terms' standard deviations.
+
+    ``1 - bend_relief`` on a scan the sweep alignment deskewed again (its bend above 0), 1
+    elsewhere.
     """
     relief = np.ones(len(inputs.distances))
     relief[inputs.bends() > 0.0] = 1.0 - cfg.bend_relief
