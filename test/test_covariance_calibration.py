@@ -47,6 +47,8 @@ from mlsemreg_ros.evaluation.covariance_calibration import (
     nees_summary,
     nees_values,
     save_samples,
+    source_code,
+    SOURCES,
     stream_samples,
     target_violation,
 )
@@ -434,3 +436,54 @@ def test_the_continuous_fit_is_no_worse_than_its_start() -> None:
     start_violation = target_violation([nees_values(datasets['set'], *start)])
     _, _, violation = fit_calibration_continuous(datasets, iterations=2, start=start)
     assert violation <= start_violation + 1e-6  # the start is nudged 1e-9 inside its bounds
+
+
+def test_a_bent_scan_gets_the_bend_terms_beyond_the_free_part() -> None:
+    """A 4 m bend counts whole at 0.1 s and times 0.3 at 1 s; below bend_free nothing."""
+    cfg = replace(
+        OFF, per_bend_translation=0.1, per_bend_rotation=0.2, bend_free=0.5, bend_window=0.3
+    )
+    zero = np.zeros((6, 6))
+    close = calibrated_covariance(zero, 1.0, cfg, horizon_s=0.1, bend_m=4.0)
+    sigma_t, sigma_r = 0.1 * (4.0 - 0.5), np.radians(0.2 * (4.0 - 0.5))
+    assert np.allclose(np.diag(close), [sigma_t**2] * 3 + [sigma_r**2] * 3)
+    far = calibrated_covariance(zero, 1.0, cfg, horizon_s=1.0, bend_m=4.0)
+    assert np.allclose(np.diag(far)[:3], (0.1 * (0.3 * 4.0 - 0.5)) ** 2)
+    assert np.allclose(calibrated_covariance(zero, 1.0, cfg, horizon_s=1.0, bend_m=1.5), 0.0)
+    assert np.allclose(calibrated_covariance(zero, 1.0, cfg, horizon_s=0.1), 0.0)  # not bent
+
+
+def test_the_bend_relief_takes_the_correction_terms_off_a_bent_scan_only() -> None:
+    """The sweep alignment replaced the deskew a wrong prediction gave: its terms shrink."""
+    cfg = replace(
+        OFF,
+        per_correction_translation=1.0,
+        correction_sweep=0.0,
+        along_correction=0.5,
+        bend_relief=0.75,
+    )
+    zero, direction = np.zeros((6, 6)), np.array([0.4, 0.0, 0.0])
+    kwargs = {'correction': (0.4, 0.0), 'correction_direction': direction}
+    straight = calibrated_covariance(zero, 1.0, cfg, **kwargs)
+    bent = calibrated_covariance(zero, 1.0, cfg, bend_m=2.0, **kwargs)
+    assert np.allclose(straight[:3, :3], np.diag([0.4**2 + 0.2**2, 0.4**2, 0.4**2]))
+    assert np.allclose(bent, straight * 0.25**2)
+    unrelieved = calibrated_covariance(
+        zero, 1.0, replace(cfg, bend_relief=0.0), bend_m=2.0, **kwargs
+    )
+    assert np.allclose(unrelieved, straight)
+
+
+def test_samples_keep_the_bend_and_the_source(tmp_path) -> None:
+    sample = CovarianceSample(np.ones(6), np.eye(6), 1.0, 2.0, bend_m=3.5, sweep_change_m=3.5)
+    sample.source = source_code('prediction+global')
+    save_samples(tmp_path / 's.npz', [sample, CovarianceSample(np.ones(6), np.eye(6))])
+    bent, plain = load_samples(tmp_path / 's.npz')
+    assert (bent.bend_m, bent.sweep_change_m, SOURCES[bent.source]) == (
+        3.5,
+        3.5,
+        'prediction+global',
+    )
+    assert (plain.bend_m, plain.source) == (0.0, 0)
+    values = nees_values([bent], 1.0, replace(OFF, per_bend_translation=1.0))
+    assert values[0] < nees_values([plain], 1.0, OFF)[0]  # the bend reaches the covariance

@@ -69,7 +69,7 @@ def _align_sweep(monkeypatch, slide_m: float) -> tuple[np.ndarray, np.ndarray, s
     )
     redone = SimpleNamespace(deskewed=True, scan='the scan deskewed by the sweep fit')
     preprocessor = SimpleNamespace(scan=lambda *args: redone)
-    _, T, note, _ = tracker.align_sweep(raw, pose, preprocessor, cfg, None)
+    _, T, note, _, _ = tracker.align_sweep(raw, pose, preprocessor, cfg, None)
     return T, slid, note
 
 

@@ -78,7 +78,13 @@ def _align_accepted(monkeypatch, moved_m: float) -> tuple[tracking.Tracker, _Map
     swept = _translation(10.0 + moved_m)
     redone = SimpleNamespace(scan='the scan deskewed by the sweep')
     tracker.deskew_start = lambda start, raw, pose, *args: (raw, pose)
-    tracker.align_sweep = lambda raw, pose, *args: (redone, swept, 'sweep alignment: bent', None)
+    tracker.align_sweep = lambda raw, pose, *args: (
+        redone,
+        swept,
+        'sweep alignment: bent',
+        None,
+        1.0,
+    )
     monkeypatch.setattr(tracking, 'implied_twist', lambda *args: None)
     first = SimpleNamespace(scan='the first scan', points='first points', labels='first labels')
     keyframe = SimpleNamespace(stamp_ns=0, points=None, labels=None, prepared=None)

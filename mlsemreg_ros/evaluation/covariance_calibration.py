@@ -73,6 +73,18 @@ class CovarianceSample:
     correction_vector: np.ndarray = field(default_factory=lambda: np.zeros(6))
     scan_points: int = 0  # points of the scan as the odometry kept them (0: unknown)
     inliers: int = 0  # inliers of the accepted fine alignment (0: unknown)
+    bend_m: float = 0.0  # m, the sweep alignment's bend of the scan (0: not deskewed again)
+    sweep_change_m: float = 0.0  # m, the sweep alignment's estimated bend, kept or not
+    source: int = 0  # the step's source: SOURCES' index (0: unknown)
+
+
+#: The step sources a sample records (:attr:`CovarianceSample.source`).
+SOURCES = ('', 'prediction', 'global', 'prediction+global', 'first')
+
+
+def source_code(source: str) -> int:
+    """Return the index of a step's source in :data:`SOURCES` (0: another or none)."""
+    return SOURCES.index(source) if source in SOURCES else 0
 
 
 def pose_error(T_estimate: np.ndarray, T_truth: np.ndarray) -> np.ndarray:
@@ -155,6 +167,9 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
                 correction_vector(step),
                 0 if step.points is None else len(step.points),
                 accepted_inliers(step),
+                float(getattr(step, 'sweep_bend_m', 0.0)),
+                float(getattr(step, 'sweep_change_m', 0.0)),
+                source_code(getattr(step, 'source', '')),
             )
         )
     return samples
@@ -307,6 +322,7 @@ def _stack(samples: list[CovarianceSample]) -> tuple[Any, ...]:
             np.array([(s.correction_m, s.correction_deg) for s in samples]).reshape(-1, 2),
             np.array([s.gap_s for s in samples], dtype=np.float64),
             np.array([s.correction_vector[:3] for s in samples]).reshape(-1, 3),
+            np.array([s.bend_m for s in samples], dtype=np.float64),
         ),
         hessian_eigen(covariances.reshape(-1, 6, 6)),
     )
@@ -401,6 +417,11 @@ FIT_BOUNDS: dict[str, tuple[float, float]] = {
     'hessian_size_exponent': (0.0, 1.0),
     'floor_size_exponent': (0.0, 1.0),
     'along_correction': (0.0, 2.0),
+    'per_bend_translation': (0.0, 0.2),
+    'per_bend_rotation': (0.0, 1.0),
+    'bend_free': (0.0, 3.0),
+    'bend_window': (0.0, 0.5),
+    'bend_relief': (0.0, 1.0),
 }
 
 
@@ -459,6 +480,9 @@ def save_samples(path: Any, samples: list[CovarianceSample]) -> None:
         ).reshape(-1, 3),
         correction_vectors=np.array([s.correction_vector for s in samples]).reshape(-1, 6),
         scan_points=np.array([(s.scan_points, s.inliers) for s in samples]).reshape(-1, 2),
+        sweep=np.array(
+            [(s.bend_m, s.sweep_change_m, s.source) for s in samples], dtype=np.float64
+        ).reshape(-1, 3),
     )
 
 
@@ -470,6 +494,7 @@ def load_samples(path: Any) -> list[CovarianceSample]:
         more = data['corrections'] if 'corrections' in data.files else np.zeros((count, 3))
         vectors = _column(data, 'correction_vectors', (count, 6))
         sizes = _column(data, 'scan_points', (count, 2)).astype(int)
+        sweep = _column(data, 'sweep', (count, 3))
         rows = zip(
             data['errors'],
             data['covariances'],
@@ -478,11 +503,23 @@ def load_samples(path: Any) -> list[CovarianceSample]:
             more,
             vectors,
             sizes,
+            sweep,
             strict=True,
         )
         return [
-            CovarianceSample(e, c, float(d), float(a), *(float(x) for x in m), v, *map(int, n))
-            for e, c, d, a, m, v, n in rows
+            CovarianceSample(
+                e,
+                c,
+                float(d),
+                float(a),
+                *(float(x) for x in m),
+                v,
+                *map(int, n),
+                float(w[0]),
+                float(w[1]),
+                int(w[2]),
+            )
+            for e, c, d, a, m, v, n, w in rows
         ]
 
 

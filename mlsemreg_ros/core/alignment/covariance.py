@@ -42,7 +42,13 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   fell within one sweep (``horizon``: the time since the last accepted scan): the
   prediction deskewed the scan, and a velocity it got wrong bends the sweep;
 - plus ``(covariance.along_correction * k * |c|)^2`` along the direction of that correction
-  (:func:`along_correction`): the scan stays off along it.
+  (:func:`along_correction`): the scan stays off along it;
+- the sweep alignment's **bend** ``b`` (how far its twist moved the points of a scan it
+  deskewed again, ``Decision.sweep_bend_m``): ``covariance.per_bend_translation`` and
+  ``per_bend_rotation`` times ``max(k_b * b - bend_free, 0)`` (``k_b = min(1, bend_window /
+  horizon)``) join the floors, and ``covariance.bend_relief`` takes that share off the
+  correction terms of a bent scan (:func:`correction_relief`). Off by default: no fit found
+  a setting that keeps every data set (docs/covariance.md, session 18).
 
 What differs between sensors is followed through the Hessian's own size, not a table per
 sensor: ``covariance.hessian_size_exponent`` grows the scale of a block as its Hessian
@@ -274,6 +280,52 @@ class CovarianceConfig:
         low=0.0,
         high=180.0,
     )
+    per_bend_translation: float = param(
+        0.0,
+        'Standard deviation added to every translation axis per metre that the sweep '
+        "alignment's twist bent the scan (its points' largest move against the deskew's "
+        'twist, where the scan was deskewed again with it), times min(1, bend_window / '
+        'horizon), beyond bend_free: the sweep alignment corrects a wrong deskew only in '
+        'part (HDL-64 field drives at stride 1: scans bent by 2-6 m were 6-23 cm and '
+        '0.3-1 deg off). 0: off (docs/covariance.md).',
+        unit='m/m',
+        low=0.0,
+        high=10.0,
+    )
+    per_bend_rotation: float = param(
+        0.0,
+        'Standard deviation added to every rotation axis per metre of that bend (times the '
+        'bend_window share) beyond bend_free. 0: off.',
+        unit='deg/m',
+        low=0.0,
+        high=100.0,
+    )
+    bend_free: float = param(
+        0.0,
+        'The part of the bend (times the bend_window share) that adds nothing to '
+        'per_bend_translation and per_bend_rotation.',
+        unit='m',
+        low=0.0,
+        high=100.0,
+    )
+    bend_window: float = param(
+        0.0,
+        'The time over which the bend counts whole: beyond it, times bend_window / horizon '
+        '(a scan a second after the last one is bent by a twist the registration replaced '
+        'whole). 0: the bend counts whole.',
+        unit='s',
+        low=0.0,
+        high=10.0,
+    )
+    bend_relief: float = param(
+        0.0,
+        'The share of the correction terms (per_correction_*, along_correction, jerk_*) '
+        'taken off a scan the sweep alignment deskewed again: they stand for a scan '
+        'deskewed by a prediction that was off, and the sweep alignment replaced that '
+        'deskew (0: kept whole, 1: none on a bent scan).',
+        low=0.0,
+        high=1.0,
+    )
     degenerate_ratio: float = param(
         100.0,
         'An eigen-direction of the translation or rotation block of the Hessian covariance '
@@ -339,6 +391,7 @@ def calibrated_covariance(
     correction: tuple[float, float] = (0.0, 0.0),
     horizon_s: float = 0.0,
     correction_direction: np.ndarray | None = None,
+    bend_m: float = 0.0,
 ) -> np.ndarray:
     """
     Return ``s * C_H + D + floor(d)`` (module docstring) of a covariance (6, 6), ROS order.
@@ -350,14 +403,15 @@ def calibrated_covariance(
     the time the prediction spanned, from the last accepted scan (0: unknown, the
     correction counts whole); ``correction_direction``: the translation (3,) from the
     prediction to the accepted pose in the covariance's axes (``along_correction``; None:
-    that term is off). One sample of :func:`calibrated_covariances`.
+    that term is off); ``bend_m``: how far the sweep alignment's twist bent the scan it
+    deskewed again (``per_bend_*``, ``bend_relief``; 0: not). One sample of
+    :func:`calibrated_covariances`.
     """
-    return calibrated_covariances(
-        np.asarray(hessian_covariance, dtype=np.float64)[None],
-        scale,
-        cfg,
-        CovarianceInputs.single(distance, turn_deg, correction, horizon_s, correction_direction),
-    )[0]
+    inputs = CovarianceInputs.single(
+        distance, turn_deg, correction, horizon_s, correction_direction, bend_m
+    )
+    hessian = np.asarray(hessian_covariance, dtype=np.float64)[None]
+    return calibrated_covariances(hessian, scale, cfg, inputs)[0]
 
 
 @dataclass
@@ -369,6 +423,7 @@ class CovarianceInputs:
     corrections: np.ndarray  # (K, 2) m and deg of the accepted pose from the prediction
     horizons_s: np.ndarray  # (K,) s, the prediction's horizon (0: unknown)
     directions: np.ndarray  # (K, 3) translation from the prediction (zeros: none)
+    bends_m: np.ndarray | None = None  # (K,) m, the sweep alignment's bend (None: zeros)
 
     @classmethod
     def single(
@@ -378,6 +433,7 @@ class CovarianceInputs:
         correction: tuple[float, float],
         horizon_s: float,
         direction: np.ndarray | None,
+        bend_m: float = 0.0,
     ) -> CovarianceInputs:
         """Return the inputs of one sample."""
         return cls(
@@ -386,7 +442,14 @@ class CovarianceInputs:
             np.array([correction], dtype=np.float64).reshape(1, 2),
             np.array([horizon_s], dtype=np.float64),
             np.zeros((1, 3)) if direction is None else np.asarray(direction, np.float64)[None, :3],
+            np.array([bend_m], dtype=np.float64),
         )
+
+    def bends(self) -> np.ndarray:
+        """Return the sweep alignment's bend of each sample (K,) in m, zeros where not given."""
+        if self.bends_m is None:
+            return np.zeros(len(self.distances))
+        return np.asarray(self.bends_m, dtype=np.float64)
 
 
 @dataclass
@@ -439,18 +502,28 @@ def calibrated_covariances(
     scaled = follow_hessian_size(hessian_covariances * scale, log_ratios, cfg)
     share = sweep_shares(inputs.horizons_s, cfg)
     moved_m, turned_deg = inputs.corrections[:, 0] * share, inputs.corrections[:, 1] * share
+    relief = correction_relief(inputs, cfg)
+    bend = np.maximum(
+        inputs.bends() * sweep_shares(inputs.horizons_s, cfg, cfg.bend_window) - cfg.bend_free,
+        0.0,
+    )
     sigma_t = (
         cfg.floor_translation
         + cfg.per_metre_translation * inputs.distances
         + cfg.per_degree_translation * inputs.turns_deg
-        + cfg.per_correction_translation
+        + relief
+        * cfg.per_correction_translation
         * np.maximum(moved_m - cfg.correction_free_translation, 0.0)
+        + cfg.per_bend_translation * bend
     )
     sigma_r = np.radians(
         cfg.floor_rotation
         + cfg.per_metre_rotation * inputs.distances
         + cfg.per_degree_rotation * inputs.turns_deg
-        + cfg.per_correction_rotation * np.maximum(turned_deg - cfg.correction_free_rotation, 0.0)
+        + relief
+        * cfg.per_correction_rotation
+        * np.maximum(turned_deg - cfg.correction_free_rotation, 0.0)
+        + cfg.per_bend_rotation * bend
     )
     if cfg.floor_size_exponent != 0.0:  # a sparse scan's errors no Hessian sees are larger
         factors = size_factors(log_ratios, 0.5 * cfg.floor_size_exponent)
@@ -458,10 +531,22 @@ def calibrated_covariances(
     floor = np.zeros(scaled.shape)
     floor[:, :3, :3] = (sigma_t**2)[:, None, None] * _shape(eigen[0], cfg.translation_floor_shape)
     floor[:, 3:, 3:] = (sigma_r**2)[:, None, None] * _shape(eigen[1], cfg.rotation_floor_shape)
-    floor[:, :3, :3] += along_correction(inputs.directions, share, cfg)
-    floor[:, :3, :3] += jerk_along(inputs, cfg)
+    correction_variance = along_correction(inputs.directions, share, cfg) + jerk_along(inputs, cfg)
+    floor[:, :3, :3] += (relief**2)[:, None, None] * correction_variance
     covariance = scaled + _degenerate_inflation(eigen, cfg) + floor
     return 0.5 * (covariance + np.swapaxes(covariance, -1, -2))
+
+
+def correction_relief(inputs: CovarianceInputs, cfg: CovarianceConfig) -> np.ndarray:
+    """
+    Return the factor (K,) of the correction terms' standard deviations.
+
+    ``1 - bend_relief`` on a scan the sweep alignment deskewed again (its bend above 0), 1
+    elsewhere.
+    """
+    relief = np.ones(len(inputs.distances))
+    relief[inputs.bends() > 0.0] = 1.0 - cfg.bend_relief
+    return relief
 
 
 def size_log_ratios(eigen: tuple[BlockEigen, BlockEigen], scale: float) -> np.ndarray:

@@ -77,6 +77,7 @@ def accept_scan(
             (stamp_ns - odometry._last_accepted[1]) * 1e-9 if odometry._last_accepted else 0.0
         ),
         correction_direction=moved[:3, 3],
+        bend_m=chosen.sweep_bend_m,
     )
     disputed = odometry.tracker.start_dispute  # the first scan's unknown twist
     if disputed is not None:

@@ -82,6 +82,8 @@ class OdometryStep:
     #                             (or IMU's) T_odom_current at the stamp; None without one
     predicted_covariance: np.ndarray | None = None  # (6, 6) odom axes: the pose's covariance
     #                             inflated by the prediction's (:func:`prediction_covariance`)
+    sweep_bend_m: float = 0.0  # m, the sweep alignment's bend of the scan (Decision's)
+    sweep_change_m: float = 0.0  # m, its estimate's, kept or not (Decision's)
 
 
 deferred_attribute(OdometryStep, 'labels')
@@ -104,6 +106,11 @@ class Decision:
     confirm_weak: bool = False
     #: tracked by the motion model's own prediction (no rotated start, no global estimate)
     held: bool = False
+    #: m, how far the sweep alignment's twist moved the scan's points against the deskew's
+    #: twist, where the scan was deskewed again with it (0: not); the covariance reads it
+    sweep_bend_m: float = 0.0
+    #: m, the same of the sweep alignment's estimate, kept or not (0: none estimated)
+    sweep_change_m: float = 0.0
 
     @property
     def accepted(self) -> bool:
@@ -269,6 +276,8 @@ def accepted_step(
         map_voxels=map_voxels,
         points=raw.points,
         labels=stored(raw, 'labels'),
+        sweep_bend_m=chosen.sweep_bend_m,
+        sweep_change_m=chosen.sweep_change_m,
     )
 
 

@@ -333,14 +333,16 @@ class Tracker:
         note, sweep_twist = '', None
         if not steady(chosen, cfg):
             implied = implied_twist(motion_model, pose, stamp_ns)  # sweep_starts.py
-            redone, moved, note, sweep_twist = self.align_sweep(
+            redone, moved, note, sweep_twist, chosen.sweep_change_m = self.align_sweep(
                 raw, pose, preprocessor, cfg, implied
             )
             if redone is not raw:  # deskewed again: aligned once more from there
+                chosen.sweep_bend_m = chosen.sweep_change_m
                 again = self.align_sweep(redone, moved, preprocessor, cfg)
                 if again[0] is not redone:
                     redone, moved, sweep_twist = again[0], again[1], again[3]
                     note = f'{note}; again: {again[2]}'
+                    chosen.sweep_bend_m += again[4]
             raw, pose = redone, moved
         chosen.timings_ms['sweep_alignment_ms'] = 1e3 * (time.perf_counter() - tic)
         if note:
@@ -456,7 +458,7 @@ class Tracker:
         preprocessor: Preprocessor,
         cfg: RegistrationConfig,
         implied: SweepMotion | None = None,
-    ) -> tuple[PreprocessedScan, np.ndarray, str, SweepMotion | None]:
+    ) -> tuple[PreprocessedScan, np.ndarray, str, SweepMotion | None, float]:
         """
         Estimate the motion within the sweep from the sweep itself (no gyro), if it bends it.
 
@@ -467,8 +469,10 @@ class Tracker:
         its sweep twist free (``core/alignment/sweep_alignment.py``). When the estimated
         twist moves some point by more than ``sweep_alignment.min_change``, the scan is
         deskewed with it, prepared again and aligned again from the joint estimate; the
-        result replaces the pose if the map accepts it. Returns the scan, the pose, a note and
-        the estimated sweep twist (None when there is none to keep).
+        result replaces the pose if the map accepts it. Returns the scan, the pose, a note,
+        the estimated sweep twist (None when there is none to keep) and its bend (m: the
+        largest point move of that twist against the deskew's, whether kept or not; 0 when
+        none was estimated), which the covariance reads (``Decision.sweep_bend_m``).
         """
         motion = raw.motion
         if (
@@ -477,10 +481,10 @@ class Tracker:
             or not isinstance(motion, SweepMotion)  # deskewed by a twist: points and times
             or self.map.empty
         ):
-            return raw, pose, '', None
+            return raw, pose, '', None, 0.0
         gaussians = self.map_gaussians()
         if gaussians is None or len(gaussians) < MIN_SWEEP_MAP_VOXELS:
-            return raw, pose, '', None
+            return raw, pose, '', None, 0.0
         points, times = raw.input_points, np.asarray(raw.point_times, dtype=np.float64)
         if cfg.moving_objects.matching != 'drop':  # 'drop' took them out before the deskew
             moving = preprocessor.moving_mask(points, stored(raw, 'labels'))
@@ -494,17 +498,19 @@ class Tracker:
             np.isfinite(np.concatenate([result.motion.omega, result.motion.velocity]))
         )
         if not finite or not np.isfinite(result.change_m):
-            return raw, pose, 'sweep alignment diverged: the deskew twist is kept', None
+            return raw, pose, 'sweep alignment diverged: the deskew twist is kept', None, 0.0
         if result.change_m <= cfg.sweep_alignment.min_change:
-            return raw, pose, '', result.motion
+            return raw, pose, '', result.motion, result.change_m
         labels = stored(raw, 'labels')
         redone = preprocessor.scan(raw.input_points, labels, raw.point_times, result.motion)
         if not redone.deskewed:
-            return raw, pose, '', None
+            return raw, pose, '', None, result.change_m
         again = self.candidate('sweep', result.T_target_source, redone.scan, cfg)
         refusal = again.refusal or self.trust.replacement_refusal(
             pose, again.alignment.T_target_source, cfg.odometry
         )
         if refusal:
-            return raw, pose, f'{result.summary(motion)}: not kept ({refusal})', None
-        return redone, again.alignment.T_target_source, result.summary(motion), result.motion
+            note = f'{result.summary(motion)}: not kept ({refusal})'
+            return raw, pose, note, None, result.change_m
+        kept = (redone, again.alignment.T_target_source, result.summary(motion), result.motion)
+        return (*kept, result.change_m)
