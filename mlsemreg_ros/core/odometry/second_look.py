@@ -180,10 +180,7 @@ def _own_evidence(
         and bool(correction_refusal(alignment, bounds))
         and alignment.inlier_fraction >= bounds.min_inlier_fraction
         and not relative_inlier_refusal(
-            alignment,
-            odometry.min_relative_inlier_fraction,
-            tracker.history,
-            tracker.trust.view.overlap(alignment.T_target_source),
+            alignment, odometry.min_relative_inlier_fraction, tracker.history
         )
     )
 

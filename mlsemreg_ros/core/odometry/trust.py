@@ -189,9 +189,19 @@ class Trust:
         self.motion_bound.clear()
 
     def judge(
-        self, name: str, T_initial: np.ndarray, alignment: Alignment, odometry: OdometryConfig
+        self,
+        name: str,
+        T_initial: np.ndarray,
+        alignment: Alignment,
+        odometry: OdometryConfig,
+        overlap: float = 1.0,
     ) -> Candidate:
-        """Return the candidate ``name``: its alignment and why it is not trusted ('' if it is)."""
+        """
+        Return the candidate ``name``: its alignment and why it is not trusted ('' if it is).
+
+        ``overlap``: the share of a narrow view its turn leaves in view, which the
+        relative-inlier rule expects less by (``core/odometry/turn_starts.py``; 1: the rule).
+        """
         if name == 'prediction':
             odometry = self.motion_bound.widen(odometry)
         refusal = refinement_refusal(
@@ -200,7 +210,7 @@ class Trust:
             alignment,
             odometry.min_relative_inlier_fraction,
             self.history,
-            self.view.overlap(alignment.T_target_source),
+            overlap,
         )
         return Candidate(name, np.asarray(T_initial).copy(), alignment, refusal)
 

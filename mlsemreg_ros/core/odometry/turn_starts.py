@@ -50,8 +50,12 @@ def turn_starts(
     """
     Return ``chosen`` (refused), or a start turned with the car accepted on its evidence.
 
-    ``redeskew(T)``: the scan deskewed by the twist ``T`` implies (``rotated_starts.Redeskew``);
-    the best turned start is refined once more on it, and kept on it when still acceptable.
+    The candidates: the refined prediction (it was refused), and the prediction turned by
+    each offset within :func:`~mlsemreg_ros.core.odometry.narrow_view.turn_bound`, refined;
+    each judged by the odometry's rules with the relative-inlier rule expecting the share of
+    the view its turn leaves (``narrow_view.View.overlap``). ``redeskew(T)``: the scan
+    deskewed by the twist ``T`` implies (``rotated_starts.Redeskew``); the best candidate is
+    refined once more on it, and kept on it when still acceptable.
     """
     view = tracker.trust.view
     if (
@@ -66,12 +70,25 @@ def turn_starts(
     T_predicted = prediction.T_odom_current
     odometry = cfg.odometry
     bound = turn_bound(view, T_predicted, odometry.max_correction_rotation, odometry.turn_rate)
-    offsets = offsets_within(bound)
-    if not offsets:
-        return chosen
+
+    def judged(name: str, T_start: np.ndarray, on: PreparedScan) -> Candidate:
+        """``on`` refined from ``T_start``, judged with the overlap its turn leaves in view."""
+        alignment = tracker.map.align_scan(on, T_start)
+        overlap = view.overlap(alignment.T_target_source)
+        return tracker.trust.judge(name, T_start, alignment, odometry, overlap)
+
+    refined = [c for c in chosen.candidates if c.name == 'prediction' and not c.still]
     passing: list[Candidate] = []
-    for offset in offsets:
-        candidate = tracker.candidate('turn', yaw_rotated(T_predicted, offset), scan, cfg)
+    if refined:  # the refined prediction again, expecting what its turn leaves in view
+        again = refined[0]
+        alignment = again.alignment
+        again = tracker.trust.judge(
+            'turn', again.T_initial, alignment, odometry, view.overlap(alignment.T_target_source)
+        )
+        if again.acceptable:
+            passing.append(again)
+    for offset in offsets_within(bound):
+        candidate = judged('turn', yaw_rotated(T_predicted, offset), scan)
         _, turn = prediction_error(T_predicted, candidate.alignment.T_target_source)
         if candidate.acceptable and turn <= bound:
             passing.append(candidate)
@@ -93,13 +110,13 @@ def turn_starts(
                 f'turned starts: two basins {shift:.2f} m / {turn:.1f} deg apart '
                 f'(inlier shares {share:.2f} and {other_share:.2f})',
             )
-    if redeskew is not None:  # deskewed by the prediction's twist, as wrong as its turn
-        again = tracker.redeskewed(best.alignment.T_target_source, redeskew, cfg)
-        redone = getattr(redeskew, 'redone', None)
-        if again is not None and again.acceptable and redone is not None:
-            _, turn = prediction_error(T_predicted, again.alignment.T_target_source)
-            if turn <= bound:  # named 'rotated': the odometry takes the redone scan
-                best, scan = again, redone.scan
+    redone = redeskew(best.alignment.T_target_source) if redeskew is not None else None
+    if redone is not None:  # deskewed by the prediction's twist, as wrong as its turn
+        tracker.map.cloud(redone)
+        again = judged('rotated', best.alignment.T_target_source, redone)
+        _, turn = prediction_error(T_predicted, again.alignment.T_target_source)
+        if again.acceptable and turn <= bound:  # 'rotated': the odometry takes the redone scan
+            best, scan = again, redone
     verdict = basins(tracker, best, scan, cfg)
     alignment = best.alignment
     came_back = [
