@@ -26,6 +26,8 @@ import csv
 from pathlib import Path
 from types import SimpleNamespace
 
+from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.narrow_view import (
     CAP_ROTATION,
     MIN_OVERLAP,
@@ -34,7 +36,9 @@ from mlsemreg_ros.core.odometry.narrow_view import (
     view_overlap,
 )
 from mlsemreg_ros.core.odometry.rotated_starts import yaw_rotated
+from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.trust import InlierHistory, relative_inlier_refusal
+from mlsemreg_ros.core.odometry.turn_starts import turn_starts
 from mlsemreg_ros.tools import eval_bag, simulate
 import numpy as np
 import pytest
@@ -77,6 +81,24 @@ def test_the_turn_bound() -> None:
     assert turn_bound(view, np.eye(4), 5.0, 45.0) == pytest.approx(22.5)
     view.since((np.eye(4), 1_000_000_000), 2_000_000_000)  # 1 s
     assert turn_bound(view, np.eye(4), 5.0, 45.0) == CAP_ROTATION
+
+
+def test_no_turned_start_on_a_ring_from_a_still_start_or_when_off() -> None:
+    """The refused decision comes back untouched: nothing else is asked of the tracker."""
+    config = RegistrationConfig()
+    refused = Decision(source='', reason='refused')
+    moving = Prediction(np.eye(4), 1.0)
+    still = Prediction(np.eye(4), 1.0, still=True)
+    last = (np.eye(4), 1_000_000_000)
+    ring, narrow = View(span_deg=360.0), View(span_deg=70.0)
+    ring.since(last, 1_500_000_000)
+    narrow.since(last, 1_500_000_000)
+    for view, prediction in ((ring, moving), (narrow, still), (narrow, None)):
+        tracker = SimpleNamespace(trust=SimpleNamespace(view=view))
+        assert turn_starts(tracker, refused, prediction, None, config) is refused
+    config.odometry.turn_rate = 0.0
+    tracker = SimpleNamespace(trust=SimpleNamespace(view=narrow))
+    assert turn_starts(tracker, refused, moving, None, config) is refused
 
 
 def _run(drive: Path, out: Path, *options: str) -> list[dict[str, str]]:
