@@ -152,6 +152,18 @@ class OdometryConfig:
         low=0.0,
         high=10.0,
     )
+    turn_rate: float = param(
+        45.0,
+        'A narrow view (a solid-state pattern, under 0.9 of the azimuth circle) whose '
+        'decision was refused is also aligned from its prediction turned about the vertical '
+        'by +-10 and +-20 deg, those within this turn rate times the time since the last '
+        'accepted scan (or 1.5 times the predicted turn), and accepted on its own evidence '
+        '(no rival basin, perturbed starts come back): the onset of a turn is no motion '
+        "model's to predict (core/odometry/narrow_view.py; 0: off).",
+        unit='deg/s',
+        low=0.0,
+        high=1000.0,
+    )
     global_registration: str = param(
         'on_demand',
         'always: ML-SemReg + SC2-PCR onto the keyframe for every scan (the '

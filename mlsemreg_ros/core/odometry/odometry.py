@@ -199,6 +199,7 @@ class Odometry:
             measured = sensor_scale.measure(points, self.config)
             if measured.points >= sensor_scale.MIN_POINTS:
                 self.sensor_scale = measured
+                self.tracker.trust.view.span_deg = 360.0 * measured.azimuth_share
                 self.reconfigure(self.config)
         source = getattr(self.label_source, 'when_read', self.label_source)  # or a callable
         labelled = source(points, labels, self.config, intensity)  # None: no label field
@@ -215,6 +216,7 @@ class Odometry:
         if self.keyframe is None:  # first scan: keyframe at identity, the map's first scan
             return self._finish(self._first(index, stamp_ns, raw, notes), start, raw)
         timings: dict[str, float] = {}
+        self.tracker.trust.view.since(self._last_accepted, stamp_ns)  # narrow_view.py
         given = (points, labels, point_times, stamp_ns)
         redeskew = Redeskew(self, given, raw)  # core/odometry/rotated_starts.py
         chosen = self.tracker.estimate(

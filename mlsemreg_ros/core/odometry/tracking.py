@@ -60,6 +60,7 @@ from mlsemreg_ros.core.odometry.start_twist import (
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.sweep_starts import align_from_starts, implied_twist
 from mlsemreg_ros.core.odometry.trust import Candidate, InlierHistory, Trust
+from mlsemreg_ros.core.odometry.turn_starts import turn_starts
 from mlsemreg_ros.core.results import PreparedScan
 from mlsemreg_ros.core.rigid import rotation_angle_deg
 import numpy as np
@@ -211,6 +212,10 @@ class Tracker:
             estimate, predicted, lambda T: self.candidate('global', T, current, cfg), cfg
         )
         chosen = second_look(self, chosen, estimate, current, cfg)  # near misses, rescue
+        tic = time.perf_counter()
+        chosen = turn_starts(self, chosen, prediction, current, cfg, redeskew)  # turn_starts.py
+        if self.trust.view.partial:
+            timings['turn_starts_ms'] = 1e3 * (time.perf_counter() - tic)
         chosen.reason = '; '.join(
             r for r in (f'registered globally: {why_global}', chosen.reason) if r
         )

@@ -45,6 +45,7 @@ from mlsemreg_ros.core.alignment.fine_alignment import (
     RefinementBounds,
 )
 from mlsemreg_ros.core.odometry.motion_bound import MotionBound
+from mlsemreg_ros.core.odometry.narrow_view import View
 from mlsemreg_ros.core.poses import within_bounds
 from mlsemreg_ros.core.rigid import rotation_angle_deg
 import numpy as np
@@ -80,20 +81,25 @@ class InlierHistory:
         return float(np.median(self._fractions)) if self._fractions else 0.0
 
 
-def relative_inlier_refusal(alignment: Alignment, share: float, history: InlierHistory) -> str:
+def relative_inlier_refusal(
+    alignment: Alignment, share: float, history: InlierHistory, overlap: float = 1.0
+) -> str:
     """
     Why an alignment keeps too little of the scan compared with the usual ('' if not).
 
     Refused below ``share`` (``odometry.min_relative_inlier_fraction``) times the median
-    fraction of the last accepted frames; no rule before the first or with ``share`` 0.
+    fraction of the last accepted frames, times ``overlap``: the share of a narrow view that
+    the pose's turn since the last accepted scan leaves in view (1 on a full ring;
+    core/odometry/narrow_view.py). No rule before the first or with ``share`` 0.
     """
     if share > 0 and history:
-        typical = history.typical()
+        typical = history.typical() * overlap
         if alignment.inlier_fraction < share * typical:
+            turned = f' x {overlap:.2f} of the view after the turn' if overlap < 1.0 else ''
             return (
                 f'fine alignment kept {alignment.inlier_fraction:.2f} of the scan '
                 f'as inliers < odometry.min_relative_inlier_fraction={share:g} x '
-                f'{typical:.2f} (median of the last accepted frames)'
+                f'{typical:.2f} (median of the last accepted frames{turned})'
             )
     return ''
 
@@ -174,6 +180,7 @@ class Trust:
         self.history = InlierHistory()  # inlier fractions of the last accepted frames
         self.tracked_in_a_row = 0  # scans accepted by the refined prediction alone
         self.motion_bound = MotionBound()  # the prediction's bounds from its recent errors
+        self.view = View()  # a narrow view's span, the last accepted pose (narrow_view.py)
 
     def restart(self) -> None:
         """Forget the history (a new map)."""
@@ -182,15 +189,28 @@ class Trust:
         self.motion_bound.clear()
 
     def judge(
-        self, name: str, T_initial: np.ndarray, alignment: Alignment, odometry: OdometryConfig
+        self,
+        name: str,
+        T_initial: np.ndarray,
+        alignment: Alignment,
+        odometry: OdometryConfig,
+        overlap: float = 1.0,
     ) -> Candidate:
-        """Return the candidate ``name``: its alignment and why it is not trusted ('' if it is)."""
+        """
+        Return the candidate ``name``: its alignment and why it is not trusted ('' if it is).
+
+        ``overlap``: the share of a narrow view its turn leaves in view, which the
+        relative-inlier rule expects less by (``core/odometry/turn_starts.py``; 1: the rule).
+        """
         if name == 'prediction':
             odometry = self.motion_bound.widen(odometry)
         refusal = refinement_refusal(
             alignment, RefinementBounds.of(odometry)
         ) or relative_inlier_refusal(
-            alignment, odometry.min_relative_inlier_fraction, self.history
+            alignment,
+            odometry.min_relative_inlier_fraction,
+            self.history,
+            overlap,
         )
         return Candidate(name, np.asarray(T_initial).copy(), alignment, refusal)
 

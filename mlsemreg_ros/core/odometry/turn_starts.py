@@ -1,0 +1,153 @@
+# Copyright 2026 The mlsemreg_ros Authors
+#
+# Licensed under the Apache License, Version 2.0 (the "License");
+# you may not use this file except in compliance with the License.
+# You may obtain a copy of the License at
+#
+#     http://www.apache.org/licenses/LICENSE-2.0
+#
+# Unless required by applicable law or agreed to in writing, software
+# distributed under the License is distributed on an "AS IS" BASIS,
+# WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
+# See the License for the specific language governing permissions and
+# limitations under the License.
+
+"""
+Starts turned with the car, for a narrow view refused in a turn (issue 35).
+
+The rule and why: ``core/odometry/narrow_view.py``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from mlsemreg_ros.core.alignment.near_miss import alignment_fit
+from mlsemreg_ros.core.odometry.motion_bound import prediction_error
+from mlsemreg_ros.core.odometry.narrow_view import turn_bound
+from mlsemreg_ros.core.odometry.rotated_starts import AGREEMENT, offsets_within, yaw_rotated
+from mlsemreg_ros.core.odometry.second_look import basins, weak_refusal
+from mlsemreg_ros.core.odometry.steps import Decision
+import numpy as np
+
+if TYPE_CHECKING:
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.odometry.motion_model import Prediction
+    from mlsemreg_ros.core.odometry.tracking import Tracker
+    from mlsemreg_ros.core.odometry.trust import Candidate
+    from mlsemreg_ros.core.results import PreparedScan
+
+
+def turn_starts(
+    tracker: Tracker,
+    chosen: Decision,
+    prediction: Prediction | None,
+    scan: PreparedScan,
+    cfg: RegistrationConfig,
+    redeskew: Callable[[np.ndarray], PreparedScan | None] | None = None,
+) -> Decision:
+    """
+    Return ``chosen`` (refused), or a start turned with the car accepted on its evidence.
+
+    The candidates: the refined prediction (it was refused), and the prediction turned by
+    each offset within :func:`~mlsemreg_ros.core.odometry.narrow_view.turn_bound`, refined;
+    each judged by the odometry's rules with the relative-inlier rule expecting the share of
+    the view its turn leaves (``narrow_view.View.overlap``). ``redeskew(T)``: the scan
+    deskewed by the twist ``T`` implies (``rotated_starts.Redeskew``); the best candidate is
+    refined once more on it, and kept on it when still acceptable.
+    """
+    view = tracker.trust.view
+    if (
+        chosen.accepted
+        or prediction is None
+        or prediction.still
+        or not view.partial
+        or not cfg.near_miss.enabled
+        or cfg.odometry.turn_rate <= 0.0
+    ):
+        return chosen
+    T_predicted = prediction.T_odom_current
+    odometry = cfg.odometry
+    bound = turn_bound(view, T_predicted, odometry.max_correction_rotation, odometry.turn_rate)
+
+    def judged(name: str, T_start: np.ndarray, on: PreparedScan) -> Candidate:
+        """``on`` refined from ``T_start``, judged with the overlap its turn leaves in view."""
+        alignment = tracker.map.align_scan(on, T_start)
+        overlap = view.overlap(alignment.T_target_source)
+        return tracker.trust.judge(name, T_start, alignment, odometry, overlap)
+
+    refined = [c for c in chosen.candidates if c.name == 'prediction' and not c.still]
+    passing: list[Candidate] = []
+    if refined:  # the refined prediction again, expecting what its turn leaves in view
+        again = refined[0]
+        alignment = again.alignment
+        again = tracker.trust.judge(
+            'turn', again.T_initial, alignment, odometry, view.overlap(alignment.T_target_source)
+        )
+        if again.acceptable:
+            passing.append(again)
+    for offset in offsets_within(bound):
+        candidate = judged('turn', yaw_rotated(T_predicted, offset), scan)
+        _, turn = prediction_error(T_predicted, candidate.alignment.T_target_source)
+        if candidate.acceptable and turn <= bound:
+            passing.append(candidate)
+    if not passing:
+        return chosen
+    best = max(passing, key=lambda c: c.alignment.inlier_fraction)
+    share, residual = alignment_fit(best.alignment)
+    rival_share = cfg.near_miss.rival_share
+    for other in passing:
+        shift, turn = prediction_error(
+            best.alignment.T_target_source, other.alignment.T_target_source
+        )
+        other_share, other_residual = alignment_fit(other.alignment)
+        if (shift > AGREEMENT[0] or turn > AGREEMENT[1]) and (
+            other_share >= rival_share * share and other_residual * rival_share <= residual
+        ):  # near_miss.py's rival: another basin about as good
+            return _noted(
+                chosen,
+                f'turned starts: two basins {shift:.2f} m / {turn:.1f} deg apart '
+                f'(inlier shares {share:.2f} and {other_share:.2f})',
+            )
+    redone = redeskew(best.alignment.T_target_source) if redeskew is not None else None
+    if redone is not None:  # deskewed by the prediction's twist, as wrong as its turn
+        tracker.map.cloud(redone)
+        again = judged('rotated', best.alignment.T_target_source, redone)
+        _, turn = prediction_error(T_predicted, again.alignment.T_target_source)
+        if again.acceptable and turn <= bound:  # 'rotated': the odometry takes the redone scan
+            best, scan = again, redone
+    verdict = basins(tracker, best, scan, cfg)
+    alignment = best.alignment
+    came_back = [
+        np.linalg.norm(np.linalg.solve(alignment.T_target_source, b.T_target_source)[:3, 3])
+        <= cfg.near_miss.agreement_translation
+        for b in verdict.others
+    ]
+    if verdict.refusal or not came_back or not all(came_back):
+        return _noted(chosen, f'turned start disputed ({verdict.refusal or "a start left"})')
+    weak = weak_refusal(alignment, cfg)
+    if weak and cfg.near_miss.weak_confirmation <= 0:
+        return _noted(chosen, f'turned start not accepted: {weak}')
+    _, turned = prediction_error(T_predicted, alignment.T_target_source)
+    note = (
+        f'turned start accepted ({turned:.1f} deg from the prediction, within '
+        f'{bound:.1f} deg; {len(came_back)} perturbed starts came back to it)'
+    )
+    if weak:
+        note = f'{note}, if the sweep alignment confirms it ({weak})'
+    return Decision.of_alignment(
+        'turn',
+        '; '.join(r for r in (chosen.reason, note) if r),
+        alignment,
+        cfg.odometry.covariance_scale,
+        result=chosen.result,
+        candidates=[best, *chosen.candidates],
+        timings_ms=chosen.timings_ms,
+        confirm_weak=bool(weak),
+    )
+
+
+def _noted(chosen: Decision, note: str) -> Decision:
+    chosen.reason = '; '.join(r for r in (chosen.reason, note) if r)
+    return chosen
