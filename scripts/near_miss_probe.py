@@ -84,9 +84,7 @@ def probe(path: str, registration: Registration) -> list[tuple[float, float, boo
             landed = align(pair.trans_gt @ step)
             error = np.linalg.solve(pair.trans_gt, landed.T_target_source)
             # the starts as the pair stage runs them (near_miss.home_iterations)
-            starts = home_first(
-                align, landed.T_target_source, cfg.near_miss, cfg.fine.max_iterations
-            )
+            starts = home_first(align, landed, cfg.near_miss, cfg.fine.max_iterations)
             verdict = judge_basins(landed, starts, fit, cfg.near_miss)
             out.append(
                 (

@@ -230,12 +230,17 @@ def test_home_first_stops_only_a_start_plainly_back_home() -> None:
         return Alignment(at(end), start, converged, iterations, 10, 10, 1.0, np.eye(6))
 
     cfg = RegistrationConfig().near_miss  # home: 0.25 x 0.4 m = 0.1 m, 0.25 deg
-    aligned = home_first(align, at(0.0), cfg, 20)
+    home = Alignment(at(0.0), at(0.0), True, 7, 10, 10, 1.0, np.eye(6))
+    aligned = home_first(align, home, cfg, 20)
     assert aligned(at(0.6)).T_target_source[0, 3] == 0.05 and calls == [4]
     calls.clear()
     assert aligned(at(-0.6)).T_target_source[0, 3] == -0.8 and calls == [4, 20]
     calls.clear()
     assert aligned(at(2.0)).T_target_source[0, 3] == 1.5 and calls == [4]
     calls.clear()
-    off = home_first(align, at(0.0), dataclasses.replace(cfg, home_iterations=0), 20)
+    off = home_first(align, home, dataclasses.replace(cfg, home_iterations=0), 20)
     assert off(at(0.6)).T_target_source[0, 3] == 0.0 and calls == [20]
+    calls.clear()
+    unconverged = dataclasses.replace(home, converged=False)  # no minimum: every start runs
+    assert home_first(align, unconverged, cfg, 20)(at(0.6)).T_target_source[0, 3] == 0.0
+    assert calls == [20]

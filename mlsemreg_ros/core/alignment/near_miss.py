@@ -144,7 +144,7 @@ def perturbed_starts(alignment: Alignment, cfg: NearMissConfig) -> list[np.ndarr
 
 def home_first(
     align: Callable[[np.ndarray, int], Alignment],
-    home: np.ndarray,
+    refined: Alignment,
     cfg: NearMissConfig,
     max_iterations: int,
 ) -> Callable[[np.ndarray], Alignment]:
@@ -153,12 +153,15 @@ def home_first(
 
     ``align(T_initial, iterations)`` is the fine alignment with at most ``iterations``
     Gauss-Newton iterations. Each start first runs ``near_miss.home_iterations`` of them:
-    a start then within ``near_miss.home_share`` of the agreement bounds of ``home`` (the
-    refined pose, itself the converged minimum of the same cost) agrees, whatever its last
-    iterations would add; a start that converged already is final. Any other start is
-    aligned again from its start with ``max_iterations``, exactly as without this.
+    a start then within ``near_miss.home_share`` of the agreement bounds of the refined
+    pose agrees, whatever its last iterations would add, since the refined pose is the
+    converged minimum of the same cost; a start that converged already is final. Any other
+    start is aligned again from its start with ``max_iterations``, exactly as without this,
+    and so is every start when ``refined`` did not converge (its pose is no minimum: a start
+    near it may still drift away; a 60 m probe landing 6 m off showed it).
     """
-    early = cfg.home_iterations
+    home = refined.T_target_source
+    early = cfg.home_iterations if refined.converged else 0
     near_shift = cfg.home_share * cfg.agreement_translation
     near_turn = cfg.home_share * cfg.agreement_rotation
 

@@ -67,10 +67,9 @@ class NearMissStage:
             fine = dataclasses.replace(cfg.fine, max_iterations=iterations)
             return align_pair(starts, target, start, fine, cfg.fine.pair_method)
 
-        home = context.alignment.T_target_source
         verdict = judge_basins(
             context.alignment,
-            home_first(align, home, cfg.near_miss, cfg.fine.max_iterations),
+            home_first(align, context.alignment, cfg.near_miss, cfg.fine.max_iterations),
             PointToDistribution(source, target, cfg.fine.max_correspondence_distance),
             cfg.near_miss,
         )
