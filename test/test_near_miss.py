@@ -218,7 +218,7 @@ def test_home_first_stops_only_a_start_plainly_back_home() -> None:
     calls = []
 
     def align(start: np.ndarray, iterations: int) -> Alignment:
-        """A fake solver: 0.6 m off -> 0.05 m after 4 steps; 0.6 m -> 0.3 m -> 0.8 m."""
+        """Fake the solver: from +0.6 m home (0.05 m after 4 steps); from -0.6 m on to -0.8 m."""
         calls.append(iterations)
         x = start[0, 3]
         if x > 0:  # heads home
