@@ -26,10 +26,15 @@ refused are the check's cost, wrong landings kept are what it misses. Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 
 from mlsemreg_ros.core.alignment.alignment import align_pair
 from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud
-from mlsemreg_ros.core.alignment.near_miss import judge_basins, PointToDistribution
+from mlsemreg_ros.core.alignment.near_miss import (
+    home_first,
+    judge_basins,
+    PointToDistribution,
+)
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.rigid import rotation_angle_deg
@@ -64,8 +69,9 @@ def probe(path: str, registration: Registration) -> list[tuple[float, float, boo
     )
     fit = PointToDistribution(s, t, cfg.fine.max_correspondence_distance)
 
-    def align(T: np.ndarray):
-        return align_pair(s, t, T, cfg.fine, cfg.fine.pair_method)
+    def align(T: np.ndarray, iterations: int = cfg.fine.max_iterations):
+        fine = dataclasses.replace(cfg.fine, max_iterations=iterations)
+        return align_pair(s, t, T, fine, cfg.fine.pair_method)
 
     out = []
     for k in range(DIRECTIONS):
@@ -77,7 +83,9 @@ def probe(path: str, registration: Registration) -> list[tuple[float, float, boo
             step[:2, 3] = distance * np.array([np.cos(angle), np.sin(angle)])
             landed = align(pair.trans_gt @ step)
             error = np.linalg.solve(pair.trans_gt, landed.T_target_source)
-            verdict = judge_basins(landed, align, fit, cfg.near_miss)
+            # the starts as the pair stage runs them (near_miss.home_iterations)
+            starts = home_first(align, landed, cfg.near_miss, cfg.fine.max_iterations)
+            verdict = judge_basins(landed, starts, fit, cfg.near_miss)
             out.append(
                 (
                     float(np.linalg.norm(error[:3, 3])),

@@ -17,6 +17,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 from mlsemreg_ros.core.alignment.alignment import align_pair, AlignmentCloud
 from mlsemreg_ros.core.alignment.near_miss import judge_basins, PointToDistribution
 from mlsemreg_ros.core.config import RegistrationConfig
@@ -201,3 +203,44 @@ def test_downsampled_starts_still_refuse_the_fence_near_miss(pair, dx):
     assert context.doubts and 'two basins' in context.diagnostics['near_miss_refusal']
     kept = register_from(pair, shifted(0.1), config)
     assert not kept.doubts and error(kept.transform)[0] < 0.01
+
+
+def test_home_first_stops_only_a_start_plainly_back_home() -> None:
+    """A start near home after ``home_iterations`` stops; any other runs in full, as before."""
+    from mlsemreg_ros.core.alignment.alignment import Alignment
+    from mlsemreg_ros.core.alignment.near_miss import home_first
+
+    def at(x: float) -> np.ndarray:
+        T = np.eye(4)
+        T[0, 3] = x
+        return T
+
+    calls = []
+
+    def align(start: np.ndarray, iterations: int) -> Alignment:
+        """Fake the solver: from +0.6 m home (0.05 m after 4 steps); from -0.6 m on to -0.8 m."""
+        calls.append(iterations)
+        x = start[0, 3]
+        if x > 0:  # heads home
+            end, converged = (0.05 if iterations < 20 else 0.0), False
+        else:  # passes 0.3 m of home after 4 steps, ends in another basin
+            end, converged = (-0.3 if iterations < 20 else -0.8), iterations >= 20
+        if x == 2.0:  # converged within the first steps
+            end, converged = 1.5, True
+        return Alignment(at(end), start, converged, iterations, 10, 10, 1.0, np.eye(6))
+
+    cfg = RegistrationConfig().near_miss  # home: 0.25 x 0.4 m = 0.1 m, 0.25 deg
+    home = Alignment(at(0.0), at(0.0), True, 7, 10, 10, 1.0, np.eye(6))
+    aligned = home_first(align, home, cfg, 20)
+    assert aligned(at(0.6)).T_target_source[0, 3] == 0.05 and calls == [4]
+    calls.clear()
+    assert aligned(at(-0.6)).T_target_source[0, 3] == -0.8 and calls == [4, 20]
+    calls.clear()
+    assert aligned(at(2.0)).T_target_source[0, 3] == 1.5 and calls == [4]
+    calls.clear()
+    off = home_first(align, home, dataclasses.replace(cfg, home_iterations=0), 20)
+    assert off(at(0.6)).T_target_source[0, 3] == 0.0 and calls == [20]
+    calls.clear()
+    unconverged = dataclasses.replace(home, converged=False)  # no minimum: every start runs
+    assert home_first(align, unconverged, cfg, 20)(at(0.6)).T_target_source[0, 3] == 0.0
+    assert calls == [20]

@@ -274,6 +274,25 @@ class NearMissConfig:
         low=0.0,
         high=20.0,
     )
+    home_iterations: int = param(
+        4,
+        'Pairs: each perturbed start is first aligned for this many iterations; a start '
+        'then within near_miss.home_share of the agreement bounds of the refined pose (when '
+        'that converged) is back home (it agrees) and stops there; any other start is '
+        'aligned again from its start with the full fine.max_iterations, as without this '
+        '(0: every start runs to convergence). On the 40 m dev chains a start 0.6 m off '
+        'needs 7-19 iterations to converge; 21 of 28 were home after 4 '
+        '(docs/hard_pairs.md, sixth round).',
+        low=0,
+        high=1000,
+    )
+    home_share: float = param(
+        0.25,
+        'Share of near_miss.agreement_translation and near_miss.agreement_rotation '
+        'within which a start after near_miss.home_iterations is back home.',
+        low=0.0,
+        high=1.0,
+    )
     agreement_translation: float = param(
         0.4,
         'A perturbed start that converges within this translation (and '

@@ -283,6 +283,8 @@ def bev_local_peaks(
             for v in range(width):
                 b = to_grid_order[v]
                 value = correlation[y, u, v]
+                if kept == k and not value > top_value[k - 1]:
+                    continue  # not among the best k: whether it is a peak cannot matter
                 peak = True
                 for da in range(-1, 2):
                     na = a + da
@@ -299,8 +301,6 @@ def bev_local_peaks(
                     if not peak:
                         break
                 if not peak:
-                    continue
-                if kept == k and not value > top_value[k - 1]:
                     continue
                 at = min(kept, k - 1)  # the slot after every kept value >= this one
                 while at > 0 and top_value[at - 1] < value:

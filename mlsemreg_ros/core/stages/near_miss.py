@@ -25,10 +25,11 @@ from __future__ import annotations
 
 import dataclasses
 
-from mlsemreg_ros.core.alignment.alignment import align_pair
+from mlsemreg_ros.core.alignment.alignment import align_pair, Alignment
 from mlsemreg_ros.core.alignment.fine_alignment import alignment_cloud
 from mlsemreg_ros.core.alignment.near_miss import (
     disputed_hessian,
+    home_first,
     judge_basins,
     PointToDistribution,
 )
@@ -61,9 +62,14 @@ class NearMissStage:
         target = alignment_cloud(context.target, cfg.fine, pair=True)
         # the perturbed starts may run on the downsampled source; the fit is the full scan's
         starts = alignment_cloud(context.source, cfg.fine, pair=not cfg.near_miss.pair_downsampled)
+
+        def align(start: np.ndarray, iterations: int) -> Alignment:
+            fine = dataclasses.replace(cfg.fine, max_iterations=iterations)
+            return align_pair(starts, target, start, fine, cfg.fine.pair_method)
+
         verdict = judge_basins(
             context.alignment,
-            lambda start: align_pair(starts, target, start, cfg.fine, cfg.fine.pair_method),
+            home_first(align, context.alignment, cfg.near_miss, cfg.fine.max_iterations),
             PointToDistribution(source, target, cfg.fine.max_correspondence_distance),
             cfg.near_miss,
         )
