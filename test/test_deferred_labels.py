@@ -80,6 +80,22 @@ def test_threads_reading_at_once_compute_once() -> None:
     assert results == [7] * 4 and len(calls) == 1
 
 
+def test_a_failed_computation_raises_again_on_the_next_read() -> None:
+    attempts = []
+
+    def compute() -> int:
+        attempts.append(1)
+        if len(attempts) == 1:
+            raise ValueError('first read fails')
+        return 3
+
+    value = Deferred(compute)
+    with pytest.raises(ValueError, match='first read fails'):
+        value.get()
+    assert not value.ready
+    assert value.get() == 3 and value.get() == 3 and len(attempts) == 2
+
+
 def test_a_pickled_holder_carries_the_value() -> None:
     holder = _Holder('a', Deferred(lambda: np.ones(2)))
     again = pickle.loads(pickle.dumps(holder))

@@ -49,13 +49,14 @@ class Deferred(Generic[Value]):
         return self._value is not _MISSING
 
     def get(self) -> Value:
-        """Return the value, computing it on the first call (an exception is raised again)."""
+        """Return the value, computing it on the first call (a failed one is tried again)."""
         if self._value is _MISSING:
             with self._lock:
                 if self._value is _MISSING:
-                    compute, self._compute = self._compute, None
+                    compute = self._compute
                     assert compute is not None
-                    self._value = compute()
+                    self._value = compute()  # raises without a value: the next read retries
+                    self._compute = None  # what it held (the scan) is freed
         return self._value
 
     def then(self, function: Callable[[Value], Any]) -> Deferred[Any]:
