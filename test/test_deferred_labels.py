@@ -147,6 +147,12 @@ def test_only_a_global_registration_reads_the_geometric_labels(tmp_path: Path) -
         global_path = sum('global' in s.source for s in steps)
         if timing == 'read':
             assert made[timing] <= 2 * global_path + 1, (made, global_path)
+            made_ms = [s.timings_ms.get('prepare.labeling_ms', 0.0) for s in steps]
+            tracked = [m for m, s in zip(made_ms, steps, strict=True) if s.source == 'prediction']
+            assert tracked and not any(tracked)  # nothing read them: not made, no time
+            if global_path:  # made inside the global registration: its time is reported
+                found = [m for m, s in zip(made_ms, steps, strict=True) if 'global' in s.source]
+                assert any(m > 0 for m in found), found
             step = steps[-1]
             labels = step.labels  # read now: the same labels as made at once
             assert labels is not None and labels.shape[0] == step.points.shape[0]
@@ -167,7 +173,7 @@ class _Counting:
     def when_read(self, points, labels, config, intensity=None):
         made = self.source.when_read(points, labels, config, intensity)
         if isinstance(made.labels, Deferred):
-            return type(made)(made.labels.then(self._count), made.source, made.labeling_ms)
+            return type(made)(made.labels.then(self._count), made.source, 0.0, made.made)
         self.calls.append(1)
         return made
 

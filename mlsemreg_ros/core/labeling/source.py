@@ -29,7 +29,7 @@ either scheme. docs/labels.md.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 import time
 from typing import Any
 
@@ -56,16 +56,22 @@ class LabeledScan:
     labels: np.ndarray | Deferred[np.ndarray]
     source: str  # 'field', 'geometric', 'onnx' or 'none'
     labeling_ms: float  # time spent making them (0 for the field and until made)
+    #: deferred labels: ``labeling_ms`` once made, and ``noted``, the timings of the scans
+    #: noted before, which are given that time then (:meth:`LabelSource.when_read`)
+    made: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
 
     def note(self, scan: Any) -> None:
         """Record the source in ``scan.input_stats`` and the time in its ``timings_ms``."""
         stats, timings = getattr(scan, 'input_stats', None), getattr(scan, 'timings_ms', None)
+        pending = isinstance(self.labels, Deferred) and not self.labels.ready
         if isinstance(stats, dict):
             stats['label_source'] = self.source
             if isinstance(self.labels, Deferred):
                 stats['labels_made'] = 'when read'
         if isinstance(timings, dict):
-            timings['labeling_ms'] = self.labeling_ms
+            timings['labeling_ms'] = self.made.get('labeling_ms', self.labeling_ms)
+            if pending:  # made later: its time is written here then (LabelSource.when_read)
+                self.made.setdefault('noted', []).append(timings)
 
 
 def resolve(requested: str, has_field: bool) -> str:
@@ -142,8 +148,16 @@ class LabelSource:
         ):
             return self(points, labels, config, intensity)
         points = np.asarray(points)
-        deferred = Deferred(lambda: self(points, None, config).labels)
-        return LabeledScan(deferred, source, 0.0)
+        state: dict[str, Any] = {}
+
+        def make() -> np.ndarray:
+            made = self(points, None, config)
+            state['labeling_ms'] = made.labeling_ms
+            for timings in state.pop('noted', []):
+                timings['labeling_ms'] = made.labeling_ms
+            return made.labels
+
+        return LabeledScan(Deferred(make), source, 0.0, state)
 
     # ------------------------------------------------------------------------------
     def _to_scheme(self, raw: np.ndarray, config: Any) -> np.ndarray:
