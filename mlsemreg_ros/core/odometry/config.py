@@ -154,8 +154,8 @@ class OdometryConfig:
     )
     turn_rate: float = param(
         45.0,
-        'A narrow view (a solid-state pattern, under 0.9 of the azimuth circle) whose '
-        'decision was refused is also aligned from its prediction turned about the vertical '
+        'A scan (a full ring or a narrow view) whose decision was refused is also aligned '
+        'from its prediction turned about the vertical '
         'by +-10 and +-20 deg, those within this turn rate times the time since the last '
         'accepted scan (or 1.5 times the predicted turn), and accepted on its own evidence '
         '(no rival basin, perturbed starts come back): the onset of a turn is no motion '

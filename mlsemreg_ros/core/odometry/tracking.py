@@ -214,8 +214,7 @@ class Tracker:
         chosen = second_look(self, chosen, estimate, current, cfg)  # near misses, rescue
         tic = time.perf_counter()
         chosen = turn_starts(self, chosen, prediction, current, cfg, redeskew)  # turn_starts.py
-        if self.trust.view.partial:
-            timings['turn_starts_ms'] = 1e3 * (time.perf_counter() - tic)
+        timings['turn_starts_ms'] = 1e3 * (time.perf_counter() - tic)
         chosen.reason = '; '.join(
             r for r in (f'registered globally: {why_global}', chosen.reason) if r
         )

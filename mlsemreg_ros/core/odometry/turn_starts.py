@@ -13,14 +13,21 @@
 # limitations under the License.
 
 """
-Starts turned with the car, for a narrow view refused in a turn (issue 35).
+Starts turned with the car, for a scan refused in a turn (issue 35).
 
-The rule and why: ``core/odometry/narrow_view.py``.
+The rule and why: ``core/odometry/narrow_view.py``. First built for a narrow view, it also
+serves a full ring: a car at 2 Hz (stride 5) entering a 90 deg turn is 11.8 deg off its
+constant-velocity guess, outside the map alignment's basin. From the guess turned by 20 deg
+the alignment lands 6 deg further, in the right basin (0.55 of the scan kept), and the
+correction bound measured from that start refused it. A start is a guess a
+:data:`START_SPACING` step away from the next one, so its own correction may reach that step;
+the turn bound and the basin rules judge the move from the prediction.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+import dataclasses
 from typing import TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.near_miss import alignment_fit
@@ -37,6 +44,10 @@ if TYPE_CHECKING:
     from mlsemreg_ros.core.odometry.tracking import Tracker
     from mlsemreg_ros.core.odometry.trust import Candidate
     from mlsemreg_ros.core.results import PreparedScan
+
+#: The step (deg) between two neighbouring starts (``rotated_starts.YAW_OFFSETS``): how far a
+#: start's own refinement may turn it.
+START_SPACING = 10.0
 
 
 def turn_starts(
@@ -62,7 +73,6 @@ def turn_starts(
         chosen.accepted
         or prediction is None
         or prediction.still
-        or not view.partial
         or not cfg.near_miss.enabled
         or cfg.odometry.turn_rate <= 0.0
     ):
@@ -70,12 +80,15 @@ def turn_starts(
     T_predicted = prediction.T_odom_current
     odometry = cfg.odometry
     bound = turn_bound(view, T_predicted, odometry.max_correction_rotation, odometry.turn_rate)
+    from_start = dataclasses.replace(
+        odometry, max_correction_rotation=max(odometry.max_correction_rotation, START_SPACING)
+    )
 
     def judged(name: str, T_start: np.ndarray, on: PreparedScan) -> Candidate:
         """``on`` refined from ``T_start``, judged with the overlap its turn leaves in view."""
         alignment = tracker.map.align_scan(on, T_start)
         overlap = view.overlap(alignment.T_target_source)
-        return tracker.trust.judge(name, T_start, alignment, odometry, overlap)
+        return tracker.trust.judge(name, T_start, alignment, from_start, overlap)
 
     refined = [c for c in chosen.candidates if c.name == 'prediction' and not c.still]
     passing: list[Candidate] = []
