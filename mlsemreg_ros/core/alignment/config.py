@@ -189,15 +189,6 @@ class SweepAlignmentConfig:
         low=0.0,
         high=180.0,
     )
-    screen_points: int = param(
-        500,
-        'On a partial view (a solid-state pattern), a scan tracked by its prediction alone '
-        'is first aligned with this many points; the full sweep alignment runs only when '
-        'that bends the scan by more than sweep_alignment.min_change (0: on every tracked '
-        'scan; docs/sensors.md, session 19).',
-        low=0,
-        high=1000000,
-    )
     min_change: float = param(
         0.5,
         'The scan is deskewed with the estimated twist and aligned again only when that '

@@ -37,7 +37,7 @@ import dataclasses
 import time
 from typing import Any, TYPE_CHECKING
 
-from mlsemreg_ros.core.alignment.sweep_alignment import MapGaussians
+from mlsemreg_ros.core.alignment.sweep_alignment import MapGaussians, sweep_subset
 from mlsemreg_ros.core.deferred import stored
 from mlsemreg_ros.core.features.deskew import sweep_motion, SweepMotion
 from mlsemreg_ros.core.odometry.decision import chain, decide
@@ -58,7 +58,6 @@ from mlsemreg_ros.core.odometry.start_twist import (
     start_twist_verdict,
 )
 from mlsemreg_ros.core.odometry.steps import Decision
-from mlsemreg_ros.core.odometry.sweep_screen import screened, sweep_points
 from mlsemreg_ros.core.odometry.sweep_starts import align_from_starts, implied_twist
 from mlsemreg_ros.core.odometry.trust import Candidate, InlierHistory, Trust
 from mlsemreg_ros.core.odometry.turn_starts import turn_starts
@@ -339,21 +338,17 @@ class Tracker:
         note, sweep_twist = '', None
         if not steady(chosen, cfg):
             implied = implied_twist(motion_model, pose, stamp_ns)  # sweep_starts.py
-            looked = screened(self, chosen.held, raw, pose, preprocessor, cfg, implied)
-            if looked is not None:  # sweep_screen.py: a partial view's quick look, no bend
-                chosen.sweep_change_m = looked
-            else:
-                redone, moved, note, sweep_twist, chosen.sweep_change_m = self.align_sweep(
-                    raw, pose, preprocessor, cfg, implied
-                )
-                if redone is not raw:  # deskewed again: aligned once more from there
-                    chosen.sweep_bend_m = chosen.sweep_change_m
-                    again = self.align_sweep(redone, moved, preprocessor, cfg)
-                    if again[0] is not redone:
-                        redone, moved, sweep_twist = again[0], again[1], again[3]
-                        note = f'{note}; again: {again[2]}'
-                        chosen.sweep_bend_m += again[4]
-                raw, pose = redone, moved
+            redone, moved, note, sweep_twist, chosen.sweep_change_m = self.align_sweep(
+                raw, pose, preprocessor, cfg, implied
+            )
+            if redone is not raw:  # deskewed again: aligned once more from there
+                chosen.sweep_bend_m = chosen.sweep_change_m
+                again = self.align_sweep(redone, moved, preprocessor, cfg)
+                if again[0] is not redone:
+                    redone, moved, sweep_twist = again[0], again[1], again[3]
+                    note = f'{note}; again: {again[2]}'
+                    chosen.sweep_bend_m += again[4]
+            raw, pose = redone, moved
         chosen.timings_ms['sweep_alignment_ms'] = 1e3 * (time.perf_counter() - tic)
         if note:
             chosen.reason = '; '.join(r for r in (chosen.reason, note) if r)
@@ -495,7 +490,12 @@ class Tracker:
         gaussians = self.map_gaussians()
         if gaussians is None or len(gaussians) < MIN_SWEEP_MAP_VOXELS:
             return raw, pose, '', None, 0.0
-        points, times = sweep_points(raw, preprocessor, cfg, cfg.sweep_alignment.points)
+        points, times = raw.input_points, np.asarray(raw.point_times, dtype=np.float64)
+        if cfg.moving_objects.matching != 'drop':  # 'drop' took them out before the deskew
+            moving = preprocessor.moving_mask(points, stored(raw, 'labels'))
+            if moving is not None and len(moving) == len(points):
+                points, times = points[~moving], times[~moving]
+        points, times = sweep_subset(points, times, cfg.sweep_alignment.points)
         result = align_from_starts(
             points, times, gaussians, pose, motion, implied, cfg.sweep_alignment
         )
