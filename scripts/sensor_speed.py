@@ -49,7 +49,6 @@ STEPS = (
     ('mlsemreg_ros.core.alignment.alignment', 'AlignmentCloud', 'build', '  alignment cloud'),
     ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'align', '  map alignment (vgicp)'),
     ('mlsemreg_ros.core.odometry.tracking', 'Tracker', 'align_accepted', 'accept: sweep'),
-    ('mlsemreg_ros.core.odometry.tracking', None, 'screened', '  quick look (partial view)'),
     ('mlsemreg_ros.core.odometry.tracking', 'Tracker', 'align_sweep', '  sweep alignment'),
     ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'gaussians', "    map's Gaussians"),
     ('mlsemreg_ros.core.alignment.sweep_alignment', 'MapGaussians', 'cells', '    cells'),
