@@ -19,7 +19,9 @@ Both run in this process, scan by scan (ours, then KISS-ICP on the same scan), w
 threads the command line gives both (``--threads 1``: our ``threads=1`` and KISS-ICP's
 ``max_num_threads=1``; set ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1`` too). For each scan
 it takes the CPU time (``time.process_time``) and the wall time of each; the step times of
-ours come from wrapping the odometry's steps (CPU time, nested steps indented). A loaded
+ours come from wrapping the odometry's steps (nested steps indented): the CPU mean over all
+scans, and the CPU and wall medians over the scans tracked by their prediction (the
+process's CPU: with threads, another thread's work lands in the step it overlaps). A loaded
 machine inflates both sides; the ratio of the medians is the figure (docs/sensors.md). Usage::
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 PYTHONPATH=$PWD nice -n 5 \\
