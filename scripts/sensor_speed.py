@@ -19,7 +19,9 @@ Both run in this process, scan by scan (ours, then KISS-ICP on the same scan), w
 threads the command line gives both (``--threads 1``: our ``threads=1`` and KISS-ICP's
 ``max_num_threads=1``; set ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1`` too). For each scan
 it takes the CPU time (``time.process_time``) and the wall time of each; the step times of
-ours come from wrapping the odometry's steps (CPU time, nested steps indented). A loaded
+ours come from wrapping the odometry's steps (nested steps indented): the CPU mean over all
+scans, and the CPU and wall medians over the scans tracked by their prediction (the
+process's CPU: with threads, another thread's work lands in the step it overlaps). A loaded
 machine inflates both sides; the ratio of the medians is the figure (docs/sensors.md). Usage::
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 PYTHONPATH=$PWD nice -n 5 \\
@@ -48,34 +50,88 @@ STEPS = (
     ('mlsemreg_ros.core.odometry.tracking', 'Tracker', 'estimate', 'track or register'),
     ('mlsemreg_ros.core.alignment.alignment', 'AlignmentCloud', 'build', '  alignment cloud'),
     ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'align', '  map alignment (vgicp)'),
-    ('mlsemreg_ros.core.odometry.tracking', 'Tracker', 'align_sweep', 'sweep alignment'),
-    ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'gaussians', "  map's Gaussians"),
-    ('mlsemreg_ros.core.alignment.sweep_alignment', None, 'linearization', '  Gauss-Newton'),
-    ('mlsemreg_ros.core.alignment.sweep_kernels', None, 'align_sweep', '  Gauss-Newton, compiled'),
-    ('mlsemreg_ros.core.odometry.sweep_starts', None, 'bend_m', '  second start: bend'),
+    ('mlsemreg_ros.core.odometry.tracking', 'Tracker', 'align_accepted', 'accept: sweep'),
+    ('mlsemreg_ros.core.odometry.tracking', 'Tracker', 'align_sweep', '  sweep alignment'),
+    ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'gaussians', "    map's Gaussians"),
+    ('mlsemreg_ros.core.alignment.sweep_alignment', 'MapGaussians', 'cells', '    cells'),
+    ('mlsemreg_ros.core.alignment.sweep_alignment', None, 'linearization', '    Gauss-Newton'),
+    (
+        'mlsemreg_ros.core.alignment.sweep_kernels',
+        None,
+        'align_sweep',
+        '    Gauss-Newton, compiled',
+    ),
+    ('mlsemreg_ros.core.odometry.sweep_starts', None, 'bend_m', '    second start: bend'),
     ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'insert', 'map insertion'),
     ('mlsemreg_ros.core.odometry.local_map', None, 'keyframe_refusal', 'keyframe policy'),
 )
 
 
-def wrap_steps(totals: dict[str, float], calls: dict[str, int]) -> None:
-    """Wrap each step of :data:`STEPS` to add its CPU time to ``totals``."""
+def wrap_steps(totals: dict[str, list[float]], calls: dict[str, int]) -> None:
+    """Wrap each step of :data:`STEPS` to add its [CPU, wall] time (s) to ``totals``."""
     import importlib
 
     for module_name, owner_name, attribute, label in STEPS:
         module = importlib.import_module(module_name)
         owner = getattr(module, owner_name) if owner_name else module
-        original = getattr(owner, attribute)
+        original = getattr(owner, attribute, None)
+        if original is None:  # a step this version of the code does not have
+            continue
 
         def timed(*args: Any, _f: Callable = original, _label: str = label, **kwargs: Any) -> Any:
-            tic = time.process_time()
+            cpu, wall = time.process_time(), time.perf_counter()
             try:
                 return _f(*args, **kwargs)
             finally:
-                totals[_label] += time.process_time() - tic
+                spent = totals[_label]
+                spent[0] += time.process_time() - cpu
+                spent[1] += time.perf_counter() - wall
                 calls[_label] += 1
 
         setattr(owner, attribute, functools.wraps(original)(timed))
+
+
+def print_steps(per_scan: list[dict[str, list[float]]], sources: list[str], total: list) -> None:
+    """
+    Print each step's mean CPU time over the scans, and its medians over the tracked scans.
+
+    ``per_scan``: each timed scan's steps (label: [CPU, wall] s); ``sources``: each scan's
+    estimate source ('prediction': tracked by its prediction); ``total``: each scan's
+    [CPU, wall] (s). ``other``: a scan's time outside the top-level steps.
+    """
+    tracked = [k for k, source in enumerate(sources) if source == 'prediction']
+    top = [label for _, _, _, label in STEPS if not label.startswith(' ')]
+
+    def median(values: list[float]) -> float:
+        return 1e3 * float(np.median(values)) if values else 0.0
+
+    print(
+        f'our steps, ms per scan: CPU mean over {len(per_scan)} scans, calls per scan; '
+        f'CPU / wall median over the {len(tracked)} tracked scans:'
+    )
+    rows = [label for _, _, _, label in STEPS] + ['other']
+    for label in rows:
+        if label == 'other':
+            values = [
+                [total[k][i] - sum(per_scan[k].get(t, [0.0, 0.0])[i] for t in top) for i in (0, 1)]
+                for k in range(len(per_scan))
+            ]
+            count = len(per_scan)
+        else:
+            values = [per_scan[k].get(label, [0.0, 0.0]) for k in range(len(per_scan))]
+            count = sum(1 for scan in per_scan if label in scan)
+        if not count:
+            continue
+        mean = 1e3 * float(np.mean([v[0] for v in values]))
+        cpu = median([values[k][0] for k in tracked])
+        wall = median([values[k][1] for k in tracked])
+        calls = (
+            sum(scan[label][2] if label in scan else 0 for scan in per_scan)
+            if label != 'other'
+            else 0
+        )
+        per = calls / max(len(per_scan), 1)
+        print(f'  {label:30s} {mean:7.2f}  {per:4.2f}   {cpu:6.2f} / {wall:6.2f}')
 
 
 def main() -> int:
@@ -88,7 +144,7 @@ def main() -> int:
     parser.add_argument('--no-kiss', action='store_true', help='ours alone')
     parser.add_argument('--set', nargs='*', default=[], metavar='KEY=VALUE')
     args = parser.parse_args()
-    totals: dict[str, float] = defaultdict(float)
+    totals: dict[str, list[float]] = defaultdict(lambda: [0.0, 0.0])
     calls: dict[str, int] = defaultdict(int)
     wrap_steps(totals, calls)
 
@@ -113,14 +169,18 @@ def main() -> int:
         config.registration.max_num_threads = args.threads
         kiss.odometry = KissICP(config)
     rows, modes = [], defaultdict(int)
+    per_scan: list[dict[str, list[float]]] = []
+    sources: list[str] = []
     for k, scan in enumerate(scans):
-        if k == 1:  # the first scan starts the odometry (and loads the kernels)
-            totals.clear()
-            calls.clear()
+        totals.clear()
+        calls.clear()
         cpu, wall = time.process_time(), time.perf_counter()
         estimate = ours.step(scan)
         row = [time.process_time() - cpu, time.perf_counter() - wall]
         modes[estimate.source or estimate.mode] += 1
+        if k >= 1:  # the first scan starts the odometry (and loads the kernels)
+            per_scan.append({label: [*v, calls[label]] for label, v in totals.items()})
+            sources.append(estimate.source or estimate.mode)
         if kiss is not None:
             cpu, wall = time.process_time(), time.perf_counter()
             kiss.step(scan)
@@ -135,12 +195,7 @@ def main() -> int:
         print(f'KISS-ICP: CPU {times[2]:.1f} ms, wall {times[3]:.1f} ms')
         cpu_ratio, wall_ratio = times[0] / times[2], times[1] / times[3]
         print(f'ratio of the medians: CPU {cpu_ratio:.2f}x, wall {wall_ratio:.2f}x')
-    scans_timed = max(len(scans) - 1, 1)
-    print('our steps, CPU ms per scan (mean) and calls per scan:')
-    for _, _, _, label in STEPS:
-        if calls[label]:
-            mean = 1e3 * totals[label] / scans_timed
-            print(f'  {label:28s} {mean:7.2f}  {calls[label] / scans_timed:.2f}')
+    print_steps(per_scan, sources, [row[:2] for row in rows[1:]])
     return 0
 
 
