@@ -121,7 +121,7 @@ def search_along_view(
         or chosen.accepted
         or prediction is not None
         or not view.partial
-        or view.gap_s <= max(cfg.odometry.still_start, 0.0)
+        or min(view.gap_s, view.scan_gap_s) <= max(cfg.odometry.still_start, 0.0)
         or cfg.fine.method == 'off'
         or odometry.keyframe is None
         or not no_motion_known(odometry)
