@@ -269,6 +269,28 @@ class OdometryConfig:
         'distinct place and slide by covisibility.accept_gap, the best dense score, and no '
         'second basin (core/odometry/seeded_search.py).',
     )
+    view_search_overlap: float = param(
+        0.85,
+        'A narrow view (under 0.9 of the azimuth circle) refused before any pair was '
+        'accepted, further in time than odometry.still_start from the keyframe and from the '
+        'scan before it (strides 2 and up at 10 Hz), is matched onto the keyframe '
+        'again from seeds along its view axis (every 4 m up to 15 m/s times the time since '
+        'the keyframe, turned by up to 16 deg), judged as odometry.seeded_search judges a '
+        'place, on the two scans deskewed by the motion the best place implies; that place '
+        'is accepted with this covisible overlap (covisibility.accept_overlap on a far pair: '
+        'the right first pairs of the simulated solid state at 5-20 m kept 0.85-0.95; '
+        'core/odometry/start_search.py; 0: off).',
+        low=0.0,
+        high=1.0,
+    )
+    view_search_checked: float = param(
+        0.2,
+        'The share of its surface the two scans must check for odometry.view_search_overlap '
+        '(covisibility.accept_checked on a far pair): a first pair in a turn checks 0.03-0.19 '
+        'and its best places were up to 0.9 m off.',
+        low=0.0,
+        high=1.0,
+    )
     refine_first_keyframe: bool = param(
         True,
         'The global registration onto the first keyframe after a start or reset refines the '

@@ -24,6 +24,8 @@ In order, each reading the decision before it (``Odometry.process``'s decide ste
 - sweep_starts.py: a refused scan aligned again from other starts of its sweep;
 - seeded_search.py: a scan refused after a gap matched onto the keyframe around its
   prediction, accepted on its overlap where both scans see;
+- start_search.py: a narrow view's refused scan with no motion known, matched onto the
+  keyframe from seeds along its view axis, judged as the seeded search;
 - failures.py: at the ``keyframe.max_failures``-th rejection in a row, relocalization
   onto the past keyframes (recovery.py).
 """
@@ -39,6 +41,7 @@ from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
 from mlsemreg_ros.core.odometry.prior_guard import guard_prior
 from mlsemreg_ros.core.odometry.seeded_search import search_around_prediction
+from mlsemreg_ros.core.odometry.start_search import search_along_view
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.sweep_starts import retry_refused
 
@@ -68,5 +71,8 @@ def review(
     chosen = rescue_by_gyro(odometry, given[3], prediction, raw, chosen, timings)  # gyro_rescue
     raw, chosen = retry_refused(odometry, given, prediction, raw, chosen, timings)  # sweep_starts
     chosen = search_around_prediction(odometry, prediction, raw, chosen, timings)  # after a gap
+    chosen = search_along_view(
+        odometry, given[3], prediction, raw, chosen, timings
+    )  # start_search
     chosen = relocalize(odometry, raw, chosen, timings)  # core/odometry/recovery.py
     return raw, chosen, prior_refusal, deskew_refusal

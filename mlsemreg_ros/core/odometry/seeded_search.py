@@ -48,6 +48,7 @@ it off.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 import time
 from typing import Any
@@ -125,7 +126,9 @@ def search_around_prediction(
         return chosen
     tic = time.perf_counter()
     try:
-        place, refusal = _search(odometry, registration, prediction, raw.scan)
+        place, refusal = search_seeds(
+            odometry, registration, seeds(prediction.T_odom_current), raw.scan
+        )
     finally:
         timings['seeded_search_ms'] = 1e3 * (time.perf_counter() - tic)
     if place is None:
@@ -138,16 +141,30 @@ def search_around_prediction(
     return chosen.rescued(place.candidate, note, cfg.odometry.covariance_scale)
 
 
-def _search(
-    odometry: Any, registration: Any, prediction: Any, scan: Any
+def search_seeds(
+    odometry: Any,
+    registration: Any,
+    T_seeds: list[np.ndarray],
+    scan: Any,
+    rejudge: Callable[[Place], tuple[Any, Any] | None] | None = None,
+    config: Any = None,
+    best_only: bool = False,
 ) -> tuple[Place | None, str]:
-    """Return the accepted place (None: none) and what decided."""
-    cfg, keyframe, tracker = odometry.config, odometry.keyframe, odometry.tracker
+    """
+    Return the place the seeds ``T_odom`` lead to and the evidence accepts (None: none).
+
+    ``rejudge(place)``: the scan and the keyframe's scan to measure the places' evidence on
+    when the best place implies them (deskewed by its motion, core/odometry/start_search.py;
+    None: the scans as they are). ``config``: the configuration the places are judged by
+    (None: the odometry's). ``best_only``: only the best place itself may be accepted, not
+    another seed's refinement near it.
+    """
+    cfg, keyframe, tracker = config or odometry.config, odometry.keyframe, odometry.tracker
     target = registration.complete(keyframe.prepared)
     scan = registration.complete(scan)
     scoring = registration.scoring()
     places = []
-    for seed in seeds(prediction.T_odom_current):
+    for seed in T_seeds:
         T_seed = np.linalg.solve(keyframe.pose, seed)
         corr = guided_correspondences(
             scan, target, T_seed, cfg.bev_search.guided_radius, scoring.compatibility
@@ -170,11 +187,22 @@ def _search(
         return None, 'no seed gave a place'
     places = _measured(places, scan, target, scoring, cfg)
     cluster, rivals = _cluster(places, cfg)
-    refusal = _place_refusal(cluster[0], rivals, scan, target, cfg)
+    best = cluster[0]
+    judged = (scan, target) if rejudge is None else rejudge(best) or (scan, target)
+    if judged[0] is not scan:  # measured again on the scans the best place implies
+        places = _measured(places, *judged, scoring, cfg)
+        cluster, rivals = _cluster(places, cfg)
+        distinct = cfg.verification.distinct_rotation, cfg.verification.distinct_translation
+        if not same_pose(best.T_keyframe_current, cluster[0].T_keyframe_current[None], *distinct)[
+            0
+        ]:
+            return None, 'on the scans the best place implies, another place is best'
+    refusal = _place_refusal(cluster[0], rivals, *judged, cfg)
     if refusal:
         return None, refusal
     said = []
-    for place in sorted(cluster, key=lambda p: -p.dense):  # the finer fit first
+    tried = cluster[:1] if best_only else sorted(cluster, key=lambda p: -p.dense)
+    for place in tried:  # the finer fit first
         refusal = _own_refusal(place, tracker, scan, cfg)
         if not refusal:
             return place, f'{len(places)} places, {len(cluster)} at this one'
