@@ -26,6 +26,7 @@ from mlsemreg_ros.core.rigid import apply_transform, invert_transform
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 BUILDING, VEGETATION, POLE = 13, 15, 18
 SEARCH = replace(RegistrationConfig().bev_search, hypotheses=16)  # 1 m cells, 6 -> 2 deg
@@ -233,6 +234,36 @@ def test_coarse_to_fine_finds_what_the_full_search_finds(lookup, yaw):
     )
     np.testing.assert_allclose(fast[0], full[0])
     assert fast_scores[0] == pytest.approx(full_scores[0])
+
+
+@pytest.mark.parametrize('yaw', [0.0, 37.0, 143.0])
+def test_a_half_turn_is_read_from_its_yaws_transform(lookup, yaw):
+    # the grid of the yaw 180 deg on is the yaw's grid flipped (but for points on a cell
+    # border: here none), so its correlation is a convolution of the same transform
+    points, labels = _l_shaped_yard()
+    points[:, :2] += 0.25  # off the cell borders
+    truth = motion(yaw + 180.0, (4.0, -6.0, 0.0))
+    source = apply_transform(invert_transform(truth), points)
+    grid = bev_search.BevGrid.make(SEARCH.cell_size, SEARCH.radius, SEARCH.max_translation)
+    channel = bev_search._channels(labels, lookup)
+    correlator = bev_search.Correlator(source[:, :2], channel, points[:, :2], channel, grid, 3)
+    grids = []
+    for turn in (yaw, yaw + 180.0):
+        rotation = Rotation.from_euler('z', turn, degrees=True).as_matrix()[:2, :2]
+        grids.append(bev_search.occupancy(source[:, :2] @ rotation.T, channel, grid, 3, 50.0))
+    paired = correlator._reachable_correlation(grids[0][None], np.array([True]))
+    alone = correlator._reachable_correlation(np.stack(grids), np.array([False, False]))
+    np.testing.assert_allclose(paired, alone, atol=1e-5)
+    turned = np.mod(yaw + 180.0, 360.0)
+    peaks = correlator.peaks(np.array([yaw, 90.0, turned]), 5)
+    best = peaks[np.argmax(peaks[:, 0])]
+    assert best[1] == turned and abs(best[2] - 4.0) <= 1.0 and abs(best[3] + 6.0) <= 1.0
+
+
+def test_half_turn_partners_pair_each_yaw_once():
+    base, partner = bev_search.half_turn_partners(np.array([0.0, 90.0, 180.0, 270.0, 45.0, 0.0]))
+    np.testing.assert_array_equal(base, [0, 1, 4, 5])
+    np.testing.assert_array_equal(partner, [2, 3, -1, -1])
 
 
 def test_the_fine_yaws_lie_between_the_coarse_ones():

@@ -22,6 +22,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.estimation import bev_search
+from mlsemreg_ros.core.estimation.covisibility import RangeImage
 from mlsemreg_ros.core.estimation.guided import guided_correspondences
 from mlsemreg_ros.core.estimation.verification import LabelCompatibility, refine_starts
 from mlsemreg_ros.core.features import kernels
@@ -206,3 +207,20 @@ def test_the_compiled_compatibility_is_the_exact_length_consistency(seed, extent
     assert np.abs(compiled - exact)[clear].max() < 1e-3  # c_ij to float32 rounding
     assert np.array_equal(compiled, compiled.T)
     assert np.array_equal(compiled[clear] > 0, blocked[clear] > 0)
+
+
+@pytest.mark.parametrize('seed', range(6))
+def test_compiled_free_space_test_is_the_numpy_test(seed, monkeypatch):
+    """The covisible overlap's seen-through points: the same with the kernel as with NumPy."""
+    rng = np.random.default_rng(seed)
+    scan = rng.normal(0.0, 15.0, (3000, 3)) * np.array([1.0, 1.0, 0.1])
+    image = RangeImage.of(scan, 2.0)
+    moved = rng.normal(0.0, 20.0, (5000, 3)) * np.array([1.0, 1.0, 0.15])
+    moved[:10] = 0.0  # at the sensor
+    on = rng.random(5000) < 0.3
+    fast = image.seen_through(moved, on, 1.0)
+    monkeypatch.setenv(kernels.ENV_SWITCH, 'numpy')
+    slow = image.seen_through(moved, on, 1.0)
+    np.testing.assert_array_equal(fast, slow)
+    assert 0 < np.count_nonzero(fast) < np.count_nonzero(~on)  # some seen through, not all
+    assert not fast[on].any()

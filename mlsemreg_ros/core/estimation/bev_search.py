@@ -30,7 +30,9 @@ slide. The scans themselves still hold the answer (dense overlap 0.44 at the tru
    of yaws) and correlated with the target grids over every translation at once by FFT
    (summed over channels in the frequency domain), coarse to fine (:func:`yaw_search`):
    every ``coarse_factor x yaw_step`` first, then ``yaw_step`` around the
-   ``coarse_yaws`` best coarse yaws;
+   ``coarse_yaws`` best coarse yaws; a yaw and the yaw half a turn from it share one
+   rasterisation and forward transform (the turned grid is the grid flipped, its
+   correlation a convolution of the same spectrum: ``Correlator._reachable_correlation``);
 3. every yaw's ``peaks_per_yaw`` best local maxima within ``max_translation`` are pooled,
    suppressed within ``nms_rotation`` / ``nms_translation`` of a better peak, and the best
    ``hypotheses`` become ``z``-up poses ``Rz(yaw), (tx, ty, 0)``.
@@ -39,7 +41,8 @@ It assumes ``z``-up sensor frames and a mostly yaw motion (a ground vehicle); ro
 and height are left to the refinement that follows (core/estimation/verification.py). The cost does
 not depend on the keypoints: about ``(360 / (coarse_factor x yaw_step) + coarse_yaws x
 (coarse_factor - 1)) x channels`` FFTs of ``next_fast_len(2 (radius + max_translation) /
-cell_size)`` squared.
+cell_size)`` squared, forward and back; a half-turn pair needs one forward transform (the
+coarse yaws all pair up).
 """
 
 from __future__ import annotations
@@ -138,9 +141,14 @@ def _thinned(
     xy: np.ndarray, channel: np.ndarray, cell_size: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """One point (the first) per ``cell_size`` cell and channel: rotating fewer points."""
+    if len(xy) == 0:
+        return xy, channel
     cells = np.floor(xy / cell_size).astype(np.int64)
-    key = np.column_stack([channel, cells])
-    _, first = np.unique(key, axis=0, return_index=True)
+    cells -= cells.min(axis=0)
+    extent = cells.max(axis=0) + 1
+    # one integer per (channel, x cell, y cell), ordered as the rows (np.unique(axis=0))
+    key = (channel.astype(np.int64) * extent[0] + cells[:, 0]) * extent[1] + cells[:, 1]
+    _, first = np.unique(key, return_index=True)
     return xy[first], channel[first]
 
 
@@ -191,39 +199,57 @@ class Correlator:
         self.source_rows = (max(half - reach - 2, 0), min(half + reach + 2, grid.size))
 
     def peaks(self, yaws: np.ndarray, peaks_per_yaw: int) -> np.ndarray:
-        """Best ``peaks_per_yaw`` local maxima of the correlation at every yaw (deg)."""
+        """
+        Best ``peaks_per_yaw`` local maxima of the correlation at every yaw (deg).
+
+        Rows yaw by yaw, in the order of ``yaws``. A yaw and the yaw half a turn from it,
+        both asked for, share one rasterisation and one forward transform
+        (:meth:`_reachable_correlation`).
+        """
         grid = self.grid
-        rows = [np.zeros((0, 4))]
-        for first in range(0, yaws.size, _YAW_CHUNK):
-            chunk = yaws[first:][:_YAW_CHUNK]
-            rotation = Rotation.from_euler('z', chunk[:, None], degrees=True).as_matrix()[
+        yaws = np.asarray(yaws, dtype=np.float64)
+        base, partner = half_turn_partners(yaws)
+        rows = [np.zeros((0, 4))] * yaws.size
+        for first in range(0, base.size, _YAW_CHUNK):
+            chunk, turned = base[first:][:_YAW_CHUNK], partner[first:][:_YAW_CHUNK]
+            rotation = Rotation.from_euler('z', yaws[chunk, None], degrees=True).as_matrix()[
                 :, :2, :2
             ]
             rotated = self.source_xy[None] @ rotation.transpose(0, 2, 1)  # (Y, n, 2)
             source = _rasterise(rotated, self.source_channel, grid, self.num_channels, grid.radius)
-            correlation = self._reachable_correlation(source)  # (Y, w, w), grid order
-            if compiled.enabled():
-                y, u, v, value = kernels.bev_local_peaks(
-                    correlation, self.to_grid_order, self.to_shift_order, peaks_per_yaw
-                )
-                rows.append(self._rows(value, chunk[y], u, v))
-                continue
-            # local maxima over the reachable block in shift order; -inf beyond it (as the
-            # full grid with the unreachable shifts at -inf: the block does not wrap)
-            in_shift = correlation[:, self.to_shift_order][:, :, self.to_shift_order]
-            local_max = ndimage.maximum_filter(
-                in_shift, size=(1, 3, 3), mode='constant', cval=-np.inf
+            # (Y + T, w, w) in grid order: the chunk's yaws, then the half turns of the paired
+            correlation = self._reachable_correlation(source, turned >= 0)
+            order = np.concatenate([chunk, turned[turned >= 0]])
+            found = self._local_peaks(correlation, yaws[order], peaks_per_yaw)
+            for index, yaw_rows in zip(order, found, strict=True):
+                rows[index] = yaw_rows
+        return np.concatenate([np.zeros((0, 4)), *rows])
+
+    def _local_peaks(
+        self, correlation: np.ndarray, yaw: np.ndarray, peaks_per_yaw: int
+    ) -> list[np.ndarray]:
+        """Return the best local maxima of each ``(w, w)`` correlation: ``(P, 4)`` rows per yaw."""
+        if compiled.enabled():
+            y, u, v, value = kernels.bev_local_peaks(
+                correlation, self.to_grid_order, self.to_shift_order, peaks_per_yaw
             )
-            is_peak = in_shift == local_max
-            is_peak = is_peak[:, self.to_grid_order][:, :, self.to_grid_order]
-            width = self.reachable.size
-            for y in range(chunk.size):  # one small top-k per yaw
-                flat = np.flatnonzero(is_peak[y])
-                values = correlation[y].ravel()[flat]
-                best = flat[np.argsort(-values, kind='stable')[:peaks_per_yaw]]
-                u, v = np.unravel_index(best, (width, width))
-                rows.append(self._rows(correlation[y][u, v], np.full(best.size, chunk[y]), u, v))
-        return np.concatenate(rows)
+            found = self._rows(value, yaw[y], u, v)
+            return np.split(found, np.searchsorted(y, np.arange(1, yaw.size)))
+        # local maxima over the reachable block in shift order; -inf beyond it (as the full
+        # grid with the unreachable shifts at -inf: the block does not wrap)
+        in_shift = correlation[:, self.to_shift_order][:, :, self.to_shift_order]
+        local_max = ndimage.maximum_filter(in_shift, size=(1, 3, 3), mode='constant', cval=-np.inf)
+        is_peak = in_shift == local_max
+        is_peak = is_peak[:, self.to_grid_order][:, :, self.to_grid_order]
+        width = self.reachable.size
+        per_yaw = []
+        for y in range(yaw.size):  # one small top-k per yaw
+            flat = np.flatnonzero(is_peak[y])
+            values = correlation[y].ravel()[flat]
+            best = flat[np.argsort(-values, kind='stable')[:peaks_per_yaw]]
+            u, v = np.unravel_index(best, (width, width))
+            per_yaw.append(self._rows(correlation[y][u, v], np.full(best.size, yaw[y]), u, v))
+        return per_yaw
 
     def _rows(
         self, value: np.ndarray, yaw: np.ndarray, u: np.ndarray, v: np.ndarray
@@ -232,25 +258,70 @@ class Correlator:
         shift = self.shift[self.reachable]
         return np.column_stack([value, yaw, shift[u], shift[v]])
 
-    def _reachable_correlation(self, source: np.ndarray) -> np.ndarray:
+    def _reachable_correlation(self, source: np.ndarray, turned: np.ndarray) -> np.ndarray:
         """
         Correlation of ``(Y, C, s, s)`` source grids with the target at the reachable shifts.
 
-        Summed over channels in the frequency domain; returns ``(Y, w, w)`` float32, the
-        reachable rows and columns in grid order.
+        Summed over channels in the frequency domain; returns ``(Y + T, w, w)`` float32,
+        the reachable rows and columns in grid order: the ``Y`` grids, then the ``T`` grids
+        ``turned`` (``(Y,)`` bool) turned by half a turn about the sensor.
+
+        The half turn moves a point's cell ``k`` (along each axis, ``half = s // 2``) to
+        ``m - k``, ``m = 2 half - 1`` (``floor(-x) = -floor(x) - 1``; the same cell but for
+        a point on a cell border), so its correlation with the target is the convolution
+        of the unturned grid with it, read ``m`` further: one forward transform serves both.
         """
         size, (low, high) = self.grid.size, self.source_rows
         # rows beyond the source radius are empty: transform the occupied rows only, moved
         # to the top (the row shift moves the correlation's rows by ``low``, undone below)
         spectrum = fft.rfft(source[:, :, low:high], axis=-1, workers=-1)
         spectrum = fft.fft(spectrum, n=size, axis=-2, workers=-1, overwrite_x=True)
+        convolution = _channel_sum(spectrum[turned], self.target_spectrum)
         np.conjugate(spectrum, out=spectrum)
-        spectrum *= self.target_spectrum[None]
+        correlation = self._inverse(_channel_sum(spectrum, self.target_spectrum), low, 0)
+        if not turned.any():
+            return correlation
+        turn = 2 * (size // 2) - 1
+        return np.concatenate([correlation, self._inverse(convolution, turn - low, turn)])
+
+    def _inverse(self, spectrum: np.ndarray, row_shift: int, column_shift: int) -> np.ndarray:
+        """``(Y, w, w)``: ``(Y, s, s // 2 + 1)`` back at the reachable shifts, moved."""
+        size = self.grid.size
         # only the reachable rows and columns: the row transform first, then the reachable rows'
-        rows = fft.ifft(spectrum.sum(axis=1), axis=-2, workers=-1, overwrite_x=True)
-        rows = rows[:, (self.reachable + low) % size]
+        rows = fft.ifft(spectrum, axis=-2, workers=-1, overwrite_x=True)
+        rows = rows[:, (self.reachable + row_shift) % size]
         correlation = fft.irfft(rows, n=size, axis=-1, workers=-1, overwrite_x=True)
-        return np.ascontiguousarray(correlation[:, :, self.reachable])
+        return np.ascontiguousarray(correlation[:, :, (self.reachable + column_shift) % size])
+
+
+def _channel_sum(spectrum: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """``(spectrum * target[None]).sum(axis=1)`` of ``(Y, C, ...)`` and ``(C, ...)``, fused."""
+    total = spectrum[:, 0] * target[0]
+    for channel in range(1, target.shape[0]):  # a few channels: not a loop over points
+        total += spectrum[:, channel] * target[channel]
+    return total
+
+
+def half_turn_partners(yaws: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """
+    Pair each yaw (deg) with a later one half a turn from it (within 1e-9 deg), if any.
+
+    Returns ``(base, partner)``: the indices of the yaws that are no earlier yaw's partner,
+    in order, and each one's partner (-1: none). Every index appears once.
+    """
+    taken = np.zeros(yaws.size, dtype=bool)
+    base, partner = [], []
+    for index in range(yaws.size):  # a few hundred yaws at most: not a loop over points
+        if taken[index]:
+            continue
+        taken[index] = True
+        apart = np.abs(np.mod(yaws - yaws[index], 360.0) - 180.0)
+        match = np.flatnonzero(~taken & (apart <= 1e-9))
+        base.append(index)
+        partner.append(int(match[0]) if match.size else -1)
+        if match.size:
+            taken[match[0]] = True
+    return np.asarray(base, dtype=np.int64), np.asarray(partner, dtype=np.int64)
 
 
 def yaw_search(

@@ -42,7 +42,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mlsemreg_ros.core.estimation import kernels
 from mlsemreg_ros.core.estimation.nearest_grid import nearest_within
+from mlsemreg_ros.core.features import kernels as compiled
 from mlsemreg_ros.core.settings import param
 import numpy as np
 from scipy.spatial import cKDTree
@@ -282,6 +284,23 @@ class RangeImage:
         e = np.floor((elevation - low) / bin_rad).astype(np.int64)
         return a, e
 
+    def seen_through(self, points: np.ndarray, on: np.ndarray, margin: float) -> np.ndarray:
+        """
+        ``(N,)`` whether each of ``points`` not ``on`` the scan is seen through (module docstring).
+
+        Nearer than its bin's nearest range by more than ``margin``; compiled when the kernels
+        are (the NumPy arrays of every point's range and bin otherwise).
+        """
+        points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        on = np.asarray(on, dtype=bool)
+        if compiled.enabled():
+            return kernels.seen_through(
+                points, on, self.nearest, self.bin_rad, self.min_elevation, margin
+            )
+        surface = self.surface(points)
+        ranges = np.linalg.norm(points, axis=1)
+        return ~on & np.isfinite(surface) & (ranges < surface - margin)
+
     def surface(self, points: np.ndarray) -> np.ndarray:
         """``(N,)`` the nearest range of the bin of each point (inf: empty or out of view)."""
         rows, cols = self.nearest.shape
@@ -313,10 +332,9 @@ def covisible_overlap(
     moved = source_points @ transforms[:, :3, :3].transpose(0, 2, 1) + transforms[:, None, :3, 3]
     flat = moved.reshape(-1, 3)
     distance, _ = nearest_within(target_tree, flat, overlap_distance, first_only=True)
-    on = np.isfinite(distance).reshape(count, -1)
-    surface = target_image.surface(flat).reshape(count, -1)
-    ranges = np.linalg.norm(moved, axis=2)
-    through = ~on & np.isfinite(surface) & (ranges < surface - margin)
+    on = np.isfinite(distance)
+    through = target_image.seen_through(flat, on, margin).reshape(count, -1)
+    on = on.reshape(count, -1)
     on_weight, through_weight = on @ weight, through @ weight
     checked = on_weight + through_weight
     overlap = np.where(checked > 0, on_weight / np.maximum(checked, 1e-12), 0.0)

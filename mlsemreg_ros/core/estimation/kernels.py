@@ -26,7 +26,10 @@ Compiled kernels of the global path's refused stages (numba, ``core/features/ker
 - :func:`nearest_in_descriptor_space`: the guided re-matching's search
   (``core/estimation/guided.py``): for every moved source keypoint, the target keypoint
   nearest in descriptor space among those within a radius and of a compatible label,
-  through a hash of ``radius``-sized cells instead of a pair list of every close pair.
+  through a hash of ``radius``-sized cells instead of a pair list of every close pair;
+- :func:`seen_through`: the covisible overlap's free-space test
+  (``core/estimation/covisibility.py``) of the moved points not on the target, in one
+  pass (range, bin, the bin's nearest range) instead of arrays of every point's.
 
 Each is the NumPy code's arithmetic in another order: the same poses and matches up to
 rounding (``test/test_estimation_kernels.py`` compares both). Without numba the same
@@ -370,3 +373,38 @@ def compatibility_upper(
                 size += 1
         per_row[i] = found
     return per_row, columns[:size], values[:size]
+
+
+@jit
+def seen_through(
+    points: np.ndarray,
+    on: np.ndarray,
+    nearest: np.ndarray,
+    bin_rad: float,
+    min_elevation: float,
+    margin: float,
+) -> np.ndarray:
+    """
+    ``(M,)`` whether each of ``points`` ``(M, 3)`` not ``on`` lies seen through a range image.
+
+    ``nearest`` ``(A, E)``: the image's nearest range per (azimuth, elevation) bin of
+    ``bin_rad``, elevation bins from ``min_elevation``
+    (``core/estimation/covisibility.py:RangeImage``). Seen through: in a bin inside the
+    image with a finite nearest range, nearer than it by more than ``margin``.
+    """
+    count = points.shape[0]
+    rows, cols = nearest.shape
+    out = np.zeros(count, dtype=np.bool_)
+    for i in range(count):
+        if on[i]:
+            continue
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        distance = np.sqrt(x * x + y * y + z * z)
+        elevation = np.arcsin(min(max(z / max(distance, 1e-9), -1.0), 1.0))
+        e = np.int64(np.floor((elevation - min_elevation) / bin_rad))
+        if e < 0 or e >= cols:
+            continue
+        a = min(np.int64((np.arctan2(y, x) + np.pi) / bin_rad), rows - 1)
+        surface = nearest[a, e]
+        out[i] = np.isfinite(surface) and distance < surface - margin
+    return out

@@ -163,8 +163,11 @@ class RefusedPath:
             # the best few (polished or not) get the pair's fine alignment: a 6-DoF GICP
             # corrects the tilt the polishing leaves (60 m dev pair 000008_000010: 4.0 deg
             # -> 1.7 deg, and it outscores the flip it lost to)
+            # the pool's candidates were scored on these scans already: only the polished
+            # poses are scored here
             every = np.concatenate([transforms, polished])
-            order = np.argsort(-combined_score(*self.dense(every, source, target), check))
+            fresh = combined_score(*self.dense(polished, source, target), check)
+            order = np.argsort(-np.concatenate([scores, fresh]))
             best = order[
                 distinct_hypotheses(
                     every[order],
