@@ -17,9 +17,9 @@ A near-miss dispute judged again once the sweep is deskewed again (core/odometry
 
 The HDL-64 field drive of seed 7 at stride 5 with geometric labels: its first pair (scans 0
 and 5, no motion known, neither deskewed) has two basins 0.62 m apart, both about 0.6 m
-from the truth. Refused at once (the check before session 19), the scan is lost; judged
-again on the scans the start's deskew and the sweep alignment made, the pose is right and
-alone in its basin.
+from the truth. Refused (as before session 19), the scan is lost; judged again on the
+scans the start's deskew and the sweep alignment made, the pose is right and alone in its
+basin. A scan another path accepts is left as it is.
 """
 
 from __future__ import annotations
@@ -29,7 +29,8 @@ from pathlib import Path
 from types import SimpleNamespace
 
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.odometry.swept_dispute import swept_refusal
+from mlsemreg_ros.core.odometry.steps import Decision
+from mlsemreg_ros.core.odometry.swept_dispute import judged_again, swept_refusal
 from mlsemreg_ros.simulation.field import FieldSimulation
 from mlsemreg_ros.tools import cli
 import numpy as np
@@ -41,11 +42,19 @@ def test_a_scan_not_deskewed_again_keeps_its_dispute() -> None:
         raise AssertionError('nothing is aligned again: the scan is the same')
 
     tracker = SimpleNamespace(candidate=never, map=SimpleNamespace(align_scan=never))
-    refusal = swept_refusal(
-        tracker, 'global: near miss: two basins', np.eye(4), None, False, RegistrationConfig()
-    )
-    assert refusal.startswith('global: near miss: two basins')
-    assert 'not deskewed again' in refusal
+    refusal = swept_refusal(tracker, np.eye(4), None, False, RegistrationConfig())
+    assert refusal == 'still refused: the sweep was not deskewed again'
+
+
+def test_the_disputed_pose_is_taken_only_when_nothing_accepted_the_scan() -> None:
+    disputed = Decision('global', '', pose=np.eye(4), swept_dispute='global: two basins')
+    refused = Decision('', 'global: near miss: two basins', timings_ms={'x': 1.0})
+    accepted = Decision('prediction', 'tracked', pose=np.eye(4))
+    assert judged_again(disputed, 'scan', 'raw', accepted) == ('raw', accepted)
+    assert judged_again(None, 'scan', 'raw', refused) == ('raw', refused)
+    scan, chosen = judged_again(disputed, 'scan', 'raw', refused)
+    assert scan == 'scan' and chosen.accepted and chosen.swept_dispute
+    assert chosen.reason == refused.reason and chosen.timings_ms == {'x': 1.0}
 
 
 def _frames(out: Path) -> list[dict[str, str]]:

@@ -132,6 +132,9 @@ class Tracker:
         #: the motion (6,) between the first pair's two twists' poses, in the pose's axes,
         #: when its covariance is to be inflated along it (core/odometry/start_twist.py)
         self.start_dispute: np.ndarray | None = None
+        #: this scan's pose refused by the near-miss check, to judge again once its sweep
+        #: is deskewed again if nothing else accepts the scan (core/odometry/swept_dispute.py)
+        self.disputed: Decision | None = None
 
     def map_gaussians(self) -> MapGaussians | None:
         """
@@ -358,9 +361,7 @@ class Tracker:
             chosen.reason = '; '.join(r for r in (chosen.reason, note) if r)
         if before is not None:
             if chosen.swept_dispute:  # core/odometry/swept_dispute.py
-                refusal = swept_refusal(
-                    self, chosen.swept_dispute, pose, raw.scan, raw is not unaligned, cfg
-                )
+                refusal = swept_refusal(self, pose, raw.scan, raw is not unaligned, cfg)
                 kept = 'one basin after the sweep was deskewed again'
             else:
                 refusal = weak_confirmation_refusal(chosen.pose, pose, raw is not deskewed, cfg)
