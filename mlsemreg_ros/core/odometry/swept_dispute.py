@@ -32,8 +32,8 @@ they give, on the scan deskewed again. It is accepted only when no rival basin d
 there; otherwise it stays refused, and the map, keyframe and history are as they were. A
 scan the sweep alignment did not deskew again stays refused (the same scan, the same
 dispute). A scan a later path accepts is left as it is: on a field drive at stride 30 the
-recheck kept a disputed pose 0.55 m off that the refused scan's other sweep starts placed
-0.21 m off.
+recheck kept a disputed pose 0.55 m off that the refused scan, deskewed again by the refused
+global pose's twist (``sweep_starts.py``), placed 0.21 m off.
 """
 
 from __future__ import annotations
