@@ -225,6 +225,16 @@ class NearMissConfig:
         'direction until its standard deviation there covers the gap between the basins.',
         choices=('refuse', 'inflate'),
     )
+    recheck_swept: bool = param(
+        True,
+        'The odometry, with near_miss.action refuse: a scan refused for a disputed pose '
+        "that no later path accepts goes on with that pose to the start's deskew and the "
+        'sweep alignment, and is accepted if the basins no longer dispute the pose they '
+        'give on the scan deskewed again (core/odometry/swept_dispute.py). A sweep bent by a '
+        'wrong twist shows two basins that are both artefacts: on the HDL-64 and HDL-32 '
+        'field drives (seed 7, stride 5) both lay 0.55-0.65 m off, the swept pose 0.02 and '
+        '0.08 m (docs/confidence.md, session 19).',
+    )
     move_to_better_place: bool = param(
         False,
         'The odometry: a disputed pose whose rival basin fits the map better (more inliers, '

@@ -67,6 +67,7 @@ from mlsemreg_ros.core.odometry.recovery import PastKeyframes
 from mlsemreg_ros.core.odometry.review import review
 from mlsemreg_ros.core.odometry.rotated_starts import Redeskew
 from mlsemreg_ros.core.odometry.steps import Decision, OdometryStep, step_at_pose
+from mlsemreg_ros.core.odometry.swept_dispute import judged_again
 from mlsemreg_ros.core.odometry.tracking import Tracker
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import PreparedScan, RegistrationResult
@@ -219,6 +220,7 @@ class Odometry:
         self.tracker.trust.view.since(self._last_accepted, stamp_ns)  # narrow_view.py
         given = (points, labels, point_times, stamp_ns)
         redeskew = Redeskew(self, given, raw)  # core/odometry/rotated_starts.py
+        self.tracker.disputed = None  # core/odometry/swept_dispute.py
         chosen = self.tracker.estimate(
             raw.scan,
             prediction or self._still_start(stamp_ns),
@@ -228,10 +230,12 @@ class Odometry:
             timings,
             redeskew,
         )
+        disputed = (self.tracker.disputed, raw)  # a pose the near-miss check refused
         raw = redeskew.scan_of(chosen, raw)
         raw, chosen, prior_refusal, deskew_refusal = review(  # prior, deskew, relocalization
             self, given, prediction, raw, chosen, timings
         )
+        raw, chosen = judged_again(*disputed, raw, chosen)  # core/odometry/swept_dispute.py
         step = self._apply(index, stamp_ns, raw, chosen)
         step.prior_refusal = prior_refusal
         step.deskew_refusal = deskew_refusal

@@ -20,7 +20,9 @@ Two cases, both judged by the basins of the map alignment (core/alignment/near_m
 - **A pose from a sparse global registration** (source ``global``): refined on the map, it
   must sit alone in its basin. A start that converges elsewhere about as well disputes
   it: the scan is refused, or (``near_miss.action: inflate``) its covariance grows along
-  the disputed direction until it covers the gap. A rival place with a lower cost is the
+  the disputed direction until it covers the gap. With ``near_miss.recheck_swept`` a
+  refused pose that nothing else rescues is judged again once its sweep is deskewed again
+  (core/odometry/swept_dispute.py). A rival place with a lower cost is the
   same cost's deeper minimum, where the map alignment stopped short: the pose moves there
   if it is trusted and undisputed in turn.
 - **A candidate refused by a rule its own evidence may overrule** (no candidate vetoes
@@ -130,6 +132,9 @@ def _near_miss(
                 inlier_fraction=alignment.inlier_fraction,
                 candidates=[*chosen.candidates, moved],
             )
+    if cfg.near_miss.action == 'refuse' and cfg.near_miss.recheck_swept:  # swept_dispute.py
+        dispute = f'{candidate.name}: {verdict.refusal}'
+        tracker.disputed = dataclasses.replace(chosen, swept_dispute=dispute)
     if cfg.near_miss.action == 'refuse' or verdict.disputed is None:
         return Decision(
             source='',

@@ -104,6 +104,9 @@ class Decision:
     timings_ms: dict[str, float] = field(default_factory=dict)
     #: accepted only if the sweep alignment confirms the pose (near_miss.weak_confirmation)
     confirm_weak: bool = False
+    #: a pose the near-miss check refused, to judge again once its sweep is deskewed again
+    #: (the refusal; '' when none: near_miss.recheck_swept, core/odometry/swept_dispute.py)
+    swept_dispute: str = ''
     #: tracked by the motion model's own prediction (no rotated start, no global estimate)
     held: bool = False
     #: m, how far the sweep alignment's twist moved the scan's points against the deskew's

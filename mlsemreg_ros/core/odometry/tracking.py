@@ -59,6 +59,7 @@ from mlsemreg_ros.core.odometry.start_twist import (
 )
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.sweep_starts import align_from_starts, implied_twist
+from mlsemreg_ros.core.odometry.swept_dispute import swept_refusal
 from mlsemreg_ros.core.odometry.trust import Candidate, InlierHistory, Trust
 from mlsemreg_ros.core.odometry.turn_starts import turn_starts
 from mlsemreg_ros.core.results import PreparedScan
@@ -131,6 +132,9 @@ class Tracker:
         #: the motion (6,) between the first pair's two twists' poses, in the pose's axes,
         #: when its covariance is to be inflated along it (core/odometry/start_twist.py)
         self.start_dispute: np.ndarray | None = None
+        #: this scan's pose refused by the near-miss check, to judge again once its sweep
+        #: is deskewed again if nothing else accepts the scan (core/odometry/swept_dispute.py)
+        self.disputed: Decision | None = None
 
     def map_gaussians(self) -> MapGaussians | None:
         """
@@ -313,11 +317,14 @@ class Tracker:
         Returns the scan and pose to accept, and the sweep twist estimated (or None);
         ``chosen`` gets the sweep alignment's time and note. A decision that awaits the
         sweep alignment's confirmation (``Decision.confirm_weak``, second_look.py) and does
-        not get it (:func:`weak_confirmation_refusal`) returns the pose None: the map, the
-        keyframe and the history are as they were, and ``chosen.reason`` says why.
+        not get it (:func:`weak_confirmation_refusal`), or a disputed one whose basins are
+        still disputed on the scan deskewed again (``Decision.swept_dispute``,
+        core/odometry/swept_dispute.py), returns the pose None: the map, the keyframe and the
+        history are as they were, and ``chosen.reason`` says why.
         """
         history = copy.deepcopy(self.trust.history) if start is not None else None
-        before = (copy.deepcopy(self.trust.history), raw) if chosen.confirm_weak else None
+        judged_again = chosen.confirm_weak or bool(chosen.swept_dispute)
+        before = (copy.deepcopy(self.trust.history), raw) if judged_again else None
         unaligned = raw
         self.trust.accepted(chosen.inlier_fraction)
         self.start_other, self.start_dispute = None, None
@@ -352,10 +359,13 @@ class Tracker:
         if note:
             chosen.reason = '; '.join(r for r in (chosen.reason, note) if r)
         if before is not None:
-            refusal = weak_confirmation_refusal(chosen.pose, pose, raw is not deskewed, cfg)
-            chosen.reason = '; '.join(
-                r for r in (chosen.reason, refusal or 'confirmed by the sweep alignment') if r
-            )
+            if chosen.swept_dispute:  # core/odometry/swept_dispute.py
+                refusal = swept_refusal(self, pose, raw.scan, raw is not unaligned, cfg)
+                kept = 'one basin after the sweep was deskewed again'
+            else:
+                refusal = weak_confirmation_refusal(chosen.pose, pose, raw is not deskewed, cfg)
+                kept = 'confirmed by the sweep alignment'
+            chosen.reason = '; '.join(r for r in (chosen.reason, refusal or kept) if r)
             if refusal:
                 self.trust.history = before[0]
                 self.undo_start(start, keyframe)
