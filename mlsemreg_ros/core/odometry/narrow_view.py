@@ -109,3 +109,16 @@ def turn_bound(view: View, T_predicted: np.ndarray, floor_deg: float, turn_rate:
     turn = rotation_angle_deg(np.linalg.solve(view.last_pose, T_predicted))
     wide = max(GAIN * turn, turn_rate * max(view.gap_s, 0.0))
     return max(floor_deg, min(wide, CAP_ROTATION))
+
+
+def held_bound(view: View, floor_deg: float, turn_rate: float) -> float:
+    """
+    Return how far (deg) a place held as tracked may lie from the prediction in a turn.
+
+    The correction a fine alignment may make (``floor_deg``, the widened
+    ``odometry.max_correction_rotation``) on top of a turn begun since the last accepted
+    scan (``turn_rate`` times the time since it): at stride 1 a turn's onset put the
+    prediction 3.9 deg off and the map's best place 5.2 deg from it (docs/sensors.md,
+    session 19), within ``CAP_ROTATION``.
+    """
+    return max(floor_deg, min(floor_deg + turn_rate * max(view.gap_s, 0.0), CAP_ROTATION))
