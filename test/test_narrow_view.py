@@ -30,6 +30,7 @@ from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.narrow_view import (
     CAP_ROTATION,
+    held_bound,
     MIN_OVERLAP,
     turn_bound,
     View,
@@ -38,7 +39,7 @@ from mlsemreg_ros.core.odometry.narrow_view import (
 from mlsemreg_ros.core.odometry.rotated_starts import yaw_rotated
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.trust import InlierHistory, relative_inlier_refusal
-from mlsemreg_ros.core.odometry.turn_starts import turn_starts
+from mlsemreg_ros.core.odometry.turn_starts import held_basins, turn_starts
 from mlsemreg_ros.tools import eval_bag, simulate
 import numpy as np
 import pytest
@@ -81,6 +82,28 @@ def test_the_turn_bound() -> None:
     assert turn_bound(view, np.eye(4), 5.0, 45.0) == pytest.approx(22.5)
     view.since((np.eye(4), 1_000_000_000), 2_000_000_000)  # 1 s
     assert turn_bound(view, np.eye(4), 5.0, 45.0) == CAP_ROTATION
+
+
+def test_the_held_bound() -> None:
+    """The correction bound plus a turn rate over the gap, within the cap."""
+    view = View(span_deg=70.0)
+    assert held_bound(view, 5.0, 45.0) == 5.0  # no last pose: the floor
+    view.since((np.eye(4), 1_000_000_000), 1_100_000_000)  # 0.1 s: 5 + 4.5 deg
+    assert held_bound(view, 5.0, 45.0) == pytest.approx(9.5)
+    assert held_bound(view, 5.0, 0.0) == pytest.approx(5.0)
+    view.since((np.eye(4), 1_000_000_000), 2_000_000_000)  # 1 s
+    assert held_bound(view, 5.0, 45.0) == CAP_ROTATION
+
+
+def test_no_held_basin_for_a_refused_or_a_well_held_prediction() -> None:
+    """Only an acceptable refined prediction that kept less than tracking asks is looked at."""
+    config = RegistrationConfig()
+    share = config.odometry.tracking_min_inlier_fraction
+    for refusal, fraction in (('refused', 0.5), ('', share), ('', 0.95)):
+        refined = SimpleNamespace(
+            acceptable=not refusal, alignment=SimpleNamespace(inlier_fraction=fraction)
+        )
+        assert held_basins(None, refined, np.eye(4), None, config) == []
 
 
 def test_no_turned_start_on_a_ring_from_a_still_start_or_when_off() -> None:

@@ -173,12 +173,12 @@ def held_basins(
     :func:`turn_starts` then takes it only as it takes a turned start: the best of the
     passing candidates, no rival basin among them, its own perturbed starts coming back.
     """
-    odometry, view = cfg.odometry, tracker.trust.view
+    odometry = cfg.odometry
     if not refined.acceptable or refined.alignment.inlier_fraction >= (
         odometry.tracking_min_inlier_fraction
     ):
         return []  # refused outright, or the prediction's place is held as well as tracked
-    home = refined.alignment.T_target_source
+    home, view = refined.alignment.T_target_source, tracker.trust.view
     bounds = tracker.trust.motion_bound.widen(odometry)
     rotation = held_bound(view, bounds.max_correction_rotation, odometry.turn_rate)
     out = []
