@@ -49,6 +49,7 @@ motion model's prediction (never a still start), and only with ``near_miss.enabl
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from mlsemreg_ros.core.odometry.sensor_scale import FULL_RING_SHARE
 from mlsemreg_ros.core.rigid import rotation_angle_deg
@@ -122,3 +123,30 @@ def held_bound(view: View, floor_deg: float, turn_rate: float) -> float:
     session 19), within ``CAP_ROTATION``.
     """
     return max(floor_deg, min(floor_deg + turn_rate * max(view.gap_s, 0.0), CAP_ROTATION))
+
+
+def unbent_confirmation_refusal(
+    T_candidate: np.ndarray, T_unbent: np.ndarray | None, cfg: Any
+) -> str:
+    """
+    Why a narrow view's unbent sweep alignment does not confirm a pose ('' if it does).
+
+    A candidate whose weakest direction is thinly held awaits the sweep alignment's
+    confirmation (``near_miss.weak_confirmation``, ``tracking.weak_confirmation_refusal``):
+    the scan deskewed by the motion the pose implies, aligned with its sweep twist free, must
+    keep a pose close to it. When that twist needs no change (it bends no point by more than
+    ``sweep_alignment.min_change``), nothing is realigned and the pose was "not replaced";
+    on a narrow view the joint estimate itself (``T_unbent``, None: the sweep alignment did
+    not run or bent the scan) is then the confirmation, within
+    ``near_miss.weak_confirmation`` of the candidate (docs/sensors.md, session 19).
+    """
+    if T_unbent is None:
+        return 'not confirmed: the sweep alignment did not replace its pose'
+    bound = cfg.near_miss.weak_confirmation
+    moved = float(np.linalg.norm(np.linalg.solve(T_candidate, T_unbent)[:3, 3]))
+    if moved > bound:
+        return (
+            f'not confirmed: the sweep alignment, needing no bend, moved it by {moved:.2f} m > '
+            f'near_miss.weak_confirmation={bound:g} m'
+        )
+    return ''

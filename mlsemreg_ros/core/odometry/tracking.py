@@ -44,6 +44,7 @@ from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
 from mlsemreg_ros.core.odometry.local_map import Keyframe, LocalMap
 from mlsemreg_ros.core.odometry.motion_model import Prediction
+from mlsemreg_ros.core.odometry.narrow_view import unbent_confirmation_refusal
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
 from mlsemreg_ros.core.odometry.rotated_starts import (
     best_rotated_start,
@@ -131,6 +132,8 @@ class Tracker:
         #: the motion (6,) between the first pair's two twists' poses, in the pose's axes,
         #: when its covariance is to be inflated along it (core/odometry/start_twist.py)
         self.start_dispute: np.ndarray | None = None
+        #: the pose of the last sweep alignment that needed no bend (None: none or bent)
+        self.unbent_pose: np.ndarray | None = None
 
     def map_gaussians(self) -> MapGaussians | None:
         """
@@ -336,6 +339,7 @@ class Tracker:
         tic = time.perf_counter()
         deskewed = raw
         note, sweep_twist = '', None
+        self.unbent_pose = None
         if not steady(chosen, cfg):
             implied = implied_twist(motion_model, pose, stamp_ns)  # sweep_starts.py
             redone, moved, note, sweep_twist, chosen.sweep_change_m = self.align_sweep(
@@ -354,9 +358,11 @@ class Tracker:
             chosen.reason = '; '.join(r for r in (chosen.reason, note) if r)
         if before is not None:
             refusal = weak_confirmation_refusal(chosen.pose, pose, raw is not deskewed, cfg)
-            chosen.reason = '; '.join(
-                r for r in (chosen.reason, refusal or 'confirmed by the sweep alignment') if r
-            )
+            confirmed = 'confirmed by the sweep alignment'
+            if refusal and self.trust.view.partial and raw is deskewed:  # narrow_view.py
+                refusal = unbent_confirmation_refusal(chosen.pose, self.unbent_pose, cfg)
+                confirmed = 'confirmed by the sweep alignment, which needed no bend'
+            chosen.reason = '; '.join(r for r in (chosen.reason, refusal or confirmed) if r)
             if refusal:
                 self.trust.history = before[0]
                 self.undo_start(start, keyframe)
@@ -505,6 +511,7 @@ class Tracker:
         if not finite or not np.isfinite(result.change_m):
             return raw, pose, 'sweep alignment diverged: the deskew twist is kept', None, 0.0
         if result.change_m <= cfg.sweep_alignment.min_change:
+            self.unbent_pose = result.T_target_source  # narrow_view.unbent_confirmation_refusal
             return raw, pose, '', result.motion, result.change_m
         labels = stored(raw, 'labels')
         redone = preprocessor.scan(raw.input_points, labels, raw.point_times, result.motion)

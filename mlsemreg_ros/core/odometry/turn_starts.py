@@ -92,7 +92,7 @@ def turn_starts(
         if again.acceptable:
             passing.append(again)
         passing += held_basins(tracker, refined[0], T_predicted, scan, cfg)
-    for offset in offsets_within(bound):
+    for offset in turn_offsets(bound):
         candidate = judged('turn', yaw_rotated(T_predicted, offset), scan)
         _, turn = prediction_error(T_predicted, candidate.alignment.T_target_source)
         if candidate.acceptable and turn <= bound:
@@ -151,6 +151,16 @@ def turn_starts(
         timings_ms=chosen.timings_ms,
         confirm_weak=bool(weak),
     )
+
+
+#: Finer turns tried beside ``rotated_starts.YAW_OFFSETS`` (deg): a turn's onset at stride 1
+#: leaves the guess 4-8 deg off, where a 10 deg start overshoots into another basin.
+FINE_OFFSETS = (5.0, -5.0)
+
+
+def turn_offsets(bound: float) -> list[float]:
+    """Return the turned starts' yaw offsets strictly within ``bound`` (deg), finest first."""
+    return [o for o in FINE_OFFSETS if abs(o) < bound] + offsets_within(bound)
 
 
 def held_basins(
