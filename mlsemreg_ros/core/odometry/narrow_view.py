@@ -44,6 +44,12 @@ simulated solid state, seed 1):
 Only on a partial view (``sensor_scale.FULL_RING_SHARE``), only after a refused decision with a
 motion model's prediction (never a still start), and only with ``near_miss.enabled`` and
 ``odometry.turn_rate`` above 0.
+
+Session 19 (docs/sensors.md): the turned starts also try 5 deg (``turn_starts.FINE_OFFSETS``)
+and the places the refined prediction's near-miss starts found that keep as much of the scan
+as tracking asks (``turn_starts.held_basins``, within :func:`held_bound`); and a weakly held
+pose whose sweep alignment needed no bend is confirmed by that alignment's own pose
+(:func:`unbent_confirmation_refusal`), on a partial view only.
 """
 
 from __future__ import annotations
