@@ -45,11 +45,18 @@ Only after a refused decision with a motion model's prediction (never a still st
 only with ``near_miss.enabled`` and ``odometry.turn_rate`` above 0. A full ring takes the
 same turned starts (session 19: a VLP-16 at 2 Hz entering a 90 deg turn without labels), with
 an overlap of 1.
+
+Session 19 (docs/sensors.md): the turned starts also try 5 deg (``turn_starts.FINE_OFFSETS``)
+and the places the refined prediction's near-miss starts found that keep as much of the scan
+as tracking asks (``turn_starts.held_basins``, within :func:`held_bound`); and a weakly held
+pose whose sweep alignment needed no bend is confirmed by that alignment's own pose
+(:func:`unbent_confirmation_refusal`), all three on a partial view only.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 from mlsemreg_ros.core.odometry.sensor_scale import FULL_RING_SHARE
 from mlsemreg_ros.core.rigid import rotation_angle_deg
@@ -115,3 +122,43 @@ def turn_bound(view: View, T_predicted: np.ndarray, floor_deg: float, turn_rate:
     turn = rotation_angle_deg(np.linalg.solve(view.last_pose, T_predicted))
     wide = max(GAIN * turn, turn_rate * max(view.gap_s, 0.0))
     return max(floor_deg, min(wide, CAP_ROTATION))
+
+
+def held_bound(view: View, floor_deg: float, turn_rate: float) -> float:
+    """
+    Return how far (deg) a place held as tracked may lie from the prediction in a turn.
+
+    The correction a fine alignment may make (``floor_deg``, the widened
+    ``odometry.max_correction_rotation``) on top of a turn begun since the last accepted
+    scan (``turn_rate`` times the time since it): at stride 1 a turn's onset put the
+    prediction 3.9 deg off and the map's best place 5.2 deg from it (docs/sensors.md,
+    session 19), within ``CAP_ROTATION``.
+    """
+    return max(floor_deg, min(floor_deg + turn_rate * max(view.gap_s, 0.0), CAP_ROTATION))
+
+
+def unbent_confirmation_refusal(
+    T_candidate: np.ndarray, T_unbent: np.ndarray | None, cfg: Any
+) -> str:
+    """
+    Why a narrow view's unbent sweep alignment does not confirm a pose ('' if it does).
+
+    A candidate whose weakest direction is thinly held awaits the sweep alignment's
+    confirmation (``near_miss.weak_confirmation``, ``tracking.weak_confirmation_refusal``):
+    the scan deskewed by the motion the pose implies, aligned with its sweep twist free, must
+    keep a pose close to it. When that twist needs no change (it bends no point by more than
+    ``sweep_alignment.min_change``), nothing is realigned and the pose was "not replaced";
+    on a narrow view the joint estimate itself (``T_unbent``, None: the sweep alignment did
+    not run or bent the scan) is then the confirmation, within
+    ``near_miss.weak_confirmation`` of the candidate (docs/sensors.md, session 19).
+    """
+    if T_unbent is None:
+        return 'not confirmed: the sweep alignment did not replace its pose'
+    bound = cfg.near_miss.weak_confirmation
+    moved = float(np.linalg.norm(np.linalg.solve(T_candidate, T_unbent)[:3, 3]))
+    if moved > bound:
+        return (
+            f'not confirmed: the sweep alignment, needing no bend, moved it by {moved:.2f} m > '
+            f'near_miss.weak_confirmation={bound:g} m'
+        )
+    return ''

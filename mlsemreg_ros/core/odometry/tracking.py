@@ -44,6 +44,7 @@ from mlsemreg_ros.core.odometry.decision import chain, decide
 from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
 from mlsemreg_ros.core.odometry.local_map import Keyframe, LocalMap
 from mlsemreg_ros.core.odometry.motion_model import Prediction
+from mlsemreg_ros.core.odometry.narrow_view import unbent_confirmation_refusal
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan, Preprocessor
 from mlsemreg_ros.core.odometry.rotated_starts import (
     best_rotated_start,
@@ -135,6 +136,8 @@ class Tracker:
         #: this scan's pose refused by the near-miss check, to judge again once its sweep
         #: is deskewed again if nothing else accepts the scan (core/odometry/swept_dispute.py)
         self.disputed: Decision | None = None
+        #: the pose of the last sweep alignment that needed no bend (None: none or bent)
+        self.unbent_pose: np.ndarray | None = None
 
     def map_gaussians(self) -> MapGaussians | None:
         """
@@ -342,6 +345,7 @@ class Tracker:
         tic = time.perf_counter()
         deskewed = raw
         note, sweep_twist = '', None
+        self.unbent_pose = None
         if not steady(chosen, cfg):
             implied = implied_twist(motion_model, pose, stamp_ns)  # sweep_starts.py
             redone, moved, note, sweep_twist, chosen.sweep_change_m = self.align_sweep(
@@ -365,6 +369,9 @@ class Tracker:
             else:
                 refusal = weak_confirmation_refusal(chosen.pose, pose, raw is not deskewed, cfg)
                 kept = 'confirmed by the sweep alignment'
+                if refusal and self.trust.view.partial and raw is deskewed:  # narrow_view.py
+                    refusal = unbent_confirmation_refusal(chosen.pose, self.unbent_pose, cfg)
+                    kept = 'confirmed by the sweep alignment, which needed no bend'
             chosen.reason = '; '.join(r for r in (chosen.reason, refusal or kept) if r)
             if refusal:
                 self.trust.history = before[0]
@@ -514,6 +521,7 @@ class Tracker:
         if not finite or not np.isfinite(result.change_m):
             return raw, pose, 'sweep alignment diverged: the deskew twist is kept', None, 0.0
         if result.change_m <= cfg.sweep_alignment.min_change:
+            self.unbent_pose = result.T_target_source  # narrow_view.unbent_confirmation_refusal
             return raw, pose, '', result.motion, result.change_m
         labels = stored(raw, 'labels')
         redone = preprocessor.scan(raw.input_points, labels, raw.point_times, result.motion)

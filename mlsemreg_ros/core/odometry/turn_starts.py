@@ -22,6 +22,12 @@ the alignment lands 6 deg further, in the right basin (0.55 of the scan kept), a
 correction bound measured from that start refused it. A start is a guess a
 :data:`START_SPACING` step away from the next one, so its own correction may reach that step;
 the turn bound and the basin rules judge the move from the prediction.
+
+Beside the turned starts, the places the
+refined prediction's own near-miss check found (:func:`held_basins`): at the onset of a
+turn at stride 1 the prediction is a few degrees off, too few for the turned starts, and
+its refinement stops in a poorer basin than a start 0.6 m off finds (docs/sensors.md,
+session 19).
 """
 
 from __future__ import annotations
@@ -32,7 +38,7 @@ from typing import TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.near_miss import alignment_fit
 from mlsemreg_ros.core.odometry.motion_bound import prediction_error
-from mlsemreg_ros.core.odometry.narrow_view import turn_bound
+from mlsemreg_ros.core.odometry.narrow_view import held_bound, turn_bound
 from mlsemreg_ros.core.odometry.rotated_starts import AGREEMENT, offsets_within, yaw_rotated
 from mlsemreg_ros.core.odometry.second_look import basins, weak_refusal
 from mlsemreg_ros.core.odometry.steps import Decision
@@ -100,7 +106,9 @@ def turn_starts(
         )
         if again.acceptable:
             passing.append(again)
-    for offset in offsets_within(bound):
+        if view.partial:  # measured on narrow views only (session 19)
+            passing += held_basins(tracker, refined[0], T_predicted, scan, cfg)
+    for offset in turn_offsets(bound, fine=view.partial):
         candidate = judged('turn', yaw_rotated(T_predicted, offset), scan)
         _, turn = prediction_error(T_predicted, candidate.alignment.T_target_source)
         if candidate.acceptable and turn <= bound:
@@ -159,6 +167,67 @@ def turn_starts(
         timings_ms=chosen.timings_ms,
         confirm_weak=bool(weak),
     )
+
+
+#: Finer turns tried beside ``rotated_starts.YAW_OFFSETS`` (deg): a turn's onset at stride 1
+#: leaves the guess 4-8 deg off, where a 10 deg start overshoots into another basin.
+FINE_OFFSETS = (5.0, -5.0)
+
+
+def turn_offsets(bound: float, fine: bool = True) -> list[float]:
+    """
+    Return the turned starts' yaw offsets strictly within ``bound`` (deg), finest first.
+
+    ``fine``: with :data:`FINE_OFFSETS` (a narrow view; a full ring takes the coarse ones).
+    """
+    coarse = offsets_within(bound)
+    return [o for o in FINE_OFFSETS if abs(o) < bound] + coarse if fine else coarse
+
+
+def held_basins(
+    tracker: Tracker,
+    refined: Candidate,
+    T_predicted: np.ndarray,
+    scan: PreparedScan,
+    cfg: RegistrationConfig,
+) -> list[Candidate]:
+    """
+    Return the other places the refined prediction's near-miss starts found, held as tracked.
+
+    The refined prediction is aligned again from the near-miss check's perturbed starts
+    (``second_look.basins``); a start that converged elsewhere (beyond
+    ``near_miss.agreement_translation``) and keeps at least
+    ``odometry.tracking_min_inlier_fraction`` of the scan, as much as a scan tracked alone
+    must and more than the refined prediction kept, is a candidate when it passes the
+    odometry's rules (with the overlap its turn leaves in view) and lies within
+    :func:`~mlsemreg_ros.core.odometry.narrow_view.held_bound` of the prediction.
+    :func:`turn_starts` then takes it only as it takes a turned start: the best of the
+    passing candidates, no rival basin among them, its own perturbed starts coming back.
+    """
+    odometry = cfg.odometry
+    if not refined.acceptable or refined.alignment.inlier_fraction >= (
+        odometry.tracking_min_inlier_fraction
+    ):
+        return []  # refused outright, or the prediction's place is held as well as tracked
+    home, view = refined.alignment.T_target_source, tracker.trust.view
+    bounds = tracker.trust.motion_bound.widen(odometry)
+    rotation = held_bound(view, bounds.max_correction_rotation, odometry.turn_rate)
+    out = []
+    for basin in basins(tracker, refined, scan, cfg).others:
+        alignment = basin.alignment
+        if alignment is None or alignment.inlier_fraction < odometry.tracking_min_inlier_fraction:
+            continue
+        shift = np.linalg.norm(np.linalg.solve(home, alignment.T_target_source)[:3, 3])
+        if shift <= cfg.near_miss.agreement_translation:
+            continue  # came back home
+        moved, turn = prediction_error(T_predicted, alignment.T_target_source)
+        if moved > bounds.max_correction_translation or turn > rotation:
+            continue
+        overlap = view.overlap(alignment.T_target_source)
+        candidate = tracker.trust.judge('turn', alignment.T_initial, alignment, odometry, overlap)
+        if candidate.acceptable:
+            out.append(candidate)
+    return out
 
 
 def _noted(chosen: Decision, note: str) -> Decision:
