@@ -222,7 +222,7 @@ def test_the_solid_state_drive_keeps_a_turns_onset_at_stride_1(tmp_path: Path) -
 
 @pytest.mark.slow
 def test_the_solid_state_drive_of_seed_1_at_stride_1(tmp_path: Path) -> None:
-    """Scan 4 confirmed by an unbent sweep alignment, scan 23 by a 5 deg turned start."""
+    """Scan 4 confirmed by an unbent sweep alignment, and scans 20-29 through the two basins."""
     drive = tmp_path / 'livox1'
     arguments = [str(drive), '--realism', 'field', '--frames', '60', '--seed', '1']
     assert simulate.main([*arguments, '--sensor', 'livox', '--quiet']) == 0
@@ -235,4 +235,7 @@ def test_the_solid_state_drive_of_seed_1_at_stride_1(tmp_path: Path) -> None:
     assert wrong in ([], ['0']), wrong  # the first scan starts the odometry (no pair)
     assert 'needed no bend' in rows[4]['message'], rows[4]['message']
     assert rows[4]['success'] == 'True'
-    assert rows[23]['source'] == 'turn' and rows[23]['success'] == 'True', rows[23]['message']
+    # scans 22-23: "two basins" along the road on session 18's code; on livox1's branch scan
+    # 23 came from a 5 deg turned start, merged with the other session-19 rules by its
+    # prediction: either way every scan of that stretch right
+    assert all(r['success'] == 'True' for r in rows[20:30]), [r['message'] for r in rows[20:30]]
