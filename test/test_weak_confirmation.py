@@ -159,3 +159,23 @@ def test_a_wrong_weak_pose_the_sweep_moves_is_not_published() -> None:
             step = odometry.process(points, labels, frame.stamp_ns, point_times=frame.scan.times)
         error = np.linalg.norm(np.linalg.solve(truth, step.pose)[:3, 3])
         assert not step.accepted or error < 0.6, (refine_first, error, step.reason)
+
+
+def test_a_pose_on_its_own_evidence_needs_every_start_back_home() -> None:
+    """starts_back: the count when every start came back, 0 when one left or none ran."""
+    from mlsemreg_ros.core.odometry.second_look import starts_back
+
+    config = RegistrationConfig()
+    limit = config.near_miss.agreement_translation
+
+    def at(x: float) -> SimpleNamespace:
+        T = np.eye(4)
+        T[0, 3] = x
+        return SimpleNamespace(T_target_source=T)
+
+    home = at(1.0)
+    back = SimpleNamespace(others=[at(1.0 + 0.5 * limit), at(1.0 - 0.5 * limit)])
+    left = SimpleNamespace(others=[at(1.0), at(1.0 + 2.0 * limit)])
+    assert starts_back(home, back, config) == 2
+    assert starts_back(home, left, config) == 0
+    assert starts_back(home, SimpleNamespace(others=[]), config) == 0

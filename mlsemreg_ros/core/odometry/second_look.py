@@ -89,6 +89,20 @@ def basins(
     )
 
 
+def starts_back(alignment: Alignment, verdict: NearMiss, cfg: RegistrationConfig) -> int:
+    """
+    Return how many perturbed starts of ``verdict`` came back to ``alignment``'s pose.
+
+    0 when none ran or any converged farther than ``near_miss.agreement_translation``: a
+    pose accepted on its own evidence needs every start back home.
+    """
+    T = alignment.T_target_source
+    shifts = [np.linalg.norm(np.linalg.solve(T, b.T_target_source)[:3, 3]) for b in verdict.others]
+    if not shifts or max(shifts) > cfg.near_miss.agreement_translation:
+        return 0
+    return len(shifts)
+
+
 def second_look(
     tracker: Tracker,
     chosen: Decision,
@@ -227,16 +241,12 @@ def _rescue(
             notes.append(f'{candidate.name} not accepted on its own evidence: {weak}')
             continue
         verdict = basins(tracker, candidate, scan, cfg)
-        came_back = [
-            np.linalg.norm(np.linalg.solve(alignment.T_target_source, b.T_target_source)[:3, 3])
-            <= cfg.near_miss.agreement_translation
-            for b in verdict.others
-        ]
-        if verdict.refusal or not came_back or not all(came_back):
+        back = starts_back(alignment, verdict, cfg)
+        if verdict.refusal or not back:
             continue
         note = (
             f'{candidate.name} accepted on its own evidence ({candidate.refusal}; '
-            f'{len(came_back)} perturbed starts came back to it)'
+            f'{back} perturbed starts came back to it)'
         )
         if weak:  # tracking.py's Tracker.align_accepted: the sweep alignment must confirm
             note = f'{note}, if the sweep alignment confirms it ({weak})'

@@ -40,7 +40,7 @@ from mlsemreg_ros.core.alignment.near_miss import alignment_fit
 from mlsemreg_ros.core.odometry.motion_bound import prediction_error
 from mlsemreg_ros.core.odometry.narrow_view import held_bound, turn_bound
 from mlsemreg_ros.core.odometry.rotated_starts import AGREEMENT, offsets_within, yaw_rotated
-from mlsemreg_ros.core.odometry.second_look import basins, weak_refusal
+from mlsemreg_ros.core.odometry.second_look import basins, starts_back, weak_refusal
 from mlsemreg_ros.core.odometry.steps import Decision
 import numpy as np
 
@@ -140,12 +140,8 @@ def turn_starts(
             best, scan = again, redone
     verdict = basins(tracker, best, scan, cfg)
     alignment = best.alignment
-    came_back = [
-        np.linalg.norm(np.linalg.solve(alignment.T_target_source, b.T_target_source)[:3, 3])
-        <= cfg.near_miss.agreement_translation
-        for b in verdict.others
-    ]
-    if verdict.refusal or not came_back or not all(came_back):
+    back = starts_back(alignment, verdict, cfg)
+    if verdict.refusal or not back:
         return _noted(chosen, f'turned start disputed ({verdict.refusal or "a start left"})')
     weak = weak_refusal(alignment, cfg)
     if weak and cfg.near_miss.weak_confirmation <= 0:
@@ -153,7 +149,7 @@ def turn_starts(
     _, turned = prediction_error(T_predicted, alignment.T_target_source)
     note = (
         f'turned start accepted ({turned:.1f} deg from the prediction, within '
-        f'{bound:.1f} deg; {len(came_back)} perturbed starts came back to it)'
+        f'{bound:.1f} deg; {back} perturbed starts came back to it)'
     )
     if weak:
         note = f'{note}, if the sweep alignment confirms it ({weak})'
