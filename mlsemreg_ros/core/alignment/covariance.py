@@ -81,6 +81,12 @@ REFERENCE_SIGMAS = (0.002, float(np.radians(0.005)))
 #: The most ``covariance.hessian_size_exponent`` multiplies or divides a block's variance by.
 MAX_SIZE_FACTOR = 1000.0
 
+#: The fine alignment's residual variance ``2E / (n - 6)`` (:attr:`Alignment.residual_variance`,
+#: a mean squared Mahalanobis residual per inlier) at which ``covariance.residual_*_exponent``
+#: leaves the floors as they are: about a simulated HDL-64 scan's, tracked against its local
+#: map (0.2-0.3; docs/covariance.md, session 20).
+REFERENCE_RESIDUAL = 0.25
+
 
 @dataclass
 class CovarianceConfig:
@@ -326,6 +332,23 @@ class CovarianceConfig:
         low=0.0,
         high=1.0,
     )
+    residual_translation_exponent: float = param(
+        0.0,
+        "The translation floor follows the fine alignment's residual: its variance (every "
+        'translation term above) is multiplied by (the residual variance 2E / (n - 6) / '
+        '0.25) to this power, within 1/100 and 100. A scan that fits its map loosely (a '
+        'skewed sweep, a changed scene) is further off than its Hessian says; the Hessian '
+        'covariance itself already grows with the residual. 0: off (docs/covariance.md).',
+        low=0.0,
+        high=4.0,
+    )
+    residual_rotation_exponent: float = param(
+        0.0,
+        'The rotation floor follows the residual likewise (residual_translation_exponent). '
+        '0: off.',
+        low=0.0,
+        high=4.0,
+    )
     degenerate_ratio: float = param(
         100.0,
         'An eigen-direction of the translation or rotation block of the Hessian covariance '
@@ -392,6 +415,7 @@ def calibrated_covariance(
     horizon_s: float = 0.0,
     correction_direction: np.ndarray | None = None,
     bend_m: float = 0.0,
+    residual_variance: float = 0.0,
 ) -> np.ndarray:
     """
     Return ``s * C_H + D + floor(d)`` (module docstring) of a covariance (6, 6), ROS order.
@@ -404,11 +428,12 @@ def calibrated_covariance(
     correction counts whole); ``correction_direction``: the translation (3,) from the
     prediction to the accepted pose in the covariance's axes (``along_correction``; None:
     that term is off); ``bend_m``: how far the sweep alignment's twist bent the scan it
-    deskewed again (``per_bend_*``, ``bend_relief``; 0: not). One sample of
-    :func:`calibrated_covariances`.
+    deskewed again (``per_bend_*``, ``bend_relief``; 0: not); ``residual_variance``: the
+    fine alignment's ``2E / (n - 6)`` (``residual_*_exponent``; 0: unknown, the floors as
+    they are). One sample of :func:`calibrated_covariances`.
     """
     inputs = CovarianceInputs.single(
-        distance, turn_deg, correction, horizon_s, correction_direction, bend_m
+        distance, turn_deg, correction, horizon_s, correction_direction, bend_m, residual_variance
     )
     hessian = np.asarray(hessian_covariance, dtype=np.float64)[None]
     return calibrated_covariances(hessian, scale, cfg, inputs)[0]
@@ -424,6 +449,7 @@ class CovarianceInputs:
     horizons_s: np.ndarray  # (K,) s, the prediction's horizon (0: unknown)
     directions: np.ndarray  # (K, 3) translation from the prediction (zeros: none)
     bends_m: np.ndarray | None = None  # (K,) m, the sweep alignment's bend (None: zeros)
+    residuals: np.ndarray | None = None  # (K,) the alignment's 2E / (n - 6) (None, 0: unknown)
 
     @classmethod
     def single(
@@ -434,6 +460,7 @@ class CovarianceInputs:
         horizon_s: float,
         direction: np.ndarray | None,
         bend_m: float = 0.0,
+        residual_variance: float = 0.0,
     ) -> CovarianceInputs:
         """Return the inputs of one sample."""
         return cls(
@@ -443,6 +470,7 @@ class CovarianceInputs:
             np.array([horizon_s], dtype=np.float64),
             np.zeros((1, 3)) if direction is None else np.asarray(direction, np.float64)[None, :3],
             np.array([bend_m], dtype=np.float64),
+            np.array([residual_variance], dtype=np.float64),
         )
 
     def bends(self) -> np.ndarray:
@@ -450,6 +478,23 @@ class CovarianceInputs:
         if self.bends_m is None:
             return np.zeros(len(self.distances))
         return np.asarray(self.bends_m, dtype=np.float64)
+
+    def residual_factors(self, cfg: CovarianceConfig) -> np.ndarray:
+        """
+        Return the floors' variance factors (K, 2) of the residual, translation and rotation.
+
+        ``(r / REFERENCE_RESIDUAL) ** residual_*_exponent`` within ``1 / MAX_FLOOR_STRETCH``
+        and ``MAX_FLOOR_STRETCH``; 1 where the residual ``r`` is unknown (0).
+        """
+        count = len(self.distances)
+        exponents = np.array([cfg.residual_translation_exponent, cfg.residual_rotation_exponent])
+        if self.residuals is None or not np.any(exponents):
+            return np.ones((count, 2))
+        residuals = np.asarray(self.residuals, dtype=np.float64)
+        known = np.isfinite(residuals) & (residuals > 0.0)
+        logs = np.log(np.where(known, residuals, REFERENCE_RESIDUAL) / REFERENCE_RESIDUAL)
+        factors = np.exp(logs[:, None] * exponents[None, :])
+        return np.clip(factors, 1.0 / MAX_FLOOR_STRETCH, MAX_FLOOR_STRETCH)
 
 
 @dataclass
@@ -533,6 +578,9 @@ def calibrated_covariances(
     floor[:, 3:, 3:] = (sigma_r**2)[:, None, None] * _shape(eigen[1], cfg.rotation_floor_shape)
     correction_variance = along_correction(inputs.directions, share, cfg) + jerk_along(inputs, cfg)
     floor[:, :3, :3] += (relief**2)[:, None, None] * correction_variance
+    residual = inputs.residual_factors(cfg)  # a loose fit's floors grow
+    floor[:, :3, :3] *= residual[:, 0, None, None]
+    floor[:, 3:, 3:] *= residual[:, 1, None, None]
     covariance = scaled + _degenerate_inflation(eigen, cfg) + floor
     return 0.5 * (covariance + np.swapaxes(covariance, -1, -2))
 
