@@ -439,6 +439,8 @@ FIT_BOUNDS: dict[str, tuple[float, float]] = {
     'bend_relief': (0.0, 1.0),
     'residual_translation_exponent': (0.0, 2.0),
     'residual_rotation_exponent': (0.0, 2.0),
+    'residual_min_factor': (0.1, 1.0),
+    'residual_max_factor': (1.0, 10.0),
 }
 
 

@@ -48,7 +48,12 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   ``per_bend_rotation`` times ``max(k_b * b - bend_free, 0)`` (``k_b = min(1, bend_window /
   horizon)``) join the floors, and ``covariance.bend_relief`` takes that share off the
   correction terms of a bent scan (:func:`correction_relief`). Off by default: no fit found
-  a setting that keeps every data set (docs/covariance.md, session 18).
+  a setting that keeps every data set (docs/covariance.md, session 18);
+- the fine alignment's **residual** ``r = 2E / (n - 6)`` (:attr:`Alignment.residual_variance`):
+  the translation floor's variance (every term above) times ``(r / REFERENCE_RESIDUAL) **
+  covariance.residual_translation_exponent`` (the rotation's likewise), within
+  ``residual_min_factor`` and ``residual_max_factor``: a tracked scan that fits its map
+  tighter than usual is closer than the floors say (docs/covariance.md, session 20).
 
 What differs between sensors is followed through the Hessian's own size, not a table per
 sensor: ``covariance.hessian_size_exponent`` grows the scale of a block as its Hessian
@@ -333,12 +338,13 @@ class CovarianceConfig:
         high=1.0,
     )
     residual_translation_exponent: float = param(
-        0.0,
+        1.0,
         "The translation floor follows the fine alignment's residual: its variance (every "
         'translation term above) is multiplied by (the residual variance 2E / (n - 6) / '
-        '0.25) to this power, within 1/100 and 100. A scan that fits its map loosely (a '
-        'skewed sweep, a changed scene) is further off than its Hessian says; the Hessian '
-        'covariance itself already grows with the residual. 0: off (docs/covariance.md).',
+        '0.25) to this power, within residual_min_factor and residual_max_factor. A tracked '
+        'scan that fits its map tighter than a typical one (HDL-64 at stride 1: 0.15-0.2) is '
+        'closer than the floors say (they were under-confident there, NEES mean 2.7-3.0). '
+        '0: off (docs/covariance.md).',
         low=0.0,
         high=4.0,
     )
@@ -348,6 +354,22 @@ class CovarianceConfig:
         '0: off.',
         low=0.0,
         high=4.0,
+    )
+    residual_min_factor: float = param(
+        0.5,
+        'The least the residual (residual_*_exponent) multiplies a floor variance by: a scan '
+        'that fits its map tighter than the reference is not that much closer '
+        '(docs/covariance.md).',
+        low=0.0,
+        high=1.0,
+    )
+    residual_max_factor: float = param(
+        1.0,
+        'The most the residual multiplies a floor variance by: a handheld sweep fits its map '
+        '5-40 times looser than a car sweep without being that much further off (1: a loose '
+        'fit keeps the floors, as does a value below 1; docs/covariance.md).',
+        low=0.0,
+        high=100.0,
     )
     degenerate_ratio: float = param(
         100.0,
@@ -483,18 +505,19 @@ class CovarianceInputs:
         """
         Return the floors' variance factors (K, 2) of the residual, translation and rotation.
 
-        ``(r / REFERENCE_RESIDUAL) ** residual_*_exponent`` within ``1 / MAX_FLOOR_STRETCH``
-        and ``MAX_FLOOR_STRETCH``; 1 where the residual ``r`` is unknown (0).
+        ``(r / REFERENCE_RESIDUAL) ** residual_*_exponent`` within ``residual_min_factor``
+        and ``residual_max_factor``; 1 where the residual ``r`` is unknown (0).
         """
+        exponents = (cfg.residual_translation_exponent, cfg.residual_rotation_exponent)
         count = len(self.distances)
-        exponents = np.array([cfg.residual_translation_exponent, cfg.residual_rotation_exponent])
         if self.residuals is None or not np.any(exponents):
-            return np.ones((count, 2))
+            return np.ones((count, len(exponents)))
         residuals = np.asarray(self.residuals, dtype=np.float64)
         known = np.isfinite(residuals) & (residuals > 0.0)
         logs = np.log(np.where(known, residuals, REFERENCE_RESIDUAL) / REFERENCE_RESIDUAL)
-        factors = np.exp(logs[:, None] * exponents[None, :])
-        return np.clip(factors, 1.0 / MAX_FLOOR_STRETCH, MAX_FLOOR_STRETCH)
+        factors = np.exp(logs[:, None] * np.asarray(exponents, dtype=np.float64)[None, :])
+        low, high = min(cfg.residual_min_factor, 1.0), max(cfg.residual_max_factor, 1.0)
+        return np.clip(factors, low, high)
 
 
 @dataclass
@@ -578,7 +601,7 @@ def calibrated_covariances(
     floor[:, 3:, 3:] = (sigma_r**2)[:, None, None] * _shape(eigen[1], cfg.rotation_floor_shape)
     correction_variance = along_correction(inputs.directions, share, cfg) + jerk_along(inputs, cfg)
     floor[:, :3, :3] += (relief**2)[:, None, None] * correction_variance
-    residual = inputs.residual_factors(cfg)  # a loose fit's floors grow
+    residual = inputs.residual_factors(cfg)  # a tight fit's floors shrink
     floor[:, :3, :3] *= residual[:, 0, None, None]
     floor[:, 3:, 3:] *= residual[:, 1, None, None]
     covariance = scaled + _degenerate_inflation(eigen, cfg) + floor
