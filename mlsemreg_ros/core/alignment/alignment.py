@@ -115,9 +115,9 @@ class Alignment:
         """
         ``2E / (n - 6)``: the mean squared Mahalanobis residual per inlier (0: unknown).
 
-        The variance that scales ``inv(H)`` in :meth:`covariance`; the calibration reads it
-        apart too (docs/covariance.md): a scan that fits its map loosely is further off than
-        its Hessian's shape says.
+        The variance that scales ``inv(H)`` in :meth:`covariance`; the calibration's floors
+        read it apart too (``covariance.residual_*``, docs/covariance.md): a scan that fits
+        its map tighter than usual is closer than the floors say.
         """
         dof = self.num_inliers - 6
         return 2.0 * self.error / dof if dof > 0 and np.isfinite(self.error) else 0.0

@@ -366,8 +366,8 @@ class CovarianceConfig:
     residual_max_factor: float = param(
         1.0,
         'The most the residual multiplies a floor variance by: a handheld sweep fits its map '
-        '5-40 times looser than a car sweep without being that much further off (1: a loose '
-        'fit keeps the floors, as does a value below 1; docs/covariance.md).',
+        'up to 60 times looser than a car sweep without being that much further off (1: a '
+        'loose fit keeps the floors, as does a value below 1; docs/covariance.md).',
         low=0.0,
         high=100.0,
     )
