@@ -18,6 +18,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+from mlsemreg_ros.core.alignment.alignment import Alignment
 from mlsemreg_ros.core.alignment.covariance import (
     calibrated_covariance,
     calibrated_covariances,
@@ -28,6 +29,7 @@ from mlsemreg_ros.core.alignment.covariance import (
     MAX_FLOOR_STRETCH,
     motion_size,
     no_calibration,
+    REFERENCE_RESIDUAL,
     REFERENCE_SIGMAS,
 )
 from mlsemreg_ros.core.config import RegistrationConfig
@@ -474,6 +476,45 @@ def test_the_bend_relief_takes_the_correction_terms_off_a_bent_scan_only() -> No
     assert np.allclose(unrelieved, straight)
 
 
+def test_the_floors_follow_the_residual_within_their_bounds() -> None:
+    """Residual 4 x the reference: floors x 4 (exponent 1), x 2 (0.5); the Hessian part kept."""
+    cfg = replace(
+        OFF,
+        floor_translation=0.01,
+        floor_rotation=0.1,
+        residual_translation_exponent=1.0,
+        residual_rotation_exponent=0.5,
+        residual_min_factor=0.01,
+        residual_max_factor=100.0,
+    )
+    hessian = np.diag([1e-4] * 3 + [1e-6] * 3)
+    plain = calibrated_covariance(hessian, 2.0, cfg)  # residual unknown: floors as they are
+    floors = np.array([1e-4] * 3 + [np.radians(0.1) ** 2] * 3)
+    assert np.allclose(np.diag(plain), np.diag(2.0 * hessian) + floors)
+    loose = calibrated_covariance(hessian, 2.0, cfg, residual_variance=4 * REFERENCE_RESIDUAL)
+    assert np.allclose(np.diag(loose) - np.diag(2.0 * hessian), floors * [4, 4, 4, 2, 2, 2])
+    tight = calibrated_covariance(hessian, 2.0, cfg, residual_variance=REFERENCE_RESIDUAL / 4)
+    assert np.allclose(np.diag(tight)[:3] - 2e-4, 0.25e-4)
+    off = calibrated_covariance(hessian, 2.0, OFF, residual_variance=4 * REFERENCE_RESIDUAL)
+    assert np.allclose(off, 2.0 * hessian)
+    capped = replace(cfg, residual_min_factor=0.5, residual_max_factor=1.0)
+    kept = calibrated_covariance(hessian, 2.0, capped, residual_variance=4 * REFERENCE_RESIDUAL)
+    assert np.allclose(kept, plain)  # a loose fit keeps the floors (the defaults)
+    tightest = calibrated_covariance(
+        hessian, 2.0, capped, residual_variance=REFERENCE_RESIDUAL / 9
+    )
+    assert np.allclose(np.diag(tightest)[:3] - 2e-4, 0.5e-4)  # at most halved
+
+
+def test_the_residual_variance_is_the_hessians_scale() -> None:
+    """``2E / (n - 6)``, the factor of ``inv(H)`` in the covariance; 0 without a dof."""
+    hessian = np.diag([4.0, 4.0, 4.0, 1.0, 1.0, 1.0])
+    fit = Alignment(np.eye(4), np.eye(4), True, 3, 16, 20, 3.0, hessian)
+    assert fit.residual_variance == pytest.approx(0.6)
+    assert np.allclose(np.diag(fit.covariance(1.0)), 0.6 * np.array([1, 1, 1, 0.25, 0.25, 0.25]))
+    assert Alignment(np.eye(4), np.eye(4), True, 3, 6, 20, 3.0, hessian).residual_variance == 0
+
+
 def test_samples_keep_the_bend_and_the_source(tmp_path) -> None:
     sample = CovarianceSample(np.ones(6), np.eye(6), 1.0, 2.0, bend_m=3.5, sweep_change_m=3.5)
     sample.source = source_code('prediction+global')
@@ -485,5 +526,13 @@ def test_samples_keep_the_bend_and_the_source(tmp_path) -> None:
         'prediction+global',
     )
     assert (plain.bend_m, plain.source) == (0.0, 0)
+    tight = CovarianceSample(np.ones(6), np.eye(6), residual_variance=0.1, inlier_fraction=0.7)
+    save_samples(tmp_path / 'r.npz', [tight])
+    (kept,) = load_samples(tmp_path / 'r.npz')
+    assert (kept.residual_variance, kept.inlier_fraction) == (0.1, 0.7)
+    cfg = replace(OFF, floor_translation=1.0, residual_min_factor=0.5, residual_max_factor=1.0)
+    values = nees_values([kept], 1.0, cfg)
+    closer = nees_values([kept], 1.0, replace(cfg, residual_translation_exponent=1.0))
+    assert closer[0] > values[0]  # the residual reaches the covariance
     values = nees_values([bent], 1.0, replace(OFF, per_bend_translation=1.0))
     assert values[0] < nees_values([plain], 1.0, OFF)[0]  # the bend reaches the covariance

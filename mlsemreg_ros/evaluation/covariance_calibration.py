@@ -76,6 +76,8 @@ class CovarianceSample:
     bend_m: float = 0.0  # m, the sweep alignment's bend of the scan (0: not deskewed again)
     sweep_change_m: float = 0.0  # m, the sweep alignment's estimated bend, kept or not
     source: int = 0  # the step's source: SOURCES' index (0: unknown)
+    residual_variance: float = 0.0  # the accepted fine alignment's 2E / (n - 6) (0: unknown)
+    inlier_fraction: float = 0.0  # the accepted fine alignment's inlier share (0: unknown)
 
 
 #: The step sources a sample records (:attr:`CovarianceSample.source`).
@@ -116,7 +118,17 @@ def pair_samples(pair_files: list[Any], config: Any) -> list[CovarianceSample]:
             continue
         covariance = result.alignment.covariance(1.0, axes='source')
         error = pose_error(result.transform, pair.trans_gt)
-        samples.append(CovarianceSample(error, covariance, *motion_size(result.transform)))
+        alignment = result.alignment
+        samples.append(
+            CovarianceSample(
+                error,
+                covariance,
+                *motion_size(result.transform),
+                inliers=alignment.num_inliers,
+                residual_variance=alignment.residual_variance,
+                inlier_fraction=alignment.inlier_fraction,
+            )
+        )
     return samples
 
 
@@ -170,6 +182,8 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
                 float(getattr(step, 'sweep_bend_m', 0.0)),
                 float(getattr(step, 'sweep_change_m', 0.0)),
                 source_code(getattr(step, 'source', '')),
+                float(getattr(step, 'residual_variance', 0.0)),
+                float(getattr(step, 'inlier_fraction', 0.0)),
             )
         )
     return samples
@@ -323,6 +337,7 @@ def _stack(samples: list[CovarianceSample]) -> tuple[Any, ...]:
             np.array([s.gap_s for s in samples], dtype=np.float64),
             np.array([s.correction_vector[:3] for s in samples]).reshape(-1, 3),
             np.array([s.bend_m for s in samples], dtype=np.float64),
+            np.array([s.residual_variance for s in samples], dtype=np.float64),
         ),
         hessian_eigen(covariances.reshape(-1, 6, 6)),
     )
@@ -422,6 +437,10 @@ FIT_BOUNDS: dict[str, tuple[float, float]] = {
     'bend_free': (0.0, 3.0),
     'bend_window': (0.0, 0.5),
     'bend_relief': (0.0, 1.0),
+    'residual_translation_exponent': (0.0, 2.0),
+    'residual_rotation_exponent': (0.0, 2.0),
+    'residual_min_factor': (0.1, 1.0),
+    'residual_max_factor': (1.0, 10.0),
 }
 
 
@@ -483,6 +502,9 @@ def save_samples(path: Any, samples: list[CovarianceSample]) -> None:
         sweep=np.array(
             [(s.bend_m, s.sweep_change_m, s.source) for s in samples], dtype=np.float64
         ).reshape(-1, 3),
+        residuals=np.array(
+            [(s.residual_variance, s.inlier_fraction) for s in samples], dtype=np.float64
+        ).reshape(-1, 2),
     )
 
 
@@ -495,6 +517,7 @@ def load_samples(path: Any) -> list[CovarianceSample]:
         vectors = _column(data, 'correction_vectors', (count, 6))
         sizes = _column(data, 'scan_points', (count, 2)).astype(int)
         sweep = _column(data, 'sweep', (count, 3))
+        residuals = _column(data, 'residuals', (count, 2))
         rows = zip(
             data['errors'],
             data['covariances'],
@@ -504,6 +527,7 @@ def load_samples(path: Any) -> list[CovarianceSample]:
             vectors,
             sizes,
             sweep,
+            residuals,
             strict=True,
         )
         return [
@@ -518,8 +542,10 @@ def load_samples(path: Any) -> list[CovarianceSample]:
                 float(w[0]),
                 float(w[1]),
                 int(w[2]),
+                float(r[0]),
+                float(r[1]),
             )
-            for e, c, d, a, m, v, n, w in rows
+            for e, c, d, a, m, v, n, w, r in rows
         ]
 
 

@@ -111,6 +111,18 @@ class Alignment:
         return self.num_inliers / self.num_points if self.num_points else 0.0
 
     @property
+    def residual_variance(self) -> float:
+        """
+        ``2E / (n - 6)``: the mean squared Mahalanobis residual per inlier (0: unknown).
+
+        The variance that scales ``inv(H)`` in :meth:`covariance`; the calibration's floors
+        read it apart too (``covariance.residual_*``, docs/covariance.md): a scan that fits
+        its map tighter than usual is closer than the floors say.
+        """
+        dof = self.num_inliers - 6
+        return 2.0 * self.error / dof if dof > 0 and np.isfinite(self.error) else 0.0
+
+    @property
     def correction(self) -> np.ndarray:
         """``inv(T_initial) @ T_target_source``: how far the alignment moved its guess."""
         return np.linalg.solve(self.T_initial, self.T_target_source)

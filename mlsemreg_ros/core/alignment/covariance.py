@@ -48,7 +48,12 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   ``per_bend_rotation`` times ``max(k_b * b - bend_free, 0)`` (``k_b = min(1, bend_window /
   horizon)``) join the floors, and ``covariance.bend_relief`` takes that share off the
   correction terms of a bent scan (:func:`correction_relief`). Off by default: no fit found
-  a setting that keeps every data set (docs/covariance.md, session 18).
+  a setting that keeps every data set (docs/covariance.md, session 18);
+- the fine alignment's **residual** ``r = 2E / (n - 6)`` (:attr:`Alignment.residual_variance`):
+  the translation floor's variance (every term above) times ``(r / REFERENCE_RESIDUAL) **
+  covariance.residual_translation_exponent`` (the rotation's likewise), within
+  ``residual_min_factor`` and ``residual_max_factor``: a tracked scan that fits its map
+  tighter than usual is closer than the floors say (docs/covariance.md, session 20).
 
 What differs between sensors is followed through the Hessian's own size, not a table per
 sensor: ``covariance.hessian_size_exponent`` grows the scale of a block as its Hessian
@@ -80,6 +85,12 @@ REFERENCE_SIGMAS = (0.002, float(np.radians(0.005)))
 
 #: The most ``covariance.hessian_size_exponent`` multiplies or divides a block's variance by.
 MAX_SIZE_FACTOR = 1000.0
+
+#: The fine alignment's residual variance ``2E / (n - 6)`` (:attr:`Alignment.residual_variance`,
+#: a mean squared Mahalanobis residual per inlier) at which ``covariance.residual_*_exponent``
+#: leaves the floors as they are: about a simulated HDL-64 scan's, tracked against its local
+#: map (0.2-0.3; docs/covariance.md, session 20).
+REFERENCE_RESIDUAL = 0.25
 
 
 @dataclass
@@ -326,6 +337,40 @@ class CovarianceConfig:
         low=0.0,
         high=1.0,
     )
+    residual_translation_exponent: float = param(
+        1.0,
+        "The translation floor follows the fine alignment's residual: its variance (every "
+        'translation term above) is multiplied by (the residual variance 2E / (n - 6) / '
+        '0.25) to this power, within residual_min_factor and residual_max_factor. A tracked '
+        'scan that fits its map tighter than a typical one (HDL-64 at stride 1: 0.15-0.2) is '
+        'closer than the floors say (they were under-confident there, NEES mean 2.7-3.0). '
+        '0: off (docs/covariance.md).',
+        low=0.0,
+        high=4.0,
+    )
+    residual_rotation_exponent: float = param(
+        0.0,
+        'The rotation floor follows the residual likewise (residual_translation_exponent). '
+        '0: off.',
+        low=0.0,
+        high=4.0,
+    )
+    residual_min_factor: float = param(
+        0.5,
+        'The least the residual (residual_*_exponent) multiplies a floor variance by: a scan '
+        'that fits its map tighter than the reference is not that much closer '
+        '(docs/covariance.md).',
+        low=0.0,
+        high=1.0,
+    )
+    residual_max_factor: float = param(
+        1.0,
+        'The most the residual multiplies a floor variance by: a handheld sweep fits its map '
+        'up to 60 times looser than a car sweep without being that much further off (1: a '
+        'loose fit keeps the floors, as does a value below 1; docs/covariance.md).',
+        low=0.0,
+        high=100.0,
+    )
     degenerate_ratio: float = param(
         100.0,
         'An eigen-direction of the translation or rotation block of the Hessian covariance '
@@ -392,6 +437,7 @@ def calibrated_covariance(
     horizon_s: float = 0.0,
     correction_direction: np.ndarray | None = None,
     bend_m: float = 0.0,
+    residual_variance: float = 0.0,
 ) -> np.ndarray:
     """
     Return ``s * C_H + D + floor(d)`` (module docstring) of a covariance (6, 6), ROS order.
@@ -404,11 +450,12 @@ def calibrated_covariance(
     correction counts whole); ``correction_direction``: the translation (3,) from the
     prediction to the accepted pose in the covariance's axes (``along_correction``; None:
     that term is off); ``bend_m``: how far the sweep alignment's twist bent the scan it
-    deskewed again (``per_bend_*``, ``bend_relief``; 0: not). One sample of
-    :func:`calibrated_covariances`.
+    deskewed again (``per_bend_*``, ``bend_relief``; 0: not); ``residual_variance``: the
+    fine alignment's ``2E / (n - 6)`` (``residual_*_exponent``; 0: unknown, the floors as
+    they are). One sample of :func:`calibrated_covariances`.
     """
     inputs = CovarianceInputs.single(
-        distance, turn_deg, correction, horizon_s, correction_direction, bend_m
+        distance, turn_deg, correction, horizon_s, correction_direction, bend_m, residual_variance
     )
     hessian = np.asarray(hessian_covariance, dtype=np.float64)[None]
     return calibrated_covariances(hessian, scale, cfg, inputs)[0]
@@ -424,6 +471,7 @@ class CovarianceInputs:
     horizons_s: np.ndarray  # (K,) s, the prediction's horizon (0: unknown)
     directions: np.ndarray  # (K, 3) translation from the prediction (zeros: none)
     bends_m: np.ndarray | None = None  # (K,) m, the sweep alignment's bend (None: zeros)
+    residuals: np.ndarray | None = None  # (K,) the alignment's 2E / (n - 6) (None, 0: unknown)
 
     @classmethod
     def single(
@@ -434,6 +482,7 @@ class CovarianceInputs:
         horizon_s: float,
         direction: np.ndarray | None,
         bend_m: float = 0.0,
+        residual_variance: float = 0.0,
     ) -> CovarianceInputs:
         """Return the inputs of one sample."""
         return cls(
@@ -443,6 +492,7 @@ class CovarianceInputs:
             np.array([horizon_s], dtype=np.float64),
             np.zeros((1, 3)) if direction is None else np.asarray(direction, np.float64)[None, :3],
             np.array([bend_m], dtype=np.float64),
+            np.array([residual_variance], dtype=np.float64),
         )
 
     def bends(self) -> np.ndarray:
@@ -450,6 +500,24 @@ class CovarianceInputs:
         if self.bends_m is None:
             return np.zeros(len(self.distances))
         return np.asarray(self.bends_m, dtype=np.float64)
+
+    def residual_factors(self, cfg: CovarianceConfig) -> np.ndarray:
+        """
+        Return the floors' variance factors (K, 2) of the residual, translation and rotation.
+
+        ``(r / REFERENCE_RESIDUAL) ** residual_*_exponent`` within ``residual_min_factor``
+        and ``residual_max_factor``; 1 where the residual ``r`` is unknown (0).
+        """
+        exponents = (cfg.residual_translation_exponent, cfg.residual_rotation_exponent)
+        count = len(self.distances)
+        if self.residuals is None or not np.any(exponents):
+            return np.ones((count, len(exponents)))
+        residuals = np.asarray(self.residuals, dtype=np.float64)
+        known = np.isfinite(residuals) & (residuals > 0.0)
+        logs = np.log(np.where(known, residuals, REFERENCE_RESIDUAL) / REFERENCE_RESIDUAL)
+        factors = np.exp(logs[:, None] * np.asarray(exponents, dtype=np.float64)[None, :])
+        low, high = min(cfg.residual_min_factor, 1.0), max(cfg.residual_max_factor, 1.0)
+        return np.clip(factors, low, high)
 
 
 @dataclass
@@ -533,6 +601,9 @@ def calibrated_covariances(
     floor[:, 3:, 3:] = (sigma_r**2)[:, None, None] * _shape(eigen[1], cfg.rotation_floor_shape)
     correction_variance = along_correction(inputs.directions, share, cfg) + jerk_along(inputs, cfg)
     floor[:, :3, :3] += (relief**2)[:, None, None] * correction_variance
+    residual = inputs.residual_factors(cfg)  # a tight fit's floors shrink
+    floor[:, :3, :3] *= residual[:, 0, None, None]
+    floor[:, 3:, 3:] *= residual[:, 1, None, None]
     covariance = scaled + _degenerate_inflation(eigen, cfg) + floor
     return 0.5 * (covariance + np.swapaxes(covariance, -1, -2))
 

@@ -78,6 +78,7 @@ def accept_scan(
         ),
         correction_direction=moved[:3, 3],
         bend_m=chosen.sweep_bend_m,
+        residual_variance=chosen.residual_variance,
     )
     disputed = odometry.tracker.start_dispute  # the first scan's unknown twist
     if disputed is not None:

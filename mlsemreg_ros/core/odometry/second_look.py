@@ -144,6 +144,7 @@ def _near_miss(
                     cfg.odometry.covariance_scale, axes='source'
                 ),
                 inlier_fraction=alignment.inlier_fraction,
+                residual_variance=alignment.residual_variance,
                 candidates=[*chosen.candidates, moved],
             )
     if cfg.near_miss.action == 'refuse' and cfg.near_miss.recheck_swept:  # swept_dispute.py

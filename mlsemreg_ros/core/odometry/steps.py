@@ -84,6 +84,8 @@ class OdometryStep:
     #                             inflated by the prediction's (:func:`prediction_covariance`)
     sweep_bend_m: float = 0.0  # m, the sweep alignment's bend of the scan (Decision's)
     sweep_change_m: float = 0.0  # m, its estimate's, kept or not (Decision's)
+    residual_variance: float = 0.0  # the accepted fine alignment's 2E / (n - 6) (Decision's)
+    inlier_fraction: float = 0.0  # the accepted fine alignment's (Decision's; 0: unknown)
 
 
 deferred_attribute(OdometryStep, 'labels')
@@ -114,6 +116,9 @@ class Decision:
     sweep_bend_m: float = 0.0
     #: m, the same of the sweep alignment's estimate, kept or not (0: none estimated)
     sweep_change_m: float = 0.0
+    #: the accepted fine alignment's ``2E / (n - 6)`` (:attr:`Alignment.residual_variance`,
+    #: 0: unknown), which the covariance reads (docs/covariance.md)
+    residual_variance: float = 0.0
 
     @property
     def accepted(self) -> bool:
@@ -147,6 +152,7 @@ class Decision:
             pose=alignment.T_target_source,
             frame_covariance=alignment.covariance(covariance_scale, axes='source'),
             inlier_fraction=alignment.inlier_fraction,
+            residual_variance=alignment.residual_variance,
             candidates=candidates if candidates is not None else [],
             timings_ms=timings_ms if timings_ms is not None else {},
             confirm_weak=confirm_weak,
@@ -281,6 +287,8 @@ def accepted_step(
         labels=stored(raw, 'labels'),
         sweep_bend_m=chosen.sweep_bend_m,
         sweep_change_m=chosen.sweep_change_m,
+        residual_variance=chosen.residual_variance,
+        inlier_fraction=chosen.inlier_fraction or 0.0,
     )
 
 
