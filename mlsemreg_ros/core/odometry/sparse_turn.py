@@ -58,6 +58,4 @@ def turned_floor(view: View, odometry: OdometryConfig, overlap: float) -> Odomet
     if not view.partial or view.scan_gap_s <= SPARSE_GAP_S or overlap >= 1.0:
         return odometry
     share = max(float(overlap), MIN_SHARE)
-    return dataclasses.replace(
-        odometry, min_inlier_fraction=odometry.min_inlier_fraction * share
-    )
+    return dataclasses.replace(odometry, min_inlier_fraction=odometry.min_inlier_fraction * share)
