@@ -29,7 +29,10 @@ sparse stream (the scan before more than :data:`SPARSE_GAP_S` away) are judged w
 floor scaled by the share of the view their turn leaves, never below :data:`MIN_SHARE` of
 it. Everything else a turned start must pass stays: the correction and turn bounds, the
 scaled relative rule, no rival basin, its perturbed starts coming back, a weakly held
-direction confirmed by the sweep alignment. At stride 1 (0.1 s) nothing changes.
+direction confirmed by the sweep alignment. The sweep alignment of a scan a turned start
+registered there is judged by the same floor (:func:`sweep_rules`): with the field's labels
+the same scan 8 waited for its confirmation and the sweep alignment's pose, kept 0.23 of the
+scan, was refused by the floor. At stride 1 (0.1 s) nothing changes.
 """
 
 from __future__ import annotations
@@ -38,8 +41,10 @@ import dataclasses
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from mlsemreg_ros.core.config import OdometryConfig
+    from mlsemreg_ros.core.config import OdometryConfig, RegistrationConfig
     from mlsemreg_ros.core.odometry.narrow_view import View
+    from mlsemreg_ros.core.odometry.steps import Decision
+    import numpy as np
 
 #: A stream is sparse when the scan before is further than this (s): stride 4 and up at 10 Hz.
 SPARSE_GAP_S = 0.3
@@ -59,3 +64,28 @@ def turned_floor(view: View, odometry: OdometryConfig, overlap: float) -> Odomet
         return odometry
     share = max(float(overlap), MIN_SHARE)
     return dataclasses.replace(odometry, min_inlier_fraction=odometry.min_inlier_fraction * share)
+
+
+def sweep_rules(
+    view: View, chosen: Decision, pose: np.ndarray, cfg: RegistrationConfig
+) -> RegistrationConfig:
+    """
+    Return the configuration the sweep alignment of ``chosen`` at ``pose`` is judged by.
+
+    A turned start (source ``turn``) on a sparse narrow view: ``cfg`` with the floor of
+    :func:`turned_floor` and the relative-inlier rule scaled by the view its turn leaves, as
+    the turned start itself was judged; any other decision: ``cfg`` itself.
+    """
+    if chosen.source != 'turn':
+        return cfg
+    overlap = view.overlap(pose)
+    odometry = turned_floor(view, cfg.odometry, overlap)
+    if odometry is cfg.odometry:
+        return cfg
+    return cfg.replace(
+        {
+            'odometry.min_inlier_fraction': odometry.min_inlier_fraction,
+            'odometry.min_relative_inlier_fraction': odometry.min_relative_inlier_fraction
+            * overlap,
+        }
+    )
