@@ -53,6 +53,7 @@ from mlsemreg_ros.core.odometry.rotated_starts import (
     worth_rotating,
 )
 from mlsemreg_ros.core.odometry.second_look import second_look
+from mlsemreg_ros.core.odometry.sparse_turn import sweep_rules
 from mlsemreg_ros.core.odometry.start_twist import (
     disputed_motion,
     no_rotation_pose,
@@ -348,12 +349,13 @@ class Tracker:
         self.unbent_pose = None
         if not steady(chosen, cfg):
             implied = implied_twist(motion_model, pose, stamp_ns)  # sweep_starts.py
+            rules = sweep_rules(self.trust.view, chosen, pose, cfg)  # sparse_turn.py
             redone, moved, note, sweep_twist, chosen.sweep_change_m = self.align_sweep(
-                raw, pose, preprocessor, cfg, implied
+                raw, pose, preprocessor, rules, implied
             )
             if redone is not raw:  # deskewed again: aligned once more from there
                 chosen.sweep_bend_m = chosen.sweep_change_m
-                again = self.align_sweep(redone, moved, preprocessor, cfg)
+                again = self.align_sweep(redone, moved, preprocessor, rules)
                 if again[0] is not redone:
                     redone, moved, sweep_twist = again[0], again[1], again[3]
                     note = f'{note}; again: {again[2]}'

@@ -41,6 +41,7 @@ from mlsemreg_ros.core.odometry.motion_bound import prediction_error
 from mlsemreg_ros.core.odometry.narrow_view import held_bound, turn_bound
 from mlsemreg_ros.core.odometry.rotated_starts import AGREEMENT, offsets_within, yaw_rotated
 from mlsemreg_ros.core.odometry.second_look import basins, starts_back, weak_refusal
+from mlsemreg_ros.core.odometry.sparse_turn import turned_floor
 from mlsemreg_ros.core.odometry.steps import Decision
 import numpy as np
 
@@ -94,16 +95,17 @@ def turn_starts(
         """``on`` refined from ``T_start``, judged with the overlap its turn leaves in view."""
         alignment = tracker.map.align_scan(on, T_start)
         overlap = view.overlap(alignment.T_target_source)
-        return tracker.trust.judge(name, T_start, alignment, from_start, overlap)
+        rules = turned_floor(view, from_start, overlap)  # sparse_turn.py
+        return tracker.trust.judge(name, T_start, alignment, rules, overlap)
 
     refined = [c for c in chosen.candidates if c.name == 'prediction' and not c.still]
     passing: list[Candidate] = []
     if refined:  # the refined prediction again, expecting what its turn leaves in view
         again = refined[0]
         alignment = again.alignment
-        again = tracker.trust.judge(
-            'turn', again.T_initial, alignment, odometry, view.overlap(alignment.T_target_source)
-        )
+        overlap = view.overlap(alignment.T_target_source)
+        rules = turned_floor(view, odometry, overlap)  # sparse_turn.py
+        again = tracker.trust.judge('turn', again.T_initial, alignment, rules, overlap)
         if again.acceptable:
             passing.append(again)
         if view.partial:  # measured on narrow views only (session 19)
