@@ -44,7 +44,12 @@ from mlsemreg_ros.core.odometry.narrow_view import (
 from mlsemreg_ros.core.odometry.rotated_starts import yaw_rotated
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.trust import InlierHistory, relative_inlier_refusal
-from mlsemreg_ros.core.odometry.turn_starts import held_basins, turn_offsets, turn_starts
+from mlsemreg_ros.core.odometry.turn_starts import (
+    held_basins,
+    started,
+    turn_offsets,
+    turn_starts,
+)
 from mlsemreg_ros.tools import eval_bag, simulate
 import numpy as np
 import pytest
@@ -101,12 +106,38 @@ def test_the_held_bound() -> None:
 
 
 def test_the_turned_starts_offsets() -> None:
-    """5 deg first, then the yaw offsets of the rotated starts, each strictly within the bound."""
-    assert turn_offsets(5.0) == []
-    assert turn_offsets(9.5) == [5.0, -5.0]
-    assert turn_offsets(13.5) == [5.0, -5.0, 10.0, -10.0]
-    assert turn_offsets(22.5) == [5.0, -5.0, 10.0, -10.0, 20.0, -20.0]
+    """Every 2.5 deg on a narrow view, finest first, strictly within the bound, up to 20 deg."""
+    assert turn_offsets(2.5) == []
+    assert turn_offsets(5.0) == [2.5, -2.5]  # a turn's onset at stride 1 (0.1 s)
+    assert turn_offsets(9.0) == [2.5, -2.5, 5.0, -5.0, 7.5, -7.5]
+    assert turn_offsets(13.5)[-2:] == [12.5, -12.5] and len(turn_offsets(13.5)) == 10
+    assert turn_offsets(30.0)[-2:] == [20.0, -20.0] and len(turn_offsets(30.0)) == 16
     assert turn_offsets(22.5, fine=False) == [10.0, -10.0, 20.0, -20.0]  # a full ring
+    assert turn_offsets(5.0, fine=False) == []
+
+
+def test_a_narrow_views_turned_start_is_also_judged_on_the_scan_it_deskews() -> None:
+    """On a narrow view: the start on the scan, then on the scan deskewed by its own twist."""
+    scan, redone, T_start = object(), object(), yaw_rotated(np.eye(4), -5.0)
+    judged_on: list[tuple[str, object]] = []
+    asked: list[np.ndarray] = []
+
+    def judged(name: str, T: np.ndarray, on: object) -> SimpleNamespace:
+        judged_on.append((name, on))
+        return SimpleNamespace(name=name, T_initial=T, on=on)
+
+    def redeskew(T: np.ndarray) -> object:
+        asked.append(T)
+        return redone
+
+    out = started(judged, T_start, scan, True, redeskew)
+    assert [(c.name, c.on) for c, _ in out] == [('turn', scan), ('rotated', redone)]
+    assert out[0][1] is None and np.allclose(out[1][1], T_start)
+    assert len(asked) == 1 and np.allclose(asked[0], T_start)  # deskewed by the start's twist
+    judged_on.clear()
+    assert [c.on for c, _ in started(judged, T_start, scan, False, redeskew)] == [scan]  # ring
+    assert [c.on for c, _ in started(judged, T_start, scan, True, None)] == [scan]
+    assert [c.on for c, _ in started(judged, T_start, scan, True, lambda T: None)] == [scan]
 
 
 def test_an_unbent_sweep_alignment_confirms_a_pose_it_keeps() -> None:
@@ -239,3 +270,28 @@ def test_the_solid_state_drive_of_seed_1_at_stride_1(tmp_path: Path) -> None:
     # 23 came from a 5 deg turned start, merged with the other session-19 rules by its
     # prediction: either way every scan of that stretch right
     assert all(r['success'] == 'True' for r in rows[20:30]), [r['message'] for r in rows[20:30]]
+
+
+@pytest.mark.slow
+def test_the_solid_state_drive_of_seed_7_keeps_its_start_at_stride_1(tmp_path: Path) -> None:
+    """
+    Seed 7 starts into a 43 deg/s turn: its second scan refused, then no prediction.
+
+    On session 19's code scans 1-10 were refused (a still start covers only the second scan,
+    the search along the view only sparse streams). Now the third is found along the view
+    (0.2 s from the keyframe) and the turn's onset, scan 4, is registered by a turned start
+    judged on the scan deskewed by its own twist (docs/sensors.md, session 20).
+    """
+    drive = tmp_path / 'livox7'
+    arguments = [str(drive), '--realism', 'field', '--frames', '60', '--seed', '7']
+    assert simulate.main([*arguments, '--sensor', 'livox', '--quiet']) == 0
+    out = tmp_path / 'run'
+    options = ['--labels', 'geometric', '--max-frames', '12', '--no-plots', '--quiet']
+    assert eval_bag.main([str(drive), *options, '--output', str(out)]) == 0
+    with open(out / 'frames.csv', newline='') as table:
+        rows = list(csv.DictReader(table))
+    wrong = [r['frame'] for r in rows if r['accepted'] == 'True' and r['success'] == 'False']
+    assert wrong in ([], ['0']), wrong  # the first scan starts the odometry (no pair)
+    assert 'search along the view' in rows[2]['message'], rows[2]['message']
+    assert rows[4]['source'] == 'turn', rows[4]['message']
+    assert all(r['success'] == 'True' for r in rows[2:12]), [r['message'] for r in rows[2:12]]
