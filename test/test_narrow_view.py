@@ -82,12 +82,17 @@ def test_the_relative_inlier_rule_expects_less_after_a_turn() -> None:
 
 
 def test_the_turn_bound() -> None:
-    """The floor, a turn rate over the gap, 1.5 x the predicted turn, the cap."""
+    """The floor, a turn rate over the gap (plus the predicted turn on a narrow view), the cap."""
     view = View(span_deg=70.0)
     assert turn_bound(view, np.eye(4), 5.0, 45.0) == 5.0  # no last pose: the floor
     view.since((np.eye(4), 1_000_000_000), 1_100_000_000)  # 0.1 s: 4.5 deg
     assert turn_bound(view, np.eye(4), 5.0, 45.0) == pytest.approx(5.0)
-    assert turn_bound(view, yaw_rotated(np.eye(4), 8.0), 5.0, 45.0) == pytest.approx(12.0)
+    assert turn_bound(view, yaw_rotated(np.eye(4), 8.0), 5.0, 45.0) == pytest.approx(12.5)
+    assert turn_bound(view, yaw_rotated(np.eye(4), 0.8), 5.0, 45.0) == pytest.approx(5.3)
+    ring = View(span_deg=360.0)  # a full ring: the larger of 1.5 x 8 and 4.5 deg
+    ring.since((np.eye(4), 1_000_000_000), 1_100_000_000)
+    assert turn_bound(ring, yaw_rotated(np.eye(4), 8.0), 5.0, 45.0) == pytest.approx(12.0)
+    assert turn_bound(ring, yaw_rotated(np.eye(4), 0.8), 5.0, 45.0) == pytest.approx(5.0)
     view.since((np.eye(4), 1_000_000_000), 1_500_000_000)  # 0.5 s
     assert turn_bound(view, np.eye(4), 5.0, 45.0) == pytest.approx(22.5)
     view.since((np.eye(4), 1_000_000_000), 2_000_000_000)  # 1 s
