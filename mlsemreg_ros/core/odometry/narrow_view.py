@@ -46,11 +46,14 @@ only with ``near_miss.enabled`` and ``odometry.turn_rate`` above 0. A full ring 
 same turned starts (session 19: a VLP-16 at 2 Hz entering a 90 deg turn without labels), with
 an overlap of 1.
 
-Session 19 (docs/sensors.md): the turned starts also try 5 deg (``turn_starts.FINE_OFFSETS``)
-and the places the refined prediction's near-miss starts found that keep as much of the scan
-as tracking asks (``turn_starts.held_basins``, within :func:`held_bound`); and a weakly held
-pose whose sweep alignment needed no bend is confirmed by that alignment's own pose
-(:func:`unbent_confirmation_refusal`), all three on a partial view only.
+Session 19 (docs/sensors.md): the turned starts also take the places the refined
+prediction's near-miss starts found that keep as much of the scan as tracking asks
+(``turn_starts.held_basins``, within :func:`held_bound`); and a weakly held pose whose
+sweep alignment needed no bend is confirmed by that alignment's own pose
+(:func:`unbent_confirmation_refusal`). Session 20: the turned starts every 2.5 deg
+(``turn_starts.FINE_STEP``), each also judged on the scan deskewed by its own twist
+(``turn_starts.started``), within a bound that adds the prediction's own turn
+(:func:`turn_bound`). All of these on a partial view only.
 """
 
 from __future__ import annotations
