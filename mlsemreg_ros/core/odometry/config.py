@@ -272,8 +272,9 @@ class OdometryConfig:
     view_search_overlap: float = param(
         0.85,
         'A narrow view (under 0.9 of the azimuth circle) refused before any pair was '
-        'accepted, further in time than odometry.still_start from the keyframe and from the '
-        'scan before it (strides 2 and up at 10 Hz), is matched onto the keyframe '
+        'accepted, further in time than odometry.still_start from the keyframe (at 10 Hz: '
+        'the third scan after a refused second one, or any scan at stride 2 and up), is '
+        'matched onto the keyframe '
         'again from seeds along its view axis (every 4 m up to 15 m/s times the time since '
         'the keyframe, turned by up to 16 deg), judged as odometry.seeded_search judges a '
         'place, on the two scans deskewed by the motion the best place implies; that place '

@@ -46,11 +46,14 @@ only with ``near_miss.enabled`` and ``odometry.turn_rate`` above 0. A full ring 
 same turned starts (session 19: a VLP-16 at 2 Hz entering a 90 deg turn without labels), with
 an overlap of 1.
 
-Session 19 (docs/sensors.md): the turned starts also try 5 deg (``turn_starts.FINE_OFFSETS``)
-and the places the refined prediction's near-miss starts found that keep as much of the scan
-as tracking asks (``turn_starts.held_basins``, within :func:`held_bound`); and a weakly held
-pose whose sweep alignment needed no bend is confirmed by that alignment's own pose
-(:func:`unbent_confirmation_refusal`), all three on a partial view only.
+Session 19 (docs/sensors.md): the turned starts also take the places the refined
+prediction's near-miss starts found that keep as much of the scan as tracking asks
+(``turn_starts.held_basins``, within :func:`held_bound`); and a weakly held pose whose
+sweep alignment needed no bend is confirmed by that alignment's own pose
+(:func:`unbent_confirmation_refusal`). Session 20: the turned starts every 2.5 deg
+(``turn_starts.FINE_STEP``), each also judged on the scan deskewed by its own twist
+(``turn_starts.started``), within a bound that adds the prediction's own turn
+(:func:`turn_bound`). All of these on a partial view only.
 """
 
 from __future__ import annotations
@@ -77,16 +80,11 @@ class View:
     span_deg: float = 360.0  # occupied azimuth (deg); 360: a full ring, or not measured
     last_pose: np.ndarray | None = None  # T_odom of the last accepted scan
     gap_s: float = 0.0  # time from the last accepted scan to the current one (s)
-    scan_gap_s: float = 0.0  # time from the scan before, accepted or not (s; start_search.py)
-    previous_ns: int = 0  # stamp of the scan before (0: none seen)
 
     def since(self, last: tuple[np.ndarray, int] | None, stamp_ns: int) -> None:
         """Take the last accepted ``(pose, stamp)`` (None: none) and the current stamp."""
         self.last_pose = None if last is None else last[0]
         self.gap_s = (stamp_ns - last[1]) * 1e-9 if last is not None and stamp_ns else 0.0
-        previous = self.previous_ns or (last[1] if last is not None else 0)
-        self.scan_gap_s = (stamp_ns - previous) * 1e-9 if previous and stamp_ns else 0.0
-        self.previous_ns = stamp_ns
 
     @property
     def partial(self) -> bool:
@@ -115,12 +113,17 @@ def turn_bound(view: View, T_predicted: np.ndarray, floor_deg: float, turn_rate:
     ``GAIN x`` its own turn since the last accepted pose (a turn rate may stop or double),
     and at least ``turn_rate`` (deg/s, ``odometry.turn_rate``) over the time since it (a
     turn may begin: a car's tight turn is 43 deg/s on the simulated drives), within
-    ``[floor_deg, CAP_ROTATION]``.
+    ``[floor_deg, CAP_ROTATION]``. On a narrow view the turn that may begin adds to the
+    prediction's own (it may stop and a turn the other way begin): the solid state's
+    start at stride 1, its guess turning 0.4-0.8 deg a scan the wrong way, had its right
+    turned starts refused 5.1 deg, 9.6 deg and 14.0 deg from it, against 5.0, 9.0 and 13.5
+    (docs/sensors.md, session 20). A full ring keeps the larger of the two.
     """
     if view.last_pose is None:
         return floor_deg
     turn = rotation_angle_deg(np.linalg.solve(view.last_pose, T_predicted))
-    wide = max(GAIN * turn, turn_rate * max(view.gap_s, 0.0))
+    begun = turn_rate * max(view.gap_s, 0.0) + (turn if view.partial else 0.0)
+    wide = max(GAIN * turn, begun)
     return max(floor_deg, min(wide, CAP_ROTATION))
 
 

@@ -13,7 +13,7 @@
 # limitations under the License.
 
 """
-A narrow view's first pair searched along its view axis (issue 35: the solid state, strides 5, 10).
+A narrow view's first pair searched along its view axis (issue 35: the solid state).
 
 Before any motion is known the first pair is registered globally only. On the simulated
 70 deg solid-state pattern with geometric labels that registration keeps 4-42 true
@@ -24,10 +24,10 @@ session 19). A still start (``odometry.still_start``) covers a scan one sweep af
 keyframe; a scan 0.5-1 s after it is metres away, outside the map alignment's basin.
 
 A car, a robot or a person carrying a forward-looking solid-state sensor moves along its
-view. So a refused scan with no motion known, further in time than a still start reaches
-from the keyframe and from the scan before it (a sparse stream), on a partial view
-(``View.partial``), is matched onto the keyframe again from seeds along
-its view axis (the mean direction of its points in the horizontal plane): every
+view. So a refused scan with no motion known, further in time from the keyframe than a
+still start reaches, on a partial view (``View.partial``), is matched onto the keyframe
+again from seeds along its view axis (the mean direction of its points in the horizontal
+plane): every
 :data:`ALONG_STEP_M` from the keyframe to :data:`MAX_SPEED` times the time since it,
 turned by ``seeded_search.SEED_YAWS_DEG``. Each seed is re-matched, estimated and refined
 as the seeded search after a gap does (guided re-matching within
@@ -50,10 +50,13 @@ second basin (``near_miss.*``). Three things differ:
 
 On 196 first pairs of five simulated solid-state drives at strides 5-20 the global
 registration alone accepted 46, the search 47 more, all right (docs/sensors.md, session 19).
-Not at stride 1 (the scan before is 0.1 s away, ``View.scan_gap_s``): there it registered
-the second scan of the 200-scan seed-7 drive right in its opening turn, and the drive then
-lost 30 scans (94.5 -> 82.9 %). A full ring never runs it; ``odometry.view_search_overlap:
-0`` or ``odometry.seeded_search: false`` turns it off.
+At stride 1 it runs on the third scan when the second was refused (0.2 s from the
+keyframe; session 20): first kept to sparse streams (the scan before more than a still start
+away), because on the 200-scan seed-7 drive it registered the third scan right just before
+a 43 deg/s turn that the drive then lost for 30 scans (94.5 -> 82.9 %); with the turned
+starts each judged on the scan deskewed by its own twist (``turn_starts.started``) that
+turn is tracked (98.5 %). A full ring never runs it; ``odometry.view_search_overlap: 0``
+or ``odometry.seeded_search: false`` turns it off.
 """
 
 from __future__ import annotations
@@ -124,7 +127,7 @@ def search_along_view(
         or chosen.accepted
         or prediction is not None
         or not view.partial
-        or min(view.gap_s, view.scan_gap_s) <= max(cfg.odometry.still_start, 0.0)
+        or view.gap_s <= max(cfg.odometry.still_start, 0.0)
         or cfg.fine.method == 'off'
         or odometry.keyframe is None
         or not no_motion_known(odometry)

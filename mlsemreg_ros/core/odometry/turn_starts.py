@@ -39,7 +39,12 @@ from typing import TYPE_CHECKING
 from mlsemreg_ros.core.alignment.near_miss import alignment_fit
 from mlsemreg_ros.core.odometry.motion_bound import prediction_error
 from mlsemreg_ros.core.odometry.narrow_view import held_bound, turn_bound
-from mlsemreg_ros.core.odometry.rotated_starts import AGREEMENT, offsets_within, yaw_rotated
+from mlsemreg_ros.core.odometry.rotated_starts import (
+    AGREEMENT,
+    offsets_within,
+    YAW_OFFSETS,
+    yaw_rotated,
+)
 from mlsemreg_ros.core.odometry.second_look import basins, starts_back, weak_refusal
 from mlsemreg_ros.core.odometry.sparse_turn import turned_floor
 from mlsemreg_ros.core.odometry.steps import Decision
@@ -110,14 +115,21 @@ def turn_starts(
             passing.append(again)
         if view.partial:  # measured on narrow views only (session 19)
             passing += held_basins(tracker, refined[0], T_predicted, scan, cfg)
+    deskewed_by: dict[int, np.ndarray] = {}  # id(candidate): the start its scan is deskewed by
     for offset in turn_offsets(bound, fine=view.partial):
-        candidate = judged('turn', yaw_rotated(T_predicted, offset), scan)
-        _, turn = prediction_error(T_predicted, candidate.alignment.T_target_source)
-        if candidate.acceptable and turn <= bound:
-            passing.append(candidate)
+        T_start = yaw_rotated(T_predicted, offset)
+        for candidate, T_deskew in started(judged, T_start, scan, view.partial, redeskew):
+            _, turn = prediction_error(T_predicted, candidate.alignment.T_target_source)
+            if candidate.acceptable and turn <= bound:
+                passing.append(candidate)
+                if T_deskew is not None:
+                    deskewed_by[id(candidate)] = T_deskew
     if not passing:
         return chosen
     best = max(passing, key=lambda c: c.alignment.inlier_fraction)
+    own = deskewed_by.get(id(best))
+    if own is not None and redeskew is not None:  # the scan the best start was judged on
+        scan = redeskew(own) or scan
     share, residual = alignment_fit(best.alignment)
     rival_share = cfg.near_miss.rival_share
     for other in passing:
@@ -138,8 +150,14 @@ def turn_starts(
         tracker.map.cloud(redone)
         again = judged('rotated', best.alignment.T_target_source, redone)
         _, turn = prediction_error(T_predicted, again.alignment.T_target_source)
-        if again.acceptable and turn <= bound:  # 'rotated': the odometry takes the redone scan
+        # a start judged on its own deskewed scan keeps it unless the refined pose's twist
+        # keeps more: over 0.5 s into a turn that twist (the mean since the last accepted
+        # scan) is slower than the turn, and refused a pose its start's twist held
+        kept = own is None or again.alignment.inlier_fraction >= best.alignment.inlier_fraction
+        if again.acceptable and turn <= bound and kept:  # 'rotated': the odometry takes it
             best, scan = again, redone
+        elif own is not None:  # back to the scan the best start was judged on
+            scan = redeskew(own) or scan
     verdict = basins(tracker, best, scan, cfg)
     alignment = best.alignment
     back = starts_back(alignment, verdict, cfg)
@@ -167,19 +185,51 @@ def turn_starts(
     )
 
 
-#: Finer turns tried beside ``rotated_starts.YAW_OFFSETS`` (deg): a turn's onset at stride 1
-#: leaves the guess 4-8 deg off, where a 10 deg start overshoots into another basin.
-FINE_OFFSETS = (5.0, -5.0)
+def started(
+    judged: Callable[[str, np.ndarray, PreparedScan], Candidate],
+    T_start: np.ndarray,
+    scan: PreparedScan,
+    partial: bool,
+    redeskew: Callable[[np.ndarray], PreparedScan | None] | None,
+) -> list[tuple[Candidate, np.ndarray | None]]:
+    """
+    Return a turned start refined on ``scan`` and, on a narrow view, on the scan it deskews.
+
+    Each candidate comes with the start its scan was deskewed by (None: ``scan`` itself).
+    ``scan`` was deskewed by the prediction's twist, as wrong as its turn: a rosette sees
+    every part of its view throughout the sweep, so at a turn's onset each surface is
+    smeared by the turn the prediction missed. On the 200-scan seed-7 drive at stride 1 the
+    right starts kept 0.32-0.39 of the scan, 0.15-1.3 m from the truth, and 0.42-0.63,
+    0.06-0.4 m from it, on the scan deskewed by their own twist (docs/sensors.md, session 20).
+    A candidate on the redone scan is named ``'rotated'``: the odometry takes that scan.
+    """
+    out: list[tuple[Candidate, np.ndarray | None]] = [(judged('turn', T_start, scan), None)]
+    if partial and redeskew is not None:
+        redone = redeskew(T_start)
+        if redone is not None:
+            out.append((judged('rotated', T_start, redone), T_start))
+    return out
+
+
+#: The turned starts' step on a narrow view (deg): a turn's onset at stride 1 leaves the
+#: guess 3-13 deg off, where a start 5 deg from the truth already lands in another basin
+#: (docs/sensors.md, session 20; session 19 tried 5 deg, then the coarse offsets).
+FINE_STEP = 2.5
 
 
 def turn_offsets(bound: float, fine: bool = True) -> list[float]:
     """
     Return the turned starts' yaw offsets strictly within ``bound`` (deg), finest first.
 
-    ``fine``: with :data:`FINE_OFFSETS` (a narrow view; a full ring takes the coarse ones).
+    ``fine`` (a narrow view): every :data:`FINE_STEP` up to the widest of
+    ``rotated_starts.YAW_OFFSETS``; otherwise (a full ring) those offsets.
     """
-    coarse = offsets_within(bound)
-    return [o for o in FINE_OFFSETS if abs(o) < bound] + coarse if fine else coarse
+    if not fine:
+        return offsets_within(bound)
+    reach = max(abs(o) for o in YAW_OFFSETS)
+    steps = range(1, round(reach / FINE_STEP) + 1)
+    grid = [sign * FINE_STEP * k for k in steps for sign in (1.0, -1.0)]
+    return [o for o in grid if abs(o) < bound]
 
 
 def held_basins(
