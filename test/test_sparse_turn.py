@@ -67,6 +67,9 @@ def test_the_solid_state_drive_keeps_the_turn_at_stride_5_past_scan_8(tmp_path: 
         rows = list(csv.DictReader(table))
     wrong = [r['frame'] for r in rows if r['accepted'] == 'True' and r['success'] == 'False']
     assert wrong in ([], ['0']), wrong  # the first scan starts the odometry (no pair)
-    assert rows[8]['source'] == 'turn', rows[8]['message']
+    # session 20: a turned start on the scaled floor (sparse_turn.py) or, since livox1b, the
+    # global registration confirmed by the sweep alignment takes it; either way, right
+    assert rows[8]['accepted'] == 'True', rows[8]['message']
+    assert rows[8]['source'] in ('turn', 'global'), rows[8]['message']
     assert rows[8]['success'] == 'True', rows[8]['message']
     assert float(rows[8]['te_cm']) < 20.0

@@ -80,11 +80,16 @@ class View:
     span_deg: float = 360.0  # occupied azimuth (deg); 360: a full ring, or not measured
     last_pose: np.ndarray | None = None  # T_odom of the last accepted scan
     gap_s: float = 0.0  # time from the last accepted scan to the current one (s)
+    scan_gap_s: float = 0.0  # time from the scan before, accepted or not (s; sparse_turn.py)
+    previous_ns: int = 0  # stamp of the scan before (0: none seen)
 
     def since(self, last: tuple[np.ndarray, int] | None, stamp_ns: int) -> None:
         """Take the last accepted ``(pose, stamp)`` (None: none) and the current stamp."""
         self.last_pose = None if last is None else last[0]
         self.gap_s = (stamp_ns - last[1]) * 1e-9 if last is not None and stamp_ns else 0.0
+        previous = self.previous_ns or (last[1] if last is not None else 0)
+        self.scan_gap_s = (stamp_ns - previous) * 1e-9 if previous and stamp_ns else 0.0
+        self.previous_ns = stamp_ns
 
     @property
     def partial(self) -> bool:
