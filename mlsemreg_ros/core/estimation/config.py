@@ -288,9 +288,12 @@ class BevSearchConfig:
         high=30,
     )
     coarse_yaws: int = param(
-        12,
+        6,
         'Coarse yaws (by their best peak) searched again at yaw_step around them. On the '
-        'dev pairs the yaw nearest the truth ranked at most 6th of 60 coarse yaws.',
+        'dev pairs the yaw nearest the truth ranked at most 6th of 60 coarse yaws; on the 40 '
+        'and 60 m chains the coarse peaks themselves carry most right poses, and 6 instead of '
+        '12 left every verdict of the ten pair sets as it was (docs/hard_pairs.md, eighth '
+        'round).',
         low=1,
         high=3600,
     )
@@ -311,11 +314,12 @@ class BevSearchConfig:
         2.0, 'Translation bound of the peak suppression.', unit='m', low=0.0, high=100.0
     )
     guided_peaks: int = param(
-        3,
+        2,
         'When the best pose is still refused after the search: the keypoints are matched '
         'again around this many best searched poses (only within bev_search.guided_radius '
         'of where the pose puts them, compatible labels), and the estimator runs again on '
-        'each set (core/estimation/guided.py; 0: off).',
+        'each set (core/estimation/guided.py; 0: off). 2 instead of 3: the same verdicts '
+        'on the ten pair sets, a third less time (docs/hard_pairs.md, eighth round).',
         low=0,
         high=64,
     )
@@ -337,9 +341,11 @@ class BevSearchConfig:
         high=1024,
     )
     polish_fine: int = param(
-        2,
+        1,
         'After the polishing, this many best distinct candidates (polished or not) also get '
-        "the pair's fine alignment (fine.pair_method, 6-DoF) and are scored again (0: none).",
+        "the pair's fine alignment (fine.pair_method, 6-DoF) and are scored again (0: none). "
+        '1 instead of 2: the same verdicts on the ten pair sets, one GICP less '
+        '(docs/hard_pairs.md, eighth round).',
         low=0,
         high=64,
     )
