@@ -288,12 +288,9 @@ class BevSearchConfig:
         high=30,
     )
     coarse_yaws: int = param(
-        6,
+        12,
         'Coarse yaws (by their best peak) searched again at yaw_step around them. On the '
-        'dev pairs the yaw nearest the truth ranked at most 6th of 60 coarse yaws; on the 40 '
-        'and 60 m chains the coarse peaks themselves carry most right poses, and 6 instead of '
-        '12 left every verdict of the ten pair sets as it was (docs/hard_pairs.md, eighth '
-        'round).',
+        'dev pairs the yaw nearest the truth ranked at most 6th of 60 coarse yaws.',
         low=1,
         high=3600,
     )
