@@ -338,3 +338,49 @@ def test_a_refused_mirror_sends_the_scans_to_the_bev_search(street_pair):
     re, te = _errors(result.transform, street_pair['truth'])
     assert re < 1.0 and te < 0.3
     assert result.num_inliers >= 35
+
+
+# -- distinctive structure: the per-scan sides are made once, for those very arrays -------
+
+
+def _poles(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Five poles (20 points each) on a road plane, 30 m across."""
+    rng = np.random.default_rng(seed)
+    feet = rng.uniform(-15.0, 15.0, (5, 2))
+    poles = np.concatenate(
+        [np.column_stack([np.tile(f, (20, 1)), np.linspace(0.0, 3.0, 20)]) for f in feet]
+    )
+    road = np.column_stack([rng.uniform(-20.0, 20.0, (400, 2)), np.zeros(400)])
+    points = np.concatenate([poles, road])
+    labels = np.concatenate([np.full(len(poles), POLE), np.full(len(road), ROAD)])
+    return points, labels.astype(np.int32)
+
+
+def test_distinctive_scores_are_the_same_from_the_kept_sides():
+    """The kept sides give the fresh answer; other labels on the same points are not served."""
+    from mlsemreg_ros.core.estimation import verification
+
+    points, labels = _poles(3)
+    truth = _pose(20.0, (4.0, -2.0, 0.0))
+    source = _scan(points, labels)
+    target = _scan(apply_transform(truth, points), labels)
+    distinctive = np.zeros(20, dtype=bool)
+    distinctive[POLE] = True
+    poses = np.stack([truth, np.eye(4), _pose(20.0, (6.0, -2.0, 0.0))])
+    first = verification.distinctive_scores(poses, source, target, distinctive, 0.5)
+    again = verification.distinctive_scores(poses, source, target, distinctive, 0.5)
+    fresh = verification._DistinctiveSides().side(source, distinctive, source=True)
+    kept = verification._DISTINCTIVE_SIDES.side(source, distinctive, source=True)
+    assert kept is verification._DISTINCTIVE_SIDES.side(source, distinctive, source=True)
+    np.testing.assert_array_equal(kept.member, fresh.member)
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(a, b)
+    assert first[1][0] == 5 and first[0][0] == 1.0  # the truth lines up all five poles
+    assert first[1][1] < 5
+    # the same points without pole labels: nothing distinctive, not the kept side's answer
+    bare = _scan(points, np.full(len(points), ROAD, dtype=np.int32))
+    bare.points = source.points
+    share, objects, in_view = verification.distinctive_scores(
+        poses, bare, target, distinctive, 0.5
+    )
+    assert not share.any() and not objects.any() and not in_view.any()

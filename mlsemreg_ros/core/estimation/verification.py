@@ -51,6 +51,7 @@ drops even where its geometric overlap is as high as the true pose's.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import threading
 import time
 
 from mlsemreg_ros.core.estimation import kernels
@@ -381,6 +382,85 @@ DISTINCTIVE_MAX_POINTS = 600
 DISTINCTIVE_VIEW_DISTANCE = 1.0
 
 
+@dataclass(frozen=True)
+class DistinctiveSide:
+    """
+    What :func:`distinctive_scores` needs of one scan, independent of the poses.
+
+    ``points``: the scan's distinctive points (the source's: at most
+    :data:`DISTINCTIVE_MAX_POINTS`, a seeded subset); ``tree``: their KD-tree;
+    ``member``: ``(len(points),)`` the object of every point (connected within
+    :data:`DISTINCTIVE_OBJECT_RADIUS`), ``size``: ``(objects,)`` points per object.
+    """
+
+    points: np.ndarray
+    tree: cKDTree | None
+    member: np.ndarray
+    size: np.ndarray
+
+    @classmethod
+    def of(cls, scan: PreparedScan, distinctive: np.ndarray, source: bool) -> DistinctiveSide:
+        """Return the side of ``scan`` (its objects too when it is the ``source``)."""
+        labels = np.asarray(scan.labels, dtype=np.int64)
+        known = (labels >= 0) & (labels < distinctive.size)
+        points = scan.points[known & distinctive[np.where(known, labels, 0)]]
+        none = np.zeros(0, dtype=np.int64)
+        if not source:
+            return cls(points, cKDTree(points) if len(points) else None, none, none)
+        if len(points) > DISTINCTIVE_MAX_POINTS:  # seeded subset: the cost stays bounded
+            rows = np.random.default_rng(0).choice(
+                len(points), DISTINCTIVE_MAX_POINTS, replace=False
+            )
+            points = points[np.sort(rows)]
+        if len(points) == 0:
+            return cls(points, None, none, none)
+        tree = cKDTree(points)
+        graph = tree.sparse_distance_matrix(
+            tree, DISTINCTIVE_OBJECT_RADIUS, output_type='coo_matrix'
+        )
+        num_objects, member = connected_components(graph, directed=False)
+        return cls(points, tree, member, np.bincount(member, minlength=num_objects))
+
+
+class _DistinctiveSides:
+    """
+    The :class:`DistinctiveSide` of the last few scans, made once per scan and role.
+
+    A registration scores poses on the same two scans many times (the estimator's
+    hypotheses, every search's candidates, the rivals of the confidence rule: about 14 calls
+    per 60 m dev pair); the sides do not depend on the poses. An entry holds the scan's
+    ``points`` and ``labels`` arrays and is used only for those very arrays (as the scan's
+    KD-tree, :meth:`PreparedScan.points_tree`, the arrays are not changed in place).
+    """
+
+    def __init__(self, capacity: int = 8) -> None:
+        """Keep the sides of the last ``capacity`` scan roles."""
+        self.capacity = capacity
+        self.entries: list[tuple[object, object, bytes, bool, DistinctiveSide]] = []
+        self.lock = threading.Lock()
+
+    def side(self, scan: PreparedScan, distinctive: np.ndarray, source: bool) -> DistinctiveSide:
+        """Return the side of ``scan`` for ``distinctive`` (made now if not kept)."""
+        points, labels, classes = scan.points, scan.labels, np.asarray(distinctive).tobytes()
+        with self.lock:
+            for entry in self.entries:
+                if (
+                    entry[0] is points
+                    and entry[1] is labels
+                    and entry[2] == classes
+                    and entry[3] == source
+                ):
+                    return entry[4]
+        found = DistinctiveSide.of(scan, np.asarray(distinctive), source)
+        kept = self.capacity
+        with self.lock:
+            self.entries = [(points, labels, classes, source, found), *self.entries][:kept]
+        return found
+
+
+_DISTINCTIVE_SIDES = _DistinctiveSides()
+
+
 def distinctive_scores(
     transforms: np.ndarray,
     source: PreparedScan,
@@ -393,10 +473,12 @@ def distinctive_scores(
 
     ``distinctive``: ``(C,)`` bool over learning ids (``confidence.distinctive_classes``:
     poles, signs, trunks). Every distinctive source point is moved by each pose and looked
-    up among the distinctive target points (a small KD-tree, built here). The source's
+    up among the distinctive target points (a small KD-tree). The source's
     distinctive points are grouped into objects (connected within
     :data:`DISTINCTIVE_OBJECT_RADIUS`, at least :data:`DISTINCTIVE_OBJECT_MIN_POINTS`
     points); an object lines up when :data:`DISTINCTIVE_OBJECT_SHARE` of its points do.
+    The points, trees and objects of both scans are made once per scan
+    (:class:`DistinctiveSide`).
 
     Returns ``(share (N,), objects (N,), in_view (N,))``: the share of distinctive source
     points with a distinctive target point within ``distance``, the number of objects
@@ -408,31 +490,20 @@ def distinctive_scores(
     """
     count = transforms.shape[0]
     empty = np.zeros(count), np.zeros(count, dtype=np.int64), np.zeros(count, dtype=np.int64)
-
-    def marked(scan: PreparedScan) -> np.ndarray:
-        labels = np.asarray(scan.labels, dtype=np.int64)
-        known = (labels >= 0) & (labels < distinctive.size)
-        return scan.points[known & distinctive[np.where(known, labels, 0)]]
-
-    source_points, target_points = marked(source), marked(target)
-    if len(source_points) > DISTINCTIVE_MAX_POINTS:  # seeded subset: the cost stays bounded
-        rows = np.random.default_rng(0).choice(
-            len(source_points), DISTINCTIVE_MAX_POINTS, replace=False
-        )
-        source_points = source_points[np.sort(rows)]
-    if count == 0 or len(source_points) == 0 or len(target_points) == 0:
+    mine = _DISTINCTIVE_SIDES.side(source, distinctive, source=True)
+    theirs = _DISTINCTIVE_SIDES.side(target, distinctive, source=False)
+    source_points = mine.points
+    if count == 0 or len(source_points) == 0 or theirs.tree is None:
         return empty
     moved = source_points @ transforms[:, :3, :3].transpose(0, 2, 1) + transforms[:, None, :3, 3]
-    found, _ = cKDTree(target_points).query(moved.reshape(-1, 3), distance_upper_bound=distance)
+    found, _ = theirs.tree.query(moved.reshape(-1, 3), distance_upper_bound=distance)
     hit = np.isfinite(found).reshape(count, -1)
     seen, _ = target.points_tree().query(
         moved.reshape(-1, 3), distance_upper_bound=DISTINCTIVE_VIEW_DISTANCE
     )
     seen = np.isfinite(seen).reshape(count, -1)
-    tree = cKDTree(source_points)
-    graph = tree.sparse_distance_matrix(tree, DISTINCTIVE_OBJECT_RADIUS, output_type='coo_matrix')
-    num_objects, member = connected_components(graph, directed=False)
-    size = np.bincount(member, minlength=num_objects)
+    member, size = mine.member, mine.size
+    num_objects = size.size
     lined = np.zeros((count, num_objects))
     np.add.at(lined, (slice(None), member), hit)  # (N, objects) points lined up
     viewed = np.zeros((count, num_objects))
