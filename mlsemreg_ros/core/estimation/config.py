@@ -83,14 +83,10 @@ class EstimatorConfig:
         high=100000,
     )
     graph_retry_inliers: int = param(
-        0,
+        50,
         'When the graph was sampled (estimator.graph_size) and its best hypothesis has '
         'fewer inliers than this on all correspondences, SC2-PCR runs again on the full '
-        'graph: inlier ratios near 1 % leave too few inliers in the sample (0: never). Off '
-        'since the eighth round of docs/hard_pairs.md (was 50): the refused path (BEV '
-        'searches, guided re-matching) finds those poses, the retry cost a third of the 40 '
-        'and 60 m pairs 110-220 ms and changed no verdict of the pair sets, the confidence '
-        'study, the relocalization of the real KITTI map or the field drives.',
+        'graph: inlier ratios near 1 % leave too few inliers in the sample (0: never).',
         low=0,
         high=100000,
     )
