@@ -311,12 +311,13 @@ class BevSearchConfig:
         2.0, 'Translation bound of the peak suppression.', unit='m', low=0.0, high=100.0
     )
     guided_peaks: int = param(
-        2,
+        3,
         'When the best pose is still refused after the search: the keypoints are matched '
         'again around this many best searched poses (only within bev_search.guided_radius '
         'of where the pose puts them, compatible labels), and the estimator runs again on '
-        'each set (core/estimation/guided.py; 0: off). 2 instead of 3: the same verdicts '
-        'on the ten pair sets, a third less time (docs/hard_pairs.md, eighth round).',
+        'each set (core/estimation/guided.py; 0: off). 2 would cost a third less with the '
+        'same verdicts on the ten pair sets, but loses solid-state scans (docs/hard_pairs.md, '
+        'eighth round).',
         low=0,
         high=64,
     )
