@@ -40,6 +40,7 @@ from mlsemreg_ros.core.odometry.gyro_rescue import rescue_by_gyro
 from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
 from mlsemreg_ros.core.odometry.prior_guard import guard_prior
+from mlsemreg_ros.core.odometry.ring_start_search import search_along_forward
 from mlsemreg_ros.core.odometry.seeded_search import search_around_prediction
 from mlsemreg_ros.core.odometry.start_search import search_along_view
 from mlsemreg_ros.core.odometry.steps import Decision
@@ -74,5 +75,8 @@ def review(
     chosen = search_along_view(
         odometry, given[3], prediction, raw, chosen, timings
     )  # start_search
+    chosen = search_along_forward(
+        odometry, given[3], prediction, raw, chosen, timings
+    )  # ring_start_search
     chosen = relocalize(odometry, raw, chosen, timings)  # core/odometry/recovery.py
     return raw, chosen, prior_refusal, deskew_refusal
