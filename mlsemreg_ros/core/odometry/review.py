@@ -26,6 +26,8 @@ In order, each reading the decision before it (``Odometry.process``'s decide ste
   prediction, accepted on its overlap where both scans see;
 - start_search.py: a narrow view's refused scan with no motion known, matched onto the
   keyframe from seeds along its view axis, judged as the seeded search;
+- ring_start_search.py: a full ring's refused scan with no motion known, matched onto the
+  keyframe from seeds along its forward axis (+x), judged by stage 9's bar;
 - failures.py: at the ``keyframe.max_failures``-th rejection in a row, relocalization
   onto the past keyframes (recovery.py).
 """

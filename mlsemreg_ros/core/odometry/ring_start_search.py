@@ -15,7 +15,32 @@
 """
 A full ring's first pair searched along the platform's forward axis (issue 35, no labels).
 
-DRAFT: measured in docs/sensors.md, session 20.
+Before any motion is known the first pair is registered globally only. Without labels a
+spinning sensor's far first pair (0.5-1 s, 3-10 m) often keeps fewer than
+``estimator.min_inliers`` sparse inliers: the simulated OS1-128 drive of seed 7 at stride 5
+refused every pair of scans 0-55 but the last (RR 9.1 %, KISS-ICP 27.3 %); each refused scan
+becomes the keyframe (``failures.no_motion_known``), so the next pair is a first pair again.
+
+A car or a robot moves along the forward axis of its sensor (+x). So a full ring
+(not ``View.partial``) refused with no motion known, further in time than
+``odometry.still_start`` from the keyframe and from the scan before it (a sparse stream), is
+matched onto the keyframe again from seeds along the keyframe's +x: every
+``start_search.ALONG_STEP_M`` from the keyframe to ``start_search.MAX_SPEED`` times the time
+since it, turned by ``seeded_search.SEED_YAWS_DEG``. It is the narrow view's search
+(core/odometry/start_search.py) with the forward axis for the view axis and stage 9's bar
+(``odometry.ring_search_overlap`` 0.97 on ``odometry.ring_search_checked`` 0.03, the
+``covisibility.accept_*`` defaults), not the narrow view's 0.85 on 0.2: each seed is
+re-matched, estimated and refined as the seeded search after a gap does, the evidence is
+measured on the two scans deskewed by the best place's motion, and only the best place
+itself is accepted (``seeded_search.search_seeds``: every distinct place and slide
+``covisibility.accept_gap`` below, the best dense score, ``estimator.min_inliers`` sparse
+inliers, the map inlier floor, no second basin).
+
+Why 0.97: the best places of refused first pairs reached 0.81-0.95 and one of them, at 0.865,
+was 0.63 m from the truth (OS1-128 seed 7, scans 0 -> 5); the right places accepted kept
+0.990-0.994 (docs/sensors.md, session 20). Not at stride 1 (the scan before is 0.1 s away);
+a narrow view never runs it; ``odometry.ring_search_overlap: 0`` or
+``odometry.seeded_search: false`` turns it off.
 """
 
 from __future__ import annotations
@@ -32,6 +57,11 @@ import numpy as np
 
 #: The platform's forward axis in the sensor frame: a car or a robot moves along +x.
 FORWARD_AXIS = np.array([1.0, 0.0])
+
+
+def forward_seeds(T_keyframe: np.ndarray, gap_s: float) -> list[np.ndarray]:
+    """Return ``T_keyframe`` moved along its own +x (``start_search.view_seeds``) and turned."""
+    return view_seeds(T_keyframe, FORWARD_AXIS, gap_s)
 
 
 def search_along_forward(
@@ -61,7 +91,7 @@ def search_along_forward(
         return chosen
     tic = time.perf_counter()
     try:
-        seeds = view_seeds(odometry.keyframe.pose, FORWARD_AXIS, view.gap_s)
+        seeds = forward_seeds(odometry.keyframe.pose, view.gap_s)
         place, refusal = search_seeds(
             odometry,
             registration,
