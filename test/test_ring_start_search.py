@@ -16,7 +16,8 @@
 A full ring's first pair searched along its forward axis (core/odometry/ring_start_search.py).
 
 Known answers of the seeds (along the keyframe's +x, turned); nothing runs on a narrow view,
-with a prediction, on a dense stream (0.1 s from the scan before) or when off; and (slow)
+with a prediction, on a dense stream (0.1 s from the scan before), 3 s after the keyframe
+or when off; and (slow)
 the first pair of the simulated VLP-16 drive of seed 7 at stride 10 without labels, scans 30
 and 40, 8 m apart: the global registration alone refuses it, the search along the forward
 axis registers it right.
@@ -54,7 +55,7 @@ def test_the_seeds_lie_along_the_keyframes_forward_axis() -> None:
     assert yaws == {float(y) for y in SEED_YAWS_DEG}
 
 
-def test_nothing_runs_on_a_narrow_view_with_a_prediction_or_when_off() -> None:
+def test_nothing_runs_on_a_narrow_view_far_with_a_prediction_or_when_off() -> None:
     """The refused decision comes back untouched: nothing else is asked of the odometry."""
     refused = Decision(source='', reason='refused')
     last = (np.eye(4), 1_000_000_000)
@@ -64,9 +65,12 @@ def test_nothing_runs_on_a_narrow_view_with_a_prediction_or_when_off() -> None:
     dense = View(span_deg=360.0)  # 10 Hz: a scan after a refused one, 0.2 s from the keyframe
     dense.since(last, 1_100_000_000)
     dense.since(last, 1_200_000_000)
+    far = View(span_deg=360.0)  # 3 s after the keyframe (stride 30 at 10 Hz)
+    far.since(last, 4_000_000_000)
     config = RegistrationConfig()
     off = config.replace({'odometry.ring_search_overlap': 0.0})
     for view, prediction, cfg in (
+        (far, None, config),  # beyond odometry.ring_search_max_gap
         (narrow, None, config),  # a narrow view: core/odometry/start_search.py
         (ring, object(), config),  # a motion model's prediction
         (ring, None, off),  # off

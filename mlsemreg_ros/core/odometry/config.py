@@ -307,6 +307,15 @@ class OdometryConfig:
         low=0.0,
         high=1.0,
     )
+    ring_search_max_gap: float = param(
+        1.0,
+        'odometry.ring_search_overlap searches a first pair at most this long after the '
+        'keyframe (s): strides up to 10 at 10 Hz. At 3 s (25-30 m) the covisible overlap no '
+        'longer told a place 0.8 m off along a straight road from the right one (0.982 '
+        'against 0.977-0.994; docs/sensors.md, session 20).',
+        low=0.0,
+        high=1e3,
+    )
     refine_first_keyframe: bool = param(
         True,
         'The global registration onto the first keyframe after a start or reset refines the '

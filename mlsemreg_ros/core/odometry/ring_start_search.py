@@ -38,7 +38,10 @@ inliers, the map inlier floor, no second basin).
 
 Why 0.97: the best places of refused first pairs reached 0.81-0.95 and one of them, at 0.865,
 was 0.63 m from the truth (OS1-128 seed 7, scans 0 -> 5); the right places accepted kept
-0.990-0.994 (docs/sensors.md, session 20). Not at stride 1 (the scan before is 0.1 s away);
+0.974-0.994 (docs/sensors.md, session 20). Not further than ``odometry.ring_search_max_gap``
+(1 s) from the keyframe: 3 s after it (25-30 m on a straight road) a place 0.8 m off kept
+0.982, as the right places of other pairs (0.977-0.994). Not at stride 1 (the scan before
+is 0.1 s away);
 a narrow view never runs it; ``odometry.ring_search_overlap: 0`` or
 ``odometry.seeded_search: false`` turns it off.
 """
@@ -57,6 +60,8 @@ import numpy as np
 
 #: The platform's forward axis in the sensor frame: a car or a robot moves along +x.
 FORWARD_AXIS = np.array([1.0, 0.0])
+#: Stamps 10 scans apart at 10 Hz are 1.0 s apart give or take a jitter (s).
+STAMP_TOLERANCE_S = 0.005
 
 
 def forward_seeds(T_keyframe: np.ndarray, gap_s: float) -> list[np.ndarray]:
@@ -81,6 +86,7 @@ def search_along_forward(
         or prediction is not None
         or view.partial
         or min(view.gap_s, view.scan_gap_s) <= max(cfg.odometry.still_start, 0.0)
+        or view.gap_s > cfg.odometry.ring_search_max_gap + STAMP_TOLERANCE_S
         or cfg.fine.method == 'off'
         or odometry.keyframe is None
         or not no_motion_known(odometry)
