@@ -292,6 +292,31 @@ class OdometryConfig:
         low=0.0,
         high=1.0,
     )
+    ring_search_overlap: float = param(
+        0.97,
+        'A full ring refused before any pair was accepted, further in time than '
+        'odometry.still_start from the keyframe and from the scan before it, is matched onto '
+        'the keyframe again from seeds along its forward axis (+x), as odometry.'
+        'view_search_overlap does for a narrow view; that place is accepted with this '
+        'covisible overlap (core/odometry/ring_start_search.py; 0: off).',
+        low=0.0,
+        high=1.0,
+    )
+    ring_search_checked: float = param(
+        0.03,
+        'The share of its surface the two scans must check for odometry.ring_search_overlap.',
+        low=0.0,
+        high=1.0,
+    )
+    ring_search_max_gap: float = param(
+        1.0,
+        'odometry.ring_search_overlap searches a first pair at most this long after the '
+        'keyframe (s): strides up to 10 at 10 Hz. At 3 s (25-30 m) the covisible overlap no '
+        'longer told a place 0.8 m off along a straight road from the right one (0.982 '
+        'against 0.977-0.994; docs/sensors.md, session 20).',
+        low=0.0,
+        high=1e3,
+    )
     refine_first_keyframe: bool = param(
         True,
         'The global registration onto the first keyframe after a start or reset refines the '

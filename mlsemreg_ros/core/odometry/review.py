@@ -26,6 +26,8 @@ In order, each reading the decision before it (``Odometry.process``'s decide ste
   prediction, accepted on its overlap where both scans see;
 - start_search.py: a narrow view's refused scan with no motion known, matched onto the
   keyframe from seeds along its view axis, judged as the seeded search;
+- ring_start_search.py: a full ring's refused scan with no motion known, matched onto the
+  keyframe from seeds along its forward axis (+x), judged by stage 9's bar;
 - failures.py: at the ``keyframe.max_failures``-th rejection in a row, relocalization
   onto the past keyframes (recovery.py).
 """
@@ -40,6 +42,7 @@ from mlsemreg_ros.core.odometry.gyro_rescue import rescue_by_gyro
 from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
 from mlsemreg_ros.core.odometry.prior_guard import guard_prior
+from mlsemreg_ros.core.odometry.ring_start_search import search_along_forward
 from mlsemreg_ros.core.odometry.seeded_search import search_around_prediction
 from mlsemreg_ros.core.odometry.start_search import search_along_view
 from mlsemreg_ros.core.odometry.steps import Decision
@@ -74,5 +77,8 @@ def review(
     chosen = search_along_view(
         odometry, given[3], prediction, raw, chosen, timings
     )  # start_search
+    chosen = search_along_forward(
+        odometry, given[3], prediction, raw, chosen, timings
+    )  # ring_start_search
     chosen = relocalize(odometry, raw, chosen, timings)  # core/odometry/recovery.py
     return raw, chosen, prior_refusal, deskew_refusal
