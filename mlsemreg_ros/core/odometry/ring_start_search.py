@@ -48,13 +48,10 @@ a narrow view never runs it; ``odometry.ring_search_overlap: 0`` or
 
 from __future__ import annotations
 
-from dataclasses import replace
-import time
 from typing import Any
 
 from mlsemreg_ros.core.odometry.failures import no_motion_known
-from mlsemreg_ros.core.odometry.seeded_search import search_seeds
-from mlsemreg_ros.core.odometry.start_search import deskewed_pair, view_seeds
+from mlsemreg_ros.core.odometry.start_search import search_from_keyframe, view_seeds
 from mlsemreg_ros.core.odometry.steps import Decision
 import numpy as np
 
@@ -95,30 +92,14 @@ def search_along_forward(
     registration = getattr(odometry.global_registration, 'registration', None)
     if registration is None:
         return chosen
-    tic = time.perf_counter()
-    try:
-        seeds = forward_seeds(odometry.keyframe.pose, view.gap_s)
-        place, refusal = search_seeds(
-            odometry,
-            registration,
-            seeds,
-            raw.scan,
-            lambda place: deskewed_pair(odometry, registration, raw, place, stamp_ns),
-            cfg.replace(
-                {
-                    'covisibility.accept_overlap': cfg.odometry.ring_search_overlap,
-                    'covisibility.accept_checked': cfg.odometry.ring_search_checked,
-                }
-            ),
-            best_only=True,
-        )
-    finally:
-        timings['ring_search_ms'] = 1e3 * (time.perf_counter() - tic)
-    if place is None:
-        note = f'search along the forward axis: {refusal}'
-        return replace(chosen, reason='; '.join(r for r in (chosen.reason, note) if r))
-    note = (
-        f'accepted by the search along the forward axis (covisible overlap '
-        f'{place.overlap:.3f} of {place.checked:.2f} checked; {refusal})'
+    return search_from_keyframe(
+        odometry,
+        registration,
+        raw,
+        chosen,
+        stamp_ns,
+        FORWARD_AXIS,
+        (cfg.odometry.ring_search_overlap, cfg.odometry.ring_search_checked),
+        ('the search along the forward axis', 'ring_search_ms'),
+        timings,
     )
-    return chosen.rescued(place.candidate, note, cfg.odometry.covariance_scale)

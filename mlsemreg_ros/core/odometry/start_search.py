@@ -139,30 +139,60 @@ def search_along_view(
     axis = view_axis(raw.scan.points)
     if axis is None:
         return chosen
+    return search_from_keyframe(
+        odometry,
+        registration,
+        raw,
+        chosen,
+        stamp_ns,
+        axis,
+        (cfg.odometry.view_search_overlap, cfg.odometry.view_search_checked),
+        ('the search along the view', 'view_search_ms'),
+        timings,
+    )
+
+
+def search_from_keyframe(
+    odometry: Any,
+    registration: Any,
+    raw: Any,
+    chosen: Decision,
+    stamp_ns: int,
+    axis: np.ndarray,
+    bar: tuple[float, float],
+    name: tuple[str, str],
+    timings: dict[str, float],
+) -> Decision:
+    """
+    Return ``chosen``, or the best place seeded along ``axis`` from the keyframe, if accepted.
+
+    ``bar``: the covisible overlap and checked share it must reach on the deskewed pair;
+    ``name``: the search's name in the notes and its key in ``timings``. Shared by the
+    search along a narrow view (here) and along a full ring's forward axis
+    (``ring_start_search.py``).
+    """
+    cfg, view = odometry.config, odometry.tracker.trust.view
+    label, timing_key = name
     tic = time.perf_counter()
     try:
-        seeds = view_seeds(odometry.keyframe.pose, axis, view.gap_s)
         place, refusal = search_seeds(
             odometry,
             registration,
-            seeds,
+            view_seeds(odometry.keyframe.pose, axis, view.gap_s),
             raw.scan,
             lambda place: deskewed_pair(odometry, registration, raw, place, stamp_ns),
             cfg.replace(
-                {
-                    'covisibility.accept_overlap': cfg.odometry.view_search_overlap,
-                    'covisibility.accept_checked': cfg.odometry.view_search_checked,
-                }
+                {'covisibility.accept_overlap': bar[0], 'covisibility.accept_checked': bar[1]}
             ),
             best_only=True,
         )
     finally:
-        timings['view_search_ms'] = 1e3 * (time.perf_counter() - tic)
+        timings[timing_key] = 1e3 * (time.perf_counter() - tic)
     if place is None:
-        note = f'search along the view: {refusal}'
+        note = f'{label.removeprefix("the ")}: {refusal}'
         return replace(chosen, reason='; '.join(r for r in (chosen.reason, note) if r))
     note = (
-        f'accepted by the search along the view (covisible overlap {place.overlap:.3f} of '
+        f'accepted by {label} (covisible overlap {place.overlap:.3f} of '
         f'{place.checked:.2f} checked; {refusal})'
     )
     return chosen.rescued(place.candidate, note, cfg.odometry.covariance_scale)
