@@ -83,6 +83,10 @@ def test_only_a_keyframe_that_fitted_looser_passes_its_covariance_on() -> None:
     )
     assert np.allclose(shares, [1.0, 0.0, 1.0, 0.0, 0.0])
     assert np.allclose(keyframe_shares(np.array([0.3]), np.array([3.0]), OFF), 0.0)
+    bounded = replace(ON, keyframe_scan_residual=0.5)  # a loose scan: its own error
+    assert np.allclose(
+        keyframe_shares(np.array([0.3, 0.6]), np.array([3.0, 6.0]), bounded), [1, 0]
+    )
     keyframe, T = np.eye(6) * 1e-4, _transform(np.zeros(3), np.array([5.0, 0, 0]))
     assert np.any(keyframe_term(keyframe, T, 0.3, 3.0, ON) != 0)
     assert np.all(keyframe_term(keyframe, T, 0.3, 0.4, ON) == 0)

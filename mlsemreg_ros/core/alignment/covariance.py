@@ -53,7 +53,12 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   the translation floor's variance (every term above) times ``(r / REFERENCE_RESIDUAL) **
   covariance.residual_translation_exponent`` (the rotation's likewise), within
   ``residual_min_factor`` and ``residual_max_factor``: a tracked scan that fits its map
-  tighter than usual is closer than the floors say (docs/covariance.md, session 20).
+  tighter than usual is closer than the floors say (docs/covariance.md, session 20);
+- the **keyframe's** own frame covariance ``C_k``, times ``covariance.keyframe_share`` and
+  rotated into the scan's axes (:func:`keyframe_covariances`), where the scan fits its map
+  tightly (residual below ``keyframe_scan_residual``) and the keyframe fitted it
+  ``keyframe_residual_ratio`` times looser: the pose is relative to the keyframe, and a
+  misplaced keyframe carries its error into a scan that fits the map (session 21).
 
 What differs between sensors is followed through the Hessian's own size, not a table per
 sensor: ``covariance.hessian_size_exponent`` grows the scale of a block as its Hessian
@@ -372,22 +377,30 @@ class CovarianceConfig:
         high=100.0,
     )
     keyframe_share: float = param(
-        0.0,
-        "The share of the keyframe's own frame covariance added to a scan's when the keyframe "
-        'fitted its map loosely (its residual variance above keyframe_residual_ratio times '
-        "the scan's): the pose is scored and published relative to the keyframe, and a "
-        'keyframe misplaced against the map carries its error into every scan that fits the '
-        'map (HDL-64 field drive seed 0 at stride 10: scans 10-24 cm off after a keyframe '
-        "that fitted 4-13 times looser). Rotated into the scan's axes. 0: off "
+        0.3,
+        "The share of the keyframe's own frame covariance added to a scan's when the scan "
+        'fits its map tightly and the keyframe fitted it loosely (keyframe_residual_ratio, '
+        'keyframe_scan_residual): the pose is scored and published relative to the keyframe, '
+        'and a keyframe misplaced against the map carries its error into the scan that fits '
+        'the map (HDL-64 field drive seed 0 at stride 10: scans 10-24 cm off after keyframes '
+        "that fitted 4-7 times looser). Rotated into the scan's axes. 0: off "
         '(docs/covariance.md).',
         low=0.0,
         high=10.0,
     )
     keyframe_residual_ratio: float = param(
-        2.0,
+        3.0,
         "keyframe_share applies when the keyframe's residual variance 2E / (n - 6) exceeds "
         "this many times the scan's own (both known).",
-        low=1.0,
+        low=0.0,
+        high=1000.0,
+    )
+    keyframe_scan_residual: float = param(
+        0.75,
+        'keyframe_share applies only to a scan whose own residual variance is below this (a '
+        "scan that fits its map tightly: its error is the keyframe's; a handheld sweep fits "
+        "at 1.5-16 and its keyframe's looseness says little). 0: no bound.",
+        low=0.0,
         high=1000.0,
     )
     degenerate_ratio: float = param(
@@ -780,7 +793,8 @@ def keyframe_shares(
     Return the share (K,) of the keyframe's covariance each scan's covariance gets.
 
     ``covariance.keyframe_share`` where the keyframe's residual variance exceeds
-    ``covariance.keyframe_residual_ratio`` times the scan's (both known, above 0), else 0.
+    ``covariance.keyframe_residual_ratio`` times the scan's (both known, above 0) and the
+    scan's is below ``covariance.keyframe_scan_residual`` (0: any), else 0.
     """
     residuals = np.asarray(residuals, dtype=np.float64)
     keyframe_residuals = np.asarray(keyframe_residuals, dtype=np.float64)
@@ -789,6 +803,8 @@ def keyframe_shares(
     known = (residuals > 0.0) & (keyframe_residuals > 0.0)
     known &= np.isfinite(residuals) & np.isfinite(keyframe_residuals)
     loose = known & (keyframe_residuals > cfg.keyframe_residual_ratio * residuals)
+    if cfg.keyframe_scan_residual > 0.0:
+        loose &= residuals < cfg.keyframe_scan_residual
     return np.where(loose, cfg.keyframe_share, 0.0)
 
 
