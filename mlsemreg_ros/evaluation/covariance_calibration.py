@@ -35,6 +35,8 @@ from mlsemreg_ros.core.alignment.covariance import (
     CovarianceConfig,
     CovarianceInputs,
     hessian_eigen,
+    keyframe_covariances,
+    keyframe_shares,
     motion_size,
     no_calibration,
 )
@@ -78,6 +80,10 @@ class CovarianceSample:
     source: int = 0  # the step's source: SOURCES' index (0: unknown)
     residual_variance: float = 0.0  # the accepted fine alignment's 2E / (n - 6) (0: unknown)
     inlier_fraction: float = 0.0  # the accepted fine alignment's inlier share (0: unknown)
+    #: how many samples back the keyframe's own sample is (0: the keyframe is no sample)
+    keyframe_back: int = 0
+    #: (6,) ``[t, rotvec]`` of the estimate ``T_keyframe_scan`` (zeros: unknown)
+    relative: np.ndarray = field(default_factory=lambda: np.zeros(6))
 
 
 #: The step sources a sample records (:attr:`CovarianceSample.source`).
@@ -148,6 +154,7 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
     estimator = OdometryEstimator(Odometry(Registration(uncalibrated(config))))
     truth: dict[int, np.ndarray] = {}
     samples, last_accepted_ns = [], None
+    sample_of: dict[int, int] = {}  # a scan's sample position, by its index
     for scan in scans:
         if scan.pose is not None:
             truth[scan.index] = np.asarray(scan.pose)
@@ -184,9 +191,18 @@ def stream_samples(scans: Any, config: Any) -> list[CovarianceSample]:
                 source_code(getattr(step, 'source', '')),
                 float(getattr(step, 'residual_variance', 0.0)),
                 float(getattr(step, 'inlier_fraction', 0.0)),
+                len(samples) - sample_of[keyframe] if keyframe in sample_of else 0,
+                transform_log(estimate.relative),
             )
         )
+        sample_of[scan.index] = len(samples) - 1
     return samples
+
+
+def transform_log(T: np.ndarray) -> np.ndarray:
+    """``[t, rotvec]`` (6,) of a transform (4, 4)."""
+    T = np.asarray(T, dtype=np.float64)
+    return np.concatenate([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_rotvec()])
 
 
 def _predicted_pose(step: Any) -> np.ndarray | None:
@@ -235,8 +251,9 @@ def nees_values(
     """Return the NEES of every sample under a calibration (NaN: a singular covariance)."""
     if not samples:
         return np.zeros(0)
-    errors, covariances, inputs, eigen = _stack(samples)
+    errors, covariances, inputs, eigen, links = _stack(samples)
     calibrated = calibrated_covariances(covariances, scale, cfg, inputs, eigen)
+    calibrated = links.added_to(calibrated, cfg)
     values = np.full(len(samples), np.nan)
     usable = np.all(np.isfinite(calibrated), axis=(1, 2))
     usable[usable] = np.linalg.matrix_rank(calibrated[usable]) == 6
@@ -246,16 +263,53 @@ def nees_values(
     return values
 
 
+@dataclass
+class KeyframeLinks:
+    """Each sample's keyframe among the samples, for ``covariance.keyframe_share``."""
+
+    back: np.ndarray  # (K,) how many samples back the keyframe's sample is (0: none)
+    T_keyframe_scans: np.ndarray  # (K, 4, 4) the estimates relative to the keyframe
+    residuals: np.ndarray  # (K,) the samples' residual variances (0: unknown)
+
+    @classmethod
+    def of(cls, samples: list[CovarianceSample]) -> KeyframeLinks:
+        """Return the links of a data set's samples (in their order)."""
+        count = len(samples)
+        back = np.array([s.keyframe_back for s in samples], dtype=int).reshape(count)
+        back[(back < 0) | (back > np.arange(count))] = 0
+        T = np.repeat(np.eye(4)[None], count, axis=0)
+        for index, sample in enumerate(samples):
+            T[index, :3, :3] = Rotation.from_rotvec(sample.relative[3:]).as_matrix()
+            T[index, :3, 3] = sample.relative[:3]
+        residuals = np.array([s.residual_variance for s in samples], dtype=np.float64)
+        return cls(back, T, residuals.reshape(count))
+
+    def added_to(self, calibrated: np.ndarray, cfg: CovarianceConfig) -> np.ndarray:
+        """``calibrated`` (K, 6, 6) plus each keyframe's share, as the odometry adds it."""
+        linked = self.back > 0
+        if cfg.keyframe_share <= 0.0 or not np.any(linked):
+            return calibrated
+        keyframes = np.where(linked, np.arange(len(self.back)) - self.back, 0)
+        kept = np.where(linked, self.residuals[keyframes], 0.0)
+        shares = keyframe_shares(self.residuals, kept, cfg)
+        return calibrated + keyframe_covariances(
+            calibrated[keyframes], self.T_keyframe_scans, shares
+        )
+
+
 def _batch_nees(
     errors: np.ndarray,
     covariances: np.ndarray,
     inputs: CovarianceInputs,
     eigen: tuple[BlockEigen, BlockEigen],
+    links: KeyframeLinks,
     scale: float,
     cfg: CovarianceConfig,
 ) -> np.ndarray:
     """:func:`nees_values` of stacked samples (:func:`_stack`), for the fits."""
-    calibrated = calibrated_covariances(covariances, scale, cfg, inputs, eigen)
+    calibrated = links.added_to(
+        calibrated_covariances(covariances, scale, cfg, inputs, eigen), cfg
+    )
     solved = np.linalg.solve(calibrated, errors[:, :, None])[:, :, 0]
     return np.einsum('ki,ki->k', errors, solved)
 
@@ -325,7 +379,7 @@ def _stacks(datasets: dict[str, list[CovarianceSample]]) -> list[tuple[Any, ...]
 
 
 def _stack(samples: list[CovarianceSample]) -> tuple[Any, ...]:
-    """Errors (K, 6), Hessian covariances (K, 6, 6), the calibration's inputs, the eigen."""
+    """Errors (K, 6), Hessian covariances (K, 6, 6), the inputs, the eigen, the keyframes."""
     covariances = np.array([s.hessian_covariance for s in samples], dtype=np.float64)
     return (
         np.array([s.error for s in samples], dtype=np.float64).reshape(-1, 6),
@@ -340,6 +394,7 @@ def _stack(samples: list[CovarianceSample]) -> tuple[Any, ...]:
             np.array([s.residual_variance for s in samples], dtype=np.float64),
         ),
         hessian_eigen(covariances.reshape(-1, 6, 6)),
+        KeyframeLinks.of(samples),
     )
 
 
@@ -505,6 +560,9 @@ def save_samples(path: Any, samples: list[CovarianceSample]) -> None:
         residuals=np.array(
             [(s.residual_variance, s.inlier_fraction) for s in samples], dtype=np.float64
         ).reshape(-1, 2),
+        keyframes=np.array(
+            [(s.keyframe_back, *s.relative) for s in samples], dtype=np.float64
+        ).reshape(-1, 7),
     )
 
 
@@ -518,6 +576,7 @@ def load_samples(path: Any) -> list[CovarianceSample]:
         sizes = _column(data, 'scan_points', (count, 2)).astype(int)
         sweep = _column(data, 'sweep', (count, 3))
         residuals = _column(data, 'residuals', (count, 2))
+        keyframes = _column(data, 'keyframes', (count, 7))
         rows = zip(
             data['errors'],
             data['covariances'],
@@ -528,6 +587,7 @@ def load_samples(path: Any) -> list[CovarianceSample]:
             sizes,
             sweep,
             residuals,
+            keyframes,
             strict=True,
         )
         return [
@@ -544,8 +604,10 @@ def load_samples(path: Any) -> list[CovarianceSample]:
                 int(w[2]),
                 float(r[0]),
                 float(r[1]),
+                int(k[0]),
+                np.asarray(k[1:], dtype=np.float64),
             )
-            for e, c, d, a, m, v, n, w, r in rows
+            for e, c, d, a, m, v, n, w, r, k in rows
         ]
 
 

@@ -53,7 +53,12 @@ of their own), so ``C_H`` claims too little. The calibrated covariance is
   the translation floor's variance (every term above) times ``(r / REFERENCE_RESIDUAL) **
   covariance.residual_translation_exponent`` (the rotation's likewise), within
   ``residual_min_factor`` and ``residual_max_factor``: a tracked scan that fits its map
-  tighter than usual is closer than the floors say (docs/covariance.md, session 20).
+  tighter than usual is closer than the floors say (docs/covariance.md, session 20);
+- the **keyframe's** own frame covariance ``C_k``, times ``covariance.keyframe_share`` and
+  rotated into the scan's axes (:func:`keyframe_covariances`), where the scan fits its map
+  tightly (residual below ``keyframe_scan_residual``) and the keyframe fitted it
+  ``keyframe_residual_ratio`` times looser: the pose is relative to the keyframe, and a
+  misplaced keyframe carries its error into a scan that fits the map (session 21).
 
 What differs between sensors is followed through the Hessian's own size, not a table per
 sensor: ``covariance.hessian_size_exponent`` grows the scale of a block as its Hessian
@@ -370,6 +375,33 @@ class CovarianceConfig:
         'loose fit keeps the floors, as does a value below 1; docs/covariance.md).',
         low=0.0,
         high=100.0,
+    )
+    keyframe_share: float = param(
+        0.3,
+        "The share of the keyframe's own frame covariance added to a scan's when the scan "
+        'fits its map tightly and the keyframe fitted it loosely (keyframe_residual_ratio, '
+        'keyframe_scan_residual): the pose is scored and published relative to the keyframe, '
+        'and a keyframe misplaced against the map carries its error into the scan that fits '
+        'the map (HDL-64 field drive seed 0 at stride 10: scans 10-24 cm off after keyframes '
+        "that fitted 4-7 times looser). Rotated into the scan's axes. 0: off "
+        '(docs/covariance.md).',
+        low=0.0,
+        high=10.0,
+    )
+    keyframe_residual_ratio: float = param(
+        3.0,
+        "keyframe_share applies when the keyframe's residual variance 2E / (n - 6) exceeds "
+        "this many times the scan's own (both known).",
+        low=0.0,
+        high=1000.0,
+    )
+    keyframe_scan_residual: float = param(
+        0.75,
+        'keyframe_share applies only to a scan whose own residual variance is below this (a '
+        "scan that fits its map tightly: its error is the keyframe's; a handheld sweep fits "
+        "at 1.5-16 and its keyframe's looseness says little). 0: no bound.",
+        low=0.0,
+        high=1000.0,
     )
     degenerate_ratio: float = param(
         100.0,
@@ -752,3 +784,80 @@ def motion_size(motion: np.ndarray) -> tuple[float, float]:
     """Return the distance (m) and the rotation angle (deg) of a motion (4, 4)."""
     cosine = np.clip((np.trace(motion[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
     return float(np.linalg.norm(motion[:3, 3])), float(np.degrees(np.arccos(cosine)))
+
+
+def keyframe_shares(
+    residuals: np.ndarray, keyframe_residuals: np.ndarray, cfg: CovarianceConfig
+) -> np.ndarray:
+    """
+    Return the share (K,) of the keyframe's covariance each scan's covariance gets.
+
+    ``covariance.keyframe_share`` where the keyframe's residual variance exceeds
+    ``covariance.keyframe_residual_ratio`` times the scan's (both known, above 0) and the
+    scan's is below ``covariance.keyframe_scan_residual`` (0: any), else 0.
+    """
+    residuals = np.asarray(residuals, dtype=np.float64)
+    keyframe_residuals = np.asarray(keyframe_residuals, dtype=np.float64)
+    if cfg.keyframe_share <= 0.0:
+        return np.zeros(residuals.shape)
+    known = (residuals > 0.0) & (keyframe_residuals > 0.0)
+    known &= np.isfinite(residuals) & np.isfinite(keyframe_residuals)
+    loose = known & (keyframe_residuals > cfg.keyframe_residual_ratio * residuals)
+    if cfg.keyframe_scan_residual > 0.0:
+        loose &= residuals < cfg.keyframe_scan_residual
+    return np.where(loose, cfg.keyframe_share, 0.0)
+
+
+def keyframe_covariances(
+    keyframe_covariances: np.ndarray, T_keyframe_scans: np.ndarray, shares: np.ndarray
+) -> np.ndarray:
+    """
+    Return the keyframe's covariances (K, 6, 6) in the scans' axes, times ``shares`` (K,).
+
+    The pose relative to the keyframe, ``T_keyframe_scan = inv(T_keyframe) T_scan``, with
+    both poses perturbed on the right by ``[t, rotvec]`` errors, is off by the scan's
+    error minus ``Ad(inv(T_keyframe_scan))`` times the keyframe's: its covariance adds
+    ``Ad C_k Ad^T``, ``Ad = [[R, [t]x R], [0, R]]`` of ``inv(T_keyframe_scan)``
+    (``keyframe_covariances``: (K, 6, 6) in the keyframe's axes, ROS order).
+    """
+    T = np.asarray(T_keyframe_scans, dtype=np.float64).reshape(-1, 4, 4)
+    covariances = np.asarray(keyframe_covariances, dtype=np.float64).reshape(-1, 6, 6)
+    rotation = np.swapaxes(T[:, :3, :3], -1, -2)  # of inv(T): R^T, -R^T t
+    translation = -np.einsum('kij,kj->ki', rotation, T[:, :3, 3])
+    skew = np.zeros((len(T), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = (
+        -translation[:, 2],
+        translation[:, 1],
+        -translation[:, 0],
+    )
+    skew -= np.swapaxes(skew, -1, -2)
+    adjoint = np.zeros((len(T), 6, 6))
+    adjoint[:, :3, :3], adjoint[:, 3:, 3:] = rotation, rotation
+    adjoint[:, :3, 3:] = skew @ rotation
+    moved = adjoint @ covariances @ np.swapaxes(adjoint, -1, -2)
+    shares = np.asarray(shares, dtype=np.float64).reshape(-1)
+    finite = np.all(np.isfinite(moved), axis=(1, 2))
+    return np.where(finite[:, None, None], moved * shares[:, None, None], 0.0)
+
+
+def keyframe_term(
+    keyframe_covariance: np.ndarray | None,
+    T_keyframe_scan: np.ndarray,
+    residual_variance: float,
+    keyframe_residual: float,
+    cfg: CovarianceConfig,
+) -> np.ndarray:
+    """
+    Return what the keyframe adds to a scan's covariance (6, 6; zeros: nothing).
+
+    ``keyframe_covariance``: the keyframe's own frame covariance when it was accepted
+    (its axes; None: unknown, as for the first scan); ``residual_variance`` and
+    ``keyframe_residual``: the scan's and the keyframe's ``2E / (n - 6)``
+    (:func:`keyframe_shares`, :func:`keyframe_covariances`).
+    """
+    if keyframe_covariance is None or cfg.keyframe_share <= 0.0:
+        return np.zeros((6, 6))
+    share = keyframe_shares(np.array([residual_variance]), np.array([keyframe_residual]), cfg)
+    if share[0] <= 0.0:
+        return np.zeros((6, 6))
+    return keyframe_covariances(keyframe_covariance[None], T_keyframe_scan[None], share)[0]

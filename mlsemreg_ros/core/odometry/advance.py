@@ -27,7 +27,11 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from mlsemreg_ros.core.alignment.covariance import calibrated_covariance, motion_size
+from mlsemreg_ros.core.alignment.covariance import (
+    calibrated_covariance,
+    keyframe_term,
+    motion_size,
+)
 from mlsemreg_ros.core.deferred import stored
 from mlsemreg_ros.core.odometry.local_map import insert_accepted, Keyframe
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
@@ -83,6 +87,14 @@ def accept_scan(
     disputed = odometry.tracker.start_dispute  # the first scan's unknown twist
     if disputed is not None:
         chosen.frame_covariance = inflated_covariance(chosen.frame_covariance, disputed)
+    own_covariance = chosen.frame_covariance  # against the map: what a keyframe passes on
+    chosen.frame_covariance = own_covariance + keyframe_term(
+        keyframe.frame_covariance,
+        relative,
+        chosen.residual_variance,
+        keyframe.residual_variance,
+        odometry.config.covariance,
+    )
     last, odometry._last_accepted = odometry._last_accepted, (pose.copy(), stamp_ns)
     odometry._accepted.append(odometry._last_accepted)
     odometry.pose = pose.copy()
@@ -101,6 +113,8 @@ def accept_scan(
     step.new_keyframe = odometry.keyframe is not keyframe
     if step.new_keyframe:
         odometry.past_keyframes.remember(keyframe)
+        odometry.keyframe.frame_covariance = own_covariance
+        odometry.keyframe.residual_variance = chosen.residual_variance
     return step
 
 

@@ -216,6 +216,10 @@ class Keyframe:
     labels: np.ndarray  # (N,) raw labels (may be given as a Deferred: core/deferred.py)
     prepared: PreparedScan
     pose: np.ndarray  # (4, 4) T_odom_keyframe
+    #: its own frame covariance when accepted (its axes; None: unknown), and its fine
+    #: alignment's residual variance: ``covariance.keyframe_share`` (docs/covariance.md)
+    frame_covariance: np.ndarray | None = None
+    residual_variance: float = 0.0
 
 
 deferred_attribute(Keyframe, 'labels')
