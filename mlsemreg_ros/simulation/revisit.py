@@ -139,12 +139,7 @@ def other_drive(
     sim = Simulation(config)
     length = max(frames - 1, 1) * config.step + 60.0
     path = plan_route(sim.grid, length, np.random.default_rng([route_seed, 3]), config.trajectory)
-    route_xy = np.concatenate(
-        [
-            sim.path.sample(np.arange(0.0, sim.path.length + 5.0, 5.0))[0],
-            path.sample(np.arange(0.0, path.length + 5.0, 5.0))[0],
-        ]
-    )
+    route_xy = np.concatenate([sim.path.waypoints(), path.waypoints()])
     world_cfg = replace(config.world, seed=config.seed)
     sim.world = build_world(sim.grid, route_xy, world_cfg, sim.label_map)
     from mlsemreg_ros.simulation.lidar import Lidar

@@ -94,7 +94,7 @@ class Simulation:
             cfg.trajectory,
             dt=1.0 / cfg.rate_hz,
         )
-        route_xy = self.path.sample(np.arange(0.0, self.path.length + 5.0, 5.0))[0]
+        route_xy = self.path.waypoints()
         self.world: World = build_world(self.grid, route_xy, world_cfg, self.label_map)
         self.lidar = Lidar(self.world, cfg.lidar)
         self._origin_inv = np.linalg.inv(self.world_poses[0])
