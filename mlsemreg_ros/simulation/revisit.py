@@ -30,8 +30,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
-from mlsemreg_ros.simulation.sequence import Simulation, SimulationConfig
-from mlsemreg_ros.simulation.trajectory import frame_positions, Path2D, plan_route, sensor_poses
+from mlsemreg_ros.simulation.sequence import drive_poses, Simulation, SimulationConfig
+from mlsemreg_ros.simulation.trajectory import frame_positions, Path2D, plan_route
 from mlsemreg_ros.simulation.world import build_world
 import numpy as np
 
@@ -105,15 +105,7 @@ def reverse_drive(
     path = reversed_path(clip_path(sim.path, driven), lane_change)
     path = clip_path_from(path, start_offset)
     frames = max(int((path.length - 1.0) / config.step), 1)
-    poses = sensor_poses(
-        path,
-        frames,
-        config.step,
-        config.lidar.mount_height,
-        np.random.default_rng([noise_seed, 4]),
-        config.trajectory,
-        dt=1.0 / config.rate_hz,
-    )
+    poses = drive_poses(config, path, frames, np.random.default_rng([noise_seed, 4]))
     return sim, poses
 
 
@@ -145,15 +137,7 @@ def other_drive(
     from mlsemreg_ros.simulation.lidar import Lidar
 
     sim.lidar = Lidar(sim.world, config.lidar)
-    poses = sensor_poses(
-        path,
-        frames,
-        config.step,
-        config.lidar.mount_height,
-        np.random.default_rng([route_seed, 4]),
-        config.trajectory,
-        dt=1.0 / config.rate_hz,
-    )
+    poses = drive_poses(config, path, frames, np.random.default_rng([route_seed, 4]))
     return sim, poses
 
 
