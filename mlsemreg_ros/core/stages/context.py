@@ -123,6 +123,11 @@ class RegistrationContext:
         """Time a ``with`` block as ``timings_ms[stage + '_ms']``."""
         return timed(self.timings_ms, f'{stage}_ms')
 
+    def refused_or_weak(self) -> bool:
+        """Tell whether a verified pose is refused or weak (below ``bev_search.weak_inliers``)."""
+        weak = self.evidence.num_inliers < self.config.bev_search.weak_inliers
+        return bool(self.refusal or weak) and self.verified is not None
+
     def doubt(self, reason: str) -> None:
         """Refuse the pose for ``reason`` (an accepted pose takes the first reason given)."""
         if reason:

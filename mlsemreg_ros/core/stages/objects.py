@@ -47,11 +47,7 @@ class ObjectStage:
 
     def wanted(self, context: RegistrationContext) -> bool:
         """``objects.enabled``, after a verification, for a refused or weak pose."""
-        cfg = context.config
-        weak = context.evidence.num_inliers < cfg.bev_search.weak_inliers
-        return (
-            cfg.objects.enabled and bool(context.refusal or weak) and context.verified is not None
-        )
+        return context.refused_or_weak() and context.config.objects.enabled
 
     def run(self, context: RegistrationContext) -> VerificationResult | None:
         """Level, extract, match and solve; the verified poses or None."""
