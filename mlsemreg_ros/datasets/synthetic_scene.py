@@ -98,7 +98,7 @@ def street_scene(seed: int = 0, length: float = 120.0) -> tuple[np.ndarray, np.n
     half = length / 2
 
     def strip(y: float, width: float, z: float, density: float) -> np.ndarray:
-        """The ground along the street from ``y`` over ``width`` (signed) at height ``z``."""
+        """Sample the ground along the street from ``y`` over ``width`` (signed) at ``z``."""
         along, across = np.array([length, 0, 0]), np.array([0, width, 0])
         return _plane(rng, np.array([-half, y, z]), along, across, density)
 

@@ -118,7 +118,7 @@ def _random_walk(
 
 
 def _sample_times(t0: float, t1: float, rate_hz: float) -> tuple[np.ndarray, float]:
-    """Times (n,) every ``1 / rate_hz`` seconds from ``t0`` up to ``t1``, and that period."""
+    """Return the times (n,) every ``1 / rate_hz`` s from ``t0`` up to ``t1``, and that period."""
     dt = 1.0 / rate_hz
     return t0 + dt * np.arange(int(np.floor((t1 - t0) / dt)) + 1), dt
 
