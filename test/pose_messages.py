@@ -19,6 +19,7 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from mlsemreg_ros.datasets.synthetic_scene import motion
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -59,7 +60,4 @@ def pose_of(msg: Any) -> np.ndarray:
 
 
 def yawed(x: float, y: float, yaw_deg: float) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler('z', yaw_deg, degrees=True).as_matrix()
-    T[:3, 3] = [x, y, 0.0]
-    return T
+    return motion(yaw_deg, (x, y, 0.0))
