@@ -26,13 +26,18 @@ from dataclasses import dataclass
 from mlsemreg_ros.core.settings import ConfigError, param
 
 
+def class_rule_names(rule: str) -> list[str]:
+    """Return the class names of a ``class~class[~class...]`` rule, stripped."""
+    return [name.strip() for name in rule.split('~')]
+
+
 def _check_class_rules(
     key: str, rules: list[str], min_names: int, form: str, example: str
 ) -> None:
     """Raise ConfigError for a rule that is not ``min_names`` or more class names, ``~``-joined."""
     for rule in rules:
-        names = rule.split('~')
-        if len(names) < min_names or not all(n.strip() for n in names):
+        names = class_rule_names(rule)
+        if len(names) < min_names or not all(names):
             raise ConfigError(f'{key}: {rule!r} is not of the form {form} (e.g. {example!r})')
 
 
