@@ -19,6 +19,8 @@ from __future__ import annotations
 import time
 from typing import Any
 
+from mlsemreg_ros.codec.poses import pose_message_to_matrix, transform_message_to_matrix
+from mlsemreg_ros.datasets.synthetic_scene import motion
 import numpy as np
 from scipy.spatial.transform import Rotation
 
@@ -51,15 +53,15 @@ def publish_pose(probe: Any, topic: str, msg: Any) -> None:
 
 
 def pose_of(msg: Any) -> np.ndarray:
-    p, q = msg.pose.pose.position, msg.pose.pose.orientation
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = [p.x, p.y, p.z]
-    return T
+    return pose_message_to_matrix(msg.pose.pose)
+
+
+def matrix(message: Any) -> np.ndarray:
+    """Return the (4, 4) of a geometry_msgs Transform or Pose."""
+    if hasattr(message, 'translation'):
+        return transform_message_to_matrix(message)
+    return pose_message_to_matrix(message)
 
 
 def yawed(x: float, y: float, yaw_deg: float) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler('z', yaw_deg, degrees=True).as_matrix()
-    T[:3, 3] = [x, y, 0.0]
-    return T
+    return motion(yaw_deg, (x, y, 0.0))

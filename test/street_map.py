@@ -26,26 +26,22 @@ STREET_SEED = 3
 KEYFRAME_X = (-30.0, -15.0, 0.0, 15.0, 30.0)
 
 
-def street_keyframe_store(config: RegistrationConfig | None = None) -> KeyframeStore:
-    """Return a store with keyframes along the synthetic street (learning ids)."""
+def street_keyframe_store(
+    config: RegistrationConfig | None = None, stamp_step_ns: int = 1_000_000_000
+) -> KeyframeStore:
+    """Return a store with keyframes along the synthetic street (learning ids), k * step ns."""
     store = KeyframeStore(config or RegistrationConfig())
     world, labels = street_scene(seed=STREET_SEED)
     for k, x in enumerate(KEYFRAME_X):
         pose = motion(5.0 * k, (x, 0.3 * k, 0.0))
         points, scan_labels = scan_at(world, labels, pose, seed=200 + k, max_points=15000)
-        store.add(points, scan_labels, pose, 1_000_000_000 * k)
+        store.add(points, scan_labels, pose, stamp_step_ns * k)
     return store
 
 
 def write_street_map(folder: Path) -> Path:
     """Write a map of the synthetic street to ``folder``: five keyframes 15 m apart."""
-    store = KeyframeStore(RegistrationConfig())
-    world, labels = street_scene(seed=STREET_SEED)
-    for k, x in enumerate((-30.0, -15.0, 0.0, 15.0, 30.0)):
-        pose = motion(5.0 * k, (x, 0.3 * k, 0.0))
-        points, scan_labels = scan_at(world, labels, pose, seed=200 + k, max_points=15000)
-        store.add(points, scan_labels, pose, k)
-    return save_map(folder, store, 'map')
+    return save_map(folder, street_keyframe_store(stamp_step_ns=1), 'map')
 
 
 @pytest.fixture(scope='module', name='map_folder')

@@ -24,18 +24,11 @@ from mlsemreg_ros.datasets.pairs import (
     Pair,
     save_pair,
 )
+from mlsemreg_ros.datasets.synthetic_scene import motion
 from mlsemreg_ros.tools import cli
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
-
-
-def _pose(yaw_deg: float, t: tuple[float, float, float]) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler('z', yaw_deg, degrees=True).as_matrix()
-    T[:3, 3] = t
-    return T
 
 
 def _chain(tmp_path, links: int = 3) -> tuple[list[np.ndarray], list[np.ndarray]]:
@@ -44,7 +37,7 @@ def _chain(tmp_path, links: int = 3) -> tuple[list[np.ndarray], list[np.ndarray]
     world = rng.uniform(-30, 30, (500, 3))
     T_world = [np.eye(4)]
     for k in range(links):
-        T_world.append(T_world[-1] @ _pose(5.0 * (k + 1), (20.0, 1.0 * k, 0.1)))
+        T_world.append(T_world[-1] @ motion(5.0 * (k + 1), (20.0, 1.0 * k, 0.1)))
     scans = [(world - T[:3, 3]) @ T[:3, :3] for T in T_world]  # world in sensor frames
     labels = [np.full(len(s), k, dtype=np.int64) for k, s in enumerate(scans)]
     for k in range(links):

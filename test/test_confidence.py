@@ -26,10 +26,10 @@ from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene, synthetic_pair
 from mlsemreg_ros.evaluation import confidence as study
 from mlsemreg_ros.tools import confidence as confidence_tool
-from mlsemreg_ros.tools import simulate
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
+from sim_bags import simulated_bag
 
 
 def test_each_kind_of_evidence_can_refuse_on_its_own() -> None:
@@ -96,14 +96,7 @@ def test_a_cloud_mirrored_in_y_is_refused() -> None:
 
 @pytest.fixture(scope='module')
 def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp('confidence') / 'sim'
-    assert (
-        simulate.main(
-            [str(out), '--frames', '6', '--seed', '3', '--azimuth-steps', '1024', '--quiet']
-        )
-        == 0
-    )
-    return out
+    return simulated_bag(tmp_path_factory.mktemp('confidence') / 'sim', frames=6, seed=3)
 
 
 def test_the_study_measures_simulated_pairs_and_writes_its_outputs(

@@ -40,13 +40,6 @@ pytestmark = pytest.mark.skipif(not kernels.AVAILABLE, reason='numba is not inst
 LABELS = LabelMap.load()
 
 
-def _pose(yaw_deg: float, t: tuple[float, float, float]) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_euler('z', yaw_deg, degrees=True).as_matrix()
-    T[:3, 3] = t
-    return T
-
-
 def _keypoint_scan(
     keypoints: np.ndarray, descriptors: np.ndarray, labels: np.ndarray
 ) -> PreparedScan:
@@ -65,7 +58,7 @@ def _keypoint_scan(
 def _scans(seed: int, count: int = 600) -> tuple[PreparedScan, PreparedScan, np.ndarray]:
     """Make two keypoint scans: a third share places and descriptors under a pose."""
     rng = np.random.default_rng(seed)
-    truth = _pose(rng.uniform(-180, 180), (rng.uniform(-10, 10), rng.uniform(-10, 10), 0.2))
+    truth = motion(rng.uniform(-180, 180), (rng.uniform(-10, 10), rng.uniform(-10, 10), 0.2))
     source = rng.uniform(-30, 30, (count, 3)) * [1, 1, 0.1]
     descriptors = rng.normal(size=(count, 16))
     labels = rng.integers(0, 4, count)
@@ -91,7 +84,7 @@ def test_guided_matches_are_the_numpy_matches(seed, radius):
     compatible[1, 2] = compatible[2, 1] = True
     rules = LabelCompatibility(compatible, np.ones(4, dtype=bool))
     for labels in (None, rules):
-        for pose in (truth, _pose(10.0, (2.0, 0.0, 0.0))):
+        for pose in (truth, motion(10.0, (2.0, 0.0, 0.0))):
             slow = guided_correspondences(source, target, pose, radius, labels, compiled=False)
             fast = guided_correspondences(source, target, pose, radius, labels, compiled=True)
             np.testing.assert_array_equal(fast.source, slow.source)
@@ -123,15 +116,15 @@ def test_a_label_outside_the_rules_is_never_matched():
 def test_refined_starts_are_the_numpy_refinements(seed):
     rng = np.random.default_rng(seed)
     count = 1500
-    truth = _pose(rng.uniform(-180, 180), tuple(rng.uniform(-20, 20, 3)))
+    truth = motion(rng.uniform(-180, 180), tuple(rng.uniform(-20, 20, 3)))
     src = rng.uniform(-40, 40, (count, 3))
     dst = rng.uniform(-40, 40, (count, 3))
     inliers = rng.choice(count, 80, replace=False)
     dst[inliers] = apply_transform(truth, src[inliers]) + rng.normal(0, 0.1, (80, 3))
     src[rng.integers(count)] = np.nan  # non-finite pairs are ignored
     starts = np.stack(
-        [truth @ _pose(rng.normal(0, 2), tuple(rng.normal(0, 0.5, 3))) for _ in range(12)]
-        + [_pose(rng.uniform(-180, 180), tuple(rng.uniform(-20, 20, 3))) for _ in range(4)]
+        [truth @ motion(rng.normal(0, 2), tuple(rng.normal(0, 0.5, 3))) for _ in range(12)]
+        + [motion(rng.uniform(-180, 180), tuple(rng.uniform(-20, 20, 3))) for _ in range(4)]
     )
     estimator = RegistrationConfig().estimator
     slow = refine_starts(starts, src, dst, estimator, compiled=False)
@@ -189,7 +182,7 @@ def test_the_compiled_compatibility_is_the_exact_length_consistency(seed, extent
 
     rng = np.random.default_rng(seed)
     src = rng.uniform(-extent, extent, (300, 3))
-    truth = _pose(30.0, (2.0, -1.0, 0.5))
+    truth = motion(30.0, (2.0, -1.0, 0.5))
     dst = apply_transform(truth, src)
     dst[150:] = rng.uniform(-extent, extent, (150, 3))  # outliers
     dst[:150] += rng.normal(0.0, 0.2, (150, 3))

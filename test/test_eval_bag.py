@@ -31,9 +31,10 @@ from typing import Any
 from mlsemreg_ros.codec.pose_files import read_kitti_poses, read_tum_poses
 from mlsemreg_ros.core.config import load_config, RegistrationConfig
 from mlsemreg_ros.evaluation.scoring import SUMMARY_KEYS
-from mlsemreg_ros.tools import eval_bag, simulate
+from mlsemreg_ros.tools import eval_bag
 import numpy as np
 import pytest
+from sim_bags import simulated_bag
 
 #: Fewer keypoints than the default keep the test fast (SC2-PCR is quadratic).
 FAST = ['--set', 'keypoints.count=1500']
@@ -41,14 +42,7 @@ FAST = ['--set', 'keypoints.count=1500']
 
 @pytest.fixture(scope='module')
 def bag(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    out = tmp_path_factory.mktemp('eval') / 'sim'
-    assert (
-        simulate.main(
-            [str(out), '--frames', '5', '--seed', '5', '--azimuth-steps', '1024', '--quiet']
-        )
-        == 0
-    )
-    return out
+    return simulated_bag(tmp_path_factory.mktemp('eval') / 'sim', frames=5, seed=5)
 
 
 @pytest.fixture(scope='module')
@@ -158,14 +152,7 @@ def test_bad_parameters_are_reported(
 @pytest.fixture(scope='module')
 def drive(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """Twenty simulated scans of seed 1 (a coarser sensor keeps it fast)."""
-    out = tmp_path_factory.mktemp('drive') / 'sim'
-    assert (
-        simulate.main(
-            [str(out), '--frames', '20', '--seed', '1', '--azimuth-steps', '1024', '--quiet']
-        )
-        == 0
-    )
-    return out
+    return simulated_bag(tmp_path_factory.mktemp('drive') / 'sim', frames=20, seed=1)
 
 
 def test_covariance_is_consistent_on_a_simulated_drive(drive: Path, tmp_path: Path) -> None:

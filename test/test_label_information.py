@@ -20,10 +20,9 @@ from mlsemreg_ros.core.estimation import label_model
 from mlsemreg_ros.core.estimation.config import ConfidenceConfig
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.datasets.synthetic_scene import BUILDING, synthetic_pair, VEGETATION
+from noisy_labels import CONFIG, flipped, register_pair
 import numpy as np
 import pytest
-
-CONFIG = {'keypoints.count': 1000}
 
 
 @pytest.fixture(scope='module')
@@ -41,15 +40,6 @@ def registration():
 def prepared(registration, points, labels):
     """Return a lazily prepared scan (points, labels and the KD-tree are enough)."""
     return registration.prepare(points, labels, lazy=True)
-
-
-def flipped(labels: np.ndarray, share: float, seed: int) -> np.ndarray:
-    """Return ``labels`` with ``share`` of them replaced by random learning ids."""
-    rng = np.random.default_rng(seed)
-    out = np.array(labels, copy=True)
-    chosen = rng.random(len(out)) < share
-    out[chosen] = rng.integers(1, 20, int(chosen.sum()))
-    return out
 
 
 def counts_at(registration, transform, source, target):
@@ -175,16 +165,6 @@ def test_poorer_labels_take_the_unlabeled_pose_unless_they_contradict_it(scene) 
     )
     assert not vetoed.diagnostics.get('labels_unlabeled_first')
     assert vetoed.diagnostics['labels_unlabeled_information'] < 0.3
-
-
-def register_pair(scene, label_src, label_dst, **changes):
-    """Register the scene's pair with the given labels and config changes."""
-    registration = Registration(RegistrationConfig().replace({**CONFIG, **changes}))
-    source, target = registration.prepare_scans(
-        {'points': scene.pts_src, 'labels': label_src},
-        {'points': scene.pts_dst, 'labels': label_dst},
-    )
-    return registration.register(source, target)
 
 
 class Refuse:

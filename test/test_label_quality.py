@@ -18,13 +18,11 @@ from __future__ import annotations
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.labeling import quality
 from mlsemreg_ros.core.labeling.source import LabelSource
-from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import Correspondences
 from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
+from noisy_labels import CONFIG, flipped, register_pair
 import numpy as np
 import pytest
-
-CONFIG = {'keypoints.count': 1000}
 
 
 @pytest.fixture(scope='module')
@@ -33,28 +31,12 @@ def scene():
     return synthetic_pair(seed=0)
 
 
-def flipped(labels: np.ndarray, share: float, seed: int) -> np.ndarray:
-    """Return ``labels`` with ``share`` of them replaced by random learning ids."""
-    rng = np.random.default_rng(seed)
-    out = np.array(labels, copy=True)
-    chosen = rng.random(len(out)) < share
-    out[chosen] = rng.integers(1, 20, int(chosen.sum()))
-    return out
-
-
-def register(scene, label_src, label_dst, **changes):
-    registration = Registration(RegistrationConfig().replace({**CONFIG, **changes}))
-    source, target = registration.prepare_scans(
-        {'points': scene.pts_src, 'labels': label_src},
-        {'points': scene.pts_dst, 'labels': label_dst},
-    )
-    return registration.register(source, target)
-
-
 def test_labels_no_better_than_chance_are_judged_as_unlabeled(scene) -> None:
     """85 % flips: the pair registers exactly as with --labels none (the same pose, verdict)."""
-    noisy = register(scene, flipped(scene.label_src, 0.85, 1), flipped(scene.label_dst, 0.85, 2))
-    zeros = register(scene, np.zeros_like(scene.label_src), np.zeros_like(scene.label_dst))
+    noisy = register_pair(
+        scene, flipped(scene.label_src, 0.85, 1), flipped(scene.label_dst, 0.85, 2)
+    )
+    zeros = register_pair(scene, np.zeros_like(scene.label_src), np.zeros_like(scene.label_dst))
     assert noisy.diagnostics['labels_judged_unlabeled']
     assert noisy.diagnostics['label_weight'] == 0.0
     assert noisy.success == zeros.success
@@ -63,7 +45,7 @@ def test_labels_no_better_than_chance_are_judged_as_unlabeled(scene) -> None:
 
 
 def test_clean_labels_keep_their_full_weight(scene) -> None:
-    result = register(scene, scene.label_src, scene.label_dst)
+    result = register_pair(scene, scene.label_src, scene.label_dst)
     assert result.diagnostics['label_weight'] == pytest.approx(1.0)
     assert not result.diagnostics['labels_judged_unlabeled']
     assert result.success
@@ -74,7 +56,7 @@ def test_geometric_labels_are_weighed_by_their_trust(scene) -> None:
     config = RegistrationConfig().replace({**CONFIG, 'label_source': 'geometric'})
     src = source(scene.pts_src, None, config).labels
     dst = source(scene.pts_dst, None, config).labels
-    result = register(scene, src, dst, label_source='geometric')
+    result = register_pair(scene, src, dst, label_source='geometric')
     weight = result.diagnostics['label_weight']
     assert 0.0 < weight <= config.geometric_labels.trust
     assert result.diagnostics['label_pair_source'] == 'geometric'

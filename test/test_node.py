@@ -37,6 +37,7 @@ from mlsemreg_ros.datasets.pairs import dev_pairs_dir, list_pairs, load_pair
 from mlsemreg_ros.datasets.synthetic_scene import synthetic_pair
 from mlsemreg_ros.ros.probe import node_and_probe, NodeProbe, to_stamp
 import numpy as np
+from pose_messages import matrix
 import pytest
 from ros_domains import domain_id
 
@@ -94,18 +95,6 @@ def send_pair(probe: NodeProbe, pair: Any) -> tuple[Any, Any, dict]:
     assert status['level'] == 0, status['message']
     src_stamp, status = send(probe, pair.pts_src, pair.label_src)
     return dst_stamp, src_stamp, status
-
-
-def matrix(transform: Any) -> np.ndarray:
-    """TransformStamped.transform or Pose -> 4x4."""
-    from scipy.spatial.transform import Rotation
-
-    t = getattr(transform, 'translation', None) or transform.position
-    q = getattr(transform, 'rotation', None) or transform.orientation
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    out[:3, 3] = [t.x, t.y, t.z]
-    return out
 
 
 def assert_close_to(estimate: np.ndarray, truth: np.ndarray) -> None:

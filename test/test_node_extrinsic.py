@@ -32,6 +32,7 @@ from mlsemreg_ros.ros.extrinsic import adjoint, ExtrinsicConfig, to_base
 from mlsemreg_ros.ros.node_config import NodeConfig
 from mlsemreg_ros.ros.probe import node_and_probe, NodeProbe, to_stamp
 import numpy as np
+from pose_messages import matrix
 import pytest
 from ros_domains import domain_id
 from scipy.linalg import expm
@@ -111,17 +112,6 @@ def _send(probe: NodeProbe, points: np.ndarray, labels: np.ndarray) -> tuple[Any
     return stamp, status
 
 
-def _matrix(pose: Any) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    t = getattr(pose, 'translation', None) or pose.position
-    q = getattr(pose, 'rotation', None) or pose.orientation
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    out[:3, 3] = [t.x, t.y, t.z]
-    return out
-
-
 def test_t_base_sensor_moves_the_published_pose_by_exactly_the_extrinsic(ros: Any) -> None:
     node, probe = ros
     from sensor_msgs.msg import Imu
@@ -144,14 +134,14 @@ def test_t_base_sensor_moves_the_published_pose_by_exactly_the_extrinsic(ros: An
     first = probe.wait_for('odometry', first_stamp, 5.0)
     odom = probe.wait_for('odometry', stamp, 5.0)
     assert (odom.header.frame_id, odom.child_frame_id) == ('odom', 'base_link')
-    np.testing.assert_allclose(_matrix(first.pose.pose), np.eye(4), atol=1e-9)
+    np.testing.assert_allclose(matrix(first.pose.pose), np.eye(4), atol=1e-9)
     X = ExtrinsicConfig(**EXTRINSIC).matrix()
-    T_sensor = _matrix(transform.transform)
+    T_sensor = matrix(transform.transform)
     expected = X @ T_sensor @ invert_transform(X)
-    np.testing.assert_allclose(_matrix(odom.pose.pose), expected, atol=1e-6)
+    np.testing.assert_allclose(matrix(odom.pose.pose), expected, atol=1e-6)
     assert not np.allclose(expected, T_sensor, atol=1e-3)  # the extrinsic does move it
     path = probe.wait_for('path', stamp, 5.0)
-    np.testing.assert_allclose(_matrix(path.poses[-1].pose), expected, atol=1e-6)
+    np.testing.assert_allclose(matrix(path.poses[-1].pose), expected, atol=1e-6)
     # the IMU reached the motion model (tf2_ros missing: the parameters were used)
     assert len(node._odometry.motion_model._imu) == 5
 

@@ -21,7 +21,6 @@ from pathlib import Path
 from mlsemreg_ros.codec.pose_files import read_tum_poses, write_tum_poses
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.maps.cloud_files import CloudFileError, read_cloud, write_cloud
-from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
 from mlsemreg_ros.core.maps.map_io import load_map, MapKeyframe, save_map
 from mlsemreg_ros.core.maps.point_map import (
     cut_keyframes,
@@ -36,9 +35,8 @@ from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 from mlsemreg_ros.tools.cli import app
 import numpy as np
 import pytest
+from street_map import street_keyframe_store, STREET_SEED
 from typer.testing import CliRunner
-
-STREET_SEED = 3
 
 
 def _pose(x: float, y: float = 0.0, yaw_deg: float = 0.0) -> np.ndarray:
@@ -99,13 +97,7 @@ def test_export_puts_the_points_in_the_map_frame_one_per_voxel() -> None:
 
 
 def _street_map(tmp_path: Path) -> Path:
-    store = KeyframeStore(RegistrationConfig())
-    world, labels = street_scene(seed=STREET_SEED)
-    for k, x in enumerate((-30.0, -15.0, 0.0, 15.0, 30.0)):
-        pose = motion(5.0 * k, (x, 0.3 * k, 0.0))
-        points, scan_labels = scan_at(world, labels, pose, seed=200 + k, max_points=15000)
-        store.add(points, scan_labels, pose, 1_000_000_000 * k)
-    return save_map(tmp_path / 'street', store, 'map')
+    return save_map(tmp_path / 'street', street_keyframe_store(), 'map')
 
 
 def test_map_export_writes_a_pcd_open3d_opens_with_the_maps_points_and_fields(

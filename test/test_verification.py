@@ -29,19 +29,12 @@ from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.poses import distinct_hypotheses
 from mlsemreg_ros.core.results import Landmarks, PreparedScan
 from mlsemreg_ros.core.rigid import apply_transform, invert_transform
+from mlsemreg_ros.datasets.synthetic_scene import motion
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 # SemanticKITTI learning ids
 UNLABELED, CAR, ROAD, SIDEWALK, BUILDING, VEGETATION, TERRAIN, POLE = 0, 1, 9, 11, 13, 15, 17, 18
-
-
-def _pose(yaw_deg: float, translation: tuple[float, float, float]) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_euler('z', yaw_deg, degrees=True).as_matrix()
-    out[:3, 3] = translation
-    return out
 
 
 def _scan(
@@ -97,7 +90,7 @@ def test_scores_have_the_known_answers_on_tiny_clouds(label_map):
     source, target = _tiny()
     config = VerificationConfig(compatible_classes=['vegetation~terrain'], range_exponent=0.0)
     labels = label_compatibility(label_map, config)
-    hypotheses = np.stack([np.eye(4), _pose(0.0, (1.0, 0.0, 0.0)), _pose(0.0, (50.0, 0, 0))])
+    hypotheses = np.stack([np.eye(4), motion(0.0, (1.0, 0.0, 0.0)), motion(0.0, (50.0, 0, 0))])
     overlap, agreement = dense_scores(
         hypotheses, source, target.points_tree(), target.labels, labels, config
     )
@@ -120,7 +113,7 @@ def test_points_count_with_their_range_squared(label_map):
         config = VerificationConfig(range_exponent=exponent)
         np.testing.assert_allclose(area_weights(source.points, exponent), [near, far])
         # +2 m: only the near point lands on a target point (the far one)
-        shifted = np.stack([np.eye(4), _pose(0.0, (2.0, 0.0, 0.0))])
+        shifted = np.stack([np.eye(4), motion(0.0, (2.0, 0.0, 0.0))])
         overlap, agreement = dense_scores(
             shifted,
             source,
@@ -190,12 +183,12 @@ def test_distinct_hypotheses_drop_poses_within_the_success_bounds():
     transforms = np.stack(
         [
             np.eye(4),
-            _pose(3.0, (0.0, 0.0, 0.0)),  # within 5 deg and 0.6 m of 0: dropped
-            _pose(10.0, (0.0, 0.0, 0.0)),  # kept
-            _pose(0.0, (0.5, 0.0, 0.0)),  # within bounds of 0: dropped
-            _pose(0.0, (1.0, 0.0, 0.0)),  # kept
-            _pose(12.0, (0.2, 0.0, 0.0)),  # within bounds of 2: dropped
-            _pose(180.0, (0.0, 0.0, 0.0)),  # kept
+            motion(3.0, (0.0, 0.0, 0.0)),  # within 5 deg and 0.6 m of 0: dropped
+            motion(10.0, (0.0, 0.0, 0.0)),  # kept
+            motion(0.0, (0.5, 0.0, 0.0)),  # within bounds of 0: dropped
+            motion(0.0, (1.0, 0.0, 0.0)),  # kept
+            motion(12.0, (0.2, 0.0, 0.0)),  # within bounds of 2: dropped
+            motion(180.0, (0.0, 0.0, 0.0)),  # kept
         ]
     )
     np.testing.assert_array_equal(distinct_hypotheses(transforms, 10, 5.0, 0.6), [0, 2, 4, 6])
@@ -245,8 +238,8 @@ def _symmetric_street(
 def make_street_pair() -> dict:
     """Dense scans of the street and sparse one-hot-matched keypoints: 40 true, 60 mirror."""
     rng = np.random.default_rng(7)
-    truth = _pose(10.0, (3.0, 0.5, 0.0))  # T_target_source
-    mirror = _pose(180.0, (0.0, 0.0, 0.0)) @ truth  # the street's symmetry after the truth
+    truth = motion(10.0, (3.0, 0.5, 0.0))  # T_target_source
+    mirror = motion(180.0, (0.0, 0.0, 0.0)) @ truth  # the street's symmetry after the truth
     world_target, target_labels = _symmetric_street(rng)
     world_source, source_labels = _symmetric_street(rng)  # an independent sample
     source_points = apply_transform(invert_transform(truth), world_source)
@@ -361,12 +354,12 @@ def test_distinctive_scores_are_the_same_from_the_kept_sides():
     from mlsemreg_ros.core.estimation import verification
 
     points, labels = _poles(3)
-    truth = _pose(20.0, (4.0, -2.0, 0.0))
+    truth = motion(20.0, (4.0, -2.0, 0.0))
     source = _scan(points, labels)
     target = _scan(apply_transform(truth, points), labels)
     distinctive = np.zeros(20, dtype=bool)
     distinctive[POLE] = True
-    poses = np.stack([truth, np.eye(4), _pose(20.0, (6.0, -2.0, 0.0))])
+    poses = np.stack([truth, np.eye(4), motion(20.0, (6.0, -2.0, 0.0))])
     first = verification.distinctive_scores(poses, source, target, distinctive, 0.5)
     again = verification.distinctive_scores(poses, source, target, distinctive, 0.5)
     fresh = verification._DistinctiveSides().side(source, distinctive, source=True)

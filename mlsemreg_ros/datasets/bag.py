@@ -309,18 +309,25 @@ def read_poses(path: str | Path, topic: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _read_poses(reader: AnyReader, topic: str) -> tuple[np.ndarray, np.ndarray]:
+    stamps, poses = [], []
+    for msg, msgtype in _reader_messages(reader, topic, POSE_TYPES):
+        stamps.append(stamp_to_ns(msg.header.stamp))
+        poses.append(_message_pose(msg, msgtype))
+    return np.asarray(stamps, dtype=np.int64), np.asarray(poses).reshape(-1, 4, 4)
+
+
+def _reader_messages(
+    reader: AnyReader, topic: str, msgtypes: tuple[str, ...]
+) -> Iterator[tuple[Any, str]]:
+    """Each message of ``topic`` with its type, in bag order (SourceError: no such topic/type)."""
     if topic not in reader.topics:
         raise SourceError(f'topic {topic!r} not in the bag; topics: {sorted(reader.topics)}')
     msgtype = reader.topics[topic].msgtype
-    if msgtype not in POSE_TYPES:
-        raise SourceError(f'topic {topic!r} has type {msgtype}; expected one of {POSE_TYPES}')
+    if msgtype not in msgtypes:
+        raise SourceError(f'topic {topic!r} has type {msgtype}; expected one of {msgtypes}')
     connections = [c for c in reader.connections if c.topic == topic]
-    stamps, poses = [], []
     for connection, _, raw in reader.messages(connections=connections):
-        msg = reader.deserialize(raw, connection.msgtype)
-        stamps.append(stamp_to_ns(msg.header.stamp))
-        poses.append(_message_pose(msg, connection.msgtype))
-    return np.asarray(stamps, dtype=np.int64), np.asarray(poses).reshape(-1, 4, 4)
+        yield reader.deserialize(raw, connection.msgtype), connection.msgtype
 
 
 @dataclass
@@ -354,14 +361,8 @@ class WheelOdometryArrays:
 def _topic_messages(path: str | Path, topic: str, msgtypes: tuple[str, ...]) -> Iterator[Any]:
     reader = open_reader(path)
     try:
-        if topic not in reader.topics:
-            raise SourceError(f'topic {topic!r} not in the bag; topics: {sorted(reader.topics)}')
-        msgtype = reader.topics[topic].msgtype
-        if msgtype not in msgtypes:
-            raise SourceError(f'topic {topic!r} has type {msgtype}; expected one of {msgtypes}')
-        connections = [c for c in reader.connections if c.topic == topic]
-        for connection, _, raw in reader.messages(connections=connections):
-            yield reader.deserialize(raw, connection.msgtype)
+        for msg, _ in _reader_messages(reader, topic, msgtypes):
+            yield msg
     finally:
         reader.close()
 

@@ -96,43 +96,16 @@ def street_scene(seed: int = 0, length: float = 120.0) -> tuple[np.ndarray, np.n
     rng = np.random.default_rng(seed)
     parts: list[tuple[np.ndarray, int]] = []
     half = length / 2
-    parts.append(
-        (
-            _plane(
-                rng,
-                np.array([-half, -4.0, 0]),
-                np.array([length, 0, 0]),
-                np.array([0, 8.0, 0]),
-                6.0,
-            ),
-            ROAD,
-        )
-    )
+
+    def strip(y: float, width: float, z: float, density: float) -> np.ndarray:
+        """Sample the ground along the street from ``y`` over ``width`` (signed) at ``z``."""
+        along, across = np.array([length, 0, 0]), np.array([0, width, 0])
+        return _plane(rng, np.array([-half, y, z]), along, across, density)
+
+    parts.append((strip(-4.0, 8.0, 0, 6.0), ROAD))
     for side in (-1, 1):
-        parts.append(
-            (
-                _plane(
-                    rng,
-                    np.array([-half, side * 4.0, 0.15]),
-                    np.array([length, 0, 0]),
-                    np.array([0, side * 4.0, 0]),
-                    4.0,
-                ),
-                SIDEWALK,
-            )
-        )
-        parts.append(
-            (
-                _plane(
-                    rng,
-                    np.array([-half, side * 8.0, 0.1]),
-                    np.array([length, 0, 0]),
-                    np.array([0, side * 3.0, 0]),
-                    2.0,
-                ),
-                TERRAIN,
-            )
-        )
+        parts.append((strip(side * 4.0, side * 4.0, 0.15, 4.0), SIDEWALK))
+        parts.append((strip(side * 8.0, side * 3.0, 0.1, 2.0), TERRAIN))
         x = -half
         while x < half:  # facades with irregular widths, depths, heights and gaps
             width, depth, height = rng.uniform(6, 16), rng.uniform(6, 12), rng.uniform(5, 14)

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import math
 from typing import Any
 
+from mlsemreg_ros.codec.poses import transform_message_to_matrix
 from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.core.settings import param
 import numpy as np
@@ -101,15 +102,6 @@ def to_base(
     )
 
 
-def transform_to_matrix(transform: Any) -> np.ndarray:
-    """Return a geometry_msgs/Transform as a (4, 4) matrix."""
-    q = transform.rotation
-    T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    T[:3, 3] = [transform.translation.x, transform.translation.y, transform.translation.z]
-    return T
-
-
 def tf_available() -> bool:
     """Tell whether tf2_ros can be imported."""
     try:
@@ -127,7 +119,7 @@ def lookup_extrinsic(buffer: Any, base_frame: str, sensor_frame: str) -> np.ndar
         stamped = buffer.lookup_transform(base_frame, sensor_frame, Time())
     except Exception:  # tf2 raises its own lookup, connectivity and extrapolation errors
         return None
-    return transform_to_matrix(stamped.transform)
+    return transform_message_to_matrix(stamped.transform)
 
 
 class ExtrinsicSource:

@@ -150,7 +150,7 @@ class FieldSimulation:
         self.sweep_starts = cfg.lead_in + period * np.arange(self.frames)
         self.world_poses = self.drive.poses(self.sweep_starts)
         self._origin_inv = np.linalg.inv(self.world_poses[0])
-        route_xy = self.path.sample(np.arange(0.0, self.path.length + 5.0, 5.0))[0]
+        route_xy = self.path.waypoints()
         self.world = build_world(self.grid, route_xy, world_cfg, self.label_map)
         self.actors = None
         static = LabeledMesh(

@@ -117,12 +117,17 @@ def _random_walk(
     return start + np.cumsum(steps, axis=0)
 
 
+def _sample_times(t0: float, t1: float, rate_hz: float) -> tuple[np.ndarray, float]:
+    """Return the times (n,) every ``1 / rate_hz`` s from ``t0`` up to ``t1``, and that period."""
+    dt = 1.0 / rate_hz
+    return t0 + dt * np.arange(int(np.floor((t1 - t0) / dt)) + 1), dt
+
+
 def simulate_imu(
     drive: ContinuousDrive, t0: float, t1: float, config: ImuConfig, rng: np.random.Generator
 ) -> ImuSamples:
     """IMU samples at ``config.rate_hz`` over drive times [t0, t1]."""
-    dt = 1.0 / config.rate_hz
-    times = t0 + dt * np.arange(int(np.floor((t1 - t0) / dt)) + 1)
+    times, dt = _sample_times(t0, t1, config.rate_hz)
     omega, force, _ = true_motion(drive, times)
     n = times.size
     gyro_bias = _random_walk(rng, n, config.gyro_turn_on_bias, config.gyro_bias_walk, dt)
@@ -137,8 +142,7 @@ def simulate_wheel(
     drive: ContinuousDrive, t0: float, t1: float, config: WheelConfig, rng: np.random.Generator
 ) -> WheelSamples:
     """Wheel odometry at ``config.rate_hz`` over drive times [t0, t1]."""
-    dt = 1.0 / config.rate_hz
-    times = t0 + dt * np.arange(int(np.floor((t1 - t0) / dt)) + 1)
+    times, dt = _sample_times(t0, t1, config.rate_hz)
     omega, _, velocity = true_motion(drive, times)
     n = times.size
     true_speed = velocity[:, 0]

@@ -30,8 +30,8 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
-from mlsemreg_ros.simulation.sequence import Simulation, SimulationConfig
-from mlsemreg_ros.simulation.trajectory import frame_positions, Path2D, plan_route, sensor_poses
+from mlsemreg_ros.simulation.sequence import drive_poses, Simulation, SimulationConfig
+from mlsemreg_ros.simulation.trajectory import frame_positions, Path2D, plan_route
 from mlsemreg_ros.simulation.world import build_world
 import numpy as np
 
@@ -105,15 +105,7 @@ def reverse_drive(
     path = reversed_path(clip_path(sim.path, driven), lane_change)
     path = clip_path_from(path, start_offset)
     frames = max(int((path.length - 1.0) / config.step), 1)
-    poses = sensor_poses(
-        path,
-        frames,
-        config.step,
-        config.lidar.mount_height,
-        np.random.default_rng([noise_seed, 4]),
-        config.trajectory,
-        dt=1.0 / config.rate_hz,
-    )
+    poses = drive_poses(config, path, frames, np.random.default_rng([noise_seed, 4]))
     return sim, poses
 
 
@@ -139,26 +131,13 @@ def other_drive(
     sim = Simulation(config)
     length = max(frames - 1, 1) * config.step + 60.0
     path = plan_route(sim.grid, length, np.random.default_rng([route_seed, 3]), config.trajectory)
-    route_xy = np.concatenate(
-        [
-            sim.path.sample(np.arange(0.0, sim.path.length + 5.0, 5.0))[0],
-            path.sample(np.arange(0.0, path.length + 5.0, 5.0))[0],
-        ]
-    )
+    route_xy = np.concatenate([sim.path.waypoints(), path.waypoints()])
     world_cfg = replace(config.world, seed=config.seed)
     sim.world = build_world(sim.grid, route_xy, world_cfg, sim.label_map)
     from mlsemreg_ros.simulation.lidar import Lidar
 
     sim.lidar = Lidar(sim.world, config.lidar)
-    poses = sensor_poses(
-        path,
-        frames,
-        config.step,
-        config.lidar.mount_height,
-        np.random.default_rng([route_seed, 4]),
-        config.trajectory,
-        dt=1.0 / config.rate_hz,
-    )
+    poses = drive_poses(config, path, frames, np.random.default_rng([route_seed, 4]))
     return sim, poses
 
 

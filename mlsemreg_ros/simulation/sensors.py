@@ -126,19 +126,24 @@ class SensorModel:
         return self.period * (np.arange(self.columns) + offset) / self.columns
 
 
-def _hdl64_elevations() -> tuple[float, ...]:
-    """HDL-64E S2 (KITTI): upper block +2 .. -8.33 deg, lower block -8.83 .. -24.9 deg."""
-    upper = np.linspace(2.0, -8.33, 32)
-    lower = np.linspace(-8.83, -24.9, 32)
-    return tuple(float(v) for v in np.concatenate([upper, lower]))
+def _elevations(*blocks: tuple[float, float, int]) -> tuple[float, ...]:
+    """Return beam elevations (deg), each block ``(top, bottom, beams)`` evenly spaced."""
+    return tuple(float(v) for v in np.concatenate([np.linspace(*block) for block in blocks]))
 
 
-#: HDL-64E as on KITTI's car: 64 beams +2..-24.9 deg, 0.17 deg columns at 10 Hz, 120 m.
-HDL64 = SensorModel('hdl64', _hdl64_elevations(), columns=2083, max_range=120.0, min_range=2.5)
+#: HDL-64E S2 as on KITTI's car: 64 beams, an upper block +2 .. -8.33 deg and a lower block
+#: -8.83 .. -24.9 deg, 0.17 deg columns at 10 Hz, 120 m.
+HDL64 = SensorModel(
+    'hdl64',
+    _elevations((2.0, -8.33, 32), (-8.83, -24.9, 32)),
+    columns=2083,
+    max_range=120.0,
+    min_range=2.5,
+)
 #: VLP-16: 16 beams -15..+15 deg every 2 deg, 0.2 deg columns at 10 Hz, 100 m, 3 cm noise.
 VLP16 = SensorModel(
     'vlp16',
-    tuple(float(v) for v in np.linspace(15.0, -15.0, 16)),
+    _elevations((15.0, -15.0, 16)),
     columns=1800,
     max_range=100.0,
     min_range=1.0,
@@ -147,7 +152,7 @@ VLP16 = SensorModel(
 #: OS1-128: 128 beams +-22.5 deg, 1024 columns at 10 Hz, 120 m; also Ouster's ``t``.
 OS128 = SensorModel(
     'os128',
-    tuple(float(v) for v in np.linspace(22.5, -22.5, 128)),
+    _elevations((22.5, -22.5, 128)),
     columns=1024,
     max_range=120.0,
     min_range=0.8,
@@ -158,7 +163,7 @@ OS128 = SensorModel(
 #: HDL-32E: 32 beams +10.67..-30.67 deg every 1.33 deg, 0.166 deg columns at 10 Hz, 100 m.
 HDL32 = SensorModel(
     'hdl32',
-    tuple(float(v) for v in np.linspace(10.67, -30.67, 32)),
+    _elevations((10.67, -30.67, 32)),
     columns=2170,
     max_range=100.0,
     min_range=1.0,

@@ -57,6 +57,21 @@ class SimulationConfig:
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
 
 
+def drive_poses(
+    config: SimulationConfig, path: Path2D, frames: int, rng: np.random.Generator
+) -> np.ndarray:
+    """World poses (F, 4, 4) of ``frames`` scans along ``path`` (``config``: step, mount, rate)."""
+    return sensor_poses(
+        path,
+        frames,
+        config.step,
+        config.lidar.mount_height,
+        rng,
+        config.trajectory,
+        dt=1.0 / config.rate_hz,
+    )
+
+
 @dataclass
 class SimFrame:
     """One simulated sweep with its ground truth."""
@@ -85,16 +100,10 @@ class Simulation:
         self.path: Path2D = plan_route(
             self.grid, length, np.random.default_rng([cfg.seed, 3]), cfg.trajectory
         )
-        self.world_poses = sensor_poses(
-            self.path,
-            cfg.frames,
-            cfg.step,
-            cfg.lidar.mount_height,
-            np.random.default_rng([cfg.seed, 4]),
-            cfg.trajectory,
-            dt=1.0 / cfg.rate_hz,
+        self.world_poses = drive_poses(
+            cfg, self.path, cfg.frames, np.random.default_rng([cfg.seed, 4])
         )
-        route_xy = self.path.sample(np.arange(0.0, self.path.length + 5.0, 5.0))[0]
+        route_xy = self.path.waypoints()
         self.world: World = build_world(self.grid, route_xy, world_cfg, self.label_map)
         self.lidar = Lidar(self.world, cfg.lidar)
         self._origin_inv = np.linalg.inv(self.world_poses[0])

@@ -86,6 +86,10 @@ class Path2D:
         dy = np.where(straight, u * np.sin(h0), (np.cos(h0) - np.cos(heading)) / safe_k)
         return self.starts[piece] + np.stack([dx, dy], axis=1), heading
 
+    def waypoints(self, spacing: float = 5.0) -> np.ndarray:
+        """Positions (n, 2) every ``spacing`` metres along the path (what a world is built on)."""
+        return self.sample(np.arange(0.0, self.length + spacing, spacing))[0]
+
 
 def _right(direction: np.ndarray) -> np.ndarray:
     return np.array([direction[1], -direction[0]], dtype=np.float64)

@@ -151,6 +151,11 @@ class CommandError(Exception):
         self.exit_code = exit_code
 
 
+def configuration_error(error: Exception) -> CommandError:
+    """Return the error of invalid settings: ``configuration error: <error>``, exit 2."""
+    return CommandError(f'configuration error: {error}', 2)
+
+
 def settings(
     kinds: tuple[type, ...], config: Path | None, overrides: Sequence[str] | None
 ) -> tuple[Any, ...]:
@@ -160,7 +165,7 @@ def settings(
     try:
         return load_settings(kinds, config, list(overrides or []))
     except (ConfigError, OSError) as error:
-        raise CommandError(f'configuration error: {error}', 2) from None
+        raise configuration_error(error) from None
 
 
 OptionsT = TypeVar('OptionsT')

@@ -34,6 +34,7 @@ from mlsemreg_ros.tools.common import (
     CommandError,
     config_choices,
     ConfigOption,
+    configuration_error,
     JsonOption,
     LabelsOption,
     NoProgressOption,
@@ -187,7 +188,7 @@ def eval_pairs(
     try:
         core, evaluation = build_settings(config, flags, with_labels(overrides, labels))
     except (ConfigError, OSError) as error:
-        raise CommandError(f'configuration error: {error}', 2) from None
+        raise configuration_error(error) from None
     peers, progress = tuple(b.value for b in baseline or []), not (quiet or no_progress)
     options = options_from(context, PairEvalOptions, baselines=peers, progress=progress)
     try:

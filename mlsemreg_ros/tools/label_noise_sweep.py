@@ -24,7 +24,13 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-from mlsemreg_ros.tools.common import alias, CommandError, ConfigOption, SetOption
+from mlsemreg_ros.tools.common import (
+    alias,
+    CommandError,
+    ConfigOption,
+    configuration_error,
+    SetOption,
+)
 import typer
 
 HELP = (
@@ -76,7 +82,7 @@ def label_noise_sweep(
             directory, chosen, tuple(levels or SWEEP), core, evaluation.evaluation, noise_seed
         )
     except (ConfigError, LabelNoiseError, OSError) as error:
-        raise CommandError(f'configuration error: {error}', 2) from None
+        raise configuration_error(error) from None
     except EvalError as error:
         raise CommandError(str(error)) from None
     out.mkdir(parents=True, exist_ok=True)

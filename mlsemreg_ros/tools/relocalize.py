@@ -30,6 +30,7 @@ from mlsemreg_ros.tools.common import (
     alias,
     CommandError,
     ConfigOption,
+    configuration_error,
     JsonOption,
     LabelsOption,
     require_peers,
@@ -89,7 +90,7 @@ def relocalize(
             map_path, queries, options, config, with_labels(overrides, labels)
         )
     except ConfigError as error:
-        raise CommandError(f'configuration error: {error}', 2) from None
+        raise configuration_error(error) from None
     except (MapError, QueryError) as error:
         raise CommandError(str(error)) from None
     print_relocalization(report)

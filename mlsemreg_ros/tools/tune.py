@@ -30,6 +30,7 @@ from mlsemreg_ros.tools.common import (
     alias,
     CommandError,
     ConfigOption,
+    configuration_error,
     DATA,
     LabelsOption,
     options_from,
@@ -167,7 +168,7 @@ def tune(
     try:
         node_values = NodeConfig.from_file(config).to_flat_dict() if config is not None else {}
     except ConfigError as error:
-        raise CommandError(f'configuration error: {error}', 2) from None
+        raise configuration_error(error) from None
     options = options_from(context, TuneOptions, timeout_s=timeout, space=tuple(space or ()))
     console = TuneConsole(quiet)
     try:

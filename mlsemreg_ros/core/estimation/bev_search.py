@@ -53,7 +53,7 @@ import time
 from typing import TYPE_CHECKING
 
 from mlsemreg_ros.core.estimation import kernels
-from mlsemreg_ros.core.estimation.config import BevSearchConfig
+from mlsemreg_ros.core.estimation.config import BevSearchConfig, class_rule_names
 from mlsemreg_ros.core.estimation.verification import (
     LabelCompatibility,
     refine_starts,
@@ -415,7 +415,7 @@ def bev_hypotheses(
 
 def channel_lookup(label_map: LabelMap, config: BevSearchConfig) -> np.ndarray:
     """:func:`channel_of_labels` of ``config.classes`` (unknown names raise ConfigError)."""
-    groups = [label_map.ids_of([n.strip() for n in rule.split('~')]) for rule in config.classes]
+    groups = [label_map.ids_of(class_rule_names(rule)) for rule in config.classes]
     return channel_of_labels(groups, label_map.num_classes)
 
 

@@ -26,6 +26,21 @@ from dataclasses import dataclass
 from mlsemreg_ros.core.settings import ConfigError, param
 
 
+def class_rule_names(rule: str) -> list[str]:
+    """Return the class names of a ``class~class[~class...]`` rule, stripped."""
+    return [name.strip() for name in rule.split('~')]
+
+
+def _check_class_rules(
+    key: str, rules: list[str], min_names: int, form: str, example: str
+) -> None:
+    """Raise ConfigError for a rule that is not ``min_names`` or more class names, ``~``-joined."""
+    for rule in rules:
+        names = class_rule_names(rule)
+        if len(names) < min_names or not all(names):
+            raise ConfigError(f'{key}: {rule!r} is not of the form {form} (e.g. {example!r})')
+
+
 @dataclass
 class EstimatorConfig:
     """Robust rigid transform estimation from correspondences."""
@@ -218,13 +233,13 @@ class VerificationConfig:
 
     def __post_init__(self) -> None:
         """Reject a compatibility rule that is not ``class~class[~class...]``."""
-        for rule in self.compatible_classes:
-            names = rule.split('~')
-            if len(names) < 2 or not all(n.strip() for n in names):
-                raise ConfigError(
-                    f'verification.compatible_classes: {rule!r} is not of the '
-                    "form 'class~class' (e.g. 'vegetation~terrain')"
-                )
+        _check_class_rules(
+            'verification.compatible_classes',
+            self.compatible_classes,
+            2,
+            "'class~class'",
+            'vegetation~terrain',
+        )
 
 
 @dataclass
@@ -378,12 +393,9 @@ class BevSearchConfig:
         """Reject an empty channel list or an empty class name."""
         if not self.classes:
             raise ConfigError('bev_search.classes: give at least one channel, e.g. building~fence')
-        for rule in self.classes:
-            if not all(n.strip() for n in rule.split('~')):
-                raise ConfigError(
-                    f'bev_search.classes: {rule!r} is not of the form '
-                    "'class' or 'class~class' (e.g. 'building~fence')"
-                )
+        _check_class_rules(
+            'bev_search.classes', self.classes, 1, "'class' or 'class~class'", 'building~fence'
+        )
 
 
 @dataclass

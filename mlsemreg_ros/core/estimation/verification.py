@@ -55,7 +55,11 @@ import threading
 import time
 
 from mlsemreg_ros.core.estimation import kernels
-from mlsemreg_ros.core.estimation.config import EstimatorConfig, VerificationConfig
+from mlsemreg_ros.core.estimation.config import (
+    class_rule_names,
+    EstimatorConfig,
+    VerificationConfig,
+)
 from mlsemreg_ros.core.estimation.nearest_grid import nearest_within
 from mlsemreg_ros.core.estimation.sc2pcr import count_inliers, post_refinement
 from mlsemreg_ros.core.features.kernels import use_compiled
@@ -94,7 +98,7 @@ def label_compatibility(label_map: LabelMap, config: VerificationConfig) -> Labe
     count = label_map.num_classes
     compatible = np.eye(count, dtype=bool)
     for rule in config.compatible_classes:
-        ids = label_map.ids_of([name.strip() for name in rule.split('~')])
+        ids = label_map.ids_of(class_rule_names(rule))
         compatible[np.ix_(ids, ids)] = True
     counted = np.ones(count, dtype=bool)
     counted[label_map.ids_of(config.ignored_classes)] = False

@@ -33,13 +33,7 @@ class BevSearchStage:
 
     def wanted(self, context: RegistrationContext) -> bool:
         """``bev_search.enabled``, after a verification, for a refused or weak pose."""
-        cfg = context.config
-        weak = context.evidence.num_inliers < cfg.bev_search.weak_inliers
-        return (
-            bool(context.refusal or weak)
-            and context.verified is not None
-            and cfg.bev_search.enabled
-        )
+        return context.refused_or_weak() and context.config.bev_search.enabled
 
     def run(self, context: RegistrationContext) -> VerificationResult | None:
         """Search; the verified peaks, or None without a peak."""

@@ -29,10 +29,12 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from contextlib import contextmanager
+import dataclasses
 from dataclasses import dataclass, field
 import time
 from typing import Any, Protocol, TYPE_CHECKING
 
+from mlsemreg_ros.core.estimation.verification import score_hypotheses
 from mlsemreg_ros.core.results import (
     Correspondences,
     EstimateResult,
@@ -122,6 +124,27 @@ class RegistrationContext:
     def timed(self, stage: str) -> Any:
         """Time a ``with`` block as ``timings_ms[stage + '_ms']``."""
         return timed(self.timings_ms, f'{stage}_ms')
+
+    def refused_or_weak(self) -> bool:
+        """Tell whether a verified pose is refused or weak (below ``bev_search.weak_inliers``)."""
+        weak = self.evidence.num_inliers < self.config.bev_search.weak_inliers
+        return bool(self.refusal or weak) and self.verified is not None
+
+    def verify_candidates(self, transforms: np.ndarray, origin: str) -> VerificationResult:
+        """Score a stage's (N, 4, 4) candidate poses on the pair, none preferred (min_gain 0)."""
+        cfg = self.config
+        return score_hypotheses(
+            transforms,
+            np.arange(len(transforms)),
+            self.source_points,
+            self.target_points,
+            self.source,
+            self.target,
+            dataclasses.replace(cfg.verification, min_gain=0.0),
+            cfg.estimator,
+            self.scoring.compatibility,
+            origin=origin,
+        )
 
     def doubt(self, reason: str) -> None:
         """Refuse the pose for ``reason`` (an accepted pose takes the first reason given)."""

@@ -27,11 +27,8 @@ overlap (core/stages/covisibility.py) then tells the right one from the rest.
 
 from __future__ import annotations
 
-import dataclasses
-
 from mlsemreg_ros.core.estimation.bev_search import bev_hypotheses
 from mlsemreg_ros.core.estimation.polish import polish_poses, radius_schedule
-from mlsemreg_ros.core.estimation.verification import score_hypotheses
 from mlsemreg_ros.core.results import PreparedScan, VerificationResult
 from mlsemreg_ros.core.stages.context import RegistrationContext
 from mlsemreg_ros.core.threads import LazyPool
@@ -85,18 +82,7 @@ class FarSearchStage:
         polished = polish_poses(
             starts, points[rows], context.target.points_tree(), context.target.points, radii
         )
-        return score_hypotheses(
-            polished,
-            np.arange(len(polished)),
-            context.source_points,
-            context.target_points,
-            context.source,
-            context.target,
-            dataclasses.replace(check, min_gain=0.0),
-            cfg.estimator,
-            context.scoring.compatibility,
-            origin='far_search',
-        )
+        return context.verify_candidates(polished, 'far_search')
 
 
 def _far(scan: PreparedScan, min_range: float) -> tuple[np.ndarray, np.ndarray]:

@@ -23,10 +23,7 @@ chooses from.
 
 from __future__ import annotations
 
-import dataclasses
-
 from mlsemreg_ros.core.estimation.object_registration import register_objects
-from mlsemreg_ros.core.estimation.verification import score_hypotheses
 from mlsemreg_ros.core.features.levelling import level_transform
 from mlsemreg_ros.core.matching.objects import (
     extract_objects,
@@ -47,11 +44,7 @@ class ObjectStage:
 
     def wanted(self, context: RegistrationContext) -> bool:
         """``objects.enabled``, after a verification, for a refused or weak pose."""
-        cfg = context.config
-        weak = context.evidence.num_inliers < cfg.bev_search.weak_inliers
-        return (
-            cfg.objects.enabled and bool(context.refusal or weak) and context.verified is not None
-        )
+        return context.refused_or_weak() and context.config.objects.enabled
 
     def run(self, context: RegistrationContext) -> VerificationResult | None:
         """Level, extract, match and solve; the verified poses or None."""
@@ -67,19 +60,7 @@ class ObjectStage:
         if not len(found.transforms):
             return None
         transforms = level_transform(levels[0], levels[1], found.transforms)
-        verification = dataclasses.replace(cfg.verification, min_gain=0.0)
-        return score_hypotheses(
-            transforms,
-            np.arange(len(transforms)),
-            context.source_points,
-            context.target_points,
-            context.source,
-            context.target,
-            verification,
-            cfg.estimator,
-            context.scoring.compatibility,
-            origin='objects',
-        )
+        return context.verify_candidates(transforms, 'objects')
 
 
 def _objects(scan: PreparedScan, level: np.ndarray, ids: list, config: object) -> Objects:

@@ -25,10 +25,8 @@ pair's correspondences and verified like the forward peaks (origin
 
 from __future__ import annotations
 
-import dataclasses
-
 from mlsemreg_ros.core.estimation.bev_search import bev_hypotheses
-from mlsemreg_ros.core.estimation.verification import refine_starts, score_hypotheses
+from mlsemreg_ros.core.estimation.verification import refine_starts
 from mlsemreg_ros.core.results import VerificationResult
 from mlsemreg_ros.core.stages.context import RegistrationContext
 import numpy as np
@@ -64,15 +62,4 @@ class SwappedSearchStage:
         refined = refine_starts(
             starts, context.source_points, context.target_points, cfg.estimator
         )
-        return score_hypotheses(
-            refined,
-            np.arange(len(refined)),
-            context.source_points,
-            context.target_points,
-            source,
-            target,
-            dataclasses.replace(cfg.verification, min_gain=0.0),
-            cfg.estimator,
-            context.scoring.compatibility,
-            origin='bev_search_swapped',
-        )
+        return context.verify_candidates(refined, 'bev_search_swapped')
