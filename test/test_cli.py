@@ -81,6 +81,11 @@ def test_declared_validation_and_one_error_style(tmp_path, capsys):
     assert cli.main(['eval-pairs', str(tmp_path), '--set', 'evaluation.max_rotation_deg=-1']) == 2
     err = capsys.readouterr().err
     assert err.startswith('mlsemreg: error: configuration error: ') and 'below' in err
+    broken = tmp_path / 'broken.yaml'
+    broken.write_text('fine: {downsampling_resolution: [0.5\n')  # not valid YAML
+    assert cli.main(['eval-pairs', str(tmp_path), '--config', str(broken)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('mlsemreg: error: configuration error: ') and 'not valid YAML' in err
     assert cli.main(['eval-pairs', str(tmp_path), '--quiet']) == 1  # empty folder: the work fails
     assert 'no pair files' in capsys.readouterr().err
 

@@ -324,7 +324,10 @@ def read_parameter_file(path: str | Path) -> dict[str, Any]:
     Accepts the ROS layout ``{mlsemreg_node: {ros__parameters: {...}}}`` or a plain
     mapping of sections and top-level fields.
     """
-    data = load_yaml(Path(path).read_text()) or {}
+    try:
+        data = load_yaml(Path(path).read_text()) or {}
+    except yaml.YAMLError as error:
+        raise ConfigError(f'{path}: not valid YAML: {error}') from None
     if not isinstance(data, dict):
         raise ConfigError(f'{path}: expected a mapping of parameters')
     if NODE_NAME in data:
