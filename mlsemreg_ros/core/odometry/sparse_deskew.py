@@ -13,23 +13,28 @@
 # limitations under the License.
 
 """
-A narrow view refused on a sparse stream: estimated again on the scan as it came.
+A narrow view refused on a sparse stream: estimated again deskewed by its translation alone.
 
 Without a gyro a scan is deskewed by the twist of the last accepted poses
 (``preprocess.py``). On a sparse stream (the scan before more than
-``sparse_turn.SPARSE_GAP_S`` away) in a turn whose rate changes, that twist, a mean over
-0.5 s or more, is not the sweep's own: a rosette sees every part of its 70 deg view at any
-time of its sweep, so each surface is smeared by the rate's change. On the simulated solid
-state (seed 1, stride 5, scan 9: the turn easing from 21.7 to 13.4 deg a step) the scan so
-deskewed aligned to the map 0.50 m / 1.2 deg off the truth from the truth itself, keeping
-0.19 of it; as it came (not deskewed) it aligned 0.15-0.18 m / 0.4 deg off, keeping 0.29,
-and deskewed by the true twist 0.04 m / 0.1 deg, keeping 0.29 (docs/sensors.md, session 21).
+``sparse_turn.SPARSE_GAP_S`` away) that twist is a mean over 0.5 s or more, and a turn may
+have stopped since: a rosette sees every part of its 70 deg view at any time of its sweep,
+so a wrong rate smears every surface. On the simulated solid state (seed 1, stride 5) the
+car's turn ended between scans 8 and 9 (yaw steps 21.7, 13.4, 0.7 deg); scan 9 was
+deskewed by 43.4 deg/s for a true 0.1 deg/s, and its map alignment ended 0.50 m / 1.2 deg
+off the truth even from the truth, keeping 0.19 of the scan. Deskewed by the same twist's
+translation alone it ended 0.07 m / 0.2 deg off keeping 0.29, by the true twist 0.04 m /
+0.1 deg keeping 0.29; not deskewed, 0.18 m / 0.4 deg (docs/sensors.md, session 21).
 
-So such a scan, refused with a motion model's prediction, is estimated once more on its
-points as they came (``Tracker.estimate``, every rule of a first estimate: the refined
-prediction, the global registration, the turned starts) and taken when that is accepted;
-the sweep alignment of the accepted scan then estimates the sweep's own twist. A full
-ring, a dense stream, a still start, a deskew from a gyro or wheel prior: nothing changes.
+So such a scan, refused with a motion model's prediction, is prepared again deskewed by
+that translation (the rotation set to zero) and estimated again under every rule of a
+first estimate (``Tracker.estimate``). When that is refused, the turned starts
+(``turn_starts.turn_starts``) run once more on it expecting :data:`RELATIVE_SHARE` of the
+relative-inlier rule's fraction; every other check of a turned start stays (the turn
+bound, no rival basin, the perturbed starts coming back, a weak direction confirmed by the
+sweep alignment). The scan keeps a twist, so the sweep alignment of the accepted scan
+estimates the sweep's own rotation. A full ring, a dense stream, a still start, a deskew
+from a gyro or wheel prior: nothing changes.
 """
 
 from __future__ import annotations
@@ -56,7 +61,7 @@ if TYPE_CHECKING:
 RELATIVE_SHARE = 0.9
 
 
-def retry_as_it_came(
+def retry_turn_stopped(
     odometry: Odometry,
     scan: tuple[Any, Any, Any, int],
     prediction: Prediction | None,
@@ -65,12 +70,12 @@ def retry_as_it_came(
     timings: dict[str, float],
 ) -> tuple[PreprocessedScan, Decision]:
     """
-    Register a refused narrow-view scan of a sparse stream again, not deskewed.
+    Register a refused narrow-view scan of a sparse stream again, without the turn.
 
     ``scan``: ``(points, labels, point_times, stamp_ns)`` as the odometry got it; ``raw``
     and ``chosen``: its preprocessed scan and decision. Returns the scan and decision to
-    apply: the scan as it came and its decision when that was accepted, else ``raw`` and
-    ``chosen``.
+    apply: the scan deskewed by the translation alone and its decision when that was
+    accepted, else ``raw`` and ``chosen``.
     """
     view = odometry.tracker.trust.view
     if (
@@ -100,12 +105,11 @@ def retry_as_it_came(
     )
     if not other.accepted:  # the turned starts once more, expecting a little less
         other = turn_starts(tracker, other, prediction, plain.scan, _relaxed(odometry.config))
-    timings['as_it_came_ms'] = 1e3 * (time.perf_counter() - tic)
+    timings['turn_stopped_ms'] = 1e3 * (time.perf_counter() - tic)
     if not other.accepted:
         return raw, chosen
-    other.reason = '; '.join(
-        r for r in (other.reason, 'registered as it came (not deskewed): a sparse turn') if r
-    )
+    note = 'deskewed again by its translation alone: the turn may have stopped'
+    other.reason = '; '.join(r for r in (other.reason, note) if r)
     return plain, other
 
 
