@@ -22,6 +22,7 @@ In order, each reading the decision before it (``Odometry.process``'s decide ste
 - deskew_guard.py: a deskew that made the alignment worse: the scan again without it;
 - gyro_rescue.py: a refused global pose the gyro confirms, when nothing predicted the scan;
 - sweep_starts.py: a refused scan aligned again from other starts of its sweep;
+- sparse_deskew.py: a narrow view refused on a sparse stream: again without the turn;
 - seeded_search.py: a scan refused after a gap matched onto the keyframe around its
   prediction, accepted on its overlap where both scans see;
 - start_search.py: a narrow view's refused scan with no motion known, matched onto the
@@ -44,6 +45,7 @@ from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
 from mlsemreg_ros.core.odometry.prior_guard import guard_prior
 from mlsemreg_ros.core.odometry.ring_start_search import search_along_forward
 from mlsemreg_ros.core.odometry.seeded_search import search_around_prediction
+from mlsemreg_ros.core.odometry.sparse_deskew import retry_turn_stopped
 from mlsemreg_ros.core.odometry.start_search import search_along_view
 from mlsemreg_ros.core.odometry.steps import Decision
 from mlsemreg_ros.core.odometry.sweep_starts import retry_refused
@@ -73,6 +75,9 @@ def review(
     )
     chosen = rescue_by_gyro(odometry, given[3], prediction, raw, chosen, timings)  # gyro_rescue
     raw, chosen = retry_refused(odometry, given, prediction, raw, chosen, timings)  # sweep_starts
+    raw, chosen = retry_turn_stopped(
+        odometry, given, prediction, raw, chosen, timings
+    )  # sparse_deskew
     chosen = search_around_prediction(odometry, prediction, raw, chosen, timings)  # after a gap
     chosen = search_along_view(
         odometry, given[3], prediction, raw, chosen, timings
