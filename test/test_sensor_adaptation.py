@@ -180,7 +180,7 @@ def test_the_moved_copy_is_the_scan_seen_from_the_moved_sensor() -> None:
     assert len(noisy) == 700
 
 
-#: ../shared beside the repository (a worktree one level deeper looks one level up too)
+#: the shared data beside the repository (from a worktree one level deeper: one level up)
 REAL_SCANS = next(
     (
         found
@@ -239,7 +239,7 @@ def test_a_partial_view_keeps_the_sweep_alignment_on_every_tracked_scan() -> Non
 
 
 def _room(width: float = 6.0, depth: float = 4.0, height: float = 2.6) -> np.ndarray:
-    """A hand-made small scene: a sensor 1 m above the floor of a room, its walls 5 cm apart."""
+    """Return a hand-made small scene: a room around a sensor 1 m above its floor, 5 cm apart."""
     step = 0.05
     u = np.arange(0.0, 1.0, step / max(width, depth))
     floor = np.stack(
