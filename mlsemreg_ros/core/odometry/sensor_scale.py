@@ -49,7 +49,7 @@ pose a few degrees tilted where the points lie 3-8 m away (1 deg moves a point a
 9 cm, at 25 m by 44 cm). So the angles that judge a coarse pose or compare two poses
 grow by ``g`` (each still means about the same displacement at the scene's range), up to
 x1.6: the correction bound is also what refuses the odometry's map alignment when it runs
-off in a room (9.7 and 10.9 deg off on two held-out real pairs: x2, a 10 deg bound,
+off in a room (to poses 9.7 and 11.1 deg off on two held-out real pairs: x2, a 10 deg bound,
 published one of them; x1.6 refused both):
 
     odometry.max_correction_rotation   x g (the fine alignment's correction of a coarse
@@ -102,7 +102,7 @@ FULL_RING_SHARE = 0.9  # of the 360 one-degree azimuth bins: a spinning sensor's
 #: drives and KITTI show 20 m and more, the twelve real indoor scans 3.4-8.8 m.
 SMALL_SCENE_RANGE_M = 12.0
 #: The largest range factor ``g`` (a smaller scene is scaled as this): 8 deg of correction
-#: at most; the map alignment ran off by 9.7-10.9 deg on held-out real pairs (docs/sensors.md).
+#: at most; the map alignment ran off to poses 9.7-11.1 deg off on held-out real pairs.
 MAX_RANGE_SCALE = 1.6
 #: What scales with the range factor: (section, field, power): the default times ``g ** power``.
 RANGE_SCALED = (
