@@ -64,9 +64,13 @@ class FineAlignmentConfig:
         True,
         "Odometry: measure the first scan's angular point spacing and, on a sensor sparser "
         'than a 64-beam one, scale fine.downsampling_resolution by it (up to x2) and '
-        'keyframe.min_points by its inverse square; a value the user set (other than the '
-        'default) is kept '
-        '(core/odometry/sensor_scale.py, docs/sensors.md).',
+        'keyframe.min_points by its inverse square; on a small scene (its 90th-percentile '
+        'range under 12 m: a room) widen the angles that judge a coarse pose '
+        '(odometry.max_correction_rotation, levelling.tolerance, '
+        'geometric_labels.tilt_tolerance, near_miss.agreement_rotation) by 12 m over that '
+        'range (up to x1.6), and label a cloud without a label field with label_source '
+        'auto as none (the geometric labeler is a street one). A value the user set (other '
+        'than the default) is kept (core/odometry/sensor_scale.py, docs/sensors.md).',
     )
     voxel_size: float = param(
         1.0,

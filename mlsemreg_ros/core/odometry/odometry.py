@@ -197,7 +197,7 @@ class Odometry:
         """
         start = time.perf_counter()
         if self.sensor_scale is None and self.keyframe is None:  # scale with the sensor
-            measured = sensor_scale.measure(points, self.config)
+            measured = sensor_scale.measure(points, self.config, labels is not None)
             if measured.points >= sensor_scale.MIN_POINTS:
                 self.sensor_scale = measured
                 self.tracker.trust.view.span_deg = 360.0 * measured.azimuth_share

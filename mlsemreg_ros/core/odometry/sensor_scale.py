@@ -40,6 +40,30 @@ a solid-state pattern) keeps the sweep alignment on every tracked scan
 cost right poses (docs/sensors.md, session 17), while a full ring's map alignment alone pins
 the motion.
 
+A **small scene** (the scan's 90th-percentile range under :data:`SMALL_SCENE_RANGE_M`: a
+room, a corridor; the car scenes the defaults were tuned on show 20 m and more, the twelve
+real scans of docs/sensors.md 3.4-8.8 m) is scaled by its range too, by
+``g = clip(SMALL_SCENE_RANGE_M / p90 range, 1, MAX_RANGE_SCALE)``. A coarse pose's rotation
+is pinned by points at the scene's range: the estimator's 0.6 m inlier threshold leaves a
+pose a few degrees tilted where the points lie 3-8 m away (1 deg moves a point at 5 m by
+9 cm, at 25 m by 44 cm). So the angles that judge a coarse pose or compare two poses
+grow by ``g`` (each still means about the same displacement at the scene's range), up to
+x1.6: the correction bound is also what refuses the odometry's map alignment when it runs
+off in a room (to poses 9.7 and 11.1 deg off on two held-out real pairs: x2, a 10 deg bound,
+published one of them; x1.6 refused both):
+
+    odometry.max_correction_rotation   x g (the fine alignment's correction of a coarse
+                                       pose, and of a prediction)
+    levelling.tolerance                x g (the tilt a coarse pose may keep against the
+    geometric_labels.tilt_tolerance     two ground fits)
+    near_miss.agreement_rotation       x g (two refined poses in one basin)
+
+and a cloud without a label field is not labeled geometrically under ``label_source: auto``
+(``none``): the geometric labeler's classes are a street's (road, car, building,
+vegetation, from 2.7 m out: nearer is the vehicle), and on a room they do not repeat from
+a moved sensor (the labels of a real scan and of its moved copy agreed on 29-44 % of the
+points at the true pose), so their checks refused right poses.
+
 A parameter the user set (its value differs from the default) is never scaled; so is
 none with ``fine.scale_with_sensor: false``. Nothing scales below the reference: a denser
 sensor keeps the defaults. Nor does a cloud voxelized before it came: its median
@@ -51,7 +75,7 @@ Its point count says nothing about the sensor, and scaling it lost the real dev 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any
 
 import numpy as np
@@ -74,6 +98,19 @@ MIN_NEAR_POINTS = 200
 #: The parameters that scale: (section, field, power): the default times ``k ** power``.
 SCALED = (('fine', 'downsampling_resolution', 1), ('keyframe', 'min_points', -2))
 FULL_RING_SHARE = 0.9  # of the 360 one-degree azimuth bins: a spinning sensor's full ring
+#: A scan whose 90th-percentile range is under this is a small scene (m): the simulated
+#: drives and KITTI show 20 m and more, the twelve real indoor scans 3.4-8.8 m.
+SMALL_SCENE_RANGE_M = 12.0
+#: The largest range factor ``g`` (a smaller scene is scaled as this): 8 deg of correction
+#: at most; the map alignment ran off to poses 9.7-11.1 deg off on held-out real pairs.
+MAX_RANGE_SCALE = 1.6
+#: What scales with the range factor: (section, field, power): the default times ``g ** power``.
+RANGE_SCALED = (
+    ('odometry', 'max_correction_rotation', 1),
+    ('levelling', 'tolerance', 1),
+    ('geometric_labels', 'tilt_tolerance', 1),
+    ('near_miss', 'agreement_rotation', 1),
+)
 
 
 @dataclass(frozen=True)
@@ -84,18 +121,33 @@ class SensorScale:
     points: int  # points the spacing was measured on
     azimuth_share: float = 1.0  # occupied share of the 360 one-degree azimuth bins
     picked: dict[str, Any] = field(default_factory=dict)  # 'section.field' -> value
+    scene_range_m: float = np.inf  # 90th-percentile range (m); inf: not measured
+    label_field: bool = True  # the scan came with a label field
 
     @property
     def factor(self) -> float:
         """Return the scale factor ``k`` (1: the defaults)."""
         return float(np.clip(self.spacing_deg / REFERENCE_SPACING_DEG, 1.0, MAX_SCALE))
 
+    @property
+    def range_factor(self) -> float:
+        """Return the small scene's range factor ``g`` (1: not a small scene)."""
+        return range_factor(self.scene_range_m)
+
     def summary(self) -> str:
-        """One line: the spacing, the factor and the values picked."""
-        picked = ', '.join(f'{k}={v:g}' for k, v in self.picked.items()) or 'defaults kept'
+        """One line: the spacing, the range, the factors and the values picked."""
+        picked = ', '.join(
+            f'{k}={v:g}' if not isinstance(v, str) else f'{k}={v}' for k, v in self.picked.items()
+        )
+        scene = ''
+        if np.isfinite(self.scene_range_m):
+            scene = f', p90 range {self.scene_range_m:.1f} m'
+            if self.range_factor > 1.0:
+                scene += f' (small scene: x{self.range_factor:.2f})'
         return (
             f'sensor: {self.points} points, {self.spacing_deg:.2f} deg apart '
-            f'(x{self.factor:.2f} of {REFERENCE_SPACING_DEG} deg): {picked}'
+            f'(x{self.factor:.2f} of {REFERENCE_SPACING_DEG} deg){scene}: '
+            f'{picked or "defaults kept"}'
         )
 
 
@@ -147,15 +199,52 @@ def azimuth_share(points: np.ndarray) -> float:
     return len(np.unique(np.floor(azimuth).astype(np.int64) % 360)) / 360.0
 
 
-def measure(points: np.ndarray, config: Any) -> SensorScale:
-    """Measure a scan and return the values the scaling picks for ``config``."""
+def scene_range_m(points: np.ndarray) -> float:
+    """Return the 90th percentile of the scan's ranges beyond :data:`MIN_RANGE` (m; inf: none)."""
+    xyz = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    ranges = np.linalg.norm(xyz, axis=1)
+    ranges = ranges[np.isfinite(ranges) & (ranges > MIN_RANGE)]
+    if len(ranges) < MIN_POINTS:
+        return float(np.inf)
+    return float(np.percentile(ranges, 90.0))
+
+
+def range_factor(scene_range: float) -> float:
+    """Return ``g = clip(SMALL_SCENE_RANGE_M / scene_range, 1, MAX_RANGE_SCALE)``."""
+    if not np.isfinite(scene_range) or scene_range <= 0.0:
+        return 1.0
+    return float(np.clip(SMALL_SCENE_RANGE_M / scene_range, 1.0, MAX_RANGE_SCALE))
+
+
+def measure(points: np.ndarray, config: Any, label_field: bool = True) -> SensorScale:
+    """
+    Measure a scan and return the values the scaling picks for ``config``.
+
+    ``label_field``: the scan came with a label field (``label_source: auto`` reads it).
+    """
     spacing, count = angular_spacing_deg(points)
-    scale = SensorScale(spacing, count, azimuth_share=azimuth_share(points))
-    values = picked(config, scale.factor, scale.azimuth_share)
-    return SensorScale(spacing, count, scale.azimuth_share, values)
+    scale = SensorScale(
+        spacing,
+        count,
+        azimuth_share=azimuth_share(points),
+        scene_range_m=scene_range_m(points),
+        label_field=label_field,
+    )
+    return replace(scale, picked=picked_for(config, scale))
 
 
-def picked(config: Any, factor: float, azimuth: float = 1.0) -> dict[str, Any]:
+def picked_for(config: Any, scale: SensorScale) -> dict[str, Any]:
+    """Return the values ``scale`` picks for ``config`` (:func:`picked`)."""
+    return picked(config, scale.factor, scale.azimuth_share, scale.range_factor, scale.label_field)
+
+
+def picked(
+    config: Any,
+    factor: float,
+    azimuth: float = 1.0,
+    scene: float = 1.0,
+    label_field: bool = True,
+) -> dict[str, Any]:
     """
     Return ``{'section.field': value}`` scaled by ``factor`` for ``config``.
 
@@ -163,6 +252,8 @@ def picked(config: Any, factor: float, azimuth: float = 1.0) -> dict[str, Any]:
     only with ``fine.scale_with_sensor``, and only when ``factor`` exceeds 1; and, for a
     partial view (``azimuth`` share under :data:`FULL_RING_SHARE`), the sweep alignment on
     every tracked scan (``sweep_alignment.steady_correction`` 0, if still at its default).
+    A small scene (range factor ``scene`` above 1) scales the :data:`RANGE_SCALED` angles
+    by ``scene`` and, without a ``label_field``, sets ``label_source: auto`` to ``none``.
     """
     if not getattr(config.fine, 'scale_with_sensor', False):
         return {}
@@ -172,14 +263,25 @@ def picked(config: Any, factor: float, azimuth: float = 1.0) -> dict[str, Any]:
         default = _default(type(steady), 'steady_correction')
         if steady.steady_correction == default and default > 0:
             out['sweep_alignment.steady_correction'] = 0.0
-    if factor <= 1.0:
-        return out
-    for section_name, name, power in SCALED:
-        section = getattr(config, section_name)
+    multipliers: dict[tuple[str, str], float] = {}
+    if factor > 1.0:
+        for section_name, name, power in SCALED:
+            multipliers[(section_name, name)] = factor**power
+    if scene > 1.0:
+        for section_name, name, power in RANGE_SCALED:
+            key = (section_name, name)
+            multipliers[key] = multipliers.get(key, 1.0) * scene**power
+        source = getattr(config, 'label_source', None)
+        if not label_field and source == 'auto' == _default(type(config), 'label_source'):
+            out['label_source'] = 'none'  # the street labeler's classes do not repeat indoors
+    for (section_name, name), multiplier in multipliers.items():
+        section = getattr(config, section_name, None)
+        if section is None:
+            continue
         default = _default(type(section), name)
         if getattr(section, name) != default:
             continue  # set by the user: it wins
-        value = float(default) * factor**power
+        value = float(default) * multiplier
         out[f'{section_name}.{name}'] = (
             round(value) if isinstance(default, int) else round(value, 3)
         )
@@ -190,7 +292,7 @@ def apply(config: Any, scale: SensorScale | None) -> Any:
     """Return ``config`` with the values ``scale`` picks for it (itself when none)."""
     if scale is None:
         return config
-    values = picked(config, scale.factor, scale.azimuth_share)
+    values = picked_for(config, scale)
     return config.replace(values) if values else config
 
 
