@@ -76,3 +76,43 @@ def test_rescued_keeps_the_refusal_and_adds_the_candidate():
     assert decision.timings_ms is timings  # later stages add their times to the same dict
     assert refused.candidates == [refused_candidate]  # the refusal itself is unchanged
     np.testing.assert_array_equal(decision.pose, alignment.T_target_source)
+
+
+def _held(fraction: float) -> Alignment:
+    alignment = _alignment()
+    return Alignment(
+        T_target_source=alignment.T_target_source,
+        T_initial=alignment.T_initial,
+        converged=True,
+        iterations=5,
+        num_inliers=round(400 * fraction),
+        num_points=400,
+        error=12.0,
+        hessian=alignment.hessian,
+    )
+
+
+def test_a_still_start_the_global_estimate_does_not_confirm_must_hold_as_tracked():
+    from types import SimpleNamespace
+
+    from mlsemreg_ros.core.config import RegistrationConfig
+    from mlsemreg_ros.core.odometry.decision import decide
+    from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
+
+    cfg = RegistrationConfig()
+    failed = GlobalEstimate(SimpleNamespace(message='ambiguous'), None)  # the result's reason
+
+    def refine(T):  # the global estimate failed: never called
+        raise AssertionError('no global pose to refine')
+
+    # a room's walls and floor hold a third of another room's scan: a guess, not a pose
+    weak = Candidate('prediction', np.eye(4), _held(0.34), '', still=True)
+    refused = decide(failed, weak, refine, cfg)
+    assert not refused.accepted and 'a still start (no motion known)' in refused.reason
+    assert 'tracking_min_inlier_fraction' in refused.reason
+    # as much as a tracked scan keeps: accepted, as before
+    held = Candidate('prediction', np.eye(4), _held(0.8), '', still=True)
+    assert decide(failed, held, refine, cfg).accepted
+    # a motion model's prediction keeps the ordinary rules (0.34 > min_inlier_fraction)
+    predicted = Candidate('prediction', np.eye(4), _held(0.34), '')
+    assert decide(failed, predicted, refine, cfg).accepted

@@ -21,14 +21,19 @@ The choice between candidates of the current pose (never a silent jump).
 ``odometry.min_relative_inlier_fraction`` of the median fraction of the last accepted
 frames, and moved its initial guess by at most ``odometry.max_correction_*``
 (``core/alignment/fine_alignment.py``). Without an acceptable candidate the frame is rejected.
+On a full ring a still start (no motion known yet, ``odometry.still_start``) that the global
+estimate does not confirm is acceptable only as a tracked scan would be
+(:func:`unconfirmed_still`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+import dataclasses
 import time
 
 from mlsemreg_ros.core.config import RegistrationConfig
+from mlsemreg_ros.core.odometry.config import OdometryConfig
 from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
 from mlsemreg_ros.core.odometry.steps import Decision, sparse_inlier_covariance
 from mlsemreg_ros.core.odometry.trust import Candidate
@@ -41,6 +46,7 @@ def decide(
     predicted: Candidate | None,
     refine: Callable[[np.ndarray], Candidate],
     cfg: RegistrationConfig,
+    full_ring: bool = True,
 ) -> Decision:
     """
     Accept one candidate or reject the frame.
@@ -55,6 +61,10 @@ def decide(
        one): a wrong global estimate (the mirror pose of a street) loses against the
        prediction, a wrong prediction (a jump in speed) against the global estimate.
     4. No acceptable candidate: the frame is rejected; pose, keyframe and map stay.
+
+    On a ``full_ring`` a still start outside step 2 must hold as a tracked scan
+    (:func:`unconfirmed_still`); a narrow view's still start keeps far less of its
+    non-repetitive pattern when right (``core/odometry/narrow_view.py``).
     """
     odometry, result, T_global = cfg.odometry, estimate.result, estimate.T_odom_current
     timings: dict[str, float] = {}
@@ -77,6 +87,8 @@ def decide(
     ):
         chosen, source = predicted, 'prediction+global'
     else:
+        if full_ring:
+            candidates = [unconfirmed_still(c, odometry) for c in candidates]
         if T_global is not None:
             tic = time.perf_counter()
             candidates.append(refine(T_global))
@@ -106,6 +118,31 @@ def decide(
         result=result,
         candidates=candidates,
         timings_ms=timings,
+    )
+
+
+def unconfirmed_still(candidate: Candidate, odometry: OdometryConfig) -> Candidate:
+    """
+    Return ``candidate``, refused if it is a still start weaker than a tracked scan.
+
+    A still start is the last pose itself, no motion known: a guess, not a model. Without
+    the global estimate's agreement it stands only where a scan tracked alone would: it
+    keeps at least ``odometry.tracking_min_inlier_fraction`` of the scan. Any room's walls
+    and floor hold a third of a scan from another room (two real indoor scans of different
+    sensors, 0.34 of the scan: a wrong pose published before this rule, docs/sensors.md).
+    """
+    fraction = candidate.alignment.inlier_fraction
+    if not candidate.still or candidate.refusal:
+        return candidate
+    if fraction >= odometry.tracking_min_inlier_fraction:
+        return candidate
+    return dataclasses.replace(
+        candidate,
+        refusal=(
+            f'a still start (no motion known) unconfirmed by the global estimate kept '
+            f'{fraction:.2f} of the scan < odometry.tracking_min_inlier_fraction='
+            f'{odometry.tracking_min_inlier_fraction:g}'
+        ),
     )
 
 

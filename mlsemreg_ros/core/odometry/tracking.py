@@ -217,7 +217,11 @@ class Tracker:
         estimate = register(current, keyframe)
         self.trust.tracked_in_a_row = 0
         chosen = decide(
-            estimate, predicted, lambda T: self.candidate('global', T, current, cfg), cfg
+            estimate,
+            predicted,
+            lambda T: self.candidate('global', T, current, cfg),
+            cfg,
+            full_ring=not self.trust.view.partial,
         )
         chosen = second_look(self, chosen, estimate, current, cfg)  # near misses, rescue
         tic = time.perf_counter()
