@@ -76,3 +76,28 @@ def test_an_insertion_does_not_copy_the_gaussians(monkeypatch) -> None:
         assert calls == [1]
     finally:
         threads.configure(before)
+
+
+def test_a_prefetch_reads_the_same_gaussians_and_an_insertion_waits_for_it() -> None:
+    """The read started on a second thread gives the arrays a read on demand gives."""
+    from mlsemreg_ros.core import threads
+
+    before = threads.workers()
+    threads.configure(2)
+    try:
+        local_map = make_map(RegistrationConfig())
+        for seed in range(3):
+            local_map.insert(_cloud(seed), np.eye(4))
+        seen = []
+        assert local_map.prefetch(seen.append)
+        local_map.insert(_cloud(3), np.eye(4))  # waits for the read, then changes the map
+        assert len(seen) == 1 and seen[0] is not None
+        assert not _same(seen[0], local_map.gaussians())  # the insertion is in the new ones
+        assert local_map.prefetch(seen.append)
+        prefetched = local_map.gaussians()  # waits for the read and returns its arrays
+        assert seen[1] is prefetched
+        assert _same(prefetched, voxel_gaussians(local_map._map))
+        threads.configure(1)
+        assert not local_map.prefetch(seen.append)  # one worker: read on demand
+    finally:
+        threads.configure(before)

@@ -101,6 +101,7 @@ def accept_scan(
     step.new_keyframe = odometry.keyframe is not keyframe
     if step.new_keyframe:
         odometry.past_keyframes.remember(keyframe)
+    odometry.tracker.prefetch_gaussians(raw, odometry.config)  # for the next scan
     return step
 
 
