@@ -209,9 +209,23 @@ def _sweep_linearization(
     local_map: SweepMap,
     scale: float,
 ) -> tuple[np.ndarray, np.ndarray, int]:
-    grid, means, covariances, max_squared, regularization = local_map
     n = points.shape[0]
     deskewed = _deskew_piecewise(points, times, np.zeros(n, dtype=np.int64), motion, small_angle)
+    return _deskewed_linearization(deskewed, times, rotation, translation, local_map, scale)
+
+
+@jit
+def _deskewed_linearization(
+    deskewed: np.ndarray,
+    times: np.ndarray,
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    local_map: SweepMap,
+    scale: float,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`_sweep_linearization` of points already deskewed."""
+    grid, means, covariances, max_squared, regularization = local_map
+    n = deskewed.shape[0]
     world = np.empty((n, 3))
     for i in range(n):
         for r in range(3):
@@ -362,19 +376,30 @@ def _align_sweep(
     xi = xi_initial.copy()
     pose_offset = np.zeros(6)
     pairs, iteration = 0, 0
+    n = points.shape[0]
+    segment = np.zeros(n, dtype=np.int64)
+    # the points deskewed by the initial twist: the first step's, and the change's reference
+    initial = _deskew_piecewise(points, times, segment, _twist_rows(xi_initial), small_angle)
     decay = kernel_start ** (-1.0 / max(iterations - 2, 1))
     for iteration in range(1, iterations + 1):
         scale = max(1.0, kernel_start * decay ** (iteration - 1))
-        hessian, gradient, pairs = _sweep_linearization(
-            points,
-            times,
-            _twist_rows(xi),
-            small_angle,
-            np.ascontiguousarray(T[:3, :3]),
-            np.ascontiguousarray(T[:3, 3]),
-            local_map,
-            scale,
-        )
+        rotation = np.ascontiguousarray(T[:3, :3])
+        translation = np.ascontiguousarray(T[:3, 3])
+        if iteration == 1:  # xi is still xi_initial: its deskew is done
+            hessian, gradient, pairs = _deskewed_linearization(
+                initial, times, rotation, translation, local_map, scale
+            )
+        else:
+            hessian, gradient, pairs = _sweep_linearization(
+                points,
+                times,
+                _twist_rows(xi),
+                small_angle,
+                rotation,
+                translation,
+                local_map,
+                scale,
+            )
         if pairs < 12:
             break
         for k in range(12):
@@ -392,10 +417,7 @@ def _align_sweep(
             break
     # the largest move of a point between the deskews by the result's and the initial twist
     change = 0.0
-    n = points.shape[0]
-    segment = np.zeros(n, dtype=np.int64)
     final = _deskew_piecewise(points, times, segment, _twist_rows(xi), small_angle)
-    initial = _deskew_piecewise(points, times, segment, _twist_rows(xi_initial), small_angle)
     for i in range(n):
         d = (
             (final[i, 0] - initial[i, 0]) ** 2
