@@ -76,3 +76,55 @@ def test_an_insertion_does_not_copy_the_gaussians(monkeypatch) -> None:
         assert calls == [1]
     finally:
         threads.configure(before)
+
+
+def test_a_prefetch_reads_the_same_gaussians_and_an_insertion_waits_for_it() -> None:
+    """The read started on a second thread gives the arrays a read on demand gives."""
+    from mlsemreg_ros.core import threads
+
+    before = threads.workers()
+    threads.configure(2)
+    try:
+        local_map = make_map(RegistrationConfig())
+        for seed in range(3):
+            local_map.insert(_cloud(seed), np.eye(4))
+        seen = []
+        assert local_map.prefetch(seen.append)
+        local_map.insert(_cloud(3), np.eye(4))  # waits for the read, then changes the map
+        assert len(seen) == 1 and seen[0] is not None
+        assert not _same(seen[0], local_map.gaussians())  # the insertion is in the new ones
+        assert local_map.prefetch(seen.append)
+        prefetched = local_map.gaussians()  # waits for the read and returns its arrays
+        assert seen[1] is prefetched
+        assert _same(prefetched, voxel_gaussians(local_map._map))
+        threads.configure(1)
+        assert not local_map.prefetch(seen.append)  # one worker: read on demand
+    finally:
+        threads.configure(before)
+
+
+def test_the_tracker_prefetches_the_next_sweep_alignments_cells_only_where_it_will_ask() -> None:
+    """A scan deskewed by a twist: the Gaussians and cells the next scan's alignment reads."""
+    from types import SimpleNamespace
+
+    from mlsemreg_ros.core import threads
+    from mlsemreg_ros.core.features.deskew import SweepMotion
+    from mlsemreg_ros.core.odometry.tracking import Tracker
+
+    config = RegistrationConfig()
+    before = threads.workers()
+    threads.configure(2)
+    try:
+        tracker = Tracker(make_map(config))
+        for seed in range(3):
+            tracker.map.insert(_cloud(seed), np.eye(4))
+        twisted = SimpleNamespace(motion=SweepMotion(np.zeros(3), np.array([5.0, 0.0, 0.0])))
+        assert not tracker.prefetch_gaussians(SimpleNamespace(motion=None), config)
+        assert tracker.prefetch_gaussians(twisted, config)
+        prepared = tracker.map_gaussians()  # waits for the prefetch: its cells are built
+        assert prepared._cells is not None
+        assert _same((prepared.means, prepared.covariances), voxel_gaussians(tracker.map._map))
+        threads.configure(1)
+        assert not tracker.prefetch_gaussians(twisted, config)
+    finally:
+        threads.configure(before)

@@ -86,8 +86,9 @@ def _normal_equations(
     tmp = np.empty((3, 3))
     error = np.empty(3)
     info_error = np.empty(3)
-    jac = np.zeros((3, 6))
     a_jac = np.empty((3, 6))
+    ge = np.empty(6)
+    block = np.empty((6, 6))
     for i in range(deskewed.shape[0]):
         # (C + eps I)^-1 by the adjugate (symmetric)
         c00 = covariances[i, 0, 0] + regularization
@@ -130,36 +131,43 @@ def _normal_equations(
                 mahalanobis += error[r] * info[r, c] * error[c]
         weight = scale / (scale + mahalanobis)
         weight *= weight
-        # G = [-[d]x, I]
+        # G = [-[d]x, I]: A G and G^T A G term by term, the zero entries of G skipped (each
+        # sum keeps the order of its nonzero terms: the same numbers as the dense products)
         x, y, z = deskewed[i, 0], deskewed[i, 1], deskewed[i, 2]
-        jac[0, 1], jac[0, 2] = z, -y
-        jac[1, 0], jac[1, 2] = -z, x
-        jac[2, 0], jac[2, 1] = y, -x
-        jac[0, 3] = jac[1, 4] = jac[2, 5] = 1.0
         for r in range(3):
-            for c in range(6):
-                s = 0.0
-                for k in range(3):
-                    s += info[r, k] * jac[k, c]
-                a_jac[r, c] = weight * s
+            a_jac[r, 0] = weight * (info[r, 1] * -z + info[r, 2] * y)
+            a_jac[r, 1] = weight * (info[r, 0] * z + info[r, 2] * -x)
+            a_jac[r, 2] = weight * (info[r, 0] * -y + info[r, 1] * x)
+            a_jac[r, 3] = weight * info[r, 0]
+            a_jac[r, 4] = weight * info[r, 1]
+            a_jac[r, 5] = weight * info[r, 2]
         for k in range(3):
             info_error[k] = weight * (
                 info[k, 0] * error[0] + info[k, 1] * error[1] + info[k, 2] * error[2]
             )
+        ge[0] = -z * info_error[1] + y * info_error[2]
+        ge[1] = z * info_error[0] + -x * info_error[2]
+        ge[2] = -y * info_error[0] + x * info_error[1]
+        ge[3], ge[4], ge[5] = info_error[0], info_error[1], info_error[2]
+        for c in range(6):
+            block[0, c] = -z * a_jac[1, c] + y * a_jac[2, c]
+            block[1, c] = z * a_jac[0, c] + -x * a_jac[2, c]
+            block[2, c] = -y * a_jac[0, c] + x * a_jac[1, c]
+            block[3, c], block[4, c], block[5, c] = a_jac[0, c], a_jac[1, c], a_jac[2, c]
         t = tau[i]
         t2 = t * t
         for r in range(6):
-            ge = jac[0, r] * info_error[0] + jac[1, r] * info_error[1] + jac[2, r] * info_error[2]
-            gradient[r] += ge
-            gradient[6 + r] += t * ge
+            gradient[r] += ge[r]
+            gradient[6 + r] += t * ge[r]
             for c in range(6):
-                b = 0.0
-                for k in range(3):
-                    b += jac[k, r] * a_jac[k, c]
+                b = block[r, c]
                 hessian[r, c] += b
                 hessian[r, 6 + c] += t * b
-                hessian[6 + r, c] += t * b
                 hessian[6 + r, 6 + c] += t2 * b
+    # the lower-left block gets the same terms as the upper-right one, in the same order
+    for r in range(6):
+        for c in range(6):
+            hessian[6 + r, c] = hessian[r, 6 + c]
     return hessian, gradient
 
 
@@ -201,9 +209,23 @@ def _sweep_linearization(
     local_map: SweepMap,
     scale: float,
 ) -> tuple[np.ndarray, np.ndarray, int]:
-    grid, means, covariances, max_squared, regularization = local_map
     n = points.shape[0]
     deskewed = _deskew_piecewise(points, times, np.zeros(n, dtype=np.int64), motion, small_angle)
+    return _deskewed_linearization(deskewed, times, rotation, translation, local_map, scale)
+
+
+@jit
+def _deskewed_linearization(
+    deskewed: np.ndarray,
+    times: np.ndarray,
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    local_map: SweepMap,
+    scale: float,
+) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`_sweep_linearization` of points already deskewed."""
+    grid, means, covariances, max_squared, regularization = local_map
+    n = deskewed.shape[0]
     world = np.empty((n, 3))
     for i in range(n):
         for r in range(3):
@@ -354,19 +376,30 @@ def _align_sweep(
     xi = xi_initial.copy()
     pose_offset = np.zeros(6)
     pairs, iteration = 0, 0
+    n = points.shape[0]
+    segment = np.zeros(n, dtype=np.int64)
+    # the points deskewed by the initial twist: the first step's, and the change's reference
+    initial = _deskew_piecewise(points, times, segment, _twist_rows(xi_initial), small_angle)
     decay = kernel_start ** (-1.0 / max(iterations - 2, 1))
     for iteration in range(1, iterations + 1):
         scale = max(1.0, kernel_start * decay ** (iteration - 1))
-        hessian, gradient, pairs = _sweep_linearization(
-            points,
-            times,
-            _twist_rows(xi),
-            small_angle,
-            np.ascontiguousarray(T[:3, :3]),
-            np.ascontiguousarray(T[:3, 3]),
-            local_map,
-            scale,
-        )
+        rotation = np.ascontiguousarray(T[:3, :3])
+        translation = np.ascontiguousarray(T[:3, 3])
+        if iteration == 1:  # xi is still xi_initial: its deskew is done
+            hessian, gradient, pairs = _deskewed_linearization(
+                initial, times, rotation, translation, local_map, scale
+            )
+        else:
+            hessian, gradient, pairs = _sweep_linearization(
+                points,
+                times,
+                _twist_rows(xi),
+                small_angle,
+                rotation,
+                translation,
+                local_map,
+                scale,
+            )
         if pairs < 12:
             break
         for k in range(12):
@@ -384,10 +417,7 @@ def _align_sweep(
             break
     # the largest move of a point between the deskews by the result's and the initial twist
     change = 0.0
-    n = points.shape[0]
-    segment = np.zeros(n, dtype=np.int64)
     final = _deskew_piecewise(points, times, segment, _twist_rows(xi), small_angle)
-    initial = _deskew_piecewise(points, times, segment, _twist_rows(xi_initial), small_angle)
     for i in range(n):
         d = (
             (final[i, 0] - initial[i, 0]) ** 2

@@ -363,13 +363,13 @@ def _deskew_piecewise(
             angle = t * rate[k]
             v, c1, c2 = velocity[k], cross1[k], cross2[k]
             tx, ty, tz = t * v[0], t * v[1], t * v[2]
+            cos, sin = np.cos(angle), np.sin(angle)  # once for the series and the rotation
             if not series[k]:
-                a = (0.0 if abs(angle) < small_angle else 1.0 - np.cos(angle)) / rate[k]
-                b = (angle - np.sin(angle)) / rate[k]
+                a = (0.0 if abs(angle) < small_angle else 1.0 - cos) / rate[k]
+                b = (angle - sin) / rate[k]
                 tx = tx + a * c1[0] + b * c2[0]
                 ty = ty + a * c1[1] + b * c2[1]
                 tz = tz + a * c1[2] + b * c2[2]
-            cos, sin = np.cos(angle), np.sin(angle)
         x, y, z = points[i, 0], points[i, 1], points[i, 2]
         if rotate[k]:
             e = axis[k]

@@ -115,6 +115,7 @@ def accept_scan(
         odometry.past_keyframes.remember(keyframe)
         odometry.keyframe.frame_covariance = own_covariance
         odometry.keyframe.residual_variance = chosen.residual_variance
+    odometry.tracker.prefetch_gaussians(raw, odometry.config)  # for the next scan
     return step
 
 

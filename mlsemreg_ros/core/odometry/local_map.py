@@ -31,9 +31,12 @@ accepted scan becomes the :class:`Keyframe`.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any
 
+from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.alignment.alignment import (
     _alignment,
     _failed,
@@ -58,6 +61,9 @@ import small_gicp
 #: A map's Gaussians: means (V, 3) and covariances (V, 3, 3), odom frame.
 Gaussians = tuple[np.ndarray, np.ndarray]
 
+#: The read of the map's Gaussians for the next scan, started after an insertion.
+_PREFETCH_POOL = threads.LazyPool('mlsemreg-map-prefetch')
+
 
 class LocalMap:
     """
@@ -76,10 +82,37 @@ class LocalMap:
         self._indexed: AlignmentCloud | None = None  # point maps: the map as a target
         self.insertions = 0
         self._version = 0  # changes at every insertion and clear
+        self._pending: Future[Any] | None = None  # a read started by prefetch()
         self.clear()
+
+    def prefetch(self, then: Callable[[Gaussians | None], Any]) -> bool:
+        """
+        Read the map's Gaussians and pass them to ``then`` on a second thread.
+
+        For the next scan's sweep alignment, read once the map is final for this scan: the
+        copy of the Gaussians (and what ``then`` makes of them: the means sorted in cells)
+        run beside what follows (the caller's own work, the next scan's arrival, its
+        preprocessing) instead of in the next scan's series of steps. The same arrays as a
+        read on demand (:meth:`gaussians` returns them). Every read or change of the map
+        waits for it first (:meth:`settle`). Nothing with one worker (``threads: 1``): read
+        on demand. Returns whether it started.
+        """
+        self.settle()
+        self._pending = _PREFETCH_POOL.submit(lambda: then(self._read_gaussians()))
+        return self._pending is not None
+
+    def settle(self) -> None:
+        """Wait for a read started by :meth:`prefetch` (a failed one is done again on demand)."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            try:
+                pending.result()
+            except Exception:  # the read on demand raises it again
+                pass
 
     def clear(self) -> None:
         """Forget every scan (a reset); the next insertion starts a new map."""
+        self.settle()
         if self.fine.method == 'vgicp':
             self._map = small_gicp.GaussianVoxelMap(self.fine.voxel_size)
         else:
@@ -97,6 +130,7 @@ class LocalMap:
             self.config.horizon,
             self.config.clear_cycle,
         )
+        self.settle()
         self.fine, self.config = fine, local_map
         if rebuild:
             self.clear()
@@ -119,17 +153,23 @@ class LocalMap:
             return np.zeros((0, 3))
         return np.asarray(self._map.voxel_points(), dtype=np.float64)[:, :3]
 
-    def gaussians(self) -> tuple[np.ndarray, np.ndarray] | None:
+    def gaussians(self) -> Gaussians | None:
         """
         Return the map's Gaussians: means (V, 3) and covariances (V, 3, 3), odom frame.
 
         ``vgicp``: the voxels' own; point maps: the indexed points' (None when empty). The
         same arrays until the map changes (an insertion, a clear): do not modify them. Read
-        when first asked after a change, not after every insertion: since the sweep
-        alignment skips steady scans (``sweep_alignment.steady_*``) most scans never ask,
-        and a copy started on the pool after each insertion held the GIL while the scan's
-        own work went on (docs/sensors.md, session 17).
+        when first asked after a change, not in the insertion: a copy started on the pool
+        right after each insertion held the GIL while the scan's own keyframe check went on
+        (docs/sensors.md, session 17). The tracker starts one once the scan's step is made
+        (:meth:`prefetch`, session 21); this waits for it.
         """
+        if self._pending is not None:
+            self.settle()
+        return self._read_gaussians()
+
+    def _read_gaussians(self) -> Gaussians | None:
+        """:meth:`gaussians` without waiting for a prefetch (the prefetch's own read)."""
         if len(self) == 0:
             return None
         if self._gaussians is not None:  # the map did not change since they were copied
@@ -162,6 +202,7 @@ class LocalMap:
         """Add an aligned scan at its pose ``T_map_scan`` (also advances the LRU clock)."""
         if len(scan) == 0:
             return
+        self.settle()
         self._map.insert(scan.cloud, np.asarray(T_map_scan, dtype=np.float64))
         self._indexed = None
         self._gaussians = None

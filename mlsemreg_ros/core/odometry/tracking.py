@@ -154,6 +154,36 @@ class Tracker:
             self._gaussians = (gaussians, MapGaussians(*gaussians))
         return self._gaussians[1]
 
+    def prefetch_gaussians(self, raw: PreprocessedScan, cfg: RegistrationConfig) -> bool:
+        """
+        Start reading the map's Gaussians and their cells for the next scan's sweep alignment.
+
+        Called once this scan is in the map and its step is made: the copy and the sort run on
+        a second thread beside what follows instead of in the next scan's steps
+        (:meth:`LocalMap.prefetch`; the same arrays as a read on demand, so the same poses).
+        Only where the next scan will ask: the sweep alignment is on and this scan was
+        deskewed by a twist (a partial view aligns the sweep on every tracked scan), on a
+        ``vgicp`` map large enough. Returns whether it started (never with ``threads: 1``).
+        """
+        sweep = cfg.sweep_alignment
+        if (
+            sweep.mode == 'off'
+            or cfg.fine.method != 'vgicp'
+            or not isinstance(raw.motion, SweepMotion)
+            or len(self.map) < MIN_SWEEP_MAP_VOXELS
+        ):
+            return False
+        cell = sweep.max_distance
+
+        def sort(gaussians: tuple[np.ndarray, np.ndarray] | None) -> None:
+            if gaussians is None:
+                return
+            prepared = MapGaussians(*gaussians)
+            prepared.cells(cell)
+            self._gaussians = (gaussians, prepared)
+
+        return self.map.prefetch(sort)
+
     @property
     def history(self) -> InlierHistory:
         """Return the inlier fractions of the last accepted frames (``trust.history``)."""
