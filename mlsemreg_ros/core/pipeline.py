@@ -45,7 +45,6 @@ from mlsemreg_ros.core.features.scan_input import sanitize_scan_for
 from mlsemreg_ros.core.matching import landmarks, signatures
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.results import Landmarks, PreparedScan, RegistrationResult
-from mlsemreg_ros.core.stages.ahead import Ahead
 from mlsemreg_ros.core.stages.bev_search import BevSearchStage
 from mlsemreg_ros.core.stages.confidence import ConfidenceStage
 from mlsemreg_ros.core.stages.context import RegistrationContext, Stage, timed
@@ -132,15 +131,13 @@ def default_stages() -> list[Stage]:
         ConfidenceStage(),  # 4. the choice and the confidence rule's verdict
         ObjectStage(),  # 5a. refused or weak: the object hypotheses, 4-DoF in levelled frames
         BevSearchStage(),  # 5. refused or weak: the semantic bird's-eye-view search
-        # the gate after the BEV, swapped and far searches, each with the next search
-        # started ahead on a second thread (two workers; core/stages/ahead.py)
-        *[
-            step
-            for stage in later[:3]
-            for gate in [EarlyAcceptanceStage(end, skipped)]
-            for step in (Ahead(stage, gate, stage.search), gate, stage)
-        ],
-        EarlyAcceptanceStage(end, skipped),  # and the gate after the guided re-matching
+        EarlyAcceptanceStage(end, skipped),  # the gate, after the BEV search,
+        later[0],
+        EarlyAcceptanceStage(end, skipped),  # after the swapped search,
+        later[1],
+        EarlyAcceptanceStage(end, skipped),  # after the far search,
+        later[2],
+        EarlyAcceptanceStage(end, skipped),  # and after the guided re-matching
         # hopeless after the searches (covisibility.early_refuse_overlap): refused there
         EarlyRefusalStage([stage.name for stage in [*later[3:], *end]]),
         *later[3:],

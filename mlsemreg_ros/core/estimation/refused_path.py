@@ -49,14 +49,10 @@ from mlsemreg_ros.core.results import (
     PreparedScan,
     VerificationResult,
 )
-from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
 
 if TYPE_CHECKING:
     from mlsemreg_ros.core.config import RegistrationConfig
-
-#: the guided re-matching's peaks, one per thread (``threads``; one worker: in turn)
-_PEAKS = LazyPool('guided_peaks')
 
 #: ``verify(estimated, src_pts, dst_pts, source, target)``: the registration's verification.
 Verify = Callable[
@@ -225,8 +221,9 @@ class RefusedPath:
         cfg = self.config
         scores = np.array([h.score for h in searched.hypotheses])
         peaks = np.argsort(-scores, kind='stable')[: cfg.bev_search.guided_peaks]
-
-        def around(peak: int) -> tuple[int, list[HypothesisScore]]:
+        found: list[HypothesisScore] = []
+        counts = []
+        for peak in peaks:
             corr = guided_correspondences(
                 source,
                 target,
@@ -234,19 +231,13 @@ class RefusedPath:
                 cfg.bev_search.guided_radius,
                 self.compatibility,
             )
+            counts.append(len(corr))
             if len(corr) < 3:
-                return len(corr), []
+                continue
             p, q = source.keypoints[corr.source], target.keypoints[corr.target]
             estimated = estimate(p, q, cfg.estimator)
             verified = self.verify(estimated, p, q, source, target)
-            return len(corr), [
-                dataclasses.replace(h, origin='guided') for h in verified.hypotheses
-            ]
-
-        # the peaks are independent: on the pool's threads, joined in the peaks' order
-        around_peaks = _PEAKS.run(around, [int(peak) for peak in peaks])
-        counts = [count for count, _ in around_peaks]
-        found: list[HypothesisScore] = [h for _, hypotheses in around_peaks for h in hypotheses]
+            found += [dataclasses.replace(h, origin='guided') for h in verified.hypotheses]
         diagnostics['guided_peaks'] = len(peaks)
         diagnostics['guided_correspondences'] = int(np.sum(counts)) if counts else 0
         if not found:

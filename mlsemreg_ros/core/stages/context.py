@@ -28,7 +28,6 @@ pair and runs each :class:`Stage` whose :meth:`Stage.wanted` says yes:
 from __future__ import annotations
 
 from collections.abc import Iterator
-from concurrent.futures import Future
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 import time
@@ -119,8 +118,6 @@ class RegistrationContext:
     alignment: Alignment | None = None
     doubts: list[str] = field(default_factory=list)  # later stages' reasons to refuse
     done: set[str] = field(default_factory=set)  # stages an earlier stage did (label quality)
-    #: searches started ahead while the gate runs, by stage name (core/stages/ahead.py)
-    ahead: dict[str, Future[Any]] = field(default_factory=dict)
 
     def timed(self, stage: str) -> Any:
         """Time a ``with`` block as ``timings_ms[stage + '_ms']``."""

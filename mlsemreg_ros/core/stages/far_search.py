@@ -33,7 +33,6 @@ from mlsemreg_ros.core.estimation.bev_search import bev_hypotheses
 from mlsemreg_ros.core.estimation.polish import polish_poses, radius_schedule
 from mlsemreg_ros.core.estimation.verification import score_hypotheses
 from mlsemreg_ros.core.results import PreparedScan, VerificationResult
-from mlsemreg_ros.core.stages.ahead import ahead_or_now
 from mlsemreg_ros.core.stages.context import RegistrationContext
 from mlsemreg_ros.core.threads import LazyPool
 import numpy as np
@@ -57,11 +56,6 @@ class FarSearchStage:
 
     def run(self, context: RegistrationContext) -> VerificationResult | None:
         """Search the far fields both ways; polish, verify and return the best peaks."""
-        return ahead_or_now(context, self.name, self.search)
-
-    @staticmethod
-    def search(context: RegistrationContext) -> VerificationResult | None:
-        """The stage's result; reads only the scans, the correspondences and the config."""
         cfg = context.config
         covis, search, check = cfg.covisibility, cfg.bev_search, cfg.verification
         source = _far(context.source, covis.far_min_range)

@@ -22,10 +22,7 @@ graph, and the polishing of the pool's best candidates on the dense scans
 
 from __future__ import annotations
 
-from typing import Any
-
 from mlsemreg_ros.core.results import VerificationResult
-from mlsemreg_ros.core.stages.ahead import ahead_or_now
 from mlsemreg_ros.core.stages.context import RegistrationContext
 
 
@@ -45,18 +42,9 @@ class GuidedStage:
 
     def run(self, context: RegistrationContext) -> VerificationResult | None:
         """Match again around the peaks, estimate and verify."""
-        found, diagnostics = ahead_or_now(context, self.name, self.search)
-        context.diagnostics.update(diagnostics)
-        return found
-
-    @staticmethod
-    def search(context: RegistrationContext) -> tuple[VerificationResult | None, dict[str, Any]]:
-        """The stage's result and its diagnostics (reads the scans and the searched peaks)."""
-        diagnostics: dict[str, Any] = {}
-        found = context.scoring.refused_path().guided(
-            context.source, context.target, context.searched, diagnostics
+        return context.scoring.refused_path().guided(
+            context.source, context.target, context.searched, context.diagnostics
         )
-        return found, diagnostics
 
 
 class FullGraphStage:

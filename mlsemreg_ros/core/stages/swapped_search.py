@@ -30,7 +30,6 @@ import dataclasses
 from mlsemreg_ros.core.estimation.bev_search import bev_hypotheses
 from mlsemreg_ros.core.estimation.verification import refine_starts, score_hypotheses
 from mlsemreg_ros.core.results import VerificationResult
-from mlsemreg_ros.core.stages.ahead import ahead_or_now
 from mlsemreg_ros.core.stages.context import RegistrationContext
 import numpy as np
 
@@ -50,11 +49,6 @@ class SwappedSearchStage:
 
     def run(self, context: RegistrationContext) -> VerificationResult | None:
         """Search target onto source; the inverted peaks, refined and verified."""
-        return ahead_or_now(context, self.name, self.search)
-
-    @staticmethod
-    def search(context: RegistrationContext) -> VerificationResult | None:
-        """The stage's result; reads only the scans, the correspondences and the config."""
         cfg, source, target = context.config, context.source, context.target
         peaks, _ = bev_hypotheses(
             target.points,

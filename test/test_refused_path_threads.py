@@ -12,13 +12,13 @@
 # See the License for the specific language governing permissions and
 # limitations under the License.
 """
-The refused path on two workers gives what it gives on one (core/stages/ahead.py).
+The refused path on two workers gives what it gives on one (docs/hard_pairs.md, ninth round).
 
-With two workers the next search (swapped, far, guided) starts on a second thread while
-the gate runs, and the guided re-matching's peaks run on two threads; with one worker
-everything runs in turn. A hand-made street pair that the confidence rule refuses (an
-inlier floor no pose can reach) runs the whole refused path both ways: the same pose,
-verdict, message and candidates to the last bit.
+With two workers the far search's two directions run at once (core/stages/far_search.py),
+small_gicp's alignments and the FFTs of the BEV searches on two threads; with one worker
+everything runs in turn. A hand-made street pair that the confidence rule refuses
+(an inlier floor no pose can reach) runs the whole refused path both ways: the same pose,
+verdict, message and diagnostics to the last bit.
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ import dataclasses
 
 from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.pipeline import default_stages, Registration
+from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import RegistrationResult
-from mlsemreg_ros.core.stages.ahead import Ahead
+from mlsemreg_ros.core.stages import far_search
 import numpy as np
 import pytest
 from test_covisible_acceptance import facade_street
@@ -56,22 +56,12 @@ def _refused_street_pair(count: int) -> RegistrationResult:
     return registration.register(source, target, refine=True)
 
 
-def test_the_next_search_starts_ahead_of_each_gate_but_the_last():
-    """An :class:`Ahead` before the gates after the BEV, swapped and far searches."""
-    names = [stage.name for stage in default_stages()]
-    ahead = [stage for stage in default_stages() if isinstance(stage, Ahead)]
-    assert [stage.stage.name for stage in ahead] == ['bev_search_swapped', 'far_search', 'guided']
-    for stage in ahead:
-        at = names.index(stage.stage.name)
-        assert names[at - 2 : at] == ['ahead', 'early_accept']
-
-
 def test_the_refused_path_on_two_workers_equals_one_worker(restore_threads: None):
-    """Threads 1 and 2: the same pose, verdict and candidates; the searches ran ahead on 2."""
+    """Threads 1 and 2: the same pose, verdict and diagnostics after the whole refused path."""
     serial = _refused_street_pair(1)
     parallel = _refused_street_pair(2)
-    assert 'ahead_ms' not in serial.timings_ms
-    assert 'ahead_ms' in parallel.timings_ms
+    assert serial.diagnostics['guided_peaks'] == 3
+    assert far_search._DIRECTIONS._pool is not None  # the two directions went to the pool
     for stage in ('bev_search_swapped_ms', 'far_search_ms', 'guided_ms', 'polish_ms'):
         assert stage in serial.timings_ms and stage in parallel.timings_ms
     assert not serial.success and not parallel.success
