@@ -65,7 +65,7 @@ together than a street's, and so do the basins of the map alignment's cost; a st
 off (a car scene's, a few per cent of its range) fell into a neighbouring basin of a 3.4 m
 room (a sixth of its range) and refused right poses as two basins. On the twelve real
 scans' 180 held-out pairs (docs/sensors.md) the scaled start raised the right poses
-167 -> 171, 0 wrong, none lost. The map alignment's own scales stay: ``fine.voxel_size`` or
+167 -> 172, 0 wrong, none lost. The map alignment's own scales stay: ``fine.voxel_size`` or
 ``fine.downsampling_resolution`` shrunk by ``g`` published a wrong pose there (1 of 180),
 ``fine.max_correspondence_distance`` by ``g`` lost two right poses for six gained.
 
