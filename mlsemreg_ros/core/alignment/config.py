@@ -68,7 +68,8 @@ class FineAlignmentConfig:
         'range under 12 m: a room) widen the angles that judge a coarse pose '
         '(odometry.max_correction_rotation, levelling.tolerance, '
         'geometric_labels.tilt_tolerance, near_miss.agreement_rotation) by 12 m over that '
-        'range (up to x1.6), and label a cloud without a label field with label_source '
+        'range (up to x1.6), shrink the near-miss starts (near_miss.offset) by as much, and '
+        'label a cloud without a label field with label_source '
         'auto as none (the geometric labeler is a street one). A value the user set (other '
         'than the default) is kept (core/odometry/sensor_scale.py, docs/sensors.md).',
     )
