@@ -50,8 +50,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from mlsemreg_ros.core.odometry.failures import no_motion_known
-from mlsemreg_ros.core.odometry.start_search import search_from_keyframe, view_seeds
+from mlsemreg_ros.core.odometry.start_search import (
+    first_pair_registration,
+    search_from_keyframe,
+    view_seeds,
+)
 from mlsemreg_ros.core.odometry.steps import Decision
 import numpy as np
 
@@ -77,19 +80,14 @@ def search_along_forward(
     """Return ``chosen``, or a place the search along the forward axis accepts."""
     cfg, view = odometry.config, odometry.tracker.trust.view
     if (
-        not cfg.odometry.seeded_search
-        or cfg.odometry.ring_search_overlap <= 0.0
-        or chosen.accepted
-        or prediction is not None
-        or view.partial
+        view.partial
         or min(view.gap_s, view.scan_gap_s) <= max(cfg.odometry.still_start, 0.0)
         or view.gap_s > cfg.odometry.ring_search_max_gap + STAMP_TOLERANCE_S
-        or cfg.fine.method == 'off'
-        or odometry.keyframe is None
-        or not no_motion_known(odometry)
     ):
         return chosen
-    registration = getattr(odometry.global_registration, 'registration', None)
+    registration = first_pair_registration(
+        odometry, prediction, chosen, cfg.odometry.ring_search_overlap
+    )
     if registration is None:
         return chosen
     return search_from_keyframe(

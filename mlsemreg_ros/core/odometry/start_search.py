@@ -121,19 +121,11 @@ def search_along_view(
 ) -> Decision:
     """Return ``chosen``, or a place the search along the view accepts (module docstring)."""
     cfg, view = odometry.config, odometry.tracker.trust.view
-    if (
-        not cfg.odometry.seeded_search
-        or cfg.odometry.view_search_overlap <= 0.0
-        or chosen.accepted
-        or prediction is not None
-        or not view.partial
-        or view.gap_s <= max(cfg.odometry.still_start, 0.0)
-        or cfg.fine.method == 'off'
-        or odometry.keyframe is None
-        or not no_motion_known(odometry)
-    ):
+    if not view.partial or view.gap_s <= max(cfg.odometry.still_start, 0.0):
         return chosen
-    registration = getattr(odometry.global_registration, 'registration', None)
+    registration = first_pair_registration(
+        odometry, prediction, chosen, cfg.odometry.view_search_overlap
+    )
     if registration is None:
         return chosen
     axis = view_axis(raw.scan.points)
@@ -150,6 +142,32 @@ def search_along_view(
         ('the search along the view', 'view_search_ms'),
         timings,
     )
+
+
+def first_pair_registration(
+    odometry: Any, prediction: Any, chosen: Decision, overlap_bar: float
+) -> Any | None:
+    """
+    Return the pair registration a refused first pair's seeded search runs, or None.
+
+    None when there is nothing to search: the search is off (``odometry.seeded_search``,
+    or ``overlap_bar`` 0), ``chosen`` was accepted, a prediction exists, the odometry has no
+    fine alignment or keyframe, or a pair was accepted since the keyframe started. The
+    conditions shared by the search along a narrow view (here) and along a full ring's
+    forward axis (``ring_start_search.py``); each adds its view's own.
+    """
+    cfg = odometry.config
+    if (
+        not cfg.odometry.seeded_search
+        or overlap_bar <= 0.0
+        or chosen.accepted
+        or prediction is not None
+        or cfg.fine.method == 'off'
+        or odometry.keyframe is None
+        or not no_motion_known(odometry)
+    ):
+        return None
+    return getattr(odometry.global_registration, 'registration', None)
 
 
 def search_from_keyframe(
