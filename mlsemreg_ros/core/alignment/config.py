@@ -204,6 +204,29 @@ class SweepAlignmentConfig:
         low=0.0,
         high=10.0,
     )
+    gap_after: float = param(
+        1.0,
+        'A full-ring scan accepted more than this after the last accepted one, deskewed by '
+        'the twist of the poses (no gyro), is deskewed again with the velocity from the last '
+        'accepted pose to its own and no rotation rate, aligned again, and its sweep '
+        'alignment then holds that velocity (sweep_alignment.gap_velocity_sigma): over a gap '
+        'of seconds the poses twist spans a turn the car has left (the HDL-64 field drives '
+        'at stride 30: 2 near misses fewer, none added; docs/confidence.md, session 22). '
+        '0: off.',
+        unit='s',
+        low=0.0,
+        high=60.0,
+    )
+    gap_velocity_sigma: float = param(
+        0.1,
+        'Prior standard deviation of the sweep velocity about the gap velocity, in the sweep '
+        'alignment of a scan deskewed again over a gap (sweep_alignment.gap_after): along a '
+        'street the velocity is weakly held, and a local map bent by an earlier sweep pulled '
+        'it 3 m/s sideways with velocity_sigma.',
+        unit='m/s',
+        low=1e-4,
+        high=100.0,
+    )
 
 
 @dataclass

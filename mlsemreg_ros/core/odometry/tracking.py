@@ -41,6 +41,7 @@ from mlsemreg_ros.core.alignment.sweep_alignment import MapGaussians, sweep_subs
 from mlsemreg_ros.core.deferred import stored
 from mlsemreg_ros.core.features.deskew import sweep_motion, SweepMotion
 from mlsemreg_ros.core.odometry.decision import chain, decide
+from mlsemreg_ros.core.odometry.gap_twist import gap_deskew, held_velocity
 from mlsemreg_ros.core.odometry.global_registration import GlobalEstimate
 from mlsemreg_ros.core.odometry.local_map import Keyframe, LocalMap
 from mlsemreg_ros.core.odometry.motion_model import Prediction
@@ -377,6 +378,12 @@ class Tracker:
             return unaligned, None, None
         if said.startswith('covariance inflated') and self.start_other is not None:
             self.start_dispute = disputed_motion(pose, self.start_other)
+        held = False
+        if start is None:  # over a gap of seconds: its velocity (gap_twist.py)
+            raw, pose, said, held = gap_deskew(
+                self, raw, pose, stamp_ns, motion_model, preprocessor, cfg
+            )
+            chosen.reason = '; '.join(r for r in (chosen.reason, said) if r)
         tic = time.perf_counter()
         deskewed = raw
         note, sweep_twist = '', None
@@ -384,6 +391,8 @@ class Tracker:
         if not steady(chosen, cfg):
             implied = implied_twist(motion_model, pose, stamp_ns)  # sweep_starts.py
             rules = sweep_rules(self.trust.view, chosen, pose, cfg)  # sparse_turn.py
+            if held:  # the gap's velocity held, its one start (gap_twist.py)
+                rules, implied = held_velocity(rules), None
             redone, moved, note, sweep_twist, chosen.sweep_change_m = self.align_sweep(
                 raw, pose, preprocessor, rules, implied
             )
