@@ -78,11 +78,12 @@ few hundred Gaussians, and its cost's minimum lay degrees off: it moved right po
 0.3-0.5 deg by 2-11 deg (over the correction bound, or into two basins). The cloud keeps
 half the voxel, the defaults' ratio: a cloud as coarse as the voxel (k's 1 m, or both / g)
 leaves one centroid or none in a voxel and the alignment turns on which (the XT32M's 2 m /
-10 deg pair right with both at 0.485 m, refused at 0.5 m; its 18 pairs of seeds 0-5 15 right
-at 0.5 m, 11 at 0.515 m), while a room's surfaces, seen near, are dense enough without k's
-coarser cloud. On the twelve real scans' held-out pairs 172 -> 177 of 180 right, 0 wrong
-(docs/sensors.md, session 22). ``fine.max_correspondence_distance`` stays (the inlier share
-that judges a pose keeps its meaning).
+10 deg pair right with both at 0.485 m, refused at 0.5 m; with a 0.5 m voxel its 18 pairs of
+seeds 0-5 15 right with the cloud at 0.485 m, 11 at 0.515 m), while a room's surfaces, seen
+near, are dense enough without k's coarser cloud. On the twelve real scans' held-out pairs
+172 -> 177 of 180 right, 0 wrong (docs/sensors.md, session 22).
+``fine.max_correspondence_distance`` stays (the inlier share that judges a pose keeps its
+meaning).
 
 And a cloud without a label field is not labeled geometrically under ``label_source: auto``
 (``none``): the geometric labeler's classes are a street's (road, car, building,
