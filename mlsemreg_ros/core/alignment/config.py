@@ -70,7 +70,9 @@ class FineAlignmentConfig:
         'geometric_labels.tilt_tolerance, near_miss.agreement_rotation) by 12 m over that '
         'range (up to x1.6), shrink the near-miss starts (near_miss.offset) by as much, and '
         'label a cloud without a label field with label_source '
-        'auto as none (the geometric labeler is a street one). A value the user set (other '
+        'auto as none (the geometric labeler is a street one); and shrink the map alignment '
+        'grids by as much: fine.voxel_size, and fine.downsampling_resolution from its '
+        'default instead of the spacing scale (half the voxel). A value the user set (other '
         'than the default) is kept (core/odometry/sensor_scale.py, docs/sensors.md).',
     )
     voxel_size: float = param(

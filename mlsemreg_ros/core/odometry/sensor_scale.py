@@ -59,15 +59,31 @@ published one of them; x1.6 refused both):
     near_miss.agreement_rotation       x g (two refined poses in one basin)
     near_miss.offset                   / g (the perturbed starts' translation: 0.6 m ->
                                        0.375 m in a room)
+    fine.voxel_size                    / g (the local map's voxels: 1 m -> 0.625 m)
+    fine.downsampling_resolution       / g, not x k (half the voxel: 0.3125 m)
 
 The near-miss check's starts shrink by the same ``g``: the surfaces of a room lie closer
 together than a street's, and so do the basins of the map alignment's cost; a start 0.6 m
 off (a car scene's, a few per cent of its range) fell into a neighbouring basin of a 3.4 m
 room (a sixth of its range) and refused right poses as two basins. On the twelve real
 scans' 180 held-out pairs (docs/sensors.md) the scaled start raised the right poses
-167 -> 172, 0 wrong, none lost. The map alignment's own scales stay: ``fine.voxel_size`` or
-``fine.downsampling_resolution`` shrunk by ``g`` published a wrong pose there (1 of 180),
-``fine.max_correspondence_distance`` by ``g`` lost two right poses for six gained.
+167 -> 172, 0 wrong, none lost.
+
+The map alignment's two grids shrink by ``g`` too, together, as KISS-ICP's voxel follows its
+range: the local map's Gaussian voxels (``fine.voxel_size`` / g: 1 m -> 0.625 m) and the
+alignment cloud the map is made of and aligned with (``fine.downsampling_resolution``: the
+default 0.5 m / g, 0.3125 m; on a small scene ``g`` replaces the spacing factor ``k``). A
+map of 1 m voxels from a 1 m alignment cloud (a sparse sensor's, x k) held a 3.4 m room in a
+few hundred Gaussians, and its cost's minimum lay degrees off: it moved right poses of
+0.3-0.5 deg by 2-11 deg (over the correction bound, or into two basins). The cloud keeps
+half the voxel, the defaults' ratio: a cloud as coarse as the voxel (k's 1 m, or both / g)
+leaves one centroid or none in a voxel and the alignment turns on which (the XT32M's 2 m /
+10 deg pair right with both at 0.485 m, refused at 0.5 m; with a 0.5 m voxel its 18 pairs of
+seeds 0-5 15 right with the cloud at 0.485 m, 11 at 0.515 m), while a room's surfaces, seen
+near, are dense enough without k's coarser cloud. On the twelve real scans' held-out pairs
+172 -> 177 of 180 right, 0 wrong (docs/sensors.md, session 22).
+``fine.max_correspondence_distance`` stays (the inlier share that judges a pose keeps its
+meaning).
 
 And a cloud without a label field is not labeled geometrically under ``label_source: auto``
 (``none``): the geometric labeler's classes are a street's (road, car, building,
@@ -122,7 +138,12 @@ RANGE_SCALED = (
     ('geometric_labels', 'tilt_tolerance', 1),
     ('near_miss', 'agreement_rotation', 1),
     ('near_miss', 'offset', -1),
+    ('fine', 'voxel_size', -1),
+    ('fine', 'downsampling_resolution', -1),
 )
+#: What the range factor scales in place of the spacing factor ``k``: the alignment cloud
+#: keeps half the map's voxel (a room's surfaces, seen near, need no coarser cloud).
+RANGE_NOT_SPACING = (('fine', 'downsampling_resolution'),)
 
 
 @dataclass(frozen=True)
@@ -264,8 +285,9 @@ def picked(
     only with ``fine.scale_with_sensor``, and only when ``factor`` exceeds 1; and, for a
     partial view (``azimuth`` share under :data:`FULL_RING_SHARE`), the sweep alignment on
     every tracked scan (``sweep_alignment.steady_correction`` 0, if still at its default).
-    A small scene (range factor ``scene`` above 1) scales the :data:`RANGE_SCALED` angles
-    by ``scene`` and, without a ``label_field``, sets ``label_source: auto`` to ``none``.
+    A small scene (range factor ``scene`` above 1) scales the :data:`RANGE_SCALED` values
+    by ``scene`` (:data:`RANGE_NOT_SPACING` by ``scene`` alone, not by ``factor``) and,
+    without a ``label_field``, sets ``label_source: auto`` to ``none``.
     """
     if not getattr(config.fine, 'scale_with_sensor', False):
         return {}
@@ -282,7 +304,8 @@ def picked(
     if scene > 1.0:
         for section_name, name, power in RANGE_SCALED:
             key = (section_name, name)
-            multipliers[key] = multipliers.get(key, 1.0) * scene**power
+            spacing = 1.0 if key in RANGE_NOT_SPACING else multipliers.get(key, 1.0)
+            multipliers[key] = spacing * scene**power
         source = getattr(config, 'label_source', None)
         if not label_field and source == 'auto' == _default(type(config), 'label_source'):
             out['label_source'] = 'none'  # the street labeler's classes do not repeat indoors
