@@ -20,7 +20,8 @@ before more than 0.3 s away, a map of at least two scans) and where it leaves th
 alone, by hand; the map's cloud on a hand-made pair of keyframes; the seeds' yaws; and
 (slow, about 40 s) the simulated solid-state drive of seed 1 at stride 10 with geometric
 labels: scan 3 (bag scan 30), turned 32.5 deg from the keyframe with a prediction 2.6 m /
-31.7 deg off, was refused on session 21's code and is now registered right.
+31.7 deg off, was refused on session 21's code and is now registered right, and scan 4
+after it (a turned start confirmed by its sweep alignment, ``sparse_turn.SWEEP_MIN_SHARE``).
 """
 
 import csv
@@ -164,3 +165,6 @@ def test_the_solid_state_drive_keeps_the_braking_turn_at_stride_10(tmp_path: Pat
     assert row['accepted'] == 'True', row['message']
     assert row['success'] == 'True', row['message']
     assert 'against the map scans' in row['message'], row['message']
+    row = rows[4]  # a turned start whose sweep kept 0.14 of the scan (sparse_turn.py)
+    assert row['accepted'] == 'True', row['message']
+    assert row['success'] == 'True', row['message']
