@@ -24,11 +24,19 @@ session 19's code; a turned start now registers it right.
 
 import csv
 from pathlib import Path
+from types import SimpleNamespace
 
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry.narrow_view import View
-from mlsemreg_ros.core.odometry.sparse_turn import MIN_SHARE, SPARSE_GAP_S, turned_floor
+from mlsemreg_ros.core.odometry.sparse_turn import (
+    MIN_SHARE,
+    SPARSE_GAP_S,
+    SWEEP_MIN_SHARE,
+    sweep_rules,
+    turned_floor,
+)
 from mlsemreg_ros.tools import eval_bag, simulate
+import numpy as np
 import pytest
 
 
@@ -52,6 +60,27 @@ def test_the_floor_stays_on_a_ring_a_dense_stream_or_without_a_turn() -> None:
     edge = View(span_deg=70.0, scan_gap_s=SPARSE_GAP_S)
     assert turned_floor(edge, odometry, 0.7) is odometry
     assert turned_floor(View(span_deg=70.0, scan_gap_s=0.5), odometry, 1.0) is odometry
+
+
+def test_the_sweep_of_a_turned_start_is_judged_down_to_its_own_share() -> None:
+    cfg = RegistrationConfig()
+    floor = cfg.odometry.min_inlier_fraction
+    view = View(span_deg=70.0, scan_gap_s=1.0, last_pose=np.eye(4))
+    turned = np.eye(4)
+    turned[:2, :2] = [[np.cos(0.75), -np.sin(0.75)], [np.sin(0.75), np.cos(0.75)]]  # 43 deg
+    overlap = view.overlap(turned)
+    assert overlap < SWEEP_MIN_SHARE < MIN_SHARE
+    rules = sweep_rules(view, SimpleNamespace(source='turn'), turned, cfg)
+    assert rules.odometry.min_inlier_fraction == pytest.approx(SWEEP_MIN_SHARE * floor)
+    relative = cfg.odometry.min_relative_inlier_fraction * overlap
+    assert rules.odometry.min_relative_inlier_fraction == pytest.approx(relative)
+    # the turned start itself keeps MIN_SHARE; any other decision keeps cfg
+    assert turned_floor(view, cfg.odometry, overlap).min_inlier_fraction == pytest.approx(
+        MIN_SHARE * floor
+    )
+    assert sweep_rules(view, SimpleNamespace(source='global'), turned, cfg) is cfg
+    dense = View(span_deg=70.0, scan_gap_s=0.1, last_pose=np.eye(4))
+    assert sweep_rules(dense, SimpleNamespace(source='turn'), turned, cfg) is cfg
 
 
 @pytest.mark.slow

@@ -62,6 +62,10 @@ class PastKeyframes:
         """Forget every keyframe (a reset, a new map)."""
         self._keyframes.clear()
 
+    def newest_first(self) -> list[Keyframe]:
+        """Return the kept keyframes, newest first."""
+        return list(reversed(self._keyframes))
+
     def remember(self, keyframe: Keyframe | None) -> None:
         """Keep ``keyframe``, which is being replaced."""
         if keyframe is not None and self._keyframes.maxlen:

@@ -25,6 +25,8 @@ In order, each reading the decision before it (``Odometry.process``'s decide ste
 - sparse_deskew.py: a narrow view refused on a sparse stream: again without the turn;
 - seeded_search.py: a scan refused after a gap matched onto the keyframe around its
   prediction, accepted on its overlap where both scans see;
+- map_search.py: a narrow view refused on a sparse stream matched onto the map's scans
+  (the keyframe and the past keyframes) around its prediction, turned up to 40 deg;
 - start_search.py: a narrow view's refused scan with no motion known, matched onto the
   keyframe from seeds along its view axis, judged as the seeded search;
 - ring_start_search.py: a full ring's refused scan with no motion known, matched onto the
@@ -40,6 +42,7 @@ from typing import Any, TYPE_CHECKING
 from mlsemreg_ros.core.odometry.deskew_guard import guard_deskew
 from mlsemreg_ros.core.odometry.failures import relocalize
 from mlsemreg_ros.core.odometry.gyro_rescue import rescue_by_gyro
+from mlsemreg_ros.core.odometry.map_search import search_local_map
 from mlsemreg_ros.core.odometry.motion_model import Prediction
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
 from mlsemreg_ros.core.odometry.prior_guard import guard_prior
@@ -79,6 +82,7 @@ def review(
         odometry, given, prediction, raw, chosen, timings
     )  # sparse_deskew
     chosen = search_around_prediction(odometry, prediction, raw, chosen, timings)  # after a gap
+    chosen = search_local_map(odometry, prediction, raw, chosen, timings)  # map_search.py
     chosen = search_along_view(
         odometry, given[3], prediction, raw, chosen, timings
     )  # start_search
