@@ -33,8 +33,8 @@ cloud's frame without one), as RViz's "2D Pose Estimate" sends it:
 
 A topic, not a service: a service needs an interface package (rosidl, CMake, a C compiler
 and generated type support built into the venv), which this pure-Python package does not
-build (README, *Setting the pose*, has the measurement). The callbacks only convert and
-queue; the worker applies the latest request before its next scan.
+build (docs/ros_interface.md, *Setting the pose*, has the measurement). The callbacks only
+convert and queue; the worker applies the latest request before its next scan.
 """
 
 from __future__ import annotations
