@@ -28,8 +28,9 @@ from mlsemreg_ros.core.estimation.verification import (
 )
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.matching.landmarks import extract_landmarks
-from mlsemreg_ros.core.results import Landmarks, PreparedScan
+from mlsemreg_ros.core.results import PreparedScan
 from mlsemreg_ros.evaluation.label_noise import LabelNoise, LabelNoiseError
+from noisy_labels import labeled_points_scan
 import numpy as np
 import pytest
 
@@ -38,16 +39,7 @@ ID = {n: LABELS.id_of(n) for n in ('road', 'sidewalk', 'building', 'vegetation',
 
 
 def _scan(points: np.ndarray, labels: np.ndarray) -> PreparedScan:
-    empty = np.zeros((0, 3))
-    return PreparedScan(
-        points,
-        labels.astype(np.int32),
-        empty,
-        np.zeros(0, dtype=np.int64),
-        np.zeros((0, 0), np.float32),
-        np.zeros((0, LABELS.num_classes), bool),
-        Landmarks.empty(),
-    )
+    return labeled_points_scan(points, labels, LABELS.num_classes)
 
 
 def _street(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
