@@ -186,9 +186,8 @@ def test_the_odometry_teaches_the_adaptive_model_a_network_confusion_online():
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
-    from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
+    from street_map import street_drive
 
-    world, world_labels = street_scene(seed=3)
     config = RegistrationConfig().replace(
         {'keypoints.count': 1000, 'confidence.label_model': 'adaptive'}
     )
@@ -197,11 +196,9 @@ def test_the_odometry_teaches_the_adaptive_model_a_network_confusion_online():
     rng = np.random.default_rng(8)
     b, v = ID['building'], ID['vegetation']
     accepted = 0
-    for k in range(8):
-        pose = motion(0.4 * k, (-20.0 + 1.5 * k, 0.2 * np.sin(k), 0.0))
-        points, labels = scan_at(world, world_labels, pose, seed=100 + k, max_points=20000)
+    for points, labels, _, stamp in street_drive(8, -20.0):
         labels = np.where((labels == b) & (rng.random(len(labels)) < 0.4), v, labels)
-        accepted += odometry.process(points, labels, 100_000_000 * k).accepted
+        accepted += odometry.process(points, labels, stamp).accepted
     model = registration.label_model
     assert accepted == 8 and model is not None and model.updates == 7
     assert 'building~vegetation' in model.confused_pairs(LABELS.names)
