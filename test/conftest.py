@@ -74,3 +74,13 @@ def not_installed(monkeypatch: pytest.MonkeyPatch) -> Callable[[str], None]:
         )
 
     return hide
+
+
+@pytest.fixture
+def restore_threads() -> Iterator[None]:
+    """Put the process-wide worker count (``core/threads.py``) back after the test."""
+    from mlsemreg_ros.core import threads
+
+    before = threads._requested
+    yield
+    threads.configure(before)
