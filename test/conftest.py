@@ -57,3 +57,30 @@ def ros_context(rclpy_module: Any) -> Callable[..., contextlib.AbstractContextMa
             rclpy_module.try_shutdown(context=ctx)
 
     return context
+
+
+@pytest.fixture
+def not_installed(monkeypatch: pytest.MonkeyPatch) -> Callable[[str], None]:
+    """Return a function that makes ``importlib.util.find_spec`` miss one module by name."""
+    import importlib.util
+
+    real = importlib.util.find_spec
+
+    def hide(module: str) -> None:
+        monkeypatch.setattr(
+            importlib.util,
+            'find_spec',
+            lambda name, *a: None if name == module else real(name, *a),
+        )
+
+    return hide
+
+
+@pytest.fixture
+def restore_threads() -> Iterator[None]:
+    """Put the process-wide worker count (``core/threads.py``) back after the test."""
+    from mlsemreg_ros.core import threads
+
+    before = threads._requested
+    yield
+    threads.configure(before)

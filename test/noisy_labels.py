@@ -19,6 +19,7 @@ from typing import Any
 
 from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.pipeline import Registration
+from mlsemreg_ros.core.results import Landmarks, PreparedScan
 import numpy as np
 
 #: Fewer keypoints than the default keep the tests fast.
@@ -32,6 +33,20 @@ def flipped(labels: np.ndarray, share: float, seed: int) -> np.ndarray:
     chosen = rng.random(len(out)) < share
     out[chosen] = rng.integers(1, 20, int(chosen.sum()))
     return out
+
+
+def labeled_points_scan(points: np.ndarray, labels: np.ndarray, num_classes: int) -> PreparedScan:
+    """Return a prepared scan of ``points`` (N, 3) and ``labels`` (N,) alone: no keypoints."""
+    empty = np.zeros((0, 3))
+    return PreparedScan(
+        points,
+        labels.astype(np.int32),
+        empty,
+        np.zeros(0, dtype=np.int64),
+        np.zeros((0, 0), np.float32),
+        np.zeros((0, num_classes), bool),
+        Landmarks.empty(),
+    )
 
 
 def register_pair(scene: Any, label_src: np.ndarray, label_dst: np.ndarray, **changes: Any) -> Any:

@@ -11,7 +11,7 @@
 # WITHOUT WARRANTIES OR CONDITIONS OF ANY KIND, either express or implied.
 # See the License for the specific language governing permissions and
 # limitations under the License.
-"""The keyframe map of the synthetic street that the map-node tests localize in."""
+"""The synthetic street: its keyframe map (the map-node tests) and a drive down it."""
 
 from pathlib import Path
 
@@ -19,11 +19,30 @@ from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.maps.keyframe_store import KeyframeStore
 from mlsemreg_ros.core.maps.map_io import save_map
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
+import numpy as np
 import pytest
 
 STREET_SEED = 3
 #: Keyframe positions along the synthetic street (x, m).
 KEYFRAME_X = (-30.0, -15.0, 0.0, 15.0, 30.0)
+
+
+def street_drive(
+    frames: int, start_x: float, step_m: float = 1.5, first_stamp: int = 0
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]:
+    """
+    Return (points, labels, T_world_sensor, stamp_ns) of a drive down the synthetic street.
+
+    Scan ``k`` stands at x = ``start_x + step_m k``, weaving 0.2 m and turning 0.4 deg a
+    scan, stamped ``(first_stamp + k)`` tenths of a second.
+    """
+    world, labels = street_scene(seed=STREET_SEED)
+    out = []
+    for k in range(frames):
+        pose = motion(0.4 * k, (start_x + step_m * k, 0.2 * np.sin(k), 0.0))
+        points, scan_labels = scan_at(world, labels, pose, seed=100 + k, max_points=20000)
+        out.append((points, scan_labels, pose, 100_000_000 * (first_stamp + k)))
+    return out
 
 
 def street_keyframe_store(

@@ -16,7 +16,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
+from typing import Any
 
 from mlsemreg_ros.core.alignment.alignment import align_pair, AlignmentCloud, UNKNOWN_VARIANCE
 from mlsemreg_ros.core.alignment.fine_alignment import refinement_refusal, RefinementBounds
@@ -177,6 +179,20 @@ def test_a_refinement_that_moves_too_far_or_keeps_too_little_is_refused() -> Non
     assert 'kept 0.00 of the scan' in refinement_refusal(apart, bounds)
 
 
+def _move_refinements(monkeypatch: pytest.MonkeyPatch, shift_m: float) -> Callable[..., Any]:
+    """Make every fine alignment land ``shift_m`` along x off its start; return the real one."""
+    from mlsemreg_ros.core.stages import fine_alignment
+
+    real_align = fine_alignment.align_pair
+
+    def moved(*args, **kwargs):
+        found = real_align(*args, **kwargs)
+        return replace(found, T_target_source=motion(0.0, (shift_m, 0.0, 0.0)) @ found.T_initial)
+
+    monkeypatch.setattr(fine_alignment, 'align_pair', moved)
+    return real_align
+
+
 def test_a_pair_whose_refinement_pulls_the_pose_beyond_the_bounds_is_refused(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -190,13 +206,7 @@ def test_a_pair_whose_refinement_pulls_the_pose_beyond_the_bounds_is_refused(
 
     pair = synthetic_pair(seed=0)
     config = RegistrationConfig().replace({'keypoints.count': 1500})
-    real_align = fine_alignment.align_pair
-
-    def runaway(*args, **kwargs):
-        found = real_align(*args, **kwargs)
-        return replace(found, T_target_source=motion(0.0, (2.0, 0.0, 0.0)) @ found.T_initial)
-
-    monkeypatch.setattr(fine_alignment, 'align_pair', runaway)
+    real_align = _move_refinements(monkeypatch, 2.0)
     result = Registration(config).register_scans(
         pair.pts_src, pair.label_src, pair.pts_dst, pair.label_dst
     )
@@ -221,19 +231,11 @@ def test_an_accepted_pose_whose_refused_refinement_moved_it_is_refused(
     frames 117 and 184: the sparse pose accepted on 50 inliers was 0.78 m off and returned
     unrefined, while its refinement, refused for keeping 0.18 of the scan, was 0.11 m off.)
     """
-    from mlsemreg_ros.core.stages import fine_alignment
-
     pair = synthetic_pair(seed=0)
     strict = RegistrationConfig().replace(
         {'keypoints.count': 1500, 'odometry.min_inlier_fraction': 0.999}
     )
-    real_align = fine_alignment.align_pair
-
-    def elsewhere(*args, **kwargs):
-        found = real_align(*args, **kwargs)
-        return replace(found, T_target_source=motion(0.0, (0.7, 0.0, 0.0)) @ found.T_initial)
-
-    monkeypatch.setattr(fine_alignment, 'align_pair', elsewhere)
+    _move_refinements(monkeypatch, 0.7)
     result = Registration(strict).register_scans(
         pair.pts_src, pair.label_src, pair.pts_dst, pair.label_dst
     )

@@ -42,7 +42,7 @@ from mlsemreg_ros.core.stages.covisibility import covisible_side
 from mlsemreg_ros.core.stages.covisible_acceptance import CovisibleAcceptanceStage
 import numpy as np
 import pytest
-from test_long_range import BUILDING, long_street, pose, scan
+from test_long_range import BUILDING, long_street, pose, scan, straight_street
 
 REFUSED = '6 inliers < estimator.min_inliers=40'
 
@@ -139,17 +139,6 @@ def facade_street(seed: int = 1) -> tuple[np.ndarray, np.ndarray]:
             names.append(np.full(count, BUILDING))
         x += length + rng.uniform(2.0, 6.0)
     return np.concatenate(parts), np.concatenate(names)
-
-
-def straight_street() -> tuple[np.ndarray, np.ndarray]:
-    """Return the poles' street between two straight walls 110 m long."""
-    world, labels = long_street()
-    rng = np.random.default_rng(1)
-    walls = [
-        np.column_stack([rng.uniform(-25, 85, 6000), np.full(6000, side), rng.uniform(0, 6, 6000)])
-        for side in (-9.0, 9.0)
-    ]
-    return np.concatenate([world, *walls]), np.concatenate([labels, np.full(12000, BUILDING)])
 
 
 def judged(

@@ -22,7 +22,6 @@ runs of the handheld VLP-16 walk differ from the 6th scan on (issue 29, docs/sen
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 from mlsemreg_ros.core import threads
@@ -31,14 +30,6 @@ from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry.local_map import make_map
 import numpy as np
 import pytest
-
-
-@pytest.fixture
-def restore_threads() -> Iterator[None]:
-    """Put the configured thread count back after the test."""
-    before = threads._requested
-    yield
-    threads.configure(before)
 
 
 def _points(seed: int, shift: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:

@@ -135,30 +135,18 @@ def test_ambiguity_needs_a_close_rival_and_is_decided_by_distinctive_objects() -
         ambiguity_margin=0.3, min_distinctive_objects=2, distinctive_gain=2.0
     )
     base = {'num_inliers': 100, 'correspondences': 2000, 'overlap': 0.4, 'label_agreement': 0.9}
-    far = confidence.Evidence(**base, tilt_deg=0.0, score=0.3, rival_score=0.1, rival='x')
+    rivalled = {**base, 'tilt_deg': 0.0, 'score': 0.3, 'rival': 'x'}  # rival 'x' scored
+    far = confidence.Evidence(**rivalled, rival_score=0.1)
     assert far.ambiguity(config) == ''  # rival far below
-    close = confidence.Evidence(**base, tilt_deg=0.0, score=0.3, rival_score=0.25, rival='x')
+    close = confidence.Evidence(**rivalled, rival_score=0.25)
     assert 'ambiguous: x scores 0.250 against 0.300' in confidence.refusal(close, config, 40)
+    objects = {'rival_score': 0.35, 'distinctive_overlap': 0.4}  # a closer rival, objects seen
     decided = confidence.Evidence(
-        **base,
-        tilt_deg=0.0,
-        score=0.3,
-        rival_score=0.35,
-        rival='x',
-        distinctive_objects=3,
-        distinctive_overlap=0.4,
-        rival_distinctive_overlap=0.1,
+        **rivalled, **objects, distinctive_objects=3, rival_distinctive_overlap=0.1
     )
     assert decided.ambiguity(config) == ''
     one_pole = confidence.Evidence(
-        **base,
-        tilt_deg=0.0,
-        score=0.3,
-        rival_score=0.35,
-        rival='x',
-        distinctive_objects=1,
-        distinctive_overlap=0.4,
-        rival_distinctive_overlap=0.0,
+        **rivalled, **objects, distinctive_objects=1, rival_distinctive_overlap=0.0
     )
     assert 'does not decide' in one_pole.ambiguity(config)
     assert confidence.Evidence(**base, tilt_deg=0.0).ambiguity(config) == ''  # no rival scored

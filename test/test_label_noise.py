@@ -28,8 +28,9 @@ from mlsemreg_ros.core.estimation.verification import (
 )
 from mlsemreg_ros.core.matching.labels import LabelMap
 from mlsemreg_ros.core.matching.landmarks import extract_landmarks
-from mlsemreg_ros.core.results import Landmarks, PreparedScan
+from mlsemreg_ros.core.results import PreparedScan
 from mlsemreg_ros.evaluation.label_noise import LabelNoise, LabelNoiseError
+from noisy_labels import labeled_points_scan
 import numpy as np
 import pytest
 
@@ -38,16 +39,7 @@ ID = {n: LABELS.id_of(n) for n in ('road', 'sidewalk', 'building', 'vegetation',
 
 
 def _scan(points: np.ndarray, labels: np.ndarray) -> PreparedScan:
-    empty = np.zeros((0, 3))
-    return PreparedScan(
-        points,
-        labels.astype(np.int32),
-        empty,
-        np.zeros(0, dtype=np.int64),
-        np.zeros((0, 0), np.float32),
-        np.zeros((0, LABELS.num_classes), bool),
-        Landmarks.empty(),
-    )
+    return labeled_points_scan(points, labels, LABELS.num_classes)
 
 
 def _street(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -194,9 +186,8 @@ def test_the_odometry_teaches_the_adaptive_model_a_network_confusion_online():
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.odometry import Odometry
     from mlsemreg_ros.core.pipeline import Registration
-    from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
+    from street_map import street_drive
 
-    world, world_labels = street_scene(seed=3)
     config = RegistrationConfig().replace(
         {'keypoints.count': 1000, 'confidence.label_model': 'adaptive'}
     )
@@ -205,11 +196,9 @@ def test_the_odometry_teaches_the_adaptive_model_a_network_confusion_online():
     rng = np.random.default_rng(8)
     b, v = ID['building'], ID['vegetation']
     accepted = 0
-    for k in range(8):
-        pose = motion(0.4 * k, (-20.0 + 1.5 * k, 0.2 * np.sin(k), 0.0))
-        points, labels = scan_at(world, world_labels, pose, seed=100 + k, max_points=20000)
+    for points, labels, _, stamp in street_drive(8, -20.0):
         labels = np.where((labels == b) & (rng.random(len(labels)) < 0.4), v, labels)
-        accepted += odometry.process(points, labels, 100_000_000 * k).accepted
+        accepted += odometry.process(points, labels, stamp).accepted
     model = registration.label_model
     assert accepted == 8 and model is not None and model.updates == 7
     assert 'building~vegetation' in model.confused_pairs(LABELS.names)

@@ -85,6 +85,17 @@ def long_street(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(parts), np.concatenate(labels)
 
 
+def straight_street() -> tuple[np.ndarray, np.ndarray]:
+    """Return the poles' street between two straight walls 110 m long."""
+    world, labels = long_street()
+    rng = np.random.default_rng(1)
+    walls = [
+        np.column_stack([rng.uniform(-25, 85, 6000), np.full(6000, side), rng.uniform(0, 6, 6000)])
+        for side in (-9.0, 9.0)
+    ]
+    return np.concatenate([world, *walls]), np.concatenate([labels, np.full(12000, BUILDING)])
+
+
 def scan(world: np.ndarray, labels: np.ndarray, T_world_sensor: np.ndarray, reach: float = 50):
     """Return the world points within ``reach`` of the sensor, in its frame (no occlusion)."""
     local = (world - T_world_sensor[:3, 3]) @ T_world_sensor[:3, :3]
@@ -190,14 +201,7 @@ def test_object_stage_puts_the_60_m_pose_in_the_pool():
 
 def test_covisible_overlap_of_a_far_pose():
     """The right pose 60 m away is seen ~1 where both see; a turned one is seen through."""
-    world, labels = long_street()
-    rng = np.random.default_rng(1)
-    walls = [
-        np.column_stack([rng.uniform(-25, 85, 6000), np.full(6000, side), rng.uniform(0, 6, 6000)])
-        for side in (-9.0, 9.0)
-    ]
-    world = np.concatenate([world, *walls])
-    labels = np.concatenate([labels, np.full(12000, BUILDING)])
+    world, labels = straight_street()
     T_ws, T_wt = pose(0.0, 0.0, 1.7, 0.0), pose(60.0, -1.0, 1.7, 175.0)
     sides = []
     for T in (T_ws, T_wt):

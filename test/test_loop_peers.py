@@ -23,6 +23,7 @@ The loop-closure peers of ``map build --baseline`` and ``relocalize --baseline``
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import json
 from pathlib import Path
 
@@ -282,14 +283,9 @@ def test_relocalize_compares_with_map_closures_as_place_recognition(
 
 
 def test_a_missing_loop_peer_is_named_with_its_install_line(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, not_installed: Callable[[str], None], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    real = peer_runs.importlib.util.find_spec
-    monkeypatch.setattr(
-        peer_runs.importlib.util,
-        'find_spec',
-        lambda name, *a: None if name == 'map_closures' else real(name, *a),
-    )
+    not_installed('map_closures')
     out = tmp_path / 'map'
     assert (
         cli.main(['map', 'build', str(tmp_path / 'bag'), str(out), '--baseline', 'kiss-slam']) == 2

@@ -33,6 +33,7 @@ from mlsemreg_ros.core.estimation import confidence
 from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.datasets.pairs import load_pair
+from noisy_labels import labeled_points_scan
 import numpy as np
 import pytest
 
@@ -185,7 +186,6 @@ def test_the_distinctive_ceiling_tells_flipped_labels_from_confused_ones() -> No
     """A street with poles: confusions of road/building leave it, 10 % flips sink it."""
     from mlsemreg_ros.core.estimation.label_model import distinctive_ceiling
     from mlsemreg_ros.core.matching.labels import LabelMap
-    from mlsemreg_ros.core.results import Landmarks, PreparedScan
     from mlsemreg_ros.evaluation.label_noise import LabelNoise
 
     labels_map = LabelMap.load()
@@ -214,18 +214,7 @@ def test_the_distinctive_ceiling_tells_flipped_labels_from_confused_ones() -> No
         scans = []
         for seed in (0, 1):
             noisy = LabelNoise.parse(noise).apply(labels, labels_map, np.random.default_rng(seed))
-            empty = np.zeros((0, 3))
-            scans.append(
-                PreparedScan(
-                    points,
-                    noisy.astype(np.int32),
-                    empty,
-                    np.zeros(0, dtype=np.int64),
-                    np.zeros((0, 0), np.float32),
-                    np.zeros((0, labels_map.num_classes), bool),
-                    Landmarks.empty(),
-                )
-            )
+            scans.append(labeled_points_scan(points, noisy, labels_map.num_classes))
         return distinctive_ceiling(*scans, distinctive, 0.6)
 
     config = ConfidenceConfig()

@@ -31,10 +31,11 @@ from mlsemreg_ros.core.odometry import is_new_keyframe, Odometry
 from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.core.results import Correspondences, RegistrationResult
 from mlsemreg_ros.core.rigid import invert_transform, rotation_angle_deg
-from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
+from mlsemreg_ros.datasets.synthetic_scene import motion
 from mlsemreg_ros.simulation.trajectory import euler_to_matrix
 import numpy as np
 import pytest
+from street_map import street_drive
 
 CHAIN = RegistrationConfig().replace({'fine.method': 'off'})
 
@@ -260,13 +261,7 @@ FRAMES = 8
 @pytest.fixture(scope='module')
 def drive() -> list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]:
     """(points, labels, T_world_sensor, stamp_ns) of a drive down the synthetic street."""
-    world, labels = street_scene(seed=3)
-    out = []
-    for k in range(FRAMES):
-        pose = motion(0.4 * k, (-20.0 + STEP_M * k, 0.2 * np.sin(k), 0.0))
-        points, scan_labels = scan_at(world, labels, pose, seed=100 + k, max_points=20000)
-        out.append((points, scan_labels, pose, 100_000_000 * k))
-    return out
+    return street_drive(FRAMES, -20.0, STEP_M)
 
 
 def _pose_errors(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:

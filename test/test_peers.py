@@ -23,6 +23,7 @@ reads, and a missing peer must stop the command with the install line, not a tra
 
 from __future__ import annotations
 
+from collections.abc import Callable
 import json
 from pathlib import Path
 
@@ -68,14 +69,9 @@ def test_every_peer_runs_on_the_same_scans_and_writes_its_results(
 
 
 def test_a_missing_peer_is_named_with_its_install_line(
-    bag: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+    bag: Path, not_installed: Callable[[str], None], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    real = peer_runs.importlib.util.find_spec
-    monkeypatch.setattr(
-        peer_runs.importlib.util,
-        'find_spec',
-        lambda name, *a: None if name == 'genz_icp' else real(name, *a),
-    )
+    not_installed('genz_icp')
     code = eval_bag.main([str(bag), '-o', str(bag.parent / 'missing'), '--baseline', 'genz-icp'])
     assert code == 2
     err = capsys.readouterr().err

@@ -36,6 +36,7 @@ from mlsemreg_ros.core.rigid import invert_transform
 from mlsemreg_ros.datasets.synthetic_scene import motion, scan_at, street_scene
 import numpy as np
 import pytest
+from street_map import street_drive
 
 STEP_M = 1.5  # metres between scans of the synthetic drive
 FRAMES = 11
@@ -50,13 +51,7 @@ def _ground(rng: np.random.Generator, n: int = 20000) -> np.ndarray:
 @pytest.fixture(scope='module')
 def drive() -> list[tuple[np.ndarray, np.ndarray, np.ndarray, int]]:
     """(points, labels, T_world_sensor, stamp_ns) of a drive down the synthetic street."""
-    world, labels = street_scene(seed=3)
-    out = []
-    for k in range(FRAMES):
-        pose = motion(0.4 * k, (-25.0 + STEP_M * k, 0.2 * np.sin(k), 0.0))
-        points, scan_labels = scan_at(world, labels, pose, seed=100 + k, max_points=20000)
-        out.append((points, scan_labels, pose, 100_000_000 * (k + 1)))
-    return out
+    return street_drive(FRAMES, -25.0, STEP_M, first_stamp=1)
 
 
 def _right(step: Any, truth: np.ndarray) -> bool:

@@ -40,6 +40,19 @@ def _yaw_rate(deg_s: float, speed: float = 1.4) -> SweepMotion:
     return SweepMotion(np.array([0.0, 0.0, np.radians(deg_s)]), np.array([speed, 0.0, 0.0]))
 
 
+def _count_starts(monkeypatch: pytest.MonkeyPatch) -> list[int]:
+    """Return a list that gets one entry per sweep alignment ``align_from_starts`` runs."""
+    calls = []
+    original = sweep_alignment.align_sweep
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(sweep_starts, 'align_sweep', counted)
+    return calls
+
+
 def test_the_pose_s_twist_brings_a_sweep_bent_the_wrong_way_back(street) -> None:  # noqa: F811
     world, gaussians = street
     truth, stale = _yaw_rate(50.0), _yaw_rate(-34.0)
@@ -66,14 +79,7 @@ def test_a_car_gets_no_second_start(street, monkeypatch) -> None:  # noqa: F811
     truth = _yaw_rate(5.0, speed=10.0)  # a car
     T_true = _pose(2.0, 0.5, 10.0)
     raw, times = _sweep(world, T_true, truth)
-    calls = []
-    original = sweep_alignment.align_sweep
-
-    def counted(*args, **kwargs):
-        calls.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(sweep_starts, 'align_sweep', counted)
+    calls = _count_starts(monkeypatch)
     sweep_starts.align_from_starts(
         raw, times, gaussians, T_true, truth, _yaw_rate(5.5, speed=10.1), SweepAlignmentConfig()
     )
@@ -104,14 +110,7 @@ def test_a_second_start_only_beyond_the_first_starts_reach(
     reach = sweep_starts.SECOND_START_REACH * config.max_distance
     assert (bend > reach) == (starts == 2)
     assert sweep_starts.second_start_bend(config) == reach
-    calls = []
-    original = sweep_alignment.align_sweep
-
-    def counted(*args, **kwargs):
-        calls.append(1)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(sweep_starts, 'align_sweep', counted)
+    calls = _count_starts(monkeypatch)
     sweep_starts.align_from_starts(raw, times, gaussians, T_true, truth, implied, config)
     assert len(calls) == starts
 

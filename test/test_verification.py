@@ -105,6 +105,18 @@ def test_scores_have_the_known_answers_on_tiny_clouds(label_map):
     np.testing.assert_allclose(combined_score(overlap, agreement, weighted), [0.64, 0.36, 0.0])
 
 
+def _dense_scores(
+    poses: np.ndarray,
+    source: PreparedScan,
+    target: PreparedScan,
+    label_map: LabelMap,
+    config: VerificationConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Return :func:`dense_scores` of ``poses`` (H, 4, 4) under ``config``'s compatibility."""
+    compatibility = label_compatibility(label_map, config)
+    return dense_scores(poses, source, target.points_tree(), target.labels, compatibility, config)
+
+
 def test_points_count_with_their_range_squared(label_map):
     # sensor at the origin; a near point (range 1) and a far one (range 3) on the road
     target = _scan([[1, 0, 0], [3, 0, 0]], [ROAD, ROAD])
@@ -114,44 +126,22 @@ def test_points_count_with_their_range_squared(label_map):
         np.testing.assert_allclose(area_weights(source.points, exponent), [near, far])
         # +2 m: only the near point lands on a target point (the far one)
         shifted = np.stack([np.eye(4), motion(0.0, (2.0, 0.0, 0.0))])
-        overlap, agreement = dense_scores(
-            shifted,
-            source,
-            target.points_tree(),
-            target.labels,
-            label_compatibility(label_map, config),
-            config,
-        )
+        overlap, agreement = _dense_scores(shifted, source, target, label_map, config)
         np.testing.assert_allclose(overlap, [1.0, near])
         np.testing.assert_allclose(agreement, [near, 1.0])  # the far point is sidewalk
 
 
 def test_compatibility_and_ignored_classes_change_the_agreement(label_map):
     source, target = _tiny()
-    tree = target.points_tree()
     strict = VerificationConfig(compatible_classes=[], range_exponent=0.0)  # no terrain~veg
-    _, agreement = dense_scores(
-        np.eye(4)[None],
-        source,
-        tree,
-        target.labels,
-        label_compatibility(label_map, strict),
-        strict,
-    )
+    _, agreement = _dense_scores(np.eye(4)[None], source, target, label_map, strict)
     assert agreement[0] == pytest.approx(1 / 3)
     road_ignored = VerificationConfig(
         compatible_classes=['vegetation~terrain'],
         ignored_classes=['unlabeled', 'road'],
         range_exponent=0.0,
     )
-    _, agreement = dense_scores(
-        np.eye(4)[None],
-        source,
-        tree,
-        target.labels,
-        label_compatibility(label_map, road_ignored),
-        road_ignored,
-    )
+    _, agreement = _dense_scores(np.eye(4)[None], source, target, label_map, road_ignored)
     assert agreement[0] == pytest.approx(1.0)  # only terrain~vegetation is left
 
 

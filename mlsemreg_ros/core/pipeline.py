@@ -254,9 +254,7 @@ class Registration:
             conversion = self.label_map.convert(scan.labels, cfg.semantic.label_scheme)
         points, labels = scan.points, conversion.ids
         input_stats = {
-            'dropped_nonfinite': scan.dropped_nonfinite,
-            'dropped_far': scan.dropped_far,
-            'dropped_near': scan.dropped_near,
+            **scan.dropped_counts(),
             'label_scheme': conversion.scheme,
             'labels_out_of_scheme': conversion.out_of_scheme,
         }
@@ -284,11 +282,7 @@ class Registration:
         with timed(timings, 'labels_ms'):
             scan = sanitize_scan_for(points, None, cfg.features)
         points, keep, scheme = scan.points, scan.keep, cfg.semantic.label_scheme
-        input_stats = {
-            'dropped_nonfinite': scan.dropped_nonfinite,
-            'dropped_far': scan.dropped_far,
-            'dropped_near': scan.dropped_near,
-        }
+        input_stats = scan.dropped_counts()
         voxelized = voxelize and cfg.features.voxel_size > 0
         inverse, count = None, 0
         if voxelized and points.shape[0]:

@@ -192,6 +192,16 @@ class BagWriter:
         )
         self.write_raw(topic, IMU, stamp_ns, msg)
 
+    def write_ground_truth(self, stamp_ns: int, pose: np.ndarray, layout: BagLayout) -> None:
+        """Write a ground-truth ``pose`` (4, 4) T_world_sensor in ``layout``'s frames and topic."""
+        self.write_odometry(
+            stamp_ns,
+            pose,
+            frame_id=layout.world_frame,
+            child_frame_id=layout.frame_id,
+            topic=layout.gt_topic,
+        )
+
     def write_odometry(
         self,
         stamp_ns: int,
@@ -569,13 +579,7 @@ def write_sequence_bag(
                 topic=layout.points_topic,
             )
             if scan.pose is not None:
-                bag.write_odometry(
-                    scan.stamp_ns,
-                    scan.pose,
-                    frame_id=layout.world_frame,
-                    child_frame_id=layout.frame_id,
-                    topic=layout.gt_topic,
-                )
+                bag.write_ground_truth(scan.stamp_ns, scan.pose, layout)
                 poses.append(scan.pose)
             stamps.append(scan.stamp_ns)
             points += len(scan)

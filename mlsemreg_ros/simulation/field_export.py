@@ -138,13 +138,7 @@ def write_field_bag(
 
         for frame in frames:
             inertial_until(frame.stamp_ns)
-            bag.write_odometry(
-                frame.stamp_ns,
-                frame.pose,
-                frame_id=layout.world_frame,
-                child_frame_id=layout.frame_id,
-                topic=layout.gt_topic,
-            )
+            bag.write_ground_truth(frame.stamp_ns, frame.pose, layout)
             inertial_until(frame.stamp_ns + period_ns)
             label, _ = sim.raw_labels(frame)
             bag.write_cloud(

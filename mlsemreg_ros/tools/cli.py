@@ -49,7 +49,7 @@ from mlsemreg_ros.tools import (
     tune,
 )
 from mlsemreg_ros.tools import map as map_tool
-from mlsemreg_ros.tools.common import run
+from mlsemreg_ros.tools.common import run, typer_app
 import typer
 
 EVALUATION, DATA, MAINTENANCE = 'Evaluation', 'Data and playback', 'Maintenance'
@@ -72,12 +72,9 @@ OPTIONAL = {
     'optuna': 'tune',
 }
 
-app = typer.Typer(
+app = typer_app(
     name='mlsemreg',
     no_args_is_help=True,
-    add_completion=False,
-    rich_markup_mode='rich',
-    context_settings={'help_option_names': ['-h', '--help']},
     help='ML-SemReg registration of labeled LiDAR scans: benchmarks, offline '
     'evaluation, simulation, bags and the ROS 2 node demo.',
 )

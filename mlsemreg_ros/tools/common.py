@@ -232,13 +232,19 @@ def run(command: Any, argv: Sequence[str] | None, prog: str) -> int:
     return result if isinstance(result, int) else 0
 
 
-def single_command_app(function: Callable[..., int], help_text: str | None = None) -> Any:
-    """Build the click command of one subcommand function (its ``mlsemreg-<name>`` alias)."""
-    app = typer.Typer(
+def typer_app(**settings: Any) -> typer.Typer:
+    """Return a Typer app as every mlsemreg command has it: rich help, ``-h``, no completion."""
+    return typer.Typer(
         add_completion=False,
         rich_markup_mode='rich',
         context_settings={'help_option_names': ['-h', '--help']},
+        **settings,
     )
+
+
+def single_command_app(function: Callable[..., int], help_text: str | None = None) -> Any:
+    """Build the click command of one subcommand function (its ``mlsemreg-<name>`` alias)."""
+    app = typer_app()
     app.command(help=help_text)(function)
     return typer.main.get_command(app)
 

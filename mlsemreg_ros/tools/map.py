@@ -47,6 +47,7 @@ from mlsemreg_ros.tools.common import (
     require_peers,
     SetOption,
     settings,
+    typer_app,
     with_labels,
 )
 from mlsemreg_ros.tools.map_points import (
@@ -62,14 +63,7 @@ BUILD_HELP = 'Build a map folder (docs/maps.md) from a labeled bag.'
 QUERIES_HELP = 'Write every K-th scan of a bag (with ground truth) as relocalization queries.'
 SIM_QUERIES_HELP = 'Write relocalization queries from a second drive through a simulated world.'
 
-app = typer.Typer(
-    name='map',
-    no_args_is_help=True,
-    add_completion=False,
-    rich_markup_mode='rich',
-    context_settings={'help_option_names': ['-h', '--help']},
-    help=HELP,
-)
+app = typer_app(name='map', no_args_is_help=True, help=HELP)
 
 
 BagArgument = Annotated[

@@ -52,6 +52,14 @@ class SanitizedScan:
         """Return the number of dropped points of every kind."""
         return self.dropped_nonfinite + self.dropped_far + self.dropped_near
 
+    def dropped_counts(self) -> dict[str, int]:
+        """Return the dropped points by kind, keyed as a prepared scan's ``input_stats``."""
+        return {
+            'dropped_nonfinite': self.dropped_nonfinite,
+            'dropped_far': self.dropped_far,
+            'dropped_near': self.dropped_near,
+        }
+
     def __len__(self) -> int:
         return int(self.points.shape[0])
 

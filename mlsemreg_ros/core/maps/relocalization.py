@@ -76,11 +76,11 @@ def _first_round_decided(context: RegistrationContext) -> bool:
     )
 
 
-class _FirstVerdict:
-    """The quick pass's confidence stage: it also notes the first round's verdict."""
+class _WrappedStage:
+    """A registration stage under the quick pass's own rule: by default, the stage itself."""
 
     def __init__(self, stage: Stage) -> None:
-        """Wrap the registration's confidence stage."""
+        """Wrap a stage of the registration (the wrapper keeps its name)."""
         self.stage = stage
         self.name = stage.name
 
@@ -89,13 +89,21 @@ class _FirstVerdict:
         return self.stage.wanted(context)
 
     def run(self, context: RegistrationContext) -> VerificationResult | None:
+        """Run the wrapped stage."""
+        return self.stage.run(context)
+
+
+class _FirstVerdict(_WrappedStage):
+    """The quick pass's confidence stage: it also notes the first round's verdict."""
+
+    def run(self, context: RegistrationContext) -> VerificationResult | None:
         """Run the wrapped stage and note :data:`FIRST_ROUND_DECIDED`."""
         found = self.stage.run(context)
         context.diagnostics[FIRST_ROUND_DECIDED] = _first_round_decided(context)
         return found
 
 
-class _WhenDecided:
+class _WhenDecided(_WrappedStage):
     """
     The quick pass's fine alignment: only for a pose decided in the first round.
 
@@ -103,19 +111,10 @@ class _WhenDecided:
     path, so refining it would be wasted (one GICP per refused candidate).
     """
 
-    def __init__(self, stage: Stage) -> None:
-        """Wrap the registration's fine-alignment stage."""
-        self.stage = stage
-        self.name = stage.name
-
     def wanted(self, context: RegistrationContext) -> bool:
         """Return the stage's condition, for a pose decided in the first round."""
         decided = bool(context.diagnostics.get(FIRST_ROUND_DECIDED, False))
         return decided and _first_round_decided(context) and self.stage.wanted(context)
-
-    def run(self, context: RegistrationContext) -> VerificationResult | None:
-        """Run the wrapped stage."""
-        return self.stage.run(context)
 
 
 def _would_retry(diagnostics: dict, retry_inliers: int) -> bool:
@@ -124,7 +123,7 @@ def _would_retry(diagnostics: dict, retry_inliers: int) -> bool:
     return bool(sampled and diagnostics.get('best_hypothesis_inliers', 0) < retry_inliers)
 
 
-class _Screened:
+class _Screened(_WrappedStage):
     """
     The screen's estimator: SC2-PCR without its retry, noting when it would have retried.
 
@@ -135,13 +134,8 @@ class _Screened:
 
     def __init__(self, stage: Stage, retry_inliers: int) -> None:
         """Wrap the registration's estimation stage."""
-        self.stage = stage
-        self.name = stage.name
+        super().__init__(stage)
         self.retry_inliers = retry_inliers
-
-    def wanted(self, context: RegistrationContext) -> bool:
-        """Return the wrapped stage's condition."""
-        return self.stage.wanted(context)
 
     def run(self, context: RegistrationContext) -> VerificationResult | None:
         """Estimate on the sampled graph and note :data:`RETRY_DEFERRED`."""
@@ -151,22 +145,13 @@ class _Screened:
         return found
 
 
-class _UnlessDeferred:
+class _UnlessDeferred(_WrappedStage):
     """A stage after the screen's first verdict: skipped for a deferred candidate."""
-
-    def __init__(self, stage: Stage) -> None:
-        """Wrap a stage of the quick registration."""
-        self.stage = stage
-        self.name = stage.name
 
     def wanted(self, context: RegistrationContext) -> bool:
         """Return the wrapped stage's condition, unless the estimate was deferred."""
         deferred = bool(context.diagnostics.get(RETRY_DEFERRED, False))
         return not deferred and self.stage.wanted(context)
-
-    def run(self, context: RegistrationContext) -> VerificationResult | None:
-        """Run the wrapped stage."""
-        return self.stage.run(context)
 
 
 @dataclass
