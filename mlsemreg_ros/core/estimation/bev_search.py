@@ -273,7 +273,10 @@ class Correlator:
         spectrum = fft.rfft(source, n=size, axis=-1, workers=-1)
         spectrum = fft.fft(spectrum, n=size, axis=-2, workers=-1, overwrite_x=True)
         wanted = members >= 0
-        sums = self._turned_sums(spectrum, wanted)
+        # the sums quarter by quarter, each quarter's grids in order: contiguous blocks
+        slot = np.full(wanted.shape, -1, dtype=np.int64)
+        slot.T[wanted.T] = np.arange(int(wanted.sum()))
+        sums = self._turned_sums(spectrum, slot)
         ahead = (self.reachable + low) % size  # the shift t read at t + low
         back = (low - self.reachable) % size  # -t
         # quarter q: (rows, columns) read, and whether the map is transposed after
@@ -283,15 +286,17 @@ class Correlator:
             (back, back, False),
             (back, ahead, True),
         )
-        parts, order = [], []
+        parts, order, start = [], [], 0
         for quarter, (rows, columns, transposed) in enumerate(reads):
             asked = wanted[:, quarter]
             if asked.any():
-                found = self._inverse(sums[quarter][asked], rows, columns)
+                stop = start + int(asked.sum())
+                found = self._inverse(sums[start:stop], rows, columns)
                 parts.append(
                     np.ascontiguousarray(found.transpose(0, 2, 1)) if transposed else found
                 )
                 order.append(members[asked, quarter])
+                start = stop
         return np.concatenate(parts), np.concatenate(order)
 
     def turned_targets(self) -> np.ndarray:
@@ -318,30 +323,26 @@ class Correlator:
             self._turned_targets = np.stack(spectra)
         return self._turned_targets
 
-    def _turned_sums(self, spectrum: np.ndarray, wanted: np.ndarray) -> np.ndarray:
+    def _turned_sums(self, spectrum: np.ndarray, slot: np.ndarray) -> np.ndarray:
         """:func:`~mlsemreg_ros.core.estimation.kernels.bev_channel_sums` (NumPy without numba)."""
         targets = self.turned_targets()
         if compiled.enabled():
             floats = kernels.bev_channel_sums(
-                spectrum.view(np.float32), targets.view(np.float32), wanted
+                spectrum.view(np.float32), targets.view(np.float32), slot
             )
             return floats.view(np.complex64)
         # the kernel's arithmetic on the real and imaginary parts, in its order
-        count, channels, size, half = spectrum.shape
-        sums = np.zeros((4, count, size, half), dtype=np.complex64)
-        for quarter in range(4):
-            asked = wanted[:, quarter]
-            if not asked.any():
-                continue
-            source, target = spectrum[asked], targets[quarter]
-            real = np.zeros((int(asked.sum()), size, half), dtype=np.float32)
+        _, channels, size, half = spectrum.shape
+        sums = np.zeros((int(slot.max()) + 1, size, half), dtype=np.complex64)
+        for b, q in zip(*np.nonzero(slot >= 0), strict=True):  # a few dozen grids
+            real = np.zeros((size, half), dtype=np.float32)
             imaginary = np.zeros_like(real)
             for channel in range(channels):  # a few channels: not a loop over points
-                re, im = source[:, channel].real, source[:, channel].imag
-                t_re, t_im = target[channel].real, target[channel].imag
+                re, im = spectrum[b, channel].real, spectrum[b, channel].imag
+                t_re, t_im = targets[q, channel].real, targets[q, channel].imag
                 real += re * t_re + im * t_im
                 imaginary += re * t_im - im * t_re
-            sums[quarter, asked] = real + 1j * imaginary
+            sums[slot[b, q]] = real + 1j * imaginary
         return sums
 
     def _local_peaks(
@@ -394,7 +395,11 @@ def quarter_turn_groups(yaws: np.ndarray) -> np.ndarray:
     270 deg after it (within 1e-9 deg; the first such yaw not yet grouped). Every index
     appears once; the base yaws in the order of ``yaws``.
     """
-    taken = np.zeros(yaws.size, dtype=bool)
+    # every yaw's candidates a quarter, half and three quarters on, found at once
+    turn = np.mod(yaws[None, :] - yaws[:, None] - 90.0 * np.arange(1, 4)[:, None, None], 360.0)
+    near = np.abs(np.mod(turn + 180.0, 360.0) - 180.0) <= 1e-9  # (3, n, n)
+    candidates = [[np.flatnonzero(row).tolist() for row in quarter] for quarter in near]
+    taken = [False] * yaws.size
     groups = []
     for index in range(yaws.size):  # a few hundred yaws at most: not a loop over points
         if taken[index]:
@@ -402,11 +407,10 @@ def quarter_turn_groups(yaws: np.ndarray) -> np.ndarray:
         taken[index] = True
         row = [index, -1, -1, -1]
         for quarter in range(1, 4):
-            apart = np.abs(np.mod(yaws - yaws[index] - 90.0 * quarter + 180.0, 360.0) - 180.0)
-            match = np.flatnonzero(~taken & (apart <= 1e-9))
-            if match.size:
-                row[quarter] = int(match[0])
-                taken[match[0]] = True
+            match = next((j for j in candidates[quarter - 1][index] if not taken[j]), -1)
+            if match >= 0:
+                row[quarter] = match
+                taken[match] = True
         groups.append(row)
     return np.asarray(groups, dtype=np.int64).reshape(-1, 4)
 
