@@ -30,9 +30,10 @@ slide. The scans themselves still hold the answer (dense overlap 0.44 at the tru
    of yaws) and correlated with the target grids over every translation at once by FFT
    (summed over channels in the frequency domain), coarse to fine (:func:`yaw_search`):
    every ``coarse_factor x yaw_step`` first, then ``yaw_step`` around the
-   ``coarse_yaws`` best coarse yaws; a yaw and the yaw half a turn from it share one
-   rasterisation and forward transform (the turned grid is the grid flipped, its
-   correlation a convolution of the same spectrum: ``Correlator._reachable_correlation``);
+   ``coarse_yaws`` best coarse yaws; a yaw and the yaws a quarter, half and three
+   quarters of a turn from it share one rasterisation and forward transform (the turned
+   grid is the grid turned cell by cell, its correlation the grid's correlation with the
+   target turned back: ``Correlator._turned_correlation``);
 3. every yaw's ``peaks_per_yaw`` best local maxima within ``max_translation`` are pooled,
    suppressed within ``nms_rotation`` / ``nms_translation`` of a better peak, and the best
    ``hypotheses`` become ``z``-up poses ``Rz(yaw), (tx, ty, 0)``.
@@ -41,8 +42,8 @@ It assumes ``z``-up sensor frames and a mostly yaw motion (a ground vehicle); ro
 and height are left to the refinement that follows (core/estimation/verification.py). The cost does
 not depend on the keypoints: about ``(360 / (coarse_factor x yaw_step) + coarse_yaws x
 (coarse_factor - 1)) x channels`` FFTs of ``next_fast_len(2 (radius + max_translation) /
-cell_size)`` squared, forward and back; a half-turn pair needs one forward transform (the
-coarse yaws all pair up).
+cell_size)`` squared, forward and back; the yaws a quarter turn apart need one forward
+transform (the coarse yaws of a 6 deg step all group by four).
 """
 
 from __future__ import annotations
