@@ -148,7 +148,8 @@ def test_the_search_on_the_reachable_block_is_the_full_grid_search():
     correlator = bev_search.Correlator(
         moved[:, :2], source_channel, points[:, :2], source_channel, grid, 3
     )
-    yaws = np.array([0.0, 15.0, 17.0, 90.0])
+    # 0, 90, 180 and 270 deg, and 15 and 105 deg: read from one transform each (quarter turns)
+    yaws = np.array([0.0, 15.0, 17.0, 90.0, 105.0, 180.0, 270.0])
     peaks = correlator.peaks(yaws, 5)
     # the full grid: every shift, unreachable ones at -inf, local maxima with wrap-around
     expected = []
@@ -172,6 +173,35 @@ def test_the_search_on_the_reachable_block_is_the_full_grid_search():
     np.testing.assert_array_equal(peaks[:, 1:], np.concatenate(expected))
     best = peaks[np.argmax(peaks[:, 0])]
     assert best[1] == 17.0 and abs(best[2] - 11.0) <= 1.0 and abs(best[3] + 6.0) <= 1.0
+
+
+@pytest.mark.parametrize('seed', [0, 3])
+def test_compiled_bev_channel_sums_are_the_numpy_sums(seed, monkeypatch):
+    """The four quarter turns' channel sums: bit for bit the NumPy reference's."""
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-20, 20, (2000, 2))
+    channel = rng.integers(0, 3, 2000)
+    grid = bev_search.BevGrid.make(1.0, 12.0, 10.0)
+    correlator = bev_search.Correlator(points, channel, points, channel, grid, 3)
+    source = correlator._source_window(points[None])
+    source = np.concatenate([source, source[:, ::-1]])  # two grids
+    spectrum = fft.fft(fft.rfft(source, n=grid.size, axis=-1), n=grid.size, axis=-2)
+    slot = np.array([[0, 2, -1, 5], [-1, 1, 3, 4]])  # grid, quarter -> where its sum goes
+    fast = correlator._turned_sums(spectrum, slot)
+    monkeypatch.setenv(kernels.ENV_SWITCH, 'numpy')
+    slow = correlator._turned_sums(spectrum, slot)
+    assert fast.dtype == slow.dtype == np.complex64 and fast.shape == (
+        6,
+        grid.size,
+        grid.size // 2 + 1,
+    )
+    np.testing.assert_array_equal(fast, slow)
+    np.testing.assert_allclose(
+        slow[0],
+        (np.conj(spectrum[0]) * correlator.target_spectrum).sum(axis=0),
+        rtol=1e-5,
+        atol=1e-4,
+    )
 
 
 @settings(max_examples=15, deadline=None)

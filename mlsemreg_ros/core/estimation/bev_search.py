@@ -30,9 +30,10 @@ slide. The scans themselves still hold the answer (dense overlap 0.44 at the tru
    of yaws) and correlated with the target grids over every translation at once by FFT
    (summed over channels in the frequency domain), coarse to fine (:func:`yaw_search`):
    every ``coarse_factor x yaw_step`` first, then ``yaw_step`` around the
-   ``coarse_yaws`` best coarse yaws; a yaw and the yaw half a turn from it share one
-   rasterisation and forward transform (the turned grid is the grid flipped, its
-   correlation a convolution of the same spectrum: ``Correlator._reachable_correlation``);
+   ``coarse_yaws`` best coarse yaws; a yaw and the yaws a quarter, half and three
+   quarters of a turn from it share one rasterisation and forward transform (the turned
+   grid is the grid turned cell by cell, its correlation the grid's correlation with the
+   target turned back: ``Correlator._turned_correlation``);
 3. every yaw's ``peaks_per_yaw`` best local maxima within ``max_translation`` are pooled,
    suppressed within ``nms_rotation`` / ``nms_translation`` of a better peak, and the best
    ``hypotheses`` become ``z``-up poses ``Rz(yaw), (tx, ty, 0)``.
@@ -41,8 +42,8 @@ It assumes ``z``-up sensor frames and a mostly yaw motion (a ground vehicle); ro
 and height are left to the refinement that follows (core/estimation/verification.py). The cost does
 not depend on the keypoints: about ``(360 / (coarse_factor x yaw_step) + coarse_yaws x
 (coarse_factor - 1)) x channels`` FFTs of ``next_fast_len(2 (radius + max_translation) /
-cell_size)`` squared, forward and back; a half-turn pair needs one forward transform (the
-coarse yaws all pair up).
+cell_size)`` squared, forward and back; the yaws a quarter turn apart need one forward
+transform (the coarse yaws of a 6 deg step all group by four).
 """
 
 from __future__ import annotations
@@ -187,6 +188,8 @@ class Correlator:
         limit = grid.radius + grid.max_translation
         target = occupancy(target_xy, target_channel, grid, num_channels, limit)
         self.target_spectrum = fft.rfft2(target, workers=-1)
+        self._target = target
+        self._turned_targets: np.ndarray | None = None
         self.shift = np.fft.fftfreq(grid.size, d=1.0 / grid.size) * grid.cell_size  # metres
         # the reachable shifts, |shift| <= max_translation: in grid order (ascending cell)
         # and as one block in shift order (ascending shift), for the local maxima
@@ -202,28 +205,146 @@ class Correlator:
         """
         Best ``peaks_per_yaw`` local maxima of the correlation at every yaw (deg).
 
-        Rows yaw by yaw, in the order of ``yaws``. A yaw and the yaw half a turn from it,
-        both asked for, share one rasterisation and one forward transform
-        (:meth:`_reachable_correlation`).
+        Rows yaw by yaw, in the order of ``yaws``. Yaws a quarter, half and three quarters
+        of a turn from one another, asked for together, share one rasterisation and one
+        forward transform (:meth:`_turned_sums`).
         """
-        grid = self.grid
         yaws = np.asarray(yaws, dtype=np.float64)
-        base, partner = half_turn_partners(yaws)
+        group = quarter_turn_groups(yaws)
         rows = [np.zeros((0, 4))] * yaws.size
-        for first in range(0, base.size, _YAW_CHUNK):
-            chunk, turned = base[first:][:_YAW_CHUNK], partner[first:][:_YAW_CHUNK]
-            rotation = Rotation.from_euler('z', yaws[chunk, None], degrees=True).as_matrix()[
-                :, :2, :2
-            ]
-            rotated = self.source_xy[None] @ rotation.transpose(0, 2, 1)  # (Y, n, 2)
-            source = _rasterise(rotated, self.source_channel, grid, self.num_channels, grid.radius)
-            # (Y + T, w, w) in grid order: the chunk's yaws, then the half turns of the paired
-            correlation = self._reachable_correlation(source, turned >= 0)
-            order = np.concatenate([chunk, turned[turned >= 0]])
+        for first in range(0, len(group), _YAW_CHUNK):
+            members = group[first:][:_YAW_CHUNK]  # (B, 4): the base yaw, +90, +180, +270
+            rotation = Rotation.from_euler(
+                'z', yaws[members[:, 0], None], degrees=True
+            ).as_matrix()[:, :2, :2]
+            rotated = self.source_xy[None] @ rotation.transpose(0, 2, 1)  # (B, n, 2)
+            source = self._source_window(rotated)
+            correlation, order = self._turned_correlation(source, members)
             found = self._local_peaks(correlation, yaws[order], peaks_per_yaw)
             for index, yaw_rows in zip(order, found, strict=True):
                 rows[index] = yaw_rows
         return np.concatenate([np.zeros((0, 4)), *rows])
+
+    def _source_window(self, rotated: np.ndarray) -> np.ndarray:
+        """
+        ``(Y, C, w, w)`` occupancy of rotated source points, the window of rows and columns.
+
+        The grids of :func:`_rasterise` (``limit = grid.radius``) but only their rows and
+        columns ``source_rows`` (nothing lies beyond): cell ``(i, j)`` at ``(i - low, j -
+        low)``; the same cells and the same unit-norm scale.
+        """
+        grid, count = self.grid, rotated.shape[0]
+        low, high = self.source_rows
+        width, half = high - low, grid.size // 2
+        limit = min(grid.radius, (half - 1) * grid.cell_size)
+        inside = (np.abs(rotated) <= limit).all(axis=2)
+        cells = np.floor(rotated[inside] / grid.cell_size).astype(np.int64) + (half - low)
+        plane = (np.arange(count)[:, None] * self.num_channels + self.source_channel[None, :])[
+            inside
+        ]
+        kept = ((cells >= 0) & (cells < width)).all(axis=1)  # always (source_rows), kept safe
+        flat = (plane[kept] * width + cells[kept, 0]) * width + cells[kept, 1]
+        grids = np.zeros((count * self.num_channels, width * width), dtype=np.float32)
+        grids.reshape(-1)[flat] = 1.0
+        per_plane = grids.sum(axis=1)
+        scale = np.zeros_like(per_plane)
+        np.divide(1.0, np.sqrt(per_plane), out=scale, where=per_plane > 0)
+        grids *= scale[:, None]
+        return grids.reshape(count, self.num_channels, width, width)
+
+    def _turned_correlation(
+        self, source: np.ndarray, members: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """
+        Correlations of windowed source grids and their quarter turns, at the reachable shifts.
+
+        ``source`` ``(B, C, w, w)`` (:meth:`_source_window`), ``members`` ``(B, 4)`` the yaw
+        indices of each grid turned by 0, 1, 2, 3 quarter turns (-1: not asked). Returns
+        ``(Y, w', w')`` float32 correlations (reachable rows and columns in grid order) and
+        the ``(Y,)`` yaw index of each.
+
+        A quarter turn moves a point's cell ``(i, j)`` (rows: x, columns: y) to
+        ``(m - j, i)``, ``m = 2 half - 1`` (``floor(-x) = -floor(x) - 1``: the same cell but
+        for a point on a cell border). The correlation of the turned grid with the target
+        is the grid's correlation with the target turned back (:meth:`turned_targets`),
+        read at the turned shifts; the window moves the grid by ``low`` along both axes.
+        One forward transform serves the four turns.
+        """
+        size, (low, _) = self.grid.size, self.source_rows
+        spectrum = fft.rfft(source, n=size, axis=-1, workers=-1)
+        spectrum = fft.fft(spectrum, n=size, axis=-2, workers=-1, overwrite_x=True)
+        wanted = members >= 0
+        # the sums quarter by quarter, each quarter's grids in order: contiguous blocks
+        slot = np.full(wanted.shape, -1, dtype=np.int64)
+        slot.T[wanted.T] = np.arange(int(wanted.sum()))
+        sums = self._turned_sums(spectrum, slot)
+        ahead = (self.reachable + low) % size  # the shift t read at t + low
+        back = (low - self.reachable) % size  # -t
+        # quarter q: (rows, columns) read, and whether the map is transposed after
+        reads = (
+            (ahead, ahead, False),
+            (ahead, back, True),
+            (back, back, False),
+            (back, ahead, True),
+        )
+        parts, order, start = [], [], 0
+        for quarter, (rows, columns, transposed) in enumerate(reads):
+            asked = wanted[:, quarter]
+            if asked.any():
+                stop = start + int(asked.sum())
+                found = self._inverse(sums[start:stop], rows, columns)
+                parts.append(
+                    np.ascontiguousarray(found.transpose(0, 2, 1)) if transposed else found
+                )
+                order.append(members[asked, quarter])
+                start = stop
+        return np.concatenate(parts), np.concatenate(order)
+
+    def turned_targets(self) -> np.ndarray:
+        """
+        ``(4, C, s, h)`` spectra of the target grid turned back by 0-3 quarter turns.
+
+        Quarter ``q``'s correlation ``c_q(t) = sum_x g_q(x) T(x + t)`` of the source grid
+        ``g`` turned by ``q`` is ``sum_x g(x) T_q(x + t')``: ``T_1(p, r) = T(m - r, p)``
+        read at ``t' = (t_y, -t_x)`` (transposed), ``T_2(p, r) = T(m - p, m - r)`` at
+        ``-t``, ``T_3(p, r) = T(r, m - p)`` at ``(-t_y, t_x)``; a permutation of cells,
+        exact. Made on first use, once per target.
+        """
+        if self._turned_targets is None:
+            size = self.grid.size
+            flip = (2 * (size // 2) - 1 - np.arange(size)) % size  # m - p
+            target = self._target
+            turned = [
+                target[:, flip].transpose(0, 2, 1),  # T(m - r, p)
+                target[:, flip][:, :, flip],  # T(m - p, m - r)
+                target.transpose(0, 2, 1)[:, flip],  # T(r, m - p)
+            ]
+            spectra = [self.target_spectrum]
+            spectra += [fft.rfft2(np.ascontiguousarray(t), workers=-1) for t in turned]
+            self._turned_targets = np.stack(spectra)
+        return self._turned_targets
+
+    def _turned_sums(self, spectrum: np.ndarray, slot: np.ndarray) -> np.ndarray:
+        """:func:`~mlsemreg_ros.core.estimation.kernels.bev_channel_sums` (NumPy without numba)."""
+        targets = self.turned_targets()
+        if compiled.enabled():
+            floats = kernels.bev_channel_sums(
+                spectrum.view(np.float32), targets.view(np.float32), slot
+            )
+            return floats.view(np.complex64)
+        # the kernel's arithmetic on the real and imaginary parts, in its order
+        _, channels, size, half = spectrum.shape
+        sums = np.zeros((int(slot.max()) + 1, size, half), dtype=np.complex64)
+        for b, q in zip(*np.nonzero(slot >= 0), strict=True):  # a few dozen grids
+            real = np.zeros((size, half), dtype=np.float32)
+            imaginary = np.zeros_like(real)
+            for channel in range(channels):  # a few channels: not a loop over points
+                re, im = spectrum[b, channel].real, spectrum[b, channel].imag
+                t_re, t_im = targets[q, channel].real, targets[q, channel].imag
+                real += re * t_re + im * t_im
+                imaginary += re * t_im - im * t_re
+            sums[slot[b, q]] = real + 1j * imaginary
+        return sums
 
     def _local_peaks(
         self, correlation: np.ndarray, yaw: np.ndarray, peaks_per_yaw: int
@@ -258,70 +379,41 @@ class Correlator:
         shift = self.shift[self.reachable]
         return np.column_stack([value, yaw, shift[u], shift[v]])
 
-    def _reachable_correlation(self, source: np.ndarray, turned: np.ndarray) -> np.ndarray:
-        """
-        Correlation of ``(Y, C, s, s)`` source grids with the target at the reachable shifts.
-
-        Summed over channels in the frequency domain; returns ``(Y + T, w, w)`` float32,
-        the reachable rows and columns in grid order: the ``Y`` grids, then the ``T`` grids
-        ``turned`` (``(Y,)`` bool) turned by half a turn about the sensor.
-
-        The half turn moves a point's cell ``k`` (along each axis, ``half = s // 2``) to
-        ``m - k``, ``m = 2 half - 1`` (``floor(-x) = -floor(x) - 1``; the same cell but for
-        a point on a cell border), so its correlation with the target is the convolution
-        of the unturned grid with it, read ``m`` further: one forward transform serves both.
-        """
-        size, (low, high) = self.grid.size, self.source_rows
-        # rows beyond the source radius are empty: transform the occupied rows only, moved
-        # to the top (the row shift moves the correlation's rows by ``low``, undone below)
-        spectrum = fft.rfft(source[:, :, low:high], axis=-1, workers=-1)
-        spectrum = fft.fft(spectrum, n=size, axis=-2, workers=-1, overwrite_x=True)
-        convolution = _channel_sum(spectrum[turned], self.target_spectrum)
-        np.conjugate(spectrum, out=spectrum)
-        correlation = self._inverse(_channel_sum(spectrum, self.target_spectrum), low, 0)
-        if not turned.any():
-            return correlation
-        turn = 2 * (size // 2) - 1
-        return np.concatenate([correlation, self._inverse(convolution, turn - low, turn)])
-
-    def _inverse(self, spectrum: np.ndarray, row_shift: int, column_shift: int) -> np.ndarray:
-        """``(Y, w, w)``: ``(Y, s, s // 2 + 1)`` back at the reachable shifts, moved."""
+    def _inverse(self, spectrum: np.ndarray, rows: np.ndarray, columns: np.ndarray) -> np.ndarray:
+        """``(Y, w, w)``: ``(Y, s, s // 2 + 1)`` back, at grid ``rows`` and ``columns`` only."""
         size = self.grid.size
-        # only the reachable rows and columns: the row transform first, then the reachable rows'
-        rows = fft.ifft(spectrum, axis=-2, workers=-1, overwrite_x=True)
-        rows = rows[:, (self.reachable + row_shift) % size]
-        correlation = fft.irfft(rows, n=size, axis=-1, workers=-1, overwrite_x=True)
-        return np.ascontiguousarray(correlation[:, :, (self.reachable + column_shift) % size])
+        # only the rows and columns read: the row transform first, then the rows read
+        back = fft.ifft(spectrum, axis=-2, workers=-1, overwrite_x=True)[:, rows]
+        correlation = fft.irfft(back, n=size, axis=-1, workers=-1, overwrite_x=True)
+        return np.ascontiguousarray(correlation[:, :, columns])
 
 
-def _channel_sum(spectrum: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """``(spectrum * target[None]).sum(axis=1)`` of ``(Y, C, ...)`` and ``(C, ...)``, fused."""
-    total = spectrum[:, 0] * target[0]
-    for channel in range(1, target.shape[0]):  # a few channels: not a loop over points
-        total += spectrum[:, channel] * target[channel]
-    return total
-
-
-def half_turn_partners(yaws: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def quarter_turn_groups(yaws: np.ndarray) -> np.ndarray:
     """
-    Pair each yaw (deg) with a later one half a turn from it (within 1e-9 deg), if any.
+    Group the yaws (deg) a quarter turn apart: ``(G, 4)`` indices, -1 where not asked.
 
-    Returns ``(base, partner)``: the indices of the yaws that are no earlier yaw's partner,
-    in order, and each one's partner (-1: none). Every index appears once.
+    Row ``g``: a base yaw (the first yaw of no earlier group), then the yaws 90, 180 and
+    270 deg after it (within 1e-9 deg; the first such yaw not yet grouped). Every index
+    appears once; the base yaws in the order of ``yaws``.
     """
-    taken = np.zeros(yaws.size, dtype=bool)
-    base, partner = [], []
+    # every yaw's candidates a quarter, half and three quarters on, found at once
+    turn = np.mod(yaws[None, :] - yaws[:, None] - 90.0 * np.arange(1, 4)[:, None, None], 360.0)
+    near = np.abs(np.mod(turn + 180.0, 360.0) - 180.0) <= 1e-9  # (3, n, n)
+    candidates = [[np.flatnonzero(row).tolist() for row in quarter] for quarter in near]
+    taken = [False] * yaws.size
+    groups = []
     for index in range(yaws.size):  # a few hundred yaws at most: not a loop over points
         if taken[index]:
             continue
         taken[index] = True
-        apart = np.abs(np.mod(yaws - yaws[index], 360.0) - 180.0)
-        match = np.flatnonzero(~taken & (apart <= 1e-9))
-        base.append(index)
-        partner.append(int(match[0]) if match.size else -1)
-        if match.size:
-            taken[match[0]] = True
-    return np.asarray(base, dtype=np.int64), np.asarray(partner, dtype=np.int64)
+        row = [index, -1, -1, -1]
+        for quarter in range(1, 4):
+            match = next((j for j in candidates[quarter - 1][index] if not taken[j]), -1)
+            if match >= 0:
+                row[quarter] = match
+                taken[match] = True
+        groups.append(row)
+    return np.asarray(groups, dtype=np.int64).reshape(-1, 4)
 
 
 def yaw_search(

@@ -408,3 +408,43 @@ def seen_through(
         surface = nearest[a, e]
         out[i] = np.isfinite(surface) and distance < surface - margin
     return out
+
+
+@jit
+def bev_channel_sums(spectrum: np.ndarray, targets: np.ndarray, slot: np.ndarray) -> np.ndarray:
+    """
+    ``sum_c conj(S_bc) T_qc`` of ``B`` source spectra against ``Q`` target spectra, fused.
+
+    ``spectrum`` ``(B, C, s, 2 h)`` and ``targets`` ``(Q, C, s, 2 h)``: complex64 spectra
+    seen as float32 (real, imaginary); ``slot`` ``(B, Q)``: where each wanted sum goes
+    (-1: not wanted; the slots ``0 .. n - 1`` each once). Returns ``(n, s, 2 h)`` float32
+    (a complex64 view). Row by row, each row of a source spectrum is read once for every
+    target; the products in the same channel order as ``Correlator._turned_sums``'s NumPy
+    reference (the same sums up to rounding), in a loop over real numbers that the
+    compiler vectorises.
+    """
+    count, channels, size, width = spectrum.shape
+    quarters = targets.shape[0]
+    out = np.empty((slot.max() + 1, size, width), dtype=np.float32)
+    cells = width // 2
+    for b in range(count):
+        for row in range(size):
+            for q in range(quarters):
+                if slot[b, q] < 0:
+                    continue
+                total = out[slot[b, q], row]
+                for c in range(channels):
+                    source, target = spectrum[b, c, row], targets[q, c, row]
+                    if c == 0:
+                        for cell in range(cells):  # unit stride: vectorised
+                            re, im = source[2 * cell], source[2 * cell + 1]
+                            t_re, t_im = target[2 * cell], target[2 * cell + 1]
+                            total[2 * cell] = re * t_re + im * t_im
+                            total[2 * cell + 1] = re * t_im - im * t_re
+                    else:
+                        for cell in range(cells):
+                            re, im = source[2 * cell], source[2 * cell + 1]
+                            t_re, t_im = target[2 * cell], target[2 * cell + 1]
+                            total[2 * cell] += re * t_re + im * t_im
+                            total[2 * cell + 1] += re * t_im - im * t_re
+    return out

@@ -27,6 +27,8 @@ overlap (core/stages/covisibility.py) then tells the right one from the rest.
 
 from __future__ import annotations
 
+import dataclasses
+
 from mlsemreg_ros.core.estimation.bev_search import bev_hypotheses
 from mlsemreg_ros.core.estimation.polish import polish_poses, radius_schedule
 from mlsemreg_ros.core.results import PreparedScan, VerificationResult
@@ -58,9 +60,12 @@ class FarSearchStage:
         source = _far(context.source, covis.far_min_range)
         target = _far(context.target, covis.far_min_range)
         lookup = context.scoring.bev_channels
+        # only the best far_peaks are used: the suppression keeps the same first ones
+        # (greedy, best first) and stops there
+        wanted = dataclasses.replace(search, hypotheses=min(search.hypotheses, covis.far_peaks))
         # the two directions are independent: both cores (the kernels and FFTs free the GIL)
         (forward, _), (backward, _) = _DIRECTIONS.run(
-            lambda scans: bev_hypotheses(*scans[0], *scans[1], lookup, search),
+            lambda scans: bev_hypotheses(*scans[0], *scans[1], lookup, wanted),
             [(source, target), (target, source)],
         )
         starts = [forward[: covis.far_peaks]]
