@@ -131,14 +131,39 @@ def search_around_prediction(
         )
     finally:
         timings['seeded_search_ms'] = 1e3 * (time.perf_counter() - tic)
+    return searched(
+        chosen,
+        place,
+        refusal,
+        ('seeded search', 'the seeded search around the prediction'),
+        cfg.odometry.covariance_scale,
+    )
+
+
+def searched(
+    chosen: Decision,
+    place: Place | None,
+    said: str,
+    name: tuple[str, str],
+    covariance_scale: float,
+) -> Decision:
+    """
+    Return ``chosen`` rescued by the place a seeded search accepted, or with its refusal noted.
+
+    ``said``: what :func:`search_seeds` said with the place (its refusal when None);
+    ``name``: the search's name in a refusal's note and in an acceptance's ("accepted by
+    ..."). Shared by the searches around a prediction (here) and from the keyframe
+    (core/odometry/start_search.py).
+    """
+    refused_as, accepted_by = name
     if place is None:
-        note = f'seeded search: {refusal}'
+        note = f'{refused_as}: {said}'
         return replace(chosen, reason='; '.join(r for r in (chosen.reason, note) if r))
     note = (
-        f'accepted by the seeded search around the prediction (covisible overlap '
-        f'{place.overlap:.3f} of {place.checked:.2f} checked; {refusal})'
+        f'accepted by {accepted_by} (covisible overlap {place.overlap:.3f} of '
+        f'{place.checked:.2f} checked; {said})'
     )
-    return chosen.rescued(place.candidate, note, cfg.odometry.covariance_scale)
+    return chosen.rescued(place.candidate, note, covariance_scale)
 
 
 def search_seeds(
