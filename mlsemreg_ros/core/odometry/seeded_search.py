@@ -48,7 +48,7 @@ it off.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 import time
 from typing import Any
@@ -94,13 +94,26 @@ class Place:
 
 def seeds(T_predicted: np.ndarray) -> list[np.ndarray]:
     """Return the prediction turned by :data:`SEED_YAWS_DEG` and moved by :data:`SEED_ALONG_M`."""
+    return seed_grid(T_predicted, SEED_YAWS_DEG, [(along, 0.0) for along in SEED_ALONG_M])
+
+
+def seed_grid(
+    T_origin: np.ndarray, yaws_deg: Sequence[float], moves: Sequence[Any]
+) -> list[np.ndarray]:
+    """
+    Return ``T_origin`` turned by each of ``yaws_deg`` and moved by each of ``moves``.
+
+    ``moves``: xy offsets (m) in ``T_origin``'s frame; each seed is ``T_origin @ step``, the
+    step turning about z and moving, yaw by yaw (the seeded search's seeds, :func:`seeds`; a
+    first pair's along its view, ``start_search.view_seeds``).
+    """
     out = []
-    for yaw in np.radians(SEED_YAWS_DEG):
-        for along in SEED_ALONG_M:
+    for yaw in np.radians(yaws_deg):
+        for move in moves:
             step = np.eye(4)
             step[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-            step[0, 3] = along
-            out.append(T_predicted @ step)
+            step[:2, 3] = move
+            out.append(T_origin @ step)
     return out
 
 

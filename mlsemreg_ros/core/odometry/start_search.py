@@ -71,6 +71,7 @@ from mlsemreg_ros.core.odometry.seeded_search import (
     Place,
     search_seeds,
     searched,
+    seed_grid,
     SEED_YAWS_DEG,
 )
 from mlsemreg_ros.core.odometry.steps import Decision
@@ -105,14 +106,7 @@ def along_offsets(gap_s: float) -> list[float]:
 
 def view_seeds(T_origin: np.ndarray, axis: np.ndarray, gap_s: float) -> list[np.ndarray]:
     """Return ``T_origin`` moved along ``axis`` (its xy frame) and turned, as ``T_odom`` seeds."""
-    out = []
-    for yaw in np.radians(SEED_YAWS_DEG):
-        for along in along_offsets(gap_s):
-            step = np.eye(4)
-            step[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-            step[:2, 3] = along * axis
-            out.append(T_origin @ step)
-    return out
+    return seed_grid(T_origin, SEED_YAWS_DEG, [along * axis for along in along_offsets(gap_s)])
 
 
 def search_along_view(
