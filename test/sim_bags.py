@@ -25,3 +25,30 @@ def simulated_bag(out: Path, frames: int, seed: int) -> Path:
     args = [str(out), '--frames', str(frames), '--seed', str(seed)]
     assert simulate.main([*args, '--azimuth-steps', '1024', '--quiet']) == 0
     return out
+
+
+def simulated_drive(out: Path, sensor: str, frames: int, seed: int) -> Path:
+    """Simulate ``frames`` scans of ``seed`` from ``sensor`` (the field's realism) into ``out``."""
+    from mlsemreg_ros.tools import simulate
+
+    args = [str(out), '--realism', 'field', '--frames', str(frames), '--seed', str(seed)]
+    assert simulate.main([*args, '--sensor', sensor, '--quiet']) == 0
+    return out
+
+
+def evaluated_rows(drive: Path, out: Path, *options: str) -> list[dict[str, str]]:
+    """Run ``mlsemreg eval-bag`` on ``drive`` into ``out`` (quiet, no plots); its frames.csv."""
+    import csv
+
+    from mlsemreg_ros.tools import eval_bag
+
+    arguments = [str(drive), *options, '--no-plots', '--quiet', '--output', str(out)]
+    assert eval_bag.main(arguments) == 0
+    with open(out / 'frames.csv', newline='') as table:
+        return list(csv.DictReader(table))
+
+
+def assert_no_wrong_pose(rows: list[dict[str, str]]) -> None:
+    """Assert no frame of ``rows`` was accepted outside the success bounds but the first."""
+    wrong = [r['frame'] for r in rows if r['accepted'] == 'True' and r['success'] == 'False']
+    assert wrong in ([], ['0']), wrong  # the first scan starts the odometry (no pair)

@@ -27,7 +27,6 @@ seed-1 drive, whose scan 4 waited for the sweep alignment's confirmation on sess
 start into a turn at stride 1 (session 20).
 """
 
-import csv
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -51,9 +50,9 @@ from mlsemreg_ros.core.odometry.turn_starts import (
     turn_offsets,
     turn_starts,
 )
-from mlsemreg_ros.tools import eval_bag, simulate
 import numpy as np
 import pytest
+from sim_bags import assert_no_wrong_pose, evaluated_rows, simulated_drive
 
 
 def test_a_turn_leaves_a_share_of_a_narrow_view_and_all_of_a_ring() -> None:
@@ -189,20 +188,14 @@ def test_no_turned_start_from_a_still_start_without_a_prediction_or_when_off() -
 
 
 def _run(drive: Path, out: Path, *options: str, labels: str = 'geometric') -> list[dict[str, str]]:
-    arguments = ['--labels', labels, '--stride', '5', '--no-plots', '--quiet']
-    assert eval_bag.main([str(drive), *arguments, '--output', str(out), *options]) == 0
-    with open(out / 'frames.csv', newline='') as table:
-        return list(csv.DictReader(table))
+    return evaluated_rows(drive, out, '--labels', labels, '--stride', '5', *options)
 
 
 @pytest.mark.slow
 def test_the_solid_state_drive_keeps_its_turn_at_stride_5(tmp_path: Path) -> None:
-    drive = tmp_path / 'livox1'
-    arguments = [str(drive), '--realism', 'field', '--frames', '36', '--seed', '1']
-    assert simulate.main([*arguments, '--sensor', 'livox', '--quiet']) == 0
+    drive = simulated_drive(tmp_path / 'livox1', 'livox', 36, 1)
     rows = _run(drive, tmp_path / 'run')
-    wrong = [r['frame'] for r in rows if r['accepted'] == 'True' and r['success'] == 'False']
-    assert wrong in ([], ['0']), wrong  # the first scan starts the odometry (no pair)
+    assert_no_wrong_pose(rows)
     by_frame = {int(r['frame']): r for r in rows}
     assert by_frame[5]['source'] == 'turn', by_frame[5]['message']
     assert all(by_frame[k]['success'] == 'True' for k in (5, 6)), rows
@@ -219,12 +212,10 @@ def test_a_ring_without_labels_keeps_its_turn_at_stride_5(tmp_path: Path) -> Non
     that start was refused by the car's 5 deg bound, and the global registration without
     labels finds 38 inliers: scan 5 and every later scan of the turn were refused.
     """
-    drive = tmp_path / 'vlp1'  # the route follows the drive's length: 60 frames, as measured
-    arguments = [str(drive), '--realism', 'field', '--frames', '60', '--seed', '1']
-    assert simulate.main([*arguments, '--sensor', 'vlp16', '--quiet']) == 0
+    # the route follows the drive's length: 60 frames, as measured
+    drive = simulated_drive(tmp_path / 'vlp1', 'vlp16', 60, 1)
     rows = _run(drive, tmp_path / 'run', '--max-frames', '36', labels='none')
-    wrong = [r['frame'] for r in rows if r['accepted'] == 'True' and r['success'] == 'False']
-    assert wrong in ([], ['0']), wrong
+    assert_no_wrong_pose(rows)
     by_frame = {int(r['frame']): r for r in rows}
     assert by_frame[5]['source'] == 'turn', by_frame[5]['message']
     assert all(r['success'] == 'True' for r in rows[1:]), [r['message'] for r in rows]
@@ -241,17 +232,9 @@ def test_the_solid_state_drive_keeps_a_turns_onset_at_stride_1(tmp_path: Path) -
     The near-miss starts all found one place keeping 0.94 of the scan (0.17 m from the
     truth); on main it and the next nine scans were refused (docs/sensors.md, session 19).
     """
-    drive = tmp_path / 'livox5'
-    arguments = [str(drive), '--realism', 'field', '--frames', '120', '--seed', '5']
-    assert simulate.main([*arguments, '--sensor', 'livox', '--quiet']) == 0
-    out = tmp_path / 'run'
-    options = ['--labels', 'geometric', '--max-frames', '112', '--no-plots', '--quiet']
-    options += ['--output', str(out)]
-    assert eval_bag.main([str(drive), *options]) == 0
-    with open(out / 'frames.csv', newline='') as table:
-        rows = list(csv.DictReader(table))
-    wrong = [r['frame'] for r in rows if r['accepted'] == 'True' and r['success'] == 'False']
-    assert wrong in ([], ['0']), wrong  # the first scan starts the odometry (no pair)
+    drive = simulated_drive(tmp_path / 'livox5', 'livox', 120, 5)
+    rows = evaluated_rows(drive, tmp_path / 'run', '--labels', 'geometric', '--max-frames', '112')
+    assert_no_wrong_pose(rows)
     by_frame = {int(r['frame']): r for r in rows}
     assert by_frame[108]['source'] == 'turn', by_frame[108]['message']
     assert all(by_frame[k]['success'] == 'True' for k in range(108, 112)), rows[108:]
@@ -260,16 +243,9 @@ def test_the_solid_state_drive_keeps_a_turns_onset_at_stride_1(tmp_path: Path) -
 @pytest.mark.slow
 def test_the_solid_state_drive_of_seed_1_at_stride_1(tmp_path: Path) -> None:
     """Scans 2-4 right from the search along the view, and scans 20-29 through the two basins."""
-    drive = tmp_path / 'livox1'
-    arguments = [str(drive), '--realism', 'field', '--frames', '60', '--seed', '1']
-    assert simulate.main([*arguments, '--sensor', 'livox', '--quiet']) == 0
-    out = tmp_path / 'run'
-    options = ['--labels', 'geometric', '--max-frames', '30', '--no-plots', '--quiet']
-    assert eval_bag.main([str(drive), *options, '--output', str(out)]) == 0
-    with open(out / 'frames.csv', newline='') as table:
-        rows = list(csv.DictReader(table))
-    wrong = [r['frame'] for r in rows if r['accepted'] == 'True' and r['success'] == 'False']
-    assert wrong in ([], ['0']), wrong  # the first scan starts the odometry (no pair)
+    drive = simulated_drive(tmp_path / 'livox1', 'livox', 60, 1)
+    rows = evaluated_rows(drive, tmp_path / 'run', '--labels', 'geometric', '--max-frames', '30')
+    assert_no_wrong_pose(rows)
     # scan 4: confirmed by an unbent sweep alignment on session 19's code (scans 1-3 refused);
     # since session 20 scan 2 is found along the view and scans 2-4 are right from it
     assert 'search along the view' in rows[2]['message'], rows[2]['message']
@@ -290,16 +266,9 @@ def test_the_solid_state_drive_of_seed_7_keeps_its_start_at_stride_1(tmp_path: P
     (0.2 s from the keyframe) and the turn's onset, scan 4, is registered by a turned start
     judged on the scan deskewed by its own twist (docs/sensors.md, session 20).
     """
-    drive = tmp_path / 'livox7'
-    arguments = [str(drive), '--realism', 'field', '--frames', '60', '--seed', '7']
-    assert simulate.main([*arguments, '--sensor', 'livox', '--quiet']) == 0
-    out = tmp_path / 'run'
-    options = ['--labels', 'geometric', '--max-frames', '12', '--no-plots', '--quiet']
-    assert eval_bag.main([str(drive), *options, '--output', str(out)]) == 0
-    with open(out / 'frames.csv', newline='') as table:
-        rows = list(csv.DictReader(table))
-    wrong = [r['frame'] for r in rows if r['accepted'] == 'True' and r['success'] == 'False']
-    assert wrong in ([], ['0']), wrong  # the first scan starts the odometry (no pair)
+    drive = simulated_drive(tmp_path / 'livox7', 'livox', 60, 7)
+    rows = evaluated_rows(drive, tmp_path / 'run', '--labels', 'geometric', '--max-frames', '12')
+    assert_no_wrong_pose(rows)
     assert 'search along the view' in rows[2]['message'], rows[2]['message']
     assert rows[4]['source'] == 'turn', rows[4]['message']
     assert all(r['success'] == 'True' for r in rows[2:12]), [r['message'] for r in rows[2:12]]

@@ -24,18 +24,14 @@ along the forward axis registers it right.
 """
 
 from pathlib import Path
-from types import SimpleNamespace
 
+from first_pair_search import assert_first_pair_found, assert_untouched, view_at
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.odometry import Odometry
-from mlsemreg_ros.core.odometry.narrow_view import View
 from mlsemreg_ros.core.odometry.ring_start_search import (
     forward_seeds,
     search_along_forward,
 )
 from mlsemreg_ros.core.odometry.seeded_search import SEED_YAWS_DEG
-from mlsemreg_ros.core.odometry.steps import Decision
-from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.datasets.factory import open_scan_source
 from mlsemreg_ros.tools import simulate
 import numpy as np
@@ -57,31 +53,22 @@ def test_the_seeds_lie_along_the_keyframes_forward_axis() -> None:
 
 def test_nothing_runs_on_a_narrow_view_far_with_a_prediction_or_when_off() -> None:
     """The refused decision comes back untouched: nothing else is asked of the odometry."""
-    refused = Decision(source='', reason='refused')
-    last = (np.eye(4), 1_000_000_000)
-    ring, narrow = View(span_deg=360.0), View(span_deg=70.0)
-    ring.since(last, 2_000_000_000)
-    narrow.since(last, 2_000_000_000)
-    dense = View(span_deg=360.0)  # 10 Hz: a scan after a refused one, 0.2 s from the keyframe
-    dense.since(last, 1_100_000_000)
-    dense.since(last, 1_200_000_000)
-    far = View(span_deg=360.0)  # 3 s after the keyframe (stride 30 at 10 Hz)
-    far.since(last, 4_000_000_000)
+    ring, narrow = view_at(360.0, 2_000_000_000), view_at(70.0, 2_000_000_000)
+    # 10 Hz: a scan after a refused one, 0.2 s from the keyframe
+    dense = view_at(360.0, 1_100_000_000, 1_200_000_000)
+    far = view_at(360.0, 4_000_000_000)  # 3 s after the keyframe (stride 30 at 10 Hz)
     config = RegistrationConfig()
     off = config.replace({'odometry.ring_search_overlap': 0.0})
-    for view, prediction, cfg in (
-        (far, None, config),  # beyond odometry.ring_search_max_gap
-        (narrow, None, config),  # a narrow view: core/odometry/start_search.py
-        (ring, object(), config),  # a motion model's prediction
-        (ring, None, off),  # off
-        (dense, None, config),  # a dense stream: 0.1 s from the scan before
-    ):
-        odometry = SimpleNamespace(
-            config=cfg, tracker=SimpleNamespace(trust=SimpleNamespace(view=view))
-        )
-        assert search_along_forward(odometry, 2_000_000_000, prediction, None, refused, {}) is (
-            refused
-        )
+    assert_untouched(
+        search_along_forward,
+        (
+            (far, None, config),  # beyond odometry.ring_search_max_gap
+            (narrow, None, config),  # a narrow view: core/odometry/start_search.py
+            (ring, object(), config),  # a motion model's prediction
+            (ring, None, off),  # off
+            (dense, None, config),  # a dense stream: 0.1 s from the scan before
+        ),
+    )
 
 
 @pytest.mark.slow
@@ -91,21 +78,12 @@ def test_a_rings_first_pair_10_m_apart_registers_without_labels(tmp_path: Path) 
     assert simulate.main([*arguments, '--sensor', 'hdl32', '--quiet']) == 0
     scans = list(open_scan_source(drive).scans(1))
     first, last = scans[42], scans[52]
-    truth = np.linalg.solve(first.pose, last.pose)
-    assert np.linalg.norm(truth[:3, 3]) > 9.0  # 1 s apart
-    steps = {}
-    for name, overlap in (('before', 0.0), ('after', 0.97)):
-        config = RegistrationConfig().replace(
-            {'label_source': 'none', 'odometry.ring_search_overlap': overlap}
-        )
-        odometry = Odometry(Registration(config))
-        for scan in (first, last):
-            steps[name] = odometry.process(
-                scan.xyz, scan.labels, scan.stamp_ns, point_times=scan.point_times
-            )
-    assert not steps['before'].accepted  # the code before: the global registration refuses
-    after = steps['after']
-    assert after.accepted and 'search along the forward axis' in after.reason, after.reason
-    error = np.linalg.solve(truth, after.relative)
-    assert np.linalg.norm(after.relative[:3, 3] - truth[:3, 3]) < 0.6
-    assert np.degrees(np.arccos(np.clip((np.trace(error[:3, :3]) - 1) / 2, -1, 1))) < 5.0
+    assert np.linalg.norm(np.linalg.solve(first.pose, last.pose)[:3, 3]) > 9.0  # 1 s apart
+    assert_first_pair_found(
+        first,
+        last,
+        {'label_source': 'none'},
+        'odometry.ring_search_overlap',
+        0.97,
+        'search along the forward axis',
+    )

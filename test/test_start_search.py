@@ -23,11 +23,9 @@ stride 10 with geometric labels, 10 m apart: the global registration alone refus
 """
 
 from pathlib import Path
-from types import SimpleNamespace
 
+from first_pair_search import assert_first_pair_found, assert_untouched, view_at
 from mlsemreg_ros.core.config import RegistrationConfig
-from mlsemreg_ros.core.odometry import Odometry
-from mlsemreg_ros.core.odometry.narrow_view import View
 from mlsemreg_ros.core.odometry.seeded_search import SEED_YAWS_DEG
 from mlsemreg_ros.core.odometry.start_search import (
     along_offsets,
@@ -35,8 +33,6 @@ from mlsemreg_ros.core.odometry.start_search import (
     view_axis,
     view_seeds,
 )
-from mlsemreg_ros.core.odometry.steps import Decision
-from mlsemreg_ros.core.pipeline import Registration
 from mlsemreg_ros.datasets.factory import open_scan_source
 from mlsemreg_ros.tools import simulate
 import numpy as np
@@ -79,27 +75,20 @@ def test_the_seeds_reach_the_fastest_motion_in_the_gap() -> None:
 
 def test_nothing_runs_on_a_ring_with_a_prediction_or_when_off() -> None:
     """The refused decision comes back untouched: nothing else is asked of the odometry."""
-    refused = Decision(source='', reason='refused')
-    last = (np.eye(4), 1_000_000_000)
-    ring, narrow = View(span_deg=360.0), View(span_deg=70.0)
-    ring.since(last, 2_000_000_000)
-    narrow.since(last, 2_000_000_000)
-    near = View(span_deg=70.0)  # 10 Hz: the scan after the keyframe, a still start's reach
-    near.since(last, 1_100_000_000)
+    ring, narrow = view_at(360.0, 2_000_000_000), view_at(70.0, 2_000_000_000)
+    # 10 Hz: the scan after the keyframe, a still start's reach
+    near = view_at(70.0, 1_100_000_000)
     config = RegistrationConfig()
     off = config.replace({'odometry.view_search_overlap': 0.0})
-    for view, prediction, cfg in (
-        (ring, None, config),  # a full ring
-        (narrow, object(), config),  # a motion model's prediction
-        (narrow, None, off),  # off
-        (near, None, config),  # 0.1 s from the keyframe: odometry.still_start covers it
-    ):
-        odometry = SimpleNamespace(
-            config=cfg, tracker=SimpleNamespace(trust=SimpleNamespace(view=view))
-        )
-        assert search_along_view(odometry, 2_000_000_000, prediction, None, refused, {}) is (
-            refused
-        )
+    assert_untouched(
+        search_along_view,
+        (
+            (ring, None, config),  # a full ring
+            (narrow, object(), config),  # a motion model's prediction
+            (narrow, None, off),  # off
+            (near, None, config),  # 0.1 s from the keyframe: odometry.still_start covers it
+        ),
+    )
 
 
 @pytest.mark.slow
@@ -109,21 +98,12 @@ def test_the_solid_states_first_pair_10_m_apart_registers(tmp_path: Path) -> Non
     assert simulate.main([*arguments, '--sensor', 'livox', '--quiet']) == 0
     scans = list(open_scan_source(drive).scans(1))
     first, last = scans[0], scans[10]
-    truth = np.linalg.solve(first.pose, last.pose)
-    assert np.linalg.norm(truth[:3, 3]) > 9.0  # 10 m/s for 1 s
-    steps = {}
-    for name, overlap in (('before', 0.0), ('after', 0.85)):
-        config = RegistrationConfig().replace(
-            {'label_source': 'geometric', 'odometry.view_search_overlap': overlap}
-        )
-        odometry = Odometry(Registration(config))
-        for scan in (first, last):
-            steps[name] = odometry.process(
-                scan.xyz, scan.labels, scan.stamp_ns, point_times=scan.point_times
-            )
-    assert not steps['before'].accepted  # the code before: the global registration refuses
-    after = steps['after']
-    assert after.accepted and 'search along the view' in after.reason, after.reason
-    error = np.linalg.solve(truth, after.relative)
-    assert np.linalg.norm(after.relative[:3, 3] - truth[:3, 3]) < 0.6
-    assert np.degrees(np.arccos(np.clip((np.trace(error[:3, :3]) - 1) / 2, -1, 1))) < 5.0
+    assert np.linalg.norm(np.linalg.solve(first.pose, last.pose)[:3, 3]) > 9.0  # 10 m/s, 1 s
+    assert_first_pair_found(
+        first,
+        last,
+        {'label_source': 'geometric'},
+        'odometry.view_search_overlap',
+        0.85,
+        'search along the view',
+    )

@@ -48,7 +48,7 @@ it off.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 import time
 from typing import Any
@@ -94,13 +94,26 @@ class Place:
 
 def seeds(T_predicted: np.ndarray) -> list[np.ndarray]:
     """Return the prediction turned by :data:`SEED_YAWS_DEG` and moved by :data:`SEED_ALONG_M`."""
+    return seed_grid(T_predicted, SEED_YAWS_DEG, [(along, 0.0) for along in SEED_ALONG_M])
+
+
+def seed_grid(
+    T_origin: np.ndarray, yaws_deg: Sequence[float], moves: Sequence[Any]
+) -> list[np.ndarray]:
+    """
+    Return ``T_origin`` turned by each of ``yaws_deg`` and moved by each of ``moves``.
+
+    ``moves``: xy offsets (m) in ``T_origin``'s frame; each seed is ``T_origin @ step``, the
+    step turning about z and moving, yaw by yaw (the seeded search's seeds, :func:`seeds`; a
+    first pair's along its view, ``start_search.view_seeds``).
+    """
     out = []
-    for yaw in np.radians(SEED_YAWS_DEG):
-        for along in SEED_ALONG_M:
+    for yaw in np.radians(yaws_deg):
+        for move in moves:
             step = np.eye(4)
             step[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-            step[0, 3] = along
-            out.append(T_predicted @ step)
+            step[:2, 3] = move
+            out.append(T_origin @ step)
     return out
 
 
@@ -131,14 +144,39 @@ def search_around_prediction(
         )
     finally:
         timings['seeded_search_ms'] = 1e3 * (time.perf_counter() - tic)
+    return searched(
+        chosen,
+        place,
+        refusal,
+        ('seeded search', 'the seeded search around the prediction'),
+        cfg.odometry.covariance_scale,
+    )
+
+
+def searched(
+    chosen: Decision,
+    place: Place | None,
+    said: str,
+    name: tuple[str, str],
+    covariance_scale: float,
+) -> Decision:
+    """
+    Return ``chosen`` rescued by the place a seeded search accepted, or with its refusal noted.
+
+    ``said``: what :func:`search_seeds` said with the place (its refusal when None);
+    ``name``: the search's name in a refusal's note and in an acceptance's ("accepted by
+    ..."). Shared by the searches around a prediction (here) and from the keyframe
+    (core/odometry/start_search.py).
+    """
+    refused_as, accepted_by = name
     if place is None:
-        note = f'seeded search: {refusal}'
+        note = f'{refused_as}: {said}'
         return replace(chosen, reason='; '.join(r for r in (chosen.reason, note) if r))
     note = (
-        f'accepted by the seeded search around the prediction (covisible overlap '
-        f'{place.overlap:.3f} of {place.checked:.2f} checked; {refusal})'
+        f'accepted by {accepted_by} (covisible overlap {place.overlap:.3f} of '
+        f'{place.checked:.2f} checked; {said})'
     )
-    return chosen.rescued(place.candidate, note, cfg.odometry.covariance_scale)
+    return chosen.rescued(place.candidate, note, covariance_scale)
 
 
 def search_seeds(

@@ -61,14 +61,19 @@ or ``odometry.seeded_search: false`` turns it off.
 
 from __future__ import annotations
 
-from dataclasses import replace
 import time
 from typing import Any
 
 from mlsemreg_ros.core.deferred import stored
 from mlsemreg_ros.core.features.deskew import sweep_motion, SweepMotion
 from mlsemreg_ros.core.odometry.failures import no_motion_known
-from mlsemreg_ros.core.odometry.seeded_search import Place, search_seeds, SEED_YAWS_DEG
+from mlsemreg_ros.core.odometry.seeded_search import (
+    Place,
+    search_seeds,
+    searched,
+    seed_grid,
+    SEED_YAWS_DEG,
+)
 from mlsemreg_ros.core.odometry.steps import Decision
 import numpy as np
 
@@ -101,14 +106,7 @@ def along_offsets(gap_s: float) -> list[float]:
 
 def view_seeds(T_origin: np.ndarray, axis: np.ndarray, gap_s: float) -> list[np.ndarray]:
     """Return ``T_origin`` moved along ``axis`` (its xy frame) and turned, as ``T_odom`` seeds."""
-    out = []
-    for yaw in np.radians(SEED_YAWS_DEG):
-        for along in along_offsets(gap_s):
-            step = np.eye(4)
-            step[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-            step[:2, 3] = along * axis
-            out.append(T_origin @ step)
-    return out
+    return seed_grid(T_origin, SEED_YAWS_DEG, [along * axis for along in along_offsets(gap_s)])
 
 
 def search_along_view(
@@ -206,14 +204,13 @@ def search_from_keyframe(
         )
     finally:
         timings[timing_key] = 1e3 * (time.perf_counter() - tic)
-    if place is None:
-        note = f'{label.removeprefix("the ")}: {refusal}'
-        return replace(chosen, reason='; '.join(r for r in (chosen.reason, note) if r))
-    note = (
-        f'accepted by {label} (covisible overlap {place.overlap:.3f} of '
-        f'{place.checked:.2f} checked; {refusal})'
+    return searched(
+        chosen,
+        place,
+        refusal,
+        (label.removeprefix('the '), label),
+        cfg.odometry.covariance_scale,
     )
-    return chosen.rescued(place.candidate, note, cfg.odometry.covariance_scale)
 
 
 def deskewed_pair(
