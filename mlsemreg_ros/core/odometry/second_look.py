@@ -45,9 +45,7 @@ Two cases, both judged by the basins of the map alignment (core/alignment/near_m
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
-import weakref
 
 from mlsemreg_ros.core.alignment.alignment import Alignment
 from mlsemreg_ros.core.alignment.fine_alignment import (
@@ -70,7 +68,6 @@ from mlsemreg_ros.core.results import PreparedScan
 import numpy as np
 
 if TYPE_CHECKING:
-    from mlsemreg_ros.core.alignment.config import NearMissConfig
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.odometry.tracking import Tracker
 
@@ -80,46 +77,16 @@ if TYPE_CHECKING:
 GLOBAL_INLIER_FLOOR = 0.6
 
 
-@dataclass(frozen=True)
-class CheckedBasins:
-    """A near-miss verdict kept on the candidate it judged (``Candidate.basins``)."""
-
-    alignment: Alignment  # the refinement judged
-    scan: weakref.ref[PreparedScan]  # the scan aligned again (weakly: the step keeps this)
-    near_miss: NearMissConfig
-    verdict: NearMiss
-
-    def of(self, alignment: Alignment, scan: PreparedScan, near_miss: NearMissConfig) -> bool:
-        """Whether it judged ``alignment`` on ``scan`` with ``near_miss``, all the same objects."""
-        return self.alignment is alignment and self.scan() is scan and self.near_miss is near_miss
-
-
 def basins(
-    tracker: Tracker,
-    candidate: Candidate,
-    scan: PreparedScan,
-    cfg: RegistrationConfig,
-    reuse: bool = False,
+    tracker: Tracker, candidate: Candidate, scan: PreparedScan, cfg: RegistrationConfig
 ) -> NearMiss:
-    """
-    Align ``scan`` to the map again from perturbed starts around ``candidate``'s pose.
-
-    The verdict is kept on the candidate. ``reuse``: return the kept one if it judged this
-    candidate's alignment on ``scan`` with ``cfg.near_miss``: within one scan's estimate
-    (``Tracker.estimate``) the map does not move, so the starts would land where they did.
-    """
-    kept = candidate.basins
-    if reuse and kept is not None and kept.of(candidate.alignment, scan, cfg.near_miss):
-        return kept.verdict
-    verdict = judge_basins(
+    """Align ``scan`` to the map again from perturbed starts around ``candidate``'s pose."""
+    return judge_basins(
         candidate.alignment,
         lambda start: tracker.map.align_scan(scan, start),
         alignment_fit,
         cfg.near_miss,
     )
-    kept = CheckedBasins(candidate.alignment, weakref.ref(scan), cfg.near_miss, verdict)
-    candidate.basins = kept
-    return verdict
 
 
 def starts_back(alignment: Alignment, verdict: NearMiss, cfg: RegistrationConfig) -> int:

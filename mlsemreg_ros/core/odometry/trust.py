@@ -35,7 +35,7 @@ The decision between trusted candidates is ``core/odometry/decision.py``.
 from __future__ import annotations
 
 import collections
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.alignment import Alignment
@@ -52,7 +52,6 @@ import numpy as np
 
 if TYPE_CHECKING:
     from mlsemreg_ros.core.config import OdometryConfig
-    from mlsemreg_ros.core.odometry.second_look import CheckedBasins
 
 #: Accepted frames whose median inlier fraction is the typical one.
 FRACTION_HISTORY = 10
@@ -114,9 +113,6 @@ class Candidate:
     alignment: Alignment
     refusal: str  # why it is not acceptable ('' if it is)
     still: bool = False  # a prediction from the last pose itself (odometry.still_start)
-    #: the near-miss check's verdict on it, for a later check of the same scan to reuse
-    #: (``second_look.basins``; None: not checked)
-    basins: CheckedBasins | None = field(default=None, compare=False, repr=False)
 
     @property
     def acceptable(self) -> bool:

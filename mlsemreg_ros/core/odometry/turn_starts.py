@@ -243,8 +243,8 @@ def held_basins(
     Return the other places the refined prediction's near-miss starts found, held as tracked.
 
     The refined prediction is aligned again from the near-miss check's perturbed starts
-    (``second_look.basins``; those of the check that refused it, if one ran); a start that
-    converged elsewhere (beyond ``near_miss.agreement_translation``) and keeps at least
+    (``second_look.basins``); a start that converged elsewhere (beyond
+    ``near_miss.agreement_translation``) and keeps at least
     ``odometry.tracking_min_inlier_fraction`` of the scan, as much as a scan tracked alone
     must and more than the refined prediction kept, is a candidate when it passes the
     odometry's rules (with the overlap its turn leaves in view) and lies within
@@ -261,7 +261,7 @@ def held_basins(
     bounds = tracker.trust.motion_bound.widen(odometry)
     rotation = held_bound(view, bounds.max_correction_rotation, odometry.turn_rate)
     out = []
-    for basin in basins(tracker, refined, scan, cfg, reuse=True).others:  # _near_miss's
+    for basin in basins(tracker, refined, scan, cfg).others:
         alignment = basin.alignment
         if alignment is None or alignment.inlier_fraction < odometry.tracking_min_inlier_fraction:
             continue
