@@ -121,3 +121,44 @@ def test_a_walk_needs_two_frames_and_a_share_of_the_points() -> None:
         RoomWalk(frames=1)
     with pytest.raises(ValueError):
         RoomWalk(keep=0.0)
+
+
+def test_a_late_first_keyframe_is_scored_against_its_own_scan() -> None:
+    """
+    The odometry's counter starts again at the first keyframe; eval maps it to that scan.
+
+    A room too thin for a keyframe at the car defaults (the VLP-16's walk) starts the
+    odometry on scan 3, counter 0: the next scan's keyframe is scan 3, not scan 0.
+    """
+    from types import SimpleNamespace
+
+    from mlsemreg_ros.datasets.source import Scan
+    from mlsemreg_ros.evaluation.estimators import OdometryEstimator
+
+    counters = iter([0, 0, 0, 0, 1, 2])  # scans 0-2 refused (counter reset), 3 first
+    keyframes = iter([0, 0, 0, 0, 0, 1])
+
+    class _Odometry:
+        keyframe = None
+
+        def process(self, *args: object, **kwargs: object) -> SimpleNamespace:
+            return SimpleNamespace(
+                index=next(counters),
+                keyframe_index=next(keyframes),
+                pose=np.eye(4),
+                relative=np.eye(4),
+                result=None,
+                accepted=True,
+                latency_ms=0.0,
+                reason='',
+                source='prediction',
+                frame_covariance=None,
+                timings_ms={},
+                deskewed=False,
+                new_keyframe=False,
+            )
+
+    estimator = OdometryEstimator(_Odometry())
+    scans = [Scan(i, i, np.zeros((1, 3)), None, None, 'lidar') for i in range(6)]
+    keyframe_scans = [estimator.step(scan).keyframe_index for scan in scans]
+    assert keyframe_scans[4:] == [3, 4]
