@@ -52,7 +52,9 @@ class OdometryEstimator:
     def __init__(self, odometry: Any) -> None:
         """Wrap a fresh :class:`~mlsemreg_ros.core.odometry.Odometry`."""
         self.odometry = odometry
-        self._bag_index: list[int] = []  # sequence index by odometry frame counter
+        # sequence index by odometry frame counter; the counter starts again at 0 while no
+        # scan can be the first keyframe and after a reset, so the latest scan of a counter wins
+        self._bag_index: dict[int, int] = {}
         self.deskewed_scans = 0  # scans the odometry motion-compensated
         self.last_step: Any = None  # the odometry's last OdometryStep (candidates, pose)
 
@@ -68,7 +70,7 @@ class OdometryEstimator:
         )
         self.deskewed_scans += int(step.deskewed)
         self.last_step = step
-        self._bag_index.append(scan.index)
+        self._bag_index[step.index] = scan.index
         result = step.result
         if result is None and step.relative is not None:  # tracked by the prediction alone
             return FrameEstimate(

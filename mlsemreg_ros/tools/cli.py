@@ -43,6 +43,7 @@ from mlsemreg_ros.tools import (
     params,
     play,
     relocalize,
+    room_walk,
     self_pairs,
     simulate,
     soak,
@@ -159,6 +160,7 @@ for module, function, name, panel in (
     (chain_pairs, chain_pairs.chain_pairs, 'chain-pairs', DATA),
     (bench_labels, bench_labels.bench_labels, 'bench-labels', EVALUATION),
     (self_pairs, self_pairs.self_pairs, 'self-pairs', EVALUATION),
+    (room_walk, room_walk.room_walk, 'room-walk', DATA),
     (play, play.play, 'play', DATA),
     (params, params.params, 'params', MAINTENANCE),
 ):
