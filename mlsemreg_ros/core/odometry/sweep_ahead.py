@@ -35,6 +35,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass
+import threading
 from typing import Any
 
 from mlsemreg_ros.core import threads
@@ -96,10 +97,22 @@ class SweepAhead:
         """
         self.drop()
         pose = np.array(pose, dtype=np.float64, copy=True)
-        future = _POOL.submit(lambda: align(pose))
+        running = threading.Event()
+
+        def run() -> SweepAlignment:
+            running.set()
+            return align(pose)
+
+        future = _POOL.submit(run)
         if future is None:
             return False
         self._started = _Started(raw, gaussians, pose, implied, config, future)
+        # Hand the GIL over until the thread runs: else it waits for it while this thread
+        # goes on in Python, up to the interpreter's switch interval (5 ms), and starts the
+        # compiled loop only once the caller waits for its result (no overlap at all). It
+        # holds the GIL from here to the compiled loop's call (under 0.1 ms), then the
+        # caller goes on beside it.
+        running.wait()
         return True
 
     def take(
