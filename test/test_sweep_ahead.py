@@ -107,6 +107,10 @@ def test_the_memo_returns_its_result_only_for_the_same_bits() -> None:
     assert memo((a.copy(), config), {'scale': 2.0}) == 6.0 and len(calls) == 1  # kept
     assert memo((a, object()), {'scale': 2.0}) == 6.0 and len(calls) == 2  # another config
     assert memo((a, config), {'scale': 3.0}) == 9.0 and len(calls) == 3
+    failed = Memo(lambda x: 1.0 / x, (0,), {})  # raises when called early: kept for later
+    with pytest.raises(ZeroDivisionError):
+        failed((0,), {})
+    assert failed((2,), {}) == 0.5
     assert fingerprint(0.0) != fingerprint(-0.0)  # equal floats, other bits
     assert fingerprint(np.array([np.nan])) == fingerprint(np.array([np.nan]))
     assert fingerprint(np.zeros(2)) != fingerprint(np.zeros((2, 1)))

@@ -46,6 +46,8 @@ import numpy as np
 
 #: The sweep alignment started ahead of the rules.
 _POOL = threads.LazyPool('mlsemreg-sweep-ahead')
+#: The caller waits at most this long (s) for the thread to run (:meth:`SweepAhead.start`).
+START_TIMEOUT_S = 0.1
 
 
 def same_twist(a: SweepMotion | None, b: SweepMotion | None) -> bool:
@@ -112,7 +114,7 @@ class SweepAhead:
         # compiled loop only once the caller waits for its result (no overlap at all). It
         # holds the GIL from here to the compiled loop's call (under 0.1 ms), then the
         # caller goes on beside it.
-        running.wait()
+        running.wait(START_TIMEOUT_S)  # bounded: the result is waited for when taken anyway
         return True
 
     def take(
@@ -195,12 +197,15 @@ class Memo:
         self, function: Callable[..., Any], args: tuple[Any, ...], kwargs: dict[str, Any]
     ) -> None:
         self.function = function
-        self.key = fingerprint((args, kwargs))  # the arguments are kept alive with it
+        self.key: Any = fingerprint((args, kwargs))  # the arguments are kept alive with it
         self._kept = (args, kwargs)
-        self.result = function(*args, **kwargs)
+        try:
+            self.result = function(*args, **kwargs)
+        except Exception:  # computed again when asked (and raised then, if it still fails)
+            self.key, self.result = None, None
 
     def __call__(self, args: tuple[Any, ...], kwargs: dict[str, Any]) -> Any:
         """Return ``function(*args, **kwargs)``: the kept result for the same arguments."""
-        if fingerprint((args, kwargs)) == self.key:
+        if self.key is not None and fingerprint((args, kwargs)) == self.key:
             return self.result
         return self.function(*args, **kwargs)
