@@ -65,6 +65,18 @@ STEPS = (
         '    Gauss-Newton, compiled',
     ),
     ('mlsemreg_ros.core.odometry.sweep_starts', None, 'bend_m', '    second start: bend'),
+    (
+        'mlsemreg_ros.core.odometry.sweep_ahead',
+        'SweepAhead',
+        'take',
+        '    wait for it, started ahead',
+    ),
+    (
+        'mlsemreg_ros.core.odometry.advance',
+        None,
+        'calibrated_covariance',
+        'covariance calibration',
+    ),
     ('mlsemreg_ros.core.odometry.local_map', 'LocalMap', 'insert', 'map insertion'),
     ('mlsemreg_ros.core.odometry.local_map', None, 'keyframe_refusal', 'keyframe policy'),
 )
@@ -75,7 +87,10 @@ def wrap_steps(totals: dict[str, list[float]], calls: dict[str, int]) -> None:
     import importlib
 
     for module_name, owner_name, attribute, label in STEPS:
-        module = importlib.import_module(module_name)
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError:  # a step this version of the code does not have
+            continue
         owner = getattr(module, owner_name) if owner_name else module
         original = getattr(owner, attribute, None)
         if original is None:  # a step this version of the code does not have

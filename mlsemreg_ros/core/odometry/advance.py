@@ -25,7 +25,7 @@ re-initialisation).
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any, TYPE_CHECKING
 
 from mlsemreg_ros.core.alignment.covariance import (
     calibrated_covariance,
@@ -37,6 +37,7 @@ from mlsemreg_ros.core.odometry.local_map import insert_accepted, Keyframe
 from mlsemreg_ros.core.odometry.preprocess import PreprocessedScan
 from mlsemreg_ros.core.odometry.start_twist import inflated_covariance
 from mlsemreg_ros.core.odometry.steps import accepted_step, Decision, OdometryStep
+from mlsemreg_ros.core.odometry.sweep_ahead import Memo
 from mlsemreg_ros.core.rigid import invert_transform
 import numpy as np
 
@@ -49,6 +50,10 @@ def accept_scan(
 ) -> OdometryStep:
     """Align the sweep, move the pose, feed the map, move the keyframe; the step."""
     keyframe, start, odometry._start_scan = odometry.keyframe, odometry._start_scan, None
+    ahead = None  # the covariance of the likely pose while its sweep alignment runs
+    if chosen.pose is not None and odometry.tracker.ahead.started_for(raw):
+        early = _covariance_inputs(odometry, chosen, keyframe, chosen.pose, stamp_ns)
+        ahead = Memo(calibrated_covariance, *early)
     raw, pose, sweep_twist = odometry.tracker.align_accepted(
         chosen,
         raw,
@@ -67,23 +72,11 @@ def accept_scan(
     if sweep_twist is not None:
         odometry._sweep_twist = (sweep_twist, stamp_ns)
     current, relative = raw.scan, invert_transform(keyframe.pose) @ pose
-    predicted = [  # a still start predicts no motion: no correction from it
-        c.T_initial for c in chosen.candidates if c.name == 'prediction' and not c.still
-    ]
-    moved = invert_transform(predicted[0]) @ pose if predicted else np.eye(4)
-    chosen.frame_covariance = calibrated_covariance(  # docs/covariance.md
-        chosen.frame_covariance,
-        1.0,
-        odometry.config.covariance,
-        *motion_size(relative),
-        correction=motion_size(moved),
-        horizon_s=(
-            (stamp_ns - odometry._last_accepted[1]) * 1e-9 if odometry._last_accepted else 0.0
-        ),
-        correction_direction=moved[:3, 3],
-        bend_m=chosen.sweep_bend_m,
-        residual_variance=chosen.residual_variance,
-    )
+    inputs = _covariance_inputs(odometry, chosen, keyframe, pose, stamp_ns)  # covariance.md
+    if ahead is not None:  # computed beside the sweep alignment: the same inputs, its result
+        chosen.frame_covariance = ahead(*inputs)
+    else:
+        chosen.frame_covariance = calibrated_covariance(*inputs[0], **inputs[1])
     disputed = odometry.tracker.start_dispute  # the first scan's unknown twist
     if disputed is not None:
         chosen.frame_covariance = inflated_covariance(chosen.frame_covariance, disputed)
@@ -117,6 +110,26 @@ def accept_scan(
         odometry.keyframe.residual_variance = chosen.residual_variance
     odometry.tracker.prefetch_gaussians(raw, odometry.config)  # for the next scan
     return step
+
+
+def _covariance_inputs(
+    odometry: Odometry, chosen: Decision, keyframe: Keyframe, pose: np.ndarray, stamp_ns: int
+) -> tuple[tuple[Any, ...], dict[str, Any]]:
+    """Return the arguments of the accepted frame's ``calibrated_covariance`` at ``pose``."""
+    relative = invert_transform(keyframe.pose) @ pose
+    predicted = [  # a still start predicts no motion: no correction from it
+        c.T_initial for c in chosen.candidates if c.name == 'prediction' and not c.still
+    ]
+    moved = invert_transform(predicted[0]) @ pose if predicted else np.eye(4)
+    last = odometry._last_accepted
+    args = (chosen.frame_covariance, 1.0, odometry.config.covariance, *motion_size(relative))
+    return args, {
+        'correction': motion_size(moved),
+        'horizon_s': (stamp_ns - last[1]) * 1e-9 if last else 0.0,
+        'correction_direction': moved[:3, 3],
+        'bend_m': chosen.sweep_bend_m,
+        'residual_variance': chosen.residual_variance,
+    }
 
 
 def start_keyframe(

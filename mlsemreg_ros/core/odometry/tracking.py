@@ -34,6 +34,7 @@ from __future__ import annotations
 from collections.abc import Callable
 import copy
 import dataclasses
+import functools
 import time
 from typing import Any, TYPE_CHECKING
 
@@ -61,6 +62,7 @@ from mlsemreg_ros.core.odometry.start_twist import (
     start_twist_verdict,
 )
 from mlsemreg_ros.core.odometry.steps import Decision
+from mlsemreg_ros.core.odometry.sweep_ahead import SweepAhead
 from mlsemreg_ros.core.odometry.sweep_starts import align_from_starts, implied_twist
 from mlsemreg_ros.core.odometry.swept_dispute import swept_refusal
 from mlsemreg_ros.core.odometry.trust import Candidate, InlierHistory, Trust
@@ -112,10 +114,16 @@ def steady(chosen: Decision, cfg: RegistrationConfig) -> bool:
     ``steady_rotation``: the sweep's motion is the one it was deskewed with, and the sweep
     alignment is not run (docs/sensors.md, session 17).
     """
-    bound = cfg.sweep_alignment.steady_correction
-    if bound <= 0 or not chosen.held or len(chosen.candidates) != 1:
+    if not chosen.held or len(chosen.candidates) != 1:
         return False
-    moved = chosen.candidates[0].alignment.correction
+    return steady_correction(chosen.candidates[0].alignment.correction, cfg)
+
+
+def steady_correction(moved: np.ndarray, cfg: RegistrationConfig) -> bool:
+    """Whether a correction of the prediction is within ``sweep_alignment.steady_*`` (on)."""
+    bound = cfg.sweep_alignment.steady_correction
+    if bound <= 0:
+        return False
     return bool(
         np.linalg.norm(moved[:3, 3]) < bound
         and rotation_angle_deg(moved) < cfg.sweep_alignment.steady_rotation
@@ -140,6 +148,8 @@ class Tracker:
         self.disputed: Decision | None = None
         #: the pose of the last sweep alignment that needed no bend (None: none or bent)
         self.unbent_pose: np.ndarray | None = None
+        #: the sweep alignment of a tracked pose, started beside its rules (sweep_ahead.py)
+        self.ahead = SweepAhead()
 
     def map_gaussians(self) -> MapGaussians | None:
         """
@@ -231,7 +241,12 @@ class Tracker:
             None if known is None else known.T_odom_current,
             None if known is None else known.sigmas,
         )
-        predicted = self.refine_prediction(current, prediction, cfg, timings)
+        ahead = None
+        if redeskew is not None and prediction is not None:  # core/odometry/sweep_ahead.py
+            ahead = functools.partial(
+                self.start_sweep_ahead, prediction=prediction, redeskew=redeskew, cfg=cfg
+            )
+        predicted = self.refine_prediction(current, prediction, cfg, timings, ahead)
         gap = prediction.stamp_gap if prediction is not None else 1.0
         why_global = self.trust.tracking_refusal(predicted, gap, cfg.odometry)
         if not why_global:  # tracking: no global registration needed
@@ -309,17 +324,67 @@ class Tracker:
         prediction: Prediction | None,
         cfg: RegistrationConfig,
         timings: dict[str, float],
+        ahead: Callable[[Any], Any] | None = None,
     ) -> Candidate | None:
-        """Refine the motion model's prediction against the map (None without one)."""
+        """
+        Refine the motion model's prediction against the map (None without one).
+
+        ``ahead(alignment)``: called with the refined alignment before the rules judge it
+        (:meth:`start_sweep_ahead`).
+        """
         if prediction is None:
             return None
         tic = time.perf_counter()
         self.map.cloud(scan)  # all cores: small_gicp has the GIL
         timings['fine_cloud_ms'] = 1e3 * (time.perf_counter() - tic)
         tic = time.perf_counter()
-        candidate = self.candidate('prediction', prediction.T_odom_current, scan, cfg)
+        alignment = self.map.align_scan(scan, prediction.T_odom_current)  # self.candidate
+        if ahead is not None:
+            ahead(alignment)
+        candidate = self.trust.judge(
+            'prediction', prediction.T_odom_current, alignment, cfg.odometry
+        )
         timings['fine_prediction_ms'] = 1e3 * (time.perf_counter() - tic)
         return dataclasses.replace(candidate, still=True) if prediction.still else candidate
+
+    def start_sweep_ahead(
+        self,
+        alignment: Any,
+        prediction: Prediction,
+        redeskew: Any,
+        cfg: RegistrationConfig,
+    ) -> bool:
+        """
+        Start the sweep alignment of the refined prediction beside its rules (sweep_ahead.py).
+
+        ``alignment``: the prediction refined against the map; ``redeskew``: the odometry's
+        :class:`~mlsemreg_ros.core.odometry.rotated_starts.Redeskew` of the scan in process
+        (its scan as preprocessed, the odometry, the stamp). The inputs :meth:`align_sweep`
+        will have if the scan is tracked: the scan, this pose, the twist it implies. Not
+        where the scan would be steady (:func:`steady`) or the sweep is not aligned.
+        Returns whether it started.
+        """
+        held = not prediction.still
+        if held and steady_correction(alignment.correction, cfg):
+            return False
+        pose = alignment.T_target_source
+        if not np.all(np.isfinite(pose)):
+            return False
+        odometry, raw = redeskew.odometry, redeskew.raw
+        inputs = self.sweep_inputs(raw, odometry.preprocessor, cfg)
+        if inputs is None:
+            return False
+        gaussians, points, times = inputs
+        implied = implied_twist(odometry.motion_model, pose, redeskew.given[3])
+        motion, config = raw.motion, cfg.sweep_alignment
+        return self.ahead.start(
+            raw,
+            gaussians,
+            pose,
+            implied,
+            config,
+            lambda T: align_from_starts(points, times, gaussians, T, motion, implied, config),
+        )
 
     def track(self, predicted: Candidate, cfg: RegistrationConfig) -> Decision:
         """Accept the scan by its refined prediction (no global registration)."""
@@ -541,25 +606,15 @@ class Tracker:
         none was estimated), which the covariance reads (``Decision.sweep_bend_m``).
         """
         motion = raw.motion
-        if (
-            cfg.sweep_alignment.mode == 'off'
-            or cfg.fine.method == 'off'
-            or not isinstance(motion, SweepMotion)  # deskewed by a twist: points and times
-            or self.map.empty
-        ):
+        inputs = self.sweep_inputs(raw, preprocessor, cfg)
+        if inputs is None:
             return raw, pose, '', None, 0.0
-        gaussians = self.map_gaussians()
-        if gaussians is None or len(gaussians) < MIN_SWEEP_MAP_VOXELS:
-            return raw, pose, '', None, 0.0
-        points, times = raw.input_points, np.asarray(raw.point_times, dtype=np.float64)
-        if cfg.moving_objects.matching != 'drop':  # 'drop' took them out before the deskew
-            moving = preprocessor.moving_mask(points, stored(raw, 'labels'))
-            if moving is not None and len(moving) == len(points):
-                points, times = points[~moving], times[~moving]
-        points, times = sweep_subset(points, times, cfg.sweep_alignment.points)
-        result = align_from_starts(
-            points, times, gaussians, pose, motion, implied, cfg.sweep_alignment
-        )
+        gaussians, points, times = inputs
+        result = self.ahead.take(raw, gaussians, pose, implied, cfg.sweep_alignment)
+        if result is None:  # not started ahead for these inputs (sweep_ahead.py)
+            result = align_from_starts(
+                points, times, gaussians, pose, motion, implied, cfg.sweep_alignment
+            )
         finite = np.all(np.isfinite(result.T_target_source)) and np.all(
             np.isfinite(np.concatenate([result.motion.omega, result.motion.velocity]))
         )
@@ -581,3 +636,31 @@ class Tracker:
             return raw, pose, note, None, result.change_m
         kept = (redone, again.alignment.T_target_source, result.summary(motion), result.motion)
         return (*kept, result.change_m)
+
+    def sweep_inputs(
+        self, raw: PreprocessedScan, preprocessor: Preprocessor, cfg: RegistrationConfig
+    ) -> tuple[MapGaussians, np.ndarray, np.ndarray] | None:
+        """
+        Return what the sweep alignment of ``raw`` reads: the map's Gaussians, points, times.
+
+        None when it does not run: off, no fine alignment, a scan not deskewed by a twist
+        (points and times), an empty map or one of fewer than :data:`MIN_SWEEP_MAP_VOXELS`.
+        The points: the moving objects out, ``sweep_alignment.points`` of them.
+        """
+        if (
+            cfg.sweep_alignment.mode == 'off'
+            or cfg.fine.method == 'off'
+            or not isinstance(raw.motion, SweepMotion)  # deskewed by a twist: points and times
+            or self.map.empty
+        ):
+            return None
+        gaussians = self.map_gaussians()
+        if gaussians is None or len(gaussians) < MIN_SWEEP_MAP_VOXELS:
+            return None
+        points, times = raw.input_points, np.asarray(raw.point_times, dtype=np.float64)
+        if cfg.moving_objects.matching != 'drop':  # 'drop' took them out before the deskew
+            moving = preprocessor.moving_mask(points, stored(raw, 'labels'))
+            if moving is not None and len(moving) == len(points):
+                points, times = points[~moving], times[~moving]
+        points, times = sweep_subset(points, times, cfg.sweep_alignment.points)
+        return gaussians, points, times
