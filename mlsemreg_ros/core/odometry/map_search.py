@@ -51,12 +51,17 @@ not touched (the function returns at once).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 import time
 from typing import TYPE_CHECKING
 
 from mlsemreg_ros.core.odometry.local_map import Keyframe
-from mlsemreg_ros.core.odometry.seeded_search import search_seeds, SEED_ALONG_M
+from mlsemreg_ros.core.odometry.seeded_search import (
+    search_seeds,
+    searched,
+    SEED_ALONG_M,
+    seed_grid,
+)
 from mlsemreg_ros.core.odometry.sparse_turn import SPARSE_GAP_S
 import numpy as np
 
@@ -90,14 +95,7 @@ class _MapView:
 
 def map_seeds(T_predicted: np.ndarray) -> list[np.ndarray]:
     """Return the prediction turned by :data:`MAP_YAWS_DEG` and moved by ``SEED_ALONG_M``."""
-    out = []
-    for yaw in np.radians(MAP_YAWS_DEG):
-        for along in SEED_ALONG_M:
-            step = np.eye(4)
-            step[:2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
-            step[0, 3] = along
-            out.append(T_predicted @ step)
-    return out
+    return seed_grid(T_predicted, MAP_YAWS_DEG, [(along, 0.0) for along in SEED_ALONG_M])
 
 
 def map_cloud(odometry: Odometry) -> Keyframe | None:
@@ -168,14 +166,8 @@ def search_local_map(
         )
     finally:
         timings['map_search_ms'] = 1e3 * (time.perf_counter() - tic)
-    if place is None:
-        note = f'map search: {refusal}'
-        return replace(chosen, reason='; '.join(r for r in (chosen.reason, note) if r))
-    note = (
-        f'accepted by the search against the map scans (covisible overlap '
-        f'{place.overlap:.3f} of {place.checked:.2f} checked; {refusal})'
-    )
-    return chosen.rescued(place.candidate, note, cfg.odometry.covariance_scale)
+    name = ('map search', 'the search against the map scans')
+    return searched(chosen, place, refusal, name, cfg.odometry.covariance_scale)
 
 
 def _bar(cfg: RegistrationConfig) -> RegistrationConfig:
