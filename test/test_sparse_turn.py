@@ -29,7 +29,9 @@ from mlsemreg_ros.core.config import RegistrationConfig
 from mlsemreg_ros.core.odometry.narrow_view import View
 from mlsemreg_ros.core.odometry.sparse_turn import (
     MIN_SHARE,
+    refused_moving,
     SPARSE_GAP_S,
+    sparse_view,
     SWEEP_MIN_SHARE,
     sweep_rules,
     turned_floor,
@@ -49,6 +51,19 @@ def test_the_floor_follows_the_view_a_turn_leaves_on_a_sparse_narrow_view() -> N
     assert scaled.max_correction_rotation == odometry.max_correction_rotation
     low = turned_floor(view, odometry, 0.3)  # never below MIN_SHARE of the floor
     assert low.min_inlier_fraction == pytest.approx(MIN_SHARE * floor)
+
+
+def test_only_a_refused_moving_scan_of_a_sparse_narrow_view_is_taken_again() -> None:
+    """The gate of the sparse review steps (sparse_deskew.py, map_search.py)."""
+    sparse = View(span_deg=70.0, scan_gap_s=0.5)
+    refused, moving = SimpleNamespace(accepted=False), SimpleNamespace(still=False)
+    assert sparse_view(sparse) and refused_moving(refused, moving, sparse)
+    assert not sparse_view(View(span_deg=360.0, scan_gap_s=0.5))  # a ring
+    assert not sparse_view(View(span_deg=70.0, scan_gap_s=SPARSE_GAP_S))  # not beyond the gap
+    assert not refused_moving(SimpleNamespace(accepted=True), moving, sparse)
+    assert not refused_moving(refused, None, sparse)  # no prediction
+    assert not refused_moving(refused, SimpleNamespace(still=True), sparse)  # a still start
+    assert not refused_moving(refused, moving, View(span_deg=70.0, scan_gap_s=0.1))
 
 
 def test_the_floor_stays_on_a_ring_a_dense_stream_or_without_a_turn() -> None:

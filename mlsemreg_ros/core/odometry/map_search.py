@@ -62,7 +62,7 @@ from mlsemreg_ros.core.odometry.seeded_search import (
     SEED_ALONG_M,
     seed_grid,
 )
-from mlsemreg_ros.core.odometry.sparse_turn import SPARSE_GAP_S
+from mlsemreg_ros.core.odometry.sparse_turn import refused_moving
 import numpy as np
 
 if TYPE_CHECKING:
@@ -139,11 +139,7 @@ def search_local_map(
     cfg, view = odometry.config, odometry.tracker.trust.view
     registration = getattr(odometry.global_registration, 'registration', None)
     if (
-        chosen.accepted
-        or prediction is None
-        or prediction.still
-        or not view.partial
-        or view.scan_gap_s <= SPARSE_GAP_S
+        not refused_moving(chosen, prediction, view)
         or not cfg.odometry.seeded_search
         or cfg.fine.method == 'off'
         or registration is None

@@ -44,7 +44,7 @@ from typing import Any, TYPE_CHECKING
 
 from mlsemreg_ros.core.features.deskew import SweepMotion
 from mlsemreg_ros.core.odometry.prior_guard import prior_used
-from mlsemreg_ros.core.odometry.sparse_turn import SPARSE_GAP_S
+from mlsemreg_ros.core.odometry.sparse_turn import refused_moving
 from mlsemreg_ros.core.odometry.turn_starts import turn_starts
 import numpy as np
 
@@ -79,11 +79,7 @@ def retry_turn_stopped(
     """
     view = odometry.tracker.trust.view
     if (
-        chosen.accepted
-        or prediction is None
-        or prediction.still
-        or not view.partial
-        or view.scan_gap_s <= SPARSE_GAP_S
+        not refused_moving(chosen, prediction, view)
         or not raw.deskewed
         or not isinstance(raw.motion, SweepMotion)
         or prior_used(odometry.sweep_state()[2], raw.motion)

@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from mlsemreg_ros.core.config import OdometryConfig, RegistrationConfig
+    from mlsemreg_ros.core.odometry.motion_model import Prediction
     from mlsemreg_ros.core.odometry.narrow_view import View
     from mlsemreg_ros.core.odometry.steps import Decision
     import numpy as np
@@ -58,6 +59,27 @@ MIN_SHARE = 0.6
 SWEEP_MIN_SHARE = 0.5
 
 
+def sparse_view(view: View) -> bool:
+    """Whether ``view`` is a narrow view on a sparse stream (a gap over :data:`SPARSE_GAP_S`)."""
+    return view.partial and view.scan_gap_s > SPARSE_GAP_S
+
+
+def refused_moving(chosen: Decision, prediction: Prediction | None, view: View) -> bool:
+    """
+    Whether a sparse narrow view's scan was refused with a motion model's prediction.
+
+    Not accepted, predicted by the motion model (not a still start) and :func:`sparse_view`:
+    the scans the review steps of a sparse narrow view take again (``sparse_deskew.py``,
+    ``map_search.py``).
+    """
+    return (
+        not chosen.accepted
+        and prediction is not None
+        and not prediction.still
+        and sparse_view(view)
+    )
+
+
 def turned_floor(
     view: View, odometry: OdometryConfig, overlap: float, min_share: float = MIN_SHARE
 ) -> OdometryConfig:
@@ -68,7 +90,7 @@ def turned_floor(
     (``narrow_view.View.overlap``), never below ``min_share``; a full ring, a dense stream
     or an overlap of 1 keep ``odometry`` as it is.
     """
-    if not view.partial or view.scan_gap_s <= SPARSE_GAP_S or overlap >= 1.0:
+    if not sparse_view(view) or overlap >= 1.0:
         return odometry
     share = max(float(overlap), min_share)
     return dataclasses.replace(odometry, min_inlier_fraction=odometry.min_inlier_fraction * share)
