@@ -28,7 +28,7 @@ from mlsemreg_ros.core import threads
 from mlsemreg_ros.core.alignment.config import SweepAlignmentConfig
 from mlsemreg_ros.core.features.deskew import SweepMotion
 from mlsemreg_ros.core.odometry import sweep_ahead
-from mlsemreg_ros.core.odometry.sweep_ahead import fingerprint, Memo, SweepAhead
+from mlsemreg_ros.core.odometry.sweep_ahead import fingerprint, Memo, SweepAhead, SweepInputs
 import numpy as np
 import pytest
 
@@ -51,12 +51,16 @@ def test_the_result_is_taken_only_for_the_inputs_it_was_started_with(two_workers
     pose[0, 3] = 0.1
     ahead = SweepAhead()
     started = []
-    assert ahead.start(raw, gaussians, pose, _twist(0.1), config, started.append)
+
+    def ahead_of(T: np.ndarray) -> str:
+        return 'ahead'
+
+    assert ahead.start(SweepInputs(raw, gaussians, pose, _twist(0.1), config), started.append)
     assert ahead.started_for(raw) and not ahead.started_for(SimpleNamespace())
     # the pose is copied when started: a later change of the caller's array is no match
     same = pose.copy()
     pose[0, 3] = 0.2
-    assert ahead.take(raw, gaussians, same, _twist(0.1), config) is None  # append's None
+    assert ahead.take(SweepInputs(raw, gaussians, same, _twist(0.1), config)) is None  # None
     assert np.array_equal(started[0], same)
     assert not ahead.started_for(raw)  # taken once
     for other in (
@@ -67,11 +71,11 @@ def test_the_result_is_taken_only_for_the_inputs_it_was_started_with(two_workers
         (raw, gaussians, same, None, config),
         (raw, gaussians, same, _twist(0.1), SweepAlignmentConfig(points=500)),
     ):
-        assert ahead.start(raw, gaussians, same, _twist(0.1), config, lambda T: 'ahead')
-        assert ahead.take(*other) is None
-    assert ahead.start(raw, gaussians, same, _twist(0.1), config, lambda T: 'ahead')
-    assert ahead.take(raw, gaussians, same.copy(), _twist(0.1), config) == 'ahead'
-    assert ahead.take(raw, gaussians, same, _twist(0.1), config) is None  # nothing left
+        assert ahead.start(SweepInputs(raw, gaussians, same, _twist(0.1), config), ahead_of)
+        assert ahead.take(SweepInputs(*other)) is None
+    assert ahead.start(SweepInputs(raw, gaussians, same, _twist(0.1), config), ahead_of)
+    assert ahead.take(SweepInputs(raw, gaussians, same.copy(), _twist(0.1), config)) == 'ahead'
+    assert ahead.take(SweepInputs(raw, gaussians, same, _twist(0.1), config)) is None  # taken
 
 
 def test_a_failed_start_is_computed_again_by_the_caller(two_workers) -> None:
@@ -79,8 +83,8 @@ def test_a_failed_start_is_computed_again_by_the_caller(two_workers) -> None:
         raise FloatingPointError('diverged')
 
     ahead, raw, gaussians, config = SweepAhead(), object(), object(), SweepAlignmentConfig()
-    assert ahead.start(raw, gaussians, np.eye(4), None, config, fails)
-    assert ahead.take(raw, gaussians, np.eye(4), None, config) is None
+    assert ahead.start(SweepInputs(raw, gaussians, np.eye(4), None, config), fails)
+    assert ahead.take(SweepInputs(raw, gaussians, np.eye(4), None, config)) is None
 
 
 def test_one_worker_starts_nothing() -> None:
@@ -88,7 +92,8 @@ def test_one_worker_starts_nothing() -> None:
     threads.configure(1)
     try:
         ahead = SweepAhead()
-        assert not ahead.start(object(), object(), np.eye(4), None, SweepAlignmentConfig(), id)
+        inputs = SweepInputs(object(), object(), np.eye(4), None, SweepAlignmentConfig())
+        assert not ahead.start(inputs, id)
         assert not ahead.started_for(None)
     finally:
         threads.configure(before)

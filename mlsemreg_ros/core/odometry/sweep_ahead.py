@@ -34,7 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from concurrent.futures import Future
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 import threading
 from typing import Any
 
@@ -50,28 +50,42 @@ _POOL = threads.LazyPool('mlsemreg-sweep-ahead')
 START_TIMEOUT_S = 0.1
 
 
-def same_twist(a: SweepMotion | None, b: SweepMotion | None) -> bool:
-    """Whether two twists are both None or bitwise equal (rate and velocity)."""
-    if a is None or b is None:
-        return a is None and b is None
-    return _same(a.omega, b.omega) and _same(a.velocity, b.velocity)
+@dataclass(frozen=True)
+class SweepInputs:
+    """What a sweep alignment reads: the key a result started ahead is taken by."""
+
+    raw: Any  # the PreprocessedScan whose sweep it aligns
+    gaussians: MapGaussians
+    pose: np.ndarray  # (4, 4)
+    implied: SweepMotion | None
+    config: SweepAlignmentConfig
+
+    def matches(self, other: SweepInputs) -> bool:
+        """Return whether both hold the same scan and Gaussians, equal settings, equal bits."""
+        return (
+            self.raw is other.raw
+            and self.gaussians is other.gaussians
+            and self.config == other.config
+            and _bits(self.pose) == _bits(other.pose)
+            and _twist_bits(self.implied) == _twist_bits(other.implied)
+        )
 
 
-def _same(a: np.ndarray, b: np.ndarray) -> bool:
-    """Whether two float arrays hold the same bits (NaN equal to itself)."""
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    return a.shape == b.shape and a.tobytes() == b.tobytes()
+def _bits(a: np.ndarray) -> Any:
+    """Return the :func:`fingerprint` of ``a`` as float64 (NaN equal to itself)."""
+    return fingerprint(np.asarray(a, dtype=np.float64))
+
+
+def _twist_bits(twist: SweepMotion | None) -> Any:
+    """Return None, or the bits of a twist's rate and velocity."""
+    return None if twist is None else (_bits(twist.omega), _bits(twist.velocity))
 
 
 @dataclass
 class _Started:
     """A sweep alignment started ahead: its inputs and its result to come."""
 
-    raw: Any  # the PreprocessedScan whose sweep it aligns
-    gaussians: MapGaussians
-    pose: np.ndarray  # (4, 4) copied
-    implied: SweepMotion | None
-    config: SweepAlignmentConfig
+    inputs: SweepInputs  # the pose copied
     result: Future[SweepAlignment]
 
 
@@ -81,24 +95,16 @@ class SweepAhead:
     def __init__(self) -> None:
         self._started: _Started | None = None
 
-    def start(
-        self,
-        raw: Any,
-        gaussians: MapGaussians,
-        pose: np.ndarray,
-        implied: SweepMotion | None,
-        config: SweepAlignmentConfig,
-        align: Callable[[np.ndarray], SweepAlignment],
-    ) -> bool:
+    def start(self, inputs: SweepInputs, align: Callable[[np.ndarray], SweepAlignment]) -> bool:
         """
-        Run ``align(pose)`` on the pool; :meth:`take` returns it for the same inputs.
+        Run ``align(inputs.pose)`` on the pool; :meth:`take` returns it for the same inputs.
 
-        ``align``: the sweep alignment of ``raw`` against ``gaussians`` from ``pose`` with
-        the second start ``implied`` and ``config`` (the caller binds them). Returns whether
-        it started (never with one worker).
+        ``align``: the sweep alignment of ``inputs.raw`` against ``inputs.gaussians`` from a
+        pose with the second start ``inputs.implied`` and ``inputs.config`` (the caller binds
+        them). Returns whether it started (never with one worker).
         """
         self.drop()
-        pose = np.array(pose, dtype=np.float64, copy=True)
+        pose = np.array(inputs.pose, dtype=np.float64, copy=True)
         running = threading.Event()
 
         def run() -> SweepAlignment:
@@ -108,7 +114,7 @@ class SweepAhead:
         future = _POOL.submit(run)
         if future is None:
             return False
-        self._started = _Started(raw, gaussians, pose, implied, config, future)
+        self._started = _Started(replace(inputs, pose=pose), future)
         # Hand the GIL over until the thread runs: else it waits for it while this thread
         # goes on in Python, up to the interpreter's switch interval (5 ms), and starts the
         # compiled loop only once the caller waits for its result (no overlap at all). It
@@ -117,14 +123,7 @@ class SweepAhead:
         running.wait(START_TIMEOUT_S)  # bounded: the result is waited for when taken anyway
         return True
 
-    def take(
-        self,
-        raw: Any,
-        gaussians: MapGaussians,
-        pose: np.ndarray,
-        implied: SweepMotion | None,
-        config: SweepAlignmentConfig,
-    ) -> SweepAlignment | None:
+    def take(self, inputs: SweepInputs) -> SweepAlignment | None:
         """
         Return the result started for these inputs (None: none was, or for others).
 
@@ -138,19 +137,11 @@ class SweepAhead:
             result = started.result.result()
         except Exception:  # the caller's own call raises it again
             return None
-        if (
-            started.raw is raw
-            and started.gaussians is gaussians
-            and started.config == config
-            and _same(started.pose, pose)
-            and same_twist(started.implied, implied)
-        ):
-            return result
-        return None
+        return result if started.inputs.matches(inputs) else None
 
     def started_for(self, raw: Any) -> bool:
         """Whether a sweep alignment of ``raw`` was started and not taken yet."""
-        return self._started is not None and self._started.raw is raw
+        return self._started is not None and self._started.inputs.raw is raw
 
     def drop(self) -> None:
         """Forget a result started ahead (waits for its thread: it reads the map's Gaussians)."""

@@ -62,7 +62,7 @@ from mlsemreg_ros.core.odometry.start_twist import (
     start_twist_verdict,
 )
 from mlsemreg_ros.core.odometry.steps import Decision
-from mlsemreg_ros.core.odometry.sweep_ahead import SweepAhead
+from mlsemreg_ros.core.odometry.sweep_ahead import SweepAhead, SweepInputs
 from mlsemreg_ros.core.odometry.sweep_starts import align_from_starts, implied_twist
 from mlsemreg_ros.core.odometry.swept_dispute import swept_refusal
 from mlsemreg_ros.core.odometry.trust import Candidate, InlierHistory, Trust
@@ -378,11 +378,7 @@ class Tracker:
         implied = implied_twist(odometry.motion_model, pose, redeskew.given[3])
         motion, config = raw.motion, cfg.sweep_alignment
         return self.ahead.start(
-            raw,
-            gaussians,
-            pose,
-            implied,
-            config,
+            SweepInputs(raw, gaussians, pose, implied, config),
             lambda T: align_from_starts(points, times, gaussians, T, motion, implied, config),
         )
 
@@ -610,7 +606,7 @@ class Tracker:
         if inputs is None:
             return raw, pose, '', None, 0.0
         gaussians, points, times = inputs
-        result = self.ahead.take(raw, gaussians, pose, implied, cfg.sweep_alignment)
+        result = self.ahead.take(SweepInputs(raw, gaussians, pose, implied, cfg.sweep_alignment))
         if result is None:  # not started ahead for these inputs (sweep_ahead.py)
             result = align_from_starts(
                 points, times, gaussians, pose, motion, implied, cfg.sweep_alignment
