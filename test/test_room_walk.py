@@ -54,6 +54,18 @@ def _room() -> np.ndarray:
     return np.vstack(faces) - np.array([0.0, 0.0, 1.0])
 
 
+def _read_walk(path: Path) -> list:
+    """Return the walk's scans as the bag reader gives them (it warns: no label field)."""
+    from mlsemreg_ros.datasets.bag import BagScanReader
+
+    reader = BagScanReader(path)
+    try:
+        with pytest.warns(UserWarning, match='unlabeled'):
+            return list(reader.scans())
+    finally:
+        reader.close()
+
+
 def test_the_walk_stays_in_the_room_at_walking_speed_and_turn_rate() -> None:
     """A figure of eight within the radius, 0.47-1 x the peak speed, turning at the set rate."""
     walk = RoomWalk(frames=60, radius_m=1.5, peak_speed=1.2, yaw_rate_deg=60.0, seed=4)
@@ -93,20 +105,13 @@ def test_the_bag_holds_the_sweeps_their_times_and_the_truth_from_the_first_sweep
     tmp_path: Path,
 ) -> None:
     """The bag reads back as 12 unlabeled sweeps with times and T_world_sensor of the walk."""
-    from mlsemreg_ros.datasets.bag import BagScanReader
-
     room = _room()
     walk = RoomWalk(frames=12, seed=2)
     written = write_room_walk(tmp_path / 'walk', room, walk)
     assert written.frames == 12 and written.farthest_m <= walk.radius_m
     poses = WalkTrajectory(walk).poses(np.arange(12) / walk.rate_hz)
     expected = np.linalg.inv(poses[0]) @ poses
-    reader = BagScanReader(tmp_path / 'walk')
-    try:
-        with pytest.warns(UserWarning, match='unlabeled'):
-            scans = list(reader.scans())
-    finally:
-        reader.close()
+    scans = _read_walk(tmp_path / 'walk')
     assert len(scans) == 12
     for scan, pose in zip(scans, expected, strict=True):
         assert scan.labels is None and len(scan) == round(0.7 * len(room))
@@ -170,15 +175,9 @@ def test_the_odometry_tracks_a_walk_through_the_hand_made_room(tmp_path: Path) -
     from mlsemreg_ros.core.config import RegistrationConfig
     from mlsemreg_ros.core.metrics import rotation_error_deg, translation_error_m
     from mlsemreg_ros.core.odometry import Odometry
-    from mlsemreg_ros.datasets.bag import BagScanReader
 
     write_room_walk(tmp_path / 'walk', _room(), RoomWalk(frames=12, seed=0))
-    reader = BagScanReader(tmp_path / 'walk')
-    try:
-        with pytest.warns(UserWarning, match='unlabeled'):
-            scans = list(reader.scans())
-    finally:
-        reader.close()
+    scans = _read_walk(tmp_path / 'walk')
     odometry = Odometry(config=RegistrationConfig())
     for scan in scans:
         step = odometry.process(scan.xyz, None, scan.stamp_ns, point_times=scan.point_times)
